@@ -1,0 +1,62 @@
+"""The in-memory capture: one voltage → displacement measurement, validated and trimmed."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Capture:
+    """One validated capture.
+
+    Attributes
+    ----------
+    source : file path (as given) plus, for multi-capture files, nothing else; used in messages.
+    t : (N,) time in seconds, starting at 0 after the idle trim, uniformly sampled.
+    u : (N,) input voltage in volts.
+    y : (N,) measured output in ``y_unit`` (None for a target-only/input-only file).
+    y_unit : output unit: ``"um"`` (default when the column has no suffix), ``"nm"``, ``"mm"``, ``"m"``.
+    dt : sample period in seconds.
+    trimmed_s : length of the leading idle segment that was removed (s), 0 when none.
+    trimmed_samples : number of samples removed at the start.
+    amplitude_V, frequency_Hz : the operating condition (tidy values, see :mod:`hystfit.conditions`).
+    condition_source : ``"detected"``, ``"column"`` or ``"option"``.
+    notes : human-readable remarks made while loading (trim, dropped rows, assumed unit, ...).
+    """
+
+    source: str
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray | None
+    dt: float
+    y_unit: str = "um"
+    trimmed_s: float = 0.0
+    trimmed_samples: int = 0
+    amplitude_V: float = float("nan")
+    frequency_Hz: float = float("nan")
+    condition_source: str = "detected"
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def n(self) -> int:
+        return int(self.u.shape[0])
+
+    @property
+    def fs(self) -> float:
+        return 1.0 / self.dt
+
+    @property
+    def duration_s(self) -> float:
+        return self.n * self.dt
+
+    @property
+    def condition(self) -> tuple[float, float]:
+        return (self.amplitude_V, self.frequency_Hz)
+
+    @property
+    def name(self) -> str:
+        from pathlib import Path
+
+        return Path(self.source).name

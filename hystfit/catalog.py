@@ -1,0 +1,41 @@
+"""Descriptions of the registered models and optimizers (for ``hystfit models``/``optimizers`` and docs)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from .params import DataScale
+from .registry import models, optimizers
+
+#: the reference data scale used to show default bounds: 0–100 V → 0–30 µm at 10 kHz
+REFERENCE_SCALE = DataScale(u_min=0.0, u_max=100.0, y_min=0.0, y_max=30.0, dt=1e-4, rate_max=1e5)
+
+
+def model_catalog() -> list[dict]:
+    out = []
+    for name in models.names():
+        cls = models.get(name)
+        m = cls().adapt(REFERENCE_SCALE)
+        params = [{"name": p.name, "unit": p.unit.replace("out", "um"), "lower": p.lower, "upper": p.upper,
+                   "default": p.default, "description": p.description} for p in m.params(REFERENCE_SCALE)]
+        structure = {f.name: f.default for f in dataclasses.fields(cls)}
+        out.append({"name": name, "title": cls.title, "reference": cls.reference, "equation": cls.equation,
+                    "rate_dependent": cls.rate_dependent, "has_inverse": _has_inverse(cls), "structure": structure, "parameters": params,
+                    "doc": (cls.__doc__ or "").strip().splitlines()[0]})
+    return out
+
+
+def _has_inverse(cls) -> bool:
+    from .models.base import Model
+
+    return cls.invert is not Model.invert
+
+
+def optimizer_catalog() -> list[dict]:
+    out = []
+    for name in optimizers.names():
+        cls = optimizers.get(name)
+        settings = {f.name: f.default for f in dataclasses.fields(cls)}
+        out.append({"name": name, "title": cls.title, "reference": cls.reference, "settings": settings,
+                    "doc": (cls.__doc__ or "").strip().splitlines()[0]})
+    return out

@@ -1,0 +1,104 @@
+"""Options and helpers shared by several commands (parsing and printing only)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated, Iterator, Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ..errors import ConfigError
+
+stderr = Console(stderr=True)
+stdout = Console()
+
+DataArg = Annotated[list[Path], typer.Argument(help="Capture files (CSV/TXT/Parquet) or directories of them.",
+                                               show_default=False)]
+TimeCol = Annotated[Optional[str], typer.Option("--time-col", help="Time column: name or 0-based index.")]
+InputCol = Annotated[Optional[str], typer.Option("--input-col", help="Input (voltage) column: name or 0-based index.")]
+OutputCol = Annotated[Optional[str], typer.Option("--output-col", help="Output (displacement) column: name or 0-based index.")]
+NoHeader = Annotated[bool, typer.Option("--no-header", help="The files have no header row.")]
+Fs = Annotated[Optional[float], typer.Option("--fs", help="Sample rate in Hz when there is no time column.")]
+DropNonfinite = Annotated[bool, typer.Option("--drop-nonfinite", help="Drop rows with NaN/inf instead of refusing the file.")]
+Condition = Annotated[Optional[str], typer.Option("--condition", help="Force the operating condition 'AMPLITUDE_V,FREQUENCY_HZ'.")]
+OutputUnit = Annotated[Optional[str], typer.Option("--output-unit", help="Output unit when the column name has no suffix: nm, um, mm, m.")]
+Recursive = Annotated[bool, typer.Option("--recursive", "-r", help="Expand directories recursively.")]
+
+
+def parse_col(value: Optional[str]) -> str | int | None:
+    if value is None:
+        return None
+    v = value.strip()
+    return int(v) if v.isdigit() else v
+
+
+def parse_condition(value: Optional[str]) -> tuple[float, float] | None:
+    if value is None:
+        return None
+    try:
+        a, f = (float(x) for x in value.split(","))
+    except ValueError:
+        raise ConfigError(f"--condition {value!r}: expected AMPLITUDE_V,FREQUENCY_HZ, e.g. 40,10") from None
+    if not (a > 0 and f > 0):
+        raise ConfigError(f"--condition {value!r}: amplitude and frequency must be positive")
+    return (a, f)
+
+
+def load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
+                 require_output: bool = True):
+    from ..io import LoadOptions
+
+    if fs is not None and not fs > 0:
+        raise ConfigError(f"--fs {fs:g}: the sample rate must be positive (Hz)")
+    if output_unit is not None and output_unit not in ("nm", "um", "mm", "m"):
+        raise ConfigError(f"--output-unit {output_unit!r}: choose one of nm, um, mm, m")
+    return LoadOptions(time_col=parse_col(time_col), input_col=parse_col(input_col), output_col=parse_col(output_col),
+                       no_header=no_header, fs=fs, drop_nonfinite=drop_nonfinite,
+                       condition=parse_condition(condition), output_unit=output_unit, require_output=require_output)
+
+
+def parse_key_values(items: list[str], what: str) -> dict[str, object]:
+    """Parse ``["n_operators=12", "placement=quadratic"]`` with JSON-ish values."""
+    out: dict[str, object] = {}
+    for item in items:
+        key, sep, val = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"{what} {item!r}: expected KEY=VALUE")
+        try:
+            out[key.strip()] = json.loads(val)
+        except json.JSONDecodeError:
+            out[key.strip()] = val
+    return out
+
+
+@contextmanager
+def progress_bar(enabled: bool, description: str) -> Iterator:
+    """A rich progress bar on stderr; yields a ``progress(event, info)`` callback for the library."""
+    if not enabled:
+        yield None
+        return
+    prog = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    TextColumn("{task.fields[last]}"), console=stderr, transient=True)
+    task = None
+
+    def callback(event: str, info: dict) -> None:
+        nonlocal task
+        if event == "start":
+            task = prog.add_task(description, total=info.get("total"), last="")
+        elif event == "advance" and task is not None:
+            last = info.get("label") or ""
+            prog.update(task, advance=1, last=str(last))
+        elif event == "note":
+            prog.console.print(info.get("text", ""))
+
+    with prog:
+        yield callback
+
+
+def print_json(data: dict) -> None:
+    sys.stdout.write(json.dumps(data, indent=2, allow_nan=False) + "\n")

@@ -1,0 +1,68 @@
+"""``hystfit simulate``: predictions of an identified model on other captures, with metrics where measured."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from .app import app, guarded
+from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
+                     TimeCol, load_options, print_json, stdout)
+
+
+@app.command()
+@guarded
+def simulate(
+    params: Annotated[Path, typer.Argument(help="params.json written by 'hystfit identify'.", show_default=False)],
+    data: DataArg,
+    out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("hystfit-sim"),
+    method: Annotated[str, typer.Option("--method", help="Table cell choice: nearest or interpolate (bilinear blend).")] = "nearest",
+    fmt: Annotated[str, typer.Option("--format", help="Prediction file format: csv or parquet.")] = "csv",
+    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Write loop and time-series figures.")] = True,
+    json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary table.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
+    fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
+    recursive: Recursive = False,
+) -> None:
+    """Predict the output of captures with the identified look-up table (out-of-sample validation).
+
+    Writes per capture OUT/<name>_prediction.csv (time_s, voltage_V, predicted, measured, residual),
+    OUT/<name>_metrics.json where the capture has a measured output, plots, and OUT/report.md.
+    """
+    from ..errors import ConfigError
+    from ..io import load_captures, staged_output_dir
+    from ..report.simulate_report import write_simulate_outputs
+    from ..predict import predict_capture
+    from ..results import load_params
+
+    if method not in ("nearest", "interpolate"):
+        raise ConfigError(f"--method {method!r}: choose nearest or interpolate")
+    if fmt not in ("csv", "parquet"):
+        raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
+    pf = load_params(params)
+    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
+                           require_output=False)
+    with staged_output_dir(out, force) as stage:
+        captures = load_captures(data, options, recursive=recursive)
+        preds = [predict_capture(pf, c, method) for c in captures]
+        summary = write_simulate_outputs(pf, preds, stage, fmt=fmt, make_plots=plots)
+    if json_out:
+        print_json({"out": str(out), "params": str(params), "captures": summary})
+        return
+    if quiet:
+        return
+    u = pf.unit
+    t = Table(title=f"{pf.model_name}: predictions written to {out}")
+    for col in ("capture", "cells", f"rmse_{u}", "r2", f"max_error_{u}"):
+        t.add_column(col, justify="right")
+    for s in summary:
+        m = s.get("metrics") or {}
+        t.add_row(s["capture"], ", ".join(f"{lab}×{w:.2f}" for lab, w in s["cells"]),
+                  f"{m.get(f'rmse_{u}', float('nan')):.4g}", f"{m.get('r2', float('nan')):.5f}",
+                  f"{m.get(f'max_error_{u}', float('nan')):.4g}")
+    stdout.print(t)

@@ -1,0 +1,253 @@
+"""Operating conditions of captures and the look-up table over them.
+
+An operating condition is the pair ``(amplitude_V, frequency_Hz)``: the peak-to-peak input
+voltage (V) and the fundamental frequency of the drive (Hz), both rounded to tidy values so
+that captures of the same nominal test share one key. A hysteresis model is identified per
+condition; :class:`LookupTable` then finds the cell (or the bilinear blend of cells) for a
+new condition.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from .capture import Capture
+from .errors import ConfigError
+
+ConditionKey = tuple[float, float]
+
+#: Zero-padding factor of the FFT used to locate the input's fundamental.
+_PAD = 4
+#: Upper bound on the padded FFT length (samples); long captures are padded less.
+_MAX_NFFT = 1 << 22
+#: Relative tolerance under which a query coordinate counts as lying on a grid line.
+_GRID_RTOL = 1e-9
+
+
+def tidy(x: float, sig: int = 2) -> float:
+    """Round ``x`` to ``sig`` significant digits (a "tidy" nominal value).
+
+    Parameters
+    ----------
+    x : value to round (any unit; used for volts and hertz).
+    sig : number of significant digits kept, >= 1.
+
+    Returns
+    -------
+    float
+        e.g. 297.8 → 300.0, 39.7 → 40.0, 10.04 → 10.0, 0.4987 → 0.5; 0 → 0; non-finite values
+        are returned unchanged. Idempotent, and within 5 % of ``x`` for ``sig=2``.
+    """
+    x = float(x)
+    if x == 0.0 or not math.isfinite(x):
+        return x
+    return float(f"{x:.{int(sig)}g}")
+
+
+def _fundamental_Hz(u: np.ndarray, dt: float) -> float:
+    """Frequency (Hz) of the largest non-DC spectral peak of ``u`` sampled every ``dt`` s.
+
+    Mean removed, Hann window, zero-padded FFT, then parabolic interpolation of the log
+    magnitude around the peak bin. Bins below one unpadded bin (the DC lobe) are ignored.
+    """
+    x = np.asarray(u, dtype=np.float64)
+    n = x.size
+    x = (x - x.mean()) * np.hanning(n)
+    nfft = 1 << max(int(math.ceil(math.log2(n * _PAD))), 1)
+    nfft = max(min(nfft, _MAX_NFFT), n)
+    mag = np.abs(np.fft.rfft(x, nfft))
+    first = max(1, int(math.ceil(nfft / n)))
+    if first >= mag.size - 1:
+        return 1.0 / (n * dt)
+    k = first + int(np.argmax(mag[first:]))
+    delta = 0.0
+    if first < k < mag.size - 1:
+        a, b, c = np.log(np.maximum(mag[k - 1:k + 2], 1e-300))
+        den = a - 2.0 * b + c
+        if den < 0.0:
+            delta = float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+    return (k + delta) / (nfft * dt)
+
+
+def _sine_fit_residual(x: np.ndarray, tdt: np.ndarray, f: float) -> float:
+    """Residual sum of squares of the least-squares fit ``c0 + c1 cos 2πft + c2 sin 2πft`` to ``x``."""
+    w = 2.0 * np.pi * f * tdt
+    basis = np.column_stack([np.ones_like(w), np.cos(w), np.sin(w)])
+    _, res, rank, _ = np.linalg.lstsq(basis, x, rcond=None)
+    if rank < 3 or res.size == 0:
+        return float(np.sum((x - basis @ np.linalg.lstsq(basis, x, rcond=None)[0]) ** 2))
+    return float(res[0])
+
+
+def _refine_Hz(u: np.ndarray, dt: float, f0: float) -> float:
+    """Refine the FFT estimate ``f0`` (Hz) by the best single-sine least-squares fit within ±25 %.
+
+    Exact for sines and raised cosines even over 1–2 cycles, where the windowed FFT is biased.
+    Long inputs are decimated (stride) to at most ~50 000 samples when that keeps ≥ 8 samples
+    per period of ``f0``.
+    """
+    from scipy.optimize import minimize_scalar
+
+    stride = max(1, int(math.ceil(u.size / 50_000)))
+    while stride > 1 and f0 * dt * stride > 1.0 / 8:
+        stride //= 2
+    x = np.asarray(u[::stride], dtype=np.float64)
+    tdt = np.arange(x.size, dtype=np.float64) * (dt * stride)
+    res = minimize_scalar(lambda f: _sine_fit_residual(x, tdt, f), bounds=(0.75 * f0, 1.25 * f0),
+                          method="bounded", options={"xatol": 1e-6 * f0})
+    if res.success and res.fun <= _sine_fit_residual(x, tdt, f0):
+        return float(res.x)
+    return f0
+
+
+def detect_condition(u: np.ndarray, dt: float) -> ConditionKey:
+    """Detect the operating condition of an input signal.
+
+    Parameters
+    ----------
+    u : (N,) input voltage (V), N >= 4, not constant.
+    dt : sample period (s), > 0.
+
+    Returns
+    -------
+    (amplitude_V, frequency_Hz)
+        ``tidy(max(u) - min(u))`` (peak-to-peak, V) and ``tidy`` of the dominant frequency (Hz)
+        of the mean-removed input. For sines, raised cosines 0 → A → 0 and triangles this is the
+        drive frequency; for a broadband input it is just the highest spectral peak.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    if u.ndim != 1 or u.size < 4:
+        raise ConfigError(f"detect_condition needs a 1-D input of at least 4 samples, got shape {u.shape}")
+    if not (dt > 0 and math.isfinite(dt)):
+        raise ConfigError(f"detect_condition: the sample period must be positive, got {dt!r} s")
+    amplitude = tidy(float(u.max() - u.min()))
+    f0 = _fundamental_Hz(u, dt)
+    return amplitude, tidy(_refine_Hz(u, dt, f0))
+
+
+def count_cycles(u: np.ndarray, dt: float, frequency_Hz: float) -> float:
+    """Number of input cycles in a capture: duration ``len(u)·dt`` (s) times ``frequency_Hz`` (Hz)."""
+    return float(np.asarray(u).shape[0] * dt * frequency_Hz)
+
+
+def group_by_condition(captures: Sequence[Capture]) -> dict[ConditionKey, list[Capture]]:
+    """Pool captures per condition key ``(amplitude_V, frequency_Hz)``.
+
+    Returns a dict ordered by amplitude then frequency; within a key the captures keep their
+    input order.
+    """
+    groups: dict[ConditionKey, list[Capture]] = {}
+    for c in captures:
+        groups.setdefault((float(c.amplitude_V), float(c.frequency_Hz)), []).append(c)
+    return {k: groups[k] for k in sorted(groups)}
+
+
+def _fmt(x: float) -> str:
+    """Shortest plain decimal text of ``x``: 300.0 → "300", 1.5 → "1.5", 0.25 → "0.25"."""
+    x = float(x)
+    if not math.isfinite(x):
+        return str(x)
+    return np.format_float_positional(float(f"{x:.12g}"), trim="-")
+
+
+def condition_label(key: ConditionKey) -> str:
+    """Label of a condition key, e.g. ``(40, 10)`` → ``"40V_10Hz"``, ``(300, 1.5)`` → ``"300V_1.5Hz"``."""
+    a, f = key
+    return f"{_fmt(a)}V_{_fmt(f)}Hz"
+
+
+class LookupTable:
+    """Per-condition items (e.g. fitted parameter vectors) keyed by ``(amplitude_V, frequency_Hz)``.
+
+    Distances and interpolation use the normalized coordinates ``(log10(frequency_Hz),
+    amplitude_V / Amax)``, where ``Amax`` is the largest amplitude in the table: one decade of
+    frequency weighs as much as the full amplitude range.
+
+    Parameters
+    ----------
+    keys : condition keys (V, Hz); frequencies must be positive, keys unique.
+    values : one array per key.
+    """
+
+    def __init__(self, keys: Sequence[ConditionKey], values: Sequence[np.ndarray]):
+        if len(keys) != len(values):
+            raise ConfigError(f"LookupTable: {len(keys)} keys but {len(values)} values")
+        if not keys:
+            raise ConfigError("LookupTable: the table is empty; identify at least one condition")
+        self.keys: list[ConditionKey] = [(float(a), float(f)) for a, f in keys]
+        self.values: list[np.ndarray] = [np.asarray(v) for v in values]
+        for a, f in self.keys:
+            if not (math.isfinite(a) and math.isfinite(f) and f > 0):
+                raise ConfigError(f"LookupTable: key ({a:g} V, {f:g} Hz) needs a finite amplitude and a positive frequency")
+        if len(set(self.keys)) != len(self.keys):
+            raise ConfigError("LookupTable: duplicate condition keys")
+        amax = max(abs(a) for a, _ in self.keys)
+        self._amax = amax if amax > 0 else 1.0
+        self._index = {k: i for i, k in enumerate(self.keys)}
+        self._amps = sorted({a for a, _ in self.keys})
+        self._freqs = sorted({f for _, f in self.keys})
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def _coords(self, key: ConditionKey) -> tuple[float, float]:
+        a, f = float(key[0]), float(key[1])
+        if not (math.isfinite(a) and math.isfinite(f) and f > 0):
+            raise ConfigError(f"condition ({a:g} V, {f:g} Hz): needs a finite amplitude and a positive frequency")
+        return math.log10(f), a / self._amax
+
+    def nearest(self, key: ConditionKey) -> tuple[ConditionKey, np.ndarray]:
+        """The table's closest key to ``key`` (V, Hz) and its value; ties go to the first key."""
+        x, y = self._coords(key)
+        d = [math.hypot(x - math.log10(f), y - a / self._amax) for a, f in self.keys]
+        i = int(np.argmin(d))
+        return self.keys[i], self.values[i]
+
+    def interpolate(self, key: ConditionKey) -> tuple[np.ndarray, list[tuple[ConditionKey, float]]]:
+        """Bilinear blend of the grid cell around ``key`` (V, Hz).
+
+        Linear in amplitude and in log10(frequency). A key on a grid line blends the two cells
+        of that edge; an exact hit returns that cell with weight 1. When the key lies outside
+        the grid or a needed corner is missing, falls back to :meth:`nearest` (weight 1).
+
+        Returns
+        -------
+        (value, used)
+            The weighted sum of the used cells' values and the list of ``(cell key, weight)``
+            with weights > 0 summing to 1.
+        """
+        self._coords(key)
+        a_br = _bracket(self._amps, float(key[0]), lambda v: v)
+        f_br = _bracket(self._freqs, float(key[1]), math.log10)
+        if a_br is None or f_br is None:
+            return self._fallback(key)
+        used = [((a, f), wa * wf) for a, wa in a_br for f, wf in f_br if wa * wf > 0]
+        if any(k not in self._index for k, _ in used):
+            return self._fallback(key)
+        vals = [self.values[self._index[k]] for k, _ in used]
+        if len({v.shape for v in vals}) > 1:
+            raise ConfigError("LookupTable.interpolate: the surrounding cells have values of different shapes; use nearest")
+        total = sum(w * np.asarray(v, dtype=np.float64) for (_, w), v in zip(used, vals))
+        return np.asarray(total), used
+
+    def _fallback(self, key: ConditionKey) -> tuple[np.ndarray, list[tuple[ConditionKey, float]]]:
+        k, v = self.nearest(key)
+        return v, [(k, 1.0)]
+
+
+def _bracket(grid: list[float], x: float, transform) -> list[tuple[float, float]] | None:
+    """Grid values around ``x`` with linear weights in ``transform`` space, or None if outside.
+
+    A value equal to a grid value (relative tolerance 1e-9) gives ``[(value, 1.0)]``.
+    """
+    for g in grid:
+        if abs(g - x) <= _GRID_RTOL * max(abs(g), abs(x), 1e-300):
+            return [(g, 1.0)]
+    for lo, hi in zip(grid, grid[1:]):
+        if lo < x < hi:
+            w = (transform(x) - transform(lo)) / (transform(hi) - transform(lo))
+            return [(lo, 1.0 - w), (hi, w)]
+    return None

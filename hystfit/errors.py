@@ -1,0 +1,27 @@
+"""Exceptions raised by hystfit.
+
+Every error a user can cause (bad file, bad column, bad option) is a :class:`HystfitError`.
+The CLI's single error boundary (``hystfit.cli.main``) prints ``str(error)`` as one line on
+stderr and exits with ``error.exit_code`` (2), never a traceback. Messages name the file,
+the row or column, the rule that was broken and what to do about it.
+"""
+
+from __future__ import annotations
+
+
+class HystfitError(Exception):
+    """Base class of every error hystfit reports to a user (exit code 2)."""
+
+    exit_code = 2
+
+
+class InputError(HystfitError, ValueError):
+    """A capture file cannot be used: missing, unreadable, malformed or unsuitable data."""
+
+
+class ConfigError(HystfitError, ValueError):
+    """An option, parameter bound, model or optimizer name is invalid."""
+
+
+class OutputError(HystfitError, OSError):
+    """An output location cannot be written (exists and is not empty, no permission, ...)."""

@@ -1,0 +1,229 @@
+"""Identification orchestration: captures → per-condition (or global) fits → results.
+
+No numerics of its own: the model simulates, the objective scores, the optimizer searches,
+:mod:`hystfit.metrics` measures. This module decides *what* is fitted to *which* captures,
+derives every run's seed, keeps the best run and reports the spread.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Optional, Sequence
+
+import numpy as np
+
+from .capture import Capture
+from .conditions import condition_label, group_by_condition
+from .errors import InputError
+from .metrics import compute_metrics, compute_metrics_pooled
+from .models.base import Model
+from .objective import Objective, Series
+from .optimizers.base import OptimizeResult, Optimizer
+from .optimizers.lsq import LSQ
+from .params import DataScale, Param, apply_bound_overrides
+
+#: progress(event, info) — events: "start" (total units), "advance" (one run done), "note" (text).
+Progress = Optional[Callable[[str, dict], None]]
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """One independent optimizer run (optionally polished)."""
+
+    run: int
+    seed: int
+    result: OptimizeResult
+    polish: OptimizeResult | None
+    x: np.ndarray
+    fun: float
+    rmse: float
+    wall_time_s: float
+
+    @property
+    def nfev(self) -> int:
+        return self.result.nfev + (self.polish.nfev if self.polish is not None else 0)
+
+
+@dataclass(frozen=True)
+class ConditionFit:
+    """The identified parameters of one condition (a look-up-table cell) or of the global fit."""
+
+    amplitude_V: float
+    frequency_Hz: float
+    label: str
+    captures: tuple[Capture, ...]
+    model: Model
+    scale: DataScale
+    params: tuple[Param, ...]
+    theta: np.ndarray
+    stderr: np.ndarray
+    metrics: dict[str, float]
+    per_capture: tuple[dict, ...]
+    predictions: tuple[np.ndarray, ...]
+    runs: tuple[RunRecord, ...]
+    best_run: int
+    runtime_s: float
+    unit: str
+
+    @property
+    def evaluations(self) -> int:
+        return int(sum(r.nfev for r in self.runs))
+
+    @property
+    def best(self) -> RunRecord:
+        return self.runs[self.best_run]
+
+    def spread(self) -> dict[str, float]:
+        funs = np.array([r.fun for r in self.runs])
+        rmses = np.array([r.rmse for r in self.runs])
+        times = np.array([r.wall_time_s for r in self.runs])
+        u = self.unit
+        return {
+            "runs": len(self.runs),
+            "fun_min": float(funs.min()), "fun_max": float(funs.max()),
+            "fun_mean": float(funs.mean()), "fun_std": float(funs.std(ddof=1)) if len(funs) > 1 else 0.0,
+            f"rmse_min_{u}": float(rmses.min()), f"rmse_max_{u}": float(rmses.max()),
+            f"rmse_mean_{u}": float(rmses.mean()),
+            f"rmse_std_{u}": float(rmses.std(ddof=1)) if len(rmses) > 1 else 0.0,
+            "time_median_s": float(np.median(times)),
+        }
+
+
+@dataclass(frozen=True)
+class IdentifyResult:
+    model_name: str
+    optimizer_name: str
+    optimizer_settings: dict
+    seed: int
+    runs: int
+    polish: bool
+    mode: str  # "per-condition" or "global"
+    unit: str
+    fits: tuple[ConditionFit, ...]
+    bounds_overrides: dict = field(default_factory=dict)
+    model_options: dict = field(default_factory=dict)
+
+
+def run_seed(seed: int, cell: int, run: int) -> int:
+    """Derived seed of run ``run`` of cell ``cell``: reproducible and independent across runs."""
+    return int(np.random.SeedSequence([int(seed), int(cell), int(run)]).generate_state(1, dtype=np.uint32)[0])
+
+
+def _output_unit(captures: Sequence[Capture]) -> str:
+    units = {c.y_unit for c in captures}
+    if len(units) > 1:
+        detail = ", ".join(f"{c.name}: {c.y_unit}" for c in captures)
+        raise InputError(f"captures have different output units ({detail}); convert them to one unit before fitting together")
+    return units.pop()
+
+
+def unit_param(p: Param, unit: str) -> str:
+    return p.unit.replace("out", unit)
+
+
+def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int, cell: int = 0,
+                 runs: int = 1, polish: bool = True, bounds: Mapping[str, tuple[float, float]] | None = None,
+                 progress: Progress = None, label: str | None = None,
+                 condition: tuple[float, float] | None = None) -> ConditionFit:
+    """Fit one parameter set to the pooled ``captures``: ``runs`` seeded runs, best kept."""
+    for c in captures:
+        if c.y is None:
+            raise InputError(f"{c.source}: no measured output column; identification needs one (see --output-col)")
+    unit = _output_unit(captures)
+    scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
+    model = model.adapt(scale)
+    params = apply_bound_overrides(model.params(scale), bounds or {})
+    lower = np.array([p.lower for p in params])
+    upper = np.array([p.upper for p in params])
+    objective = Objective(model, [Series(c.u, c.y, c.dt) for c in captures])
+    t0 = time.perf_counter()
+    records = []
+    for r in range(runs):
+        s = run_seed(seed, cell, r)
+        rng = np.random.default_rng(s)
+        t_run = time.perf_counter()
+        x0 = np.array([p.default for p in params]) if not optimizer.population_based else None
+        res = optimizer.minimize(objective, lower, upper, rng=rng, x0=x0)
+        pol = None
+        x, fun = res.x, res.fun
+        if polish and optimizer.name not in ("lsq", "auto") and np.isfinite(fun):
+            pol = LSQ().minimize(objective, lower, upper, rng=rng, x0=res.x)
+            if pol.fun <= fun:
+                x, fun = pol.x, pol.fun
+        records.append(RunRecord(r, s, res, pol, np.asarray(x, float), float(fun), float(np.sqrt(fun)),
+                                 time.perf_counter() - t_run))
+        if progress:
+            progress("advance", {"label": label, "run": r, "rmse": float(np.sqrt(fun))})
+    best = int(np.argmin([rec.fun for rec in records]))
+    theta = records[best].x
+    preds = objective.predict(theta)
+    metrics = compute_metrics_pooled([(c.y, p) for c, p in zip(captures, preds)], unit)
+    per = tuple({"source": c.source, **compute_metrics(c.y, p, unit)} for c, p in zip(captures, preds))
+    stderr = _stderr(objective, theta, lower, upper)
+    if condition is None:
+        condition = (captures[0].amplitude_V, captures[0].frequency_Hz)
+    return ConditionFit(
+        amplitude_V=float(condition[0]), frequency_Hz=float(condition[1]),
+        label=label or condition_label(condition), captures=tuple(captures), model=model, scale=scale,
+        params=params, theta=theta, stderr=stderr, metrics=metrics, per_capture=per,
+        predictions=tuple(preds), runs=tuple(records), best_run=best,
+        runtime_s=time.perf_counter() - t0, unit=unit,
+    )
+
+
+def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Asymptotic standard errors sqrt(diag(σ² (JᵀJ)⁺)) of the parameters at the optimum.
+
+    Parameters on a bound get NaN (the linearisation does not hold there); an ill-conditioned
+    Jacobian gives large errors — an honest sign that a parameter is poorly determined.
+    """
+    try:
+        J = objective.jacobian(theta)
+        r = objective.residuals(theta)
+    except Exception:  # pragma: no cover - defensive: a model that cannot be differentiated
+        return np.full(theta.shape, np.nan)
+    m, d = J.shape
+    if m <= d or not np.all(np.isfinite(J)):
+        return np.full(theta.shape, np.nan)
+    sigma2 = float(r @ r) / (m - d)
+    width = upper - lower
+    free = (theta - lower > 1e-6 * width) & (upper - theta > 1e-6 * width)
+    out = np.full(theta.shape, np.nan)
+    if free.any():
+        Jf = J[:, free]
+        cov = np.linalg.pinv(Jf.T @ Jf) * sigma2
+        out[free] = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return out
+
+
+def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0, runs: int = 1,
+             polish: bool = True, global_fit: bool = False,
+             bounds: Mapping[str, tuple[float, float]] | None = None,
+             progress: Progress = None, model_options: Mapping | None = None) -> IdentifyResult:
+    """Identify ``model`` on ``captures``: one fit per condition (look-up table) or one global fit."""
+    if not captures:
+        raise InputError("no captures to identify")
+    unit = _output_unit(captures)
+    if global_fit:
+        groups = {("all", "all"): list(captures)}
+    else:
+        groups = group_by_condition(captures)
+    if progress:
+        progress("start", {"total": len(groups) * runs})
+    fits = []
+    for cell, (key, caps) in enumerate(groups.items()):
+        if global_fit:
+            amps = sorted({c.amplitude_V for c in caps})
+            freqs = sorted({c.frequency_Hz for c in caps})
+            cond = (float("nan"), float("nan")) if len(amps) * len(freqs) > 1 else (amps[0], freqs[0])
+            label = "global"
+        else:
+            cond, label = key, condition_label(key)
+        fits.append(fit_captures(caps, model, optimizer, seed=seed, cell=cell, runs=runs, polish=polish,
+                                 bounds=bounds, progress=progress, label=label, condition=cond))
+    return IdentifyResult(
+        model_name=model.name, optimizer_name=optimizer.name, optimizer_settings=optimizer.settings(),
+        seed=seed, runs=runs, polish=polish, mode="global" if global_fit else "per-condition", unit=unit,
+        fits=tuple(fits), bounds_overrides=dict(bounds or {}), model_options=dict(model_options or {}),
+    )

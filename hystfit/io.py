@@ -1,0 +1,960 @@
+"""Reading captures (CSV/TXT/TSV/DAT and Parquet) and writing outputs atomically.
+
+Loading turns a file into a validated :class:`~hystfit.capture.Capture`:
+
+1. optional sidecar ``<file>.hystfit.json`` supplies default :class:`LoadOptions`;
+2. the table is read (delimiter sniffed, ``#`` comment lines skipped, header auto-detected);
+3. the time / input / output columns are chosen by option (name or 0-based index) or by name
+   (aliases, case-insensitive, optional unit suffix such as ``_mV``, `` [um]``, ``(s)``);
+4. cells are checked (numbers, finite), units converted (time → s, input → V; the output
+   keeps its unit: nm, um, mm or m);
+5. time must strictly increase and be uniform (jitter ≤ 0.1 % of the step);
+6. a leading idle segment (constant input) is trimmed and time re-zeroed;
+7. the operating condition comes from ``amplitude_V``/``frequency_Hz`` columns, the
+   ``condition`` option, or :func:`hystfit.conditions.detect_condition`;
+8. at least ``min_cycles`` input cycles must remain.
+
+Every problem is an :class:`~hystfit.errors.InputError` whose one-line message names the file,
+the row (1-based line of the file; data row for Parquet) or column, the rule and the remedy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io as _stdio
+import json
+import math
+import os
+import re
+import secrets
+import shutil
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+import pandas as pd
+
+from .capture import Capture
+from .conditions import count_cycles, detect_condition
+from .errors import InputError, OutputError
+
+CAPTURE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".parquet", ".pq")
+PARQUET_SUFFIXES = (".parquet", ".pq")
+SIDECAR_SUFFIX = ".hystfit.json"
+OUTPUT_UNITS = ("nm", "um", "mm", "m")
+
+# ----------------------------------------------------------------------------------------------
+# Column names: aliases and units
+# ----------------------------------------------------------------------------------------------
+
+_ALIASES: dict[str, frozenset[str]] = {
+    "time": frozenset({"t", "time", "times", "timestamp", "elapsed", "elapsed_time", "time_elapsed", "seconds",
+                       "secs", "sec"}),
+    "input": frozenset({"u", "v", "voltage", "volt", "volts", "input", "vin", "v_in", "u_in", "uin", "drive",
+                        "command", "cmd", "excitation", "input_voltage", "voltage_in", "drive_voltage",
+                        "applied_voltage", "v_drive", "u_drive", "voltage_input"}),
+    "output": frozenset({"y", "x", "d", "displacement", "disp", "position", "pos", "output", "out", "y_out",
+                         "yout", "stroke", "deflection", "extension", "elongation", "measured_displacement"}),
+    "amplitude": frozenset({"amplitude", "amp", "amplitude_pp", "amp_pp", "vpp"}),
+    "frequency": frozenset({"frequency", "freq"}),
+}
+#: Multiplier to SI (s, V, Hz) per unit text (lower case). Output units are kept, not converted.
+_UNITS: dict[str, dict[str, float | str]] = {
+    "time": {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6, "ns": 1e-9},
+    "input": {"v": 1.0, "mv": 1e-3, "kv": 1e3},
+    "output": {"nm": "nm", "um": "um", "µm": "um", "μm": "um", "mm": "mm", "m": "m"},
+    "amplitude": {"v": 1.0, "mv": 1e-3, "kv": 1e3, "vpp": 1.0},
+    "frequency": {"hz": 1.0, "khz": 1e3},
+}
+#: Aliases that carry their unit in the name itself.
+_IMPLIED_UNIT = {"seconds": "s", "secs": "s", "sec": "s", "vpp": "v"}
+_FLAGS = {"time": "--time-col", "input": "--input-col", "output": "--output-col"}
+_WHAT = {"time": "time", "input": "input (voltage)", "output": "output (displacement)"}
+_MISSING_CELLS = frozenset({"", "nan", "-nan", "+nan", "na", "n/a", "#n/a", "null", "none"})
+
+_BRACKET_RE = re.compile(r"^(.*?)\s*[\[\(\{]\s*([^\]\)\}]*?)\s*[\]\)\}]\s*$")
+_SUFFIX_RE = re.compile(r"^(.*?)[_\s]+([A-Za-zµμ]+)$")
+
+
+def _norm(text: str) -> str:
+    """Lower case, trimmed, inner blanks/dashes → ``_``."""
+    return re.sub(r"[\s\-]+", "_", str(text).strip().lower())
+
+
+def _interpretations(name: str) -> list[tuple[str, str | None]]:
+    """Possible ``(base, unit)`` readings of a column name, most literal first."""
+    out: list[tuple[str, str | None]] = [(_norm(name), None)]
+    m = _BRACKET_RE.match(str(name).strip())
+    if m:
+        out.append((_norm(m.group(1)), m.group(2).strip().lower()))
+    m = _SUFFIX_RE.match(str(name).strip())
+    if m:
+        out.append((_norm(m.group(1)), m.group(2).lower()))
+    return out
+
+
+def _is_candidate(name: str, role: str) -> bool:
+    """True when ``name`` reads as an alias of ``role`` with no unit or a known unit."""
+    return any(base in _ALIASES[role] and (unit is None or unit in _UNITS[role])
+               for base, unit in _interpretations(name))
+
+
+def _unit_of(name: str | None, role: str) -> str | None:
+    """The unit text (lower case) a column name gives for ``role``, or None."""
+    if name is None:
+        return None
+    for base, unit in _interpretations(name):
+        if unit is not None and unit in _UNITS[role]:
+            return unit
+        if unit is None and base in _IMPLIED_UNIT and base in _ALIASES[role]:
+            return _IMPLIED_UNIT[base]
+    return None
+
+
+def _bad_unit_hint(names: Sequence[str], role: str) -> str:
+    """Text naming columns whose base is an alias of ``role`` but whose unit is unknown."""
+    bad = [n for n in names if not _is_candidate(n, role)
+           and any(b in _ALIASES[role] and u is not None for b, u in _interpretations(n))]
+    if not bad:
+        return ""
+    units = ", ".join(k for k in _UNITS[role] if k.isascii())
+    return f" ({', '.join(repr(n) for n in bad)}: unit not recognised, known units: {units})"
+
+
+# ----------------------------------------------------------------------------------------------
+# Options and sidecars
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LoadOptions:
+    """How to read captures (CLI flags; defaults mean "detect").
+
+    Attributes
+    ----------
+    time_col, input_col, output_col : column name or 0-based index (int or digit string); None
+        auto-detects by name.
+    no_header : the file has no header row (columns must then be given by index).
+    fs : sample rate (Hz) for files without a time column.
+    drop_nonfinite : drop rows with NaN/inf/empty cells instead of refusing the file.
+    condition : ``(amplitude_V, frequency_Hz)`` forced by ``--condition`` (V peak-to-peak, Hz).
+    output_unit : output unit (nm, um, mm, m) when the output column name has no unit suffix.
+    require_output : False for input-only / target files (the output column is then optional).
+    min_cycles : minimum number of input cycles after trimming.
+    """
+
+    time_col: str | int | None = None
+    input_col: str | int | None = None
+    output_col: str | int | None = None
+    no_header: bool = False
+    fs: float | None = None
+    drop_nonfinite: bool = False
+    condition: tuple[float, float] | None = None
+    output_unit: str | None = None
+    require_output: bool = True
+    min_cycles: float = 2.0
+
+
+_SIDECAR_KEYS = ("no_header", "time_col", "input_col", "output_col", "fs", "output_unit", "condition",
+                 "drop_nonfinite")
+#: Documentation keys a sidecar may carry; ignored (as is any key starting with ``_``).
+_SIDECAR_INFO_KEYS = frozenset({"comment", "comments", "source", "notes", "description", "license", "attribution"})
+
+
+def sidecar_path(path: str | os.PathLike) -> Path:
+    """The sidecar of a capture: ``<file>.hystfit.json`` next to it."""
+    return Path(str(path) + SIDECAR_SUFFIX)
+
+
+def _sidecar_value(sc: Path, key: str, val):
+    """Validate one sidecar value; returns it in LoadOptions form or raises InputError."""
+    def bad(rule: str) -> InputError:
+        return InputError(f"{sc}: key {key!r}: {rule} (got {json.dumps(val)}); fix or delete the sidecar")
+
+    if val is None:
+        if key in ("no_header", "drop_nonfinite"):
+            raise bad("must be true or false")
+        return None
+    if key in ("no_header", "drop_nonfinite"):
+        if not isinstance(val, bool):
+            raise bad("must be true or false")
+        return val
+    if key.endswith("_col"):
+        if isinstance(val, bool) or not isinstance(val, (int, str)) or (isinstance(val, int) and val < 0):
+            raise bad("must be a column name or a 0-based index")
+        if isinstance(val, str):
+            if not val.strip():
+                raise bad("must be a column name or a 0-based index")
+            return int(val.strip()) if val.strip().isdigit() else val
+        return val
+    if key == "fs":
+        if isinstance(val, bool) or not isinstance(val, (int, float)) or not (math.isfinite(val) and val > 0):
+            raise bad("must be a positive sample rate in Hz")
+        return float(val)
+    if key == "output_unit":
+        unit = _UNITS["output"].get(str(val).strip().lower()) if isinstance(val, str) else None
+        if unit is None:
+            raise bad("must be one of nm, um, mm, m")
+        return unit
+    # condition
+    ok = isinstance(val, list) and len(val) == 2 and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in val)
+    if not ok:
+        raise bad("must be [amplitude_V, frequency_Hz] with positive numbers")
+    return (float(val[0]), float(val[1]))
+
+
+def _apply_sidecar(path: Path, options: LoadOptions) -> tuple[LoadOptions, list[str]]:
+    """Merge ``<file>.hystfit.json`` under ``options`` (non-default options win)."""
+    sc = sidecar_path(path)
+    if not sc.is_file():
+        return options, []
+    try:
+        data = json.loads(sc.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) else str(exc).splitlines()[0]
+        raise InputError(f"{sc}: cannot read the sidecar as JSON ({reason}); fix or delete it") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{sc}: the sidecar must be a JSON object of settings; fix or delete it")
+    defaults = LoadOptions()
+    updates = {}
+    for key, val in data.items():
+        if key.startswith("_") or key in _SIDECAR_INFO_KEYS:
+            continue
+        if key not in _SIDECAR_KEYS:
+            raise InputError(f"{sc}: key {key!r} is not a sidecar setting; use {', '.join(_SIDECAR_KEYS)}")
+        v = _sidecar_value(sc, key, val)
+        if getattr(options, key) == getattr(defaults, key):
+            updates[key] = v
+    note = [f"settings from {sc.name}: {', '.join(sorted(updates))}"] if updates else []
+    return dataclasses.replace(options, **updates), note
+
+
+# ----------------------------------------------------------------------------------------------
+# Paths
+# ----------------------------------------------------------------------------------------------
+
+
+def _is_capture_file(p: Path) -> bool:
+    name = p.name
+    if name.startswith(".") or name.lower().startswith("readme") or name.lower().endswith(".json"):
+        return False
+    return p.is_file() and p.suffix.lower() in CAPTURE_SUFFIXES
+
+
+def expand_paths(paths: Sequence[str | os.PathLike], recursive: bool = False) -> list[Path]:
+    """Files to load, in order.
+
+    Parameters
+    ----------
+    paths : files (taken as given) and directories (expanded to their capture files, sorted;
+        README, ``*.json`` sidecars and hidden entries skipped).
+    recursive : also descend into sub-directories (hidden ones skipped).
+
+    Raises
+    ------
+    InputError
+        No paths, a missing path, or a directory without capture files.
+    """
+    if not paths:
+        raise InputError("no capture files given; pass one or more files or directories")
+    out: list[Path] = []
+    for raw in paths:
+        p = Path(raw)
+        if p.is_dir():
+            found = _dir_captures(p, recursive)
+            if not found:
+                kinds = ", ".join(CAPTURE_SUFFIXES)
+                hint = "" if recursive else " (pass --recursive to look in sub-directories)"
+                raise InputError(f"{p}: directory contains no capture file ({kinds}){hint}")
+            out.extend(found)
+        elif p.exists():
+            out.append(p)
+        else:
+            raise InputError(f"{p}: no such file or directory; check the path")
+    seen: set[Path] = set()
+    unique = []
+    for p in out:
+        key = p.resolve()
+        if key not in seen:
+            seen.add(key)
+            unique.append(p)
+    return unique
+
+
+def _dir_captures(d: Path, recursive: bool) -> list[Path]:
+    if not recursive:
+        return sorted(p for p in d.iterdir() if _is_capture_file(p))
+    found = []
+    for p in d.rglob("*"):
+        rel = p.relative_to(d).parts
+        if any(part.startswith(".") for part in rel[:-1]):
+            continue
+        if _is_capture_file(p):
+            found.append(p)
+    return sorted(found)
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading tables
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Table:
+    """A raw table: column cells plus the 1-based file line (text) or data row (Parquet) of each row."""
+
+    label: str
+    names: list[str] | None
+    cols: list[pd.Series]
+    rows: np.ndarray
+    header_auto: bool = False
+
+    @property
+    def ncols(self) -> int:
+        return len(self.cols)
+
+    def col_label(self, i: int) -> str:
+        return f"column {self.names[i]!r}" if self.names is not None else f"column {i}"
+
+    def listing(self) -> str:
+        if self.names is None:
+            return f"{self.ncols} unnamed columns (0-based indices 0–{self.ncols - 1})"
+        return "columns: " + ", ".join(f"{i}:{n!r}" for i, n in enumerate(self.names))
+
+    def is_empty(self, i: int) -> bool:
+        s = self.cols[i]
+        if s.dtype.kind in "fiub":
+            return bool(s.isna().all())
+        return bool(s.isna().all() or (s.astype(str).str.strip() == "").all())
+
+
+def _decode(raw: bytes, label: str) -> str:
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return raw.decode("utf-16")
+    if b"\x00" in raw[:8192]:
+        raise InputError(f"{label}: looks like a binary file, not text; pass a CSV/TXT/TSV/DAT or Parquet capture")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return raw.decode("latin-1")
+
+
+def _sniff(lines: list[str]) -> str | None:
+    """Delimiter of the data lines: tab, ';' or ',' when present on every line, else whitespace (None)."""
+    body = lines[1:] or lines
+    for cand in ("\t", ";", ","):
+        counts = {ln.count(cand) for ln in body}
+        if min(counts) > 0 and len(counts) == 1:
+            return cand
+    for cand in ("\t", ";", ","):
+        if all(ln.count(cand) > 0 for ln in lines):
+            return cand
+    return None
+
+
+def _is_number_or_empty(cell: str) -> bool:
+    cell = cell.strip()
+    if not cell:
+        return True
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_text(path: Path, label: str, no_header: bool) -> _Table:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{label}: cannot read the file ({exc.strerror or exc}); check the path and permissions") from None
+    if not raw.strip():
+        raise InputError(f"{label}: the file is empty; pass a capture with a header row and data rows")
+    numbered = [(i + 1, ln) for i, ln in enumerate(_decode(raw, label).splitlines())
+                if ln.strip() and not ln.lstrip().startswith("#")]
+    if not numbered:
+        raise InputError(f"{label}: the file has only comments or blank lines, no data; pass a capture with data rows")
+    lines = [ln for _, ln in numbered]
+    delim = _sniff(lines[:50])
+    text = "\n".join(ln.strip() if delim is None else ln for ln in lines)
+    try:
+        df = pd.read_csv(_stdio.StringIO(text), sep=delim if delim is not None else r"\s+", header=None, dtype=str,
+                         na_filter=False, keep_default_na=False, skipinitialspace=True, skip_blank_lines=False,
+                         engine="c")
+    except pd.errors.ParserError as exc:
+        raise _parser_error(label, exc, numbered) from None
+    rows = np.array([n for n, _ in numbered], dtype=np.int64)
+    first = [str(c) for c in df.iloc[0]]
+    header_auto = not no_header and all(_is_number_or_empty(c) for c in first)
+    names = None
+    if not no_header and not header_auto:
+        names = [c.strip() for c in first]
+        df, rows = df.iloc[1:], rows[1:]
+        if df.empty:
+            raise InputError(f"{label}: the file has a header row but no data rows; pass a capture with data")
+    cols = [df[c].reset_index(drop=True) for c in df.columns]
+    return _Table(label, names, cols, rows, header_auto)
+
+
+def _parser_error(label: str, exc: Exception, numbered: list[tuple[int, str]]) -> InputError:
+    m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
+    if m:
+        want, line, got = int(m.group(1)), int(m.group(2)), int(m.group(3))
+        row = numbered[line - 1][0] if 0 < line <= len(numbered) else line
+        return InputError(f"{label}: row {row}: {got} fields but the first row has {want} (every row needs the "
+                          f"same number of columns); fix the row or remove it")
+    reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+    return InputError(f"{label}: cannot parse the file as delimited text ({reason}); check the file format")
+
+
+def _read_parquet(path: Path, label: str) -> _Table:
+    try:
+        df = pd.read_parquet(path)
+    except Exception as exc:  # pyarrow raises many types for corrupt files
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{label}: cannot read the Parquet file ({reason}); check that it is a valid Parquet file") from None
+    if df.shape[1] == 0:
+        raise InputError(f"{label}: the Parquet file has no columns; pass a capture with time, input and output columns")
+    if df.shape[0] == 0:
+        raise InputError(f"{label}: the Parquet file has columns but no data rows; pass a capture with data")
+    cols = [df.iloc[:, i].reset_index(drop=True) for i in range(df.shape[1])]
+    return _Table(label, [str(c) for c in df.columns], cols, np.arange(1, df.shape[0] + 1, dtype=np.int64))
+
+
+def _read_table(path: Path, label: str, no_header: bool) -> _Table:
+    if path.is_dir():
+        raise InputError(f"{label}: is a directory; pass capture files, or use load_captures to expand directories")
+    if not path.exists():
+        raise InputError(f"{label}: no such file; check the path")
+    suffix = path.suffix.lower()
+    if suffix in PARQUET_SUFFIXES:
+        return _read_parquet(path, label)
+    if suffix in CAPTURE_SUFFIXES:
+        return _read_text(path, label, no_header)
+    raise InputError(f"{label}: unsupported file type {suffix or '(no suffix)'!r}; "
+                     f"use one of {', '.join(CAPTURE_SUFFIXES)}")
+
+
+def _cell_text(table: _Table, col: int, k: int) -> str:
+    text = str(table.cols[col].iloc[k])
+    return repr(text if len(text) <= 40 else text[:37] + "...")
+
+
+def _numeric(table: _Table, col: int) -> np.ndarray:
+    """Column ``col`` as float64 (NaN for empty/missing cells); non-numeric text → InputError."""
+    s = table.cols[col]
+    if s.dtype.kind in "fiub":
+        return s.to_numpy(dtype=np.float64, na_value=np.nan)
+    text = s.astype(str).str.strip()
+    num = pd.to_numeric(text, errors="coerce")
+    bad = np.flatnonzero((num.isna() & ~text.str.lower().isin(_MISSING_CELLS) & s.notna()).to_numpy())
+    if bad.size:
+        k = int(bad[0])
+        cell = str(text.iloc[k])
+        hint = " (decimal commas are not supported: use '.')" if re.fullmatch(r"[-+]?\d+,\d+", cell) else ""
+        if k == 0 and table.names is None and not table.header_auto:
+            hint += " (is the first row a header? then do not pass --no-header)"
+        raise InputError(f"{table.label}: row {table.rows[k]}, {table.col_label(col)}: {_cell_text(table, col, k)} "
+                         f"is not a number{hint}; fix the cell or remove the row")
+    return num.to_numpy(dtype=np.float64, na_value=np.nan)
+
+
+# ----------------------------------------------------------------------------------------------
+# Column selection
+# ----------------------------------------------------------------------------------------------
+
+
+def _resolve_spec(table: _Table, spec: str | int, role: str) -> int:
+    """Column index of an explicit ``--<role>-col`` value (name or 0-based index)."""
+    flag = _FLAGS[role]
+    if isinstance(spec, str) and spec.strip().isdigit():
+        spec = int(spec.strip())
+    if isinstance(spec, (int, np.integer)) and not isinstance(spec, bool):
+        if not 0 <= spec < table.ncols:
+            raise InputError(f"{table.label}: {flag} {spec}: no such column; the file has {table.ncols} columns "
+                             f"(0-based indices 0–{table.ncols - 1})")
+        return int(spec)
+    if table.names is None:
+        raise InputError(f"{table.label}: {flag} {spec!r}: the file has no header row, so give the column as a "
+                         f"0-based index (0–{table.ncols - 1})")
+    hits = [i for i, n in enumerate(table.names) if n == spec]
+    if not hits:
+        hits = [i for i, n in enumerate(table.names) if n.lower() == str(spec).strip().lower()]
+    if len(hits) == 1:
+        return hits[0]
+    if hits:
+        raise InputError(f"{table.label}: {flag} {spec!r}: several columns have this name (indices "
+                         f"{', '.join(map(str, hits))}); pass {flag} as a 0-based index")
+    raise InputError(f"{table.label}: {flag} {spec!r}: no such column; {table.listing()}")
+
+
+def _auto_column(table: _Table, role: str, taken: set[int]) -> list[int]:
+    """Indices of non-empty, not-yet-taken columns whose names read as ``role``."""
+    if table.names is None:
+        return []
+    return [i for i, n in enumerate(table.names)
+            if i not in taken and _is_candidate(n, role) and not table.is_empty(i)]
+
+
+def _headerless_error(table: _Table, role: str) -> InputError:
+    if table.header_auto:
+        why, alt = "the first row is all numbers, so the file is read as having no header row", "add a header row"
+    else:
+        why, alt = "the file has no header row (--no-header)", "add a header row and drop --no-header"
+    return InputError(f"{table.label}: {why}: pass --time-col, --input-col and --output-col as 0-based indices "
+                      f"(0–{table.ncols - 1}; missing: {_FLAGS[role]}), or {alt}")
+
+
+def _select_columns(table: _Table, opts: LoadOptions) -> dict[str, int | None]:
+    """Column index per role (time/input/output/amplitude/frequency); None when absent."""
+    chosen: dict[str, int | None] = {}
+    for role, spec in (("time", opts.time_col), ("input", opts.input_col), ("output", opts.output_col)):
+        if spec is not None:
+            chosen[role] = _resolve_spec(table, spec, role)
+    seen: dict[int, str] = {}
+    for role, i in chosen.items():
+        if i in seen:
+            raise InputError(f"{table.label}: {table.col_label(i)} is selected both as {seen[i]} "
+                             f"({_FLAGS[seen[i]]}) and as {role} ({_FLAGS[role]}); select different columns")
+        seen[i] = role
+    for role in ("input", "output", "time"):
+        if role in chosen:
+            continue
+        found = _auto_column(table, role, set(seen))
+        if len(found) > 1:
+            cands = ", ".join(repr(table.names[i]) for i in found)
+            raise InputError(f"{table.label}: several {_WHAT[role]} columns: {cands}; pass {_FLAGS[role]} "
+                             f"with the one to use")
+        if found:
+            chosen[role] = found[0]
+            seen[found[0]] = role
+            continue
+        chosen[role] = None
+        if (role == "time" and opts.fs is not None) or (role == "output" and not opts.require_output):
+            continue
+        if table.names is None and role != "time":
+            raise _headerless_error(table, role)
+        raise _missing_column_error(table, role)
+    for role in ("amplitude", "frequency"):
+        found = _auto_column(table, role, set(seen))
+        if len(found) > 1:
+            cands = ", ".join(repr(table.names[i]) for i in found)
+            raise InputError(f"{table.label}: several {role} columns: {cands}; keep only one")
+        chosen[role] = found[0] if found else None
+    return chosen
+
+
+def _missing_column_error(table: _Table, role: str) -> InputError:
+    if role == "time":
+        if table.names is None:
+            return InputError(f"{table.label}: the file has no header row and no time column was given: pass "
+                              f"--time-col INDEX (0–{table.ncols - 1}), or --fs HZ if the file has no time column")
+        return InputError(f"{table.label}: no time column found ({table.listing()}){_bad_unit_hint(table.names, role)}; "
+                          f"pass --time-col NAME, or --fs HZ if the file has no time column")
+    examples = {"input": "voltage_V", "output": "displacement_um"}[role]
+    return InputError(f"{table.label}: no {_WHAT[role]} column found ({table.listing()})"
+                      f"{_bad_unit_hint(table.names or [], role)}; pass {_FLAGS[role]} NAME or a 0-based index, "
+                      f"or name the column e.g. {examples!r}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Validation steps
+# ----------------------------------------------------------------------------------------------
+
+
+def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: bool, has_time: bool,
+               notes: list[str]) -> np.ndarray | None:
+    """Row mask to keep (None: keep all). Refuses NaN/inf/empty cells unless ``drop``."""
+    bad = np.zeros(table.rows.size, dtype=bool)
+    for _, a in arrays.values():
+        bad |= ~np.isfinite(a)
+    if not bad.any():
+        return None
+    k = int(np.flatnonzero(bad)[0])
+    if not drop:
+        col = next(c for c, a in arrays.values() if not np.isfinite(a[k]))
+        raise InputError(f"{table.label}: row {table.rows[k]}, {table.col_label(col)}: {_cell_text(table, col, k)} "
+                         f"is not a finite number (NaN, inf or empty); fix or remove the row, or pass --drop-nonfinite")
+    if bad.all():
+        raise InputError(f"{table.label}: every row has a NaN, inf or empty cell in the selected columns; "
+                         f"check the column selection")
+    idx = np.flatnonzero(bad)
+    good = np.flatnonzero(~bad)
+    interior = idx[(idx > good[0]) & (idx < good[-1])]
+    if not has_time and interior.size:
+        r = table.rows[int(interior[0])]
+        raise InputError(f"{table.label}: row {r}: cannot drop a non-finite row inside the data without a time "
+                         f"column (the samples after it would shift in time); fix the row or add a time column")
+    notes.append(f"dropped {idx.size} row(s) with NaN/inf/empty cells (first: row {table.rows[k]})")
+    return ~bad
+
+
+def _check_time(table: _Table, col: int, t: np.ndarray, rows: np.ndarray) -> float:
+    """Validate strictly increasing, uniform time (s); returns dt = span / (N − 1) in s."""
+    d = np.diff(t)
+    back = np.flatnonzero(~(d > 0))
+    name = table.col_label(col)
+    if back.size:
+        k = int(back[0]) + 1
+        raise InputError(f"{table.label}: row {rows[k]}, {name}: time {t[k]:.9g} s is not after the previous row's "
+                         f"{t[k - 1]:.9g} s (time must strictly increase); sort the rows or remove duplicates")
+    med = float(np.median(d))
+    tol = 1e-3 * med + 16 * np.finfo(float).eps * max(abs(t[0]), abs(t[-1]))
+    off = np.flatnonzero(np.abs(d - med) > tol)
+    if off.size:
+        k = int(off[0]) + 1
+        rel = abs(d[k - 1] - med) / med * 100
+        raise InputError(f"{table.label}: row {rows[k]}, {name}: the time step {d[k - 1]:.6g} s differs from the "
+                         f"median step {med:.6g} s by {rel:.3g} % (limit 0.1 %): the sampling is not uniform "
+                         f"(gap or jitter); resample the capture to a uniform rate")
+    return float((t[-1] - t[0]) / (t.size - 1))
+
+
+def idle_samples(u: np.ndarray) -> int:
+    """Number of leading samples of an idle (constant) input to drop before the excitation.
+
+    The excitation starts at the first sample with ``|u − u[0]| > tol``, ``tol = max(1e-9 V,
+    1e-3·(max u − min u))``. The kept part starts one sample before the input first leaves the
+    idle level: at the last sample before that point equal to ``u[0]`` (to 1e-12 relative) when
+    there is such a sample after ``u[0]``; otherwise (a noisy idle level, or a slow start such as a
+    raised cosine) at the start of the monotone ramp into the first moving sample.
+
+    Parameters
+    ----------
+    u : (N,) input (V).
+
+    Returns
+    -------
+    int
+        Samples to drop (0 when the input moves from the start or never moves).
+    """
+    u = np.asarray(u, dtype=np.float64)
+    dev = np.abs(u - u[0])
+    tol = max(1e-9, 1e-3 * float(u.max() - u.min()))
+    moving = np.flatnonzero(dev > tol)
+    if moving.size == 0:
+        return 0
+    i = int(moving[0])
+    eps = 1e-12 * max(1.0, float(np.abs(u).max()))
+    exact = np.flatnonzero(dev[:i] <= eps)
+    j = int(exact[-1])
+    if j > 0:
+        return j
+    k = i - 1
+    while k > 0 and dev[k - 1] < dev[k]:
+        k -= 1
+    return k
+
+
+def _condition_from_columns(table: _Table, chosen: dict) -> tuple[float | None, float | None]:
+    """Constant ``amplitude_V``/``frequency_Hz`` column values (V, Hz), None where absent."""
+    out: list[float | None] = []
+    for role in ("amplitude", "frequency"):
+        col = chosen[role]
+        if col is None:
+            out.append(None)
+            continue
+        v = _numeric(table, col)
+        unit = _unit_of(table.names[col], role)
+        v = v * (_UNITS[role][unit] if unit else 1.0)
+        fin = np.flatnonzero(np.isfinite(v))
+        if not fin.size:
+            raise InputError(f"{table.label}: {table.col_label(col)} has no numeric value; fill it or remove the column")
+        vals = v[fin]
+        change = np.flatnonzero(np.abs(vals - vals[0]) > 1e-9 * max(abs(vals[0]), 1e-300))
+        if change.size:
+            r = table.rows[int(fin[change[0]])]
+            raise InputError(f"{table.label}: row {r}, {table.col_label(col)}: the {role} changes within the file "
+                             f"({vals[0]:g} → {vals[change[0]]:g}) but must be constant; split the file per condition")
+        if not vals[0] > 0:
+            raise InputError(f"{table.label}: {table.col_label(col)}: the {role} must be positive, got {vals[0]:g}; "
+                             f"fix the column")
+        out.append(float(vals[0]))
+    return out[0], out[1]
+
+
+# ----------------------------------------------------------------------------------------------
+# load_capture
+# ----------------------------------------------------------------------------------------------
+
+
+def _col_unit(table: _Table, col: int | None, role: str) -> str | None:
+    """Unit text the column's name gives for ``role`` (None: no name or no unit)."""
+    return _unit_of(table.names[col], role) if (col is not None and table.names is not None) else None
+
+
+def _scale(table: _Table, col: int | None, role: str) -> float:
+    """Factor to SI (s or V) for a time/input column."""
+    unit = _col_unit(table, col, role)
+    return float(_UNITS[role][unit]) if unit else 1.0
+
+
+def _output_unit(table: _Table, col: int | None, opts: LoadOptions, notes: list[str]) -> str:
+    unit = _col_unit(table, col, "output")
+    if unit is not None:
+        u = str(_UNITS["output"][unit])
+        if opts.output_unit is not None and opts.output_unit != u:
+            notes.append(f"--output-unit {opts.output_unit} ignored: {table.col_label(col)} says {u}")
+        return u
+    if opts.output_unit is not None:
+        return str(_UNITS["output"].get(opts.output_unit.lower(), opts.output_unit))
+    if col is not None:
+        notes.append(f"output unit not given by {table.col_label(col)}; assumed um "
+                     "(pass --output-unit or name the column e.g. displacement_nm)")
+    return "um"
+
+
+def _time_axis(table: _Table, chosen: dict, t: np.ndarray | None, rows: np.ndarray, opts: LoadOptions,
+               notes: list[str]) -> float:
+    """Sample period dt (s) from the time column or ``fs``."""
+    if t is None:
+        return 1.0 / float(opts.fs)
+    if t.size < 2:
+        raise InputError(f"{table.label}: only {t.size} data row; a capture needs many samples")
+    dt = _check_time(table, chosen["time"], t, rows)
+    if opts.fs is not None and abs(1.0 / dt - opts.fs) > 0.01 * opts.fs:
+        raise InputError(f"{table.label}: {table.col_label(chosen['time'])} gives a sample rate of {1 / dt:.6g} Hz "
+                         f"but --fs is {opts.fs:g} Hz; drop --fs or fix the time unit (e.g. name the column time_ms)")
+    if _col_unit(table, chosen["time"], "time") is None and 1.0 / dt < 100:
+        notes.append(f"sample rate {1 / dt:.3g} Hz with time assumed in seconds; if the time is in ms, "
+                     "name the column time_ms")
+    return dt
+
+
+def load_capture(path: str | os.PathLike, options: LoadOptions = LoadOptions()) -> Capture:
+    """Load and validate one capture file.
+
+    Parameters
+    ----------
+    path : CSV/TXT/TSV/DAT or Parquet file; ``str(path)`` becomes ``Capture.source``.
+    options : see :class:`LoadOptions`; a sidecar ``<file>.hystfit.json`` fills options left at
+        their defaults.
+
+    Returns
+    -------
+    Capture
+        t (s, from 0, uniform), u (V), y (in ``y_unit``) as C-contiguous float64 arrays, with the
+        operating condition, trim information and notes.
+
+    Raises
+    ------
+    InputError
+        Any unreadable, malformed or unsuitable file (one-line message naming file, row/column,
+        rule and remedy).
+    """
+    p = Path(path)
+    label = str(path)
+    opts, notes = _apply_sidecar(p, options)
+    table = _read_table(p, label, opts.no_header)
+    chosen = _select_columns(table, opts)
+    arrays = {r: (chosen[r], _numeric(table, chosen[r])) for r in ("time", "input", "output") if chosen[r] is not None}
+    keep = _nonfinite(table, arrays, opts.drop_nonfinite, chosen["time"] is not None, notes)
+    rows = table.rows if keep is None else table.rows[keep]
+    data = {r: (a if keep is None else a[keep]) for r, (_, a) in arrays.items()}
+    t = data["time"] * _scale(table, chosen["time"], "time") if "time" in data else None
+    u = data["input"] * _scale(table, chosen["input"], "input")
+    y = data.get("output")
+    y_unit = _output_unit(table, chosen["output"], opts, notes) if y is not None else (opts.output_unit or "um")
+    dt = _time_axis(table, chosen, t, rows, opts, notes)
+    return _finish(table, chosen, opts, notes, u, y, dt, y_unit)
+
+
+def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u: np.ndarray,
+            y: np.ndarray | None, dt: float, y_unit: str) -> Capture:
+    """Trim the idle start, check excitation and length, settle the condition, build the Capture."""
+    label = table.label
+    ptp = float(u.max() - u.min()) if u.size else 0.0
+    if ptp <= 1e-9:
+        raise InputError(f"{label}: {table.col_label(chosen['input'])}: the input is constant ({u[0]:g} V), "
+                         "there is no excitation; check the input column (--input-col)")
+    start = idle_samples(u)
+    if start:
+        u = u[start:]
+        y = y[start:] if y is not None else None
+        notes.append(f"trimmed {start * dt:.6g} s ({start} samples) of idle input before the excitation")
+    if u.size < 4:
+        raise InputError(f"{label}: only {u.size} samples of excitation; a capture needs at least "
+                         f"{opts.min_cycles:g} input cycles")
+    amp, freq, source = _condition(table, chosen, opts, notes, u, dt)
+    cycles = count_cycles(u, dt, freq)
+    if cycles < opts.min_cycles:
+        raise InputError(f"{label}: only {cycles:.3g} input cycles of {freq:g} Hz after trimming, the minimum is "
+                         f"{opts.min_cycles:g}; record a longer capture")
+    return Capture(source=label, t=np.arange(u.size, dtype=np.float64) * dt, u=np.ascontiguousarray(u, np.float64),
+                   y=None if y is None else np.ascontiguousarray(y, np.float64), dt=float(dt), y_unit=y_unit,
+                   trimmed_s=start * dt, trimmed_samples=int(start), amplitude_V=float(amp), frequency_Hz=float(freq),
+                   condition_source=source, notes=tuple(notes))
+
+
+def _condition(table, chosen, opts, notes, u, dt) -> tuple[float, float, str]:
+    """(amplitude_V, frequency_Hz, source): columns, then the ``condition`` option, then detection."""
+    col_a, col_f = _condition_from_columns(table, chosen)
+    if col_a is not None or col_f is not None:
+        if opts.condition is not None:
+            notes.append("--condition ignored: the file has amplitude/frequency columns")
+        det = detect_condition(u, dt) if col_a is None or col_f is None else (None, None)
+        return (col_a if col_a is not None else det[0]), (col_f if col_f is not None else det[1]), "column"
+    if opts.condition is not None:
+        return float(opts.condition[0]), float(opts.condition[1]), "option"
+    a, f = detect_condition(u, dt)
+    return a, f, "detected"
+
+
+def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = LoadOptions(),
+                  recursive: bool = False) -> list[Capture]:
+    """Load every capture of :func:`expand_paths` ``(paths, recursive)`` with ``options``."""
+    return [load_capture(p, options) for p in expand_paths(paths, recursive)]
+
+
+# ----------------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------------
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same directory and ``os.replace``.
+
+    Readers see the old file or the complete new one, never a partial file. Parent directories
+    are created. Raises :class:`OutputError` when the location cannot be written.
+    """
+    p = Path(path)
+    tmp = None
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~_UMASK)
+        os.replace(tmp, p)
+        tmp = None
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot write the file ({exc.strerror or exc}); check the directory and "
+                          "permissions, or choose another --out") from None
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` (UTF-8, line ends as given) atomically; see :func:`atomic_write_bytes`."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def write_table(path: str | os.PathLike, df: pd.DataFrame) -> None:
+    """Write ``df`` atomically: Parquet for ``.parquet``/``.pq``, tab-separated for ``.tsv``, else CSV.
+
+    Text tables have a header row, no index, ``\\n`` line ends and full float precision.
+    """
+    p = Path(path)
+    if p.suffix.lower() in PARQUET_SUFFIXES:
+        buf = _stdio.BytesIO()
+        df.to_parquet(buf, index=False)
+        atomic_write_bytes(p, buf.getvalue())
+        return
+    sep = "\t" if p.suffix.lower() == ".tsv" else ","
+    atomic_write_text(p, df.to_csv(index=False, sep=sep, lineterminator="\n"))
+
+
+def _refuse_dangerous(out: Path) -> None:
+    """Refuse to replace the working directory, one of its parents, the home or root directory."""
+    target = out.resolve()
+    cwd = Path.cwd().resolve()
+    if target == cwd or target in cwd.parents or target == Path.home().resolve() or target == Path(target.anchor):
+        raise OutputError(f"{out}: refusing to replace this directory (it is the working directory, a parent of "
+                          "it, the home or the root directory); choose another --out")
+
+
+def _check_out(out: Path, force: bool) -> bool:
+    """Validate ``out`` before work; returns True when it exists (and may be replaced)."""
+    if not out.exists():
+        return False
+    if not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a directory; choose another --out")
+    if any(out.iterdir()):
+        if not force:
+            raise OutputError(f"{out}: output directory exists and is not empty; pass --force to replace it "
+                              "or choose another --out")
+        _refuse_dangerous(out)
+    return True
+
+
+@contextmanager
+def staged_output_dir(out: str | os.PathLike, force: bool) -> Iterator[Path]:
+    """Stage an output directory and publish it only if the block succeeds.
+
+    Parameters
+    ----------
+    out : final output directory.
+    force : allow replacing an existing non-empty ``out``.
+
+    Yields
+    ------
+    Path
+        A fresh sibling directory ``out.parent/.<name>.tmp-<pid>-<rand>`` to write into. On
+        normal exit it becomes ``out`` (an existing ``out`` is replaced: only when empty or
+        ``force``); on an exception it is deleted and ``out`` is untouched.
+
+    Raises
+    ------
+    OutputError
+        On entry, before any work: ``out`` exists and is non-empty without ``force``, is not a
+        directory, or cannot be created; on exit if publishing fails.
+    """
+    out = Path(out)
+    if not out.name or out.name in (".", ".."):
+        out = out.resolve()
+    _check_out(out, force)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        stage = out.parent / f".{out.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
+        stage.mkdir()
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot create the output directory ({exc.strerror or exc}); check the "
+                          "permissions or choose another --out") from None
+    try:
+        yield stage
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    try:
+        _publish(stage, out, force)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+
+
+def _publish(stage: Path, out: Path, force: bool) -> None:
+    """Move ``stage`` to ``out``, replacing an empty (or, with ``force``, any) existing ``out``."""
+    try:
+        if not _check_out(out, force):
+            os.rename(stage, out)
+            return
+        old = out.parent / f".{out.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
+        os.rename(out, old)
+        try:
+            os.rename(stage, out)
+        except OSError:
+            os.rename(old, out)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot publish the output directory ({exc.strerror or exc}); choose another "
+                          "--out") from None

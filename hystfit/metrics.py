@@ -1,0 +1,272 @@
+"""Goodness-of-fit metrics of a model output against a measured output.
+
+All metrics use the error ``e = y_model − y_meas`` (model minus measurement) and are computed in
+float64 over every sample, or over several captures pooled together
+(:func:`compute_metrics_pooled`).
+
+=============  ==================================================  ===========  ================
+key            formula                                             unit         source
+=============  ==================================================  ===========  ================
+rmse_<unit>    sqrt(mean(e²))                                      output unit  003 eq. 15
+nrmse_pct      100 · RMSE / (max y_meas − min y_meas)              %
+mape           mean(|e| / |y_meas|) over the kept samples          fraction     002 §3.2
+smape          mean(|e| / ((|y_model| + |y_meas|)/2)), kept        fraction     002 §3.2
+r2             1 − Σe² / Σ(y_meas − mean y_meas)²                  –            002 §3.2
+re             sqrt(Σe² / Σy_meas²)                                –            003 eq. 14
+j              Σe² / Σy_meas²                                      –            004 eq. 16
+max_error_<u>  max |e|                                             output unit
+n_samples      number of samples                                   count
+n_excluded     samples left out of MAPE and SMAPE                  count
+=============  ==================================================  ===========  ================
+
+MAPE and SMAPE explode where the measured output crosses zero, so only samples with
+``|y_meas| >= 1 % of the stroke`` (stroke = max y_meas − min y_meas) and ``|y_meas| > 0`` are kept;
+``n_excluded`` and ``n_excluded_pct`` report how many were left out.
+
+Conventions
+-----------
+* A model output containing NaN or ±inf (a diverged simulation) is *infinitely bad*, never an
+  exception: every error metric (RMSE, NRMSE, MAPE, SMAPE, RE, J, max error) is ``inf`` and R² is
+  ``-inf``, so results still sort correctly (best first) and JSON writers turn them into null.
+* A metric whose normaliser is zero is undefined and returned as NaN: NRMSE and R² when the
+  measured output is constant, RE and J when it is identically zero, MAPE and SMAPE when no sample
+  is kept.
+* ``y_meas`` must be finite (the loader guarantees this); equal shapes are required.
+  Both violations raise :class:`ValueError`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+__all__ = [
+    "METRICS",
+    "MAPE_THRESHOLD_FRACTION",
+    "MetricSpec",
+    "compute_metrics",
+    "compute_metrics_pooled",
+    "describe_metrics",
+    "metric_key",
+]
+
+#: samples with |y_meas| below this fraction of the stroke are excluded from MAPE and SMAPE
+MAPE_THRESHOLD_FRACTION = 0.01
+
+
+class MetricSpec(NamedTuple):
+    """Description of one metric for report legends.
+
+    Attributes
+    ----------
+    name : str
+        Base name; the dictionary key is ``metric_key(name, unit)``.
+    formula : str
+        The formula as a person reads it, with ``e = y_model − y_meas``.
+    unit_kind : str
+        ``"output"`` (carries the output unit, the key gets a ``_<unit>`` suffix), ``"%"``,
+        ``"fraction"``, ``"1"`` (dimensionless) or ``"count"``.
+    """
+
+    name: str
+    formula: str
+    unit_kind: str
+
+
+#: every metric :func:`compute_metrics` returns, in report order
+METRICS: tuple[MetricSpec, ...] = (
+    MetricSpec("rmse", "RMSE = sqrt(mean(e²)), e = y_model − y_meas (003 eq. 15)", "output"),
+    MetricSpec("nrmse_pct", "NRMSE = 100·RMSE / (max y_meas − min y_meas)", "%"),
+    MetricSpec("mape", "MAPE = mean(|e| / |y_meas|) over samples with |y_meas| ≥ 1 % of stroke (002)",
+               "fraction"),
+    MetricSpec("smape", "SMAPE = mean(|e| / ((|y_model| + |y_meas|)/2)) over the same samples (002)",
+               "fraction"),
+    MetricSpec("r2", "R² = 1 − Σe² / Σ(y_meas − ȳ_meas)²", "1"),
+    MetricSpec("re", "RE = sqrt(Σe² / Σy_meas²) (003 eq. 14)", "1"),
+    MetricSpec("j", "J = Σe² / Σy_meas² (004 eq. 16)", "1"),
+    MetricSpec("max_error", "max |e|", "output"),
+    MetricSpec("n_samples", "number of samples", "count"),
+    MetricSpec("n_excluded", "samples with |y_meas| < 1 % of stroke, left out of MAPE and SMAPE", "count"),
+    MetricSpec("n_excluded_pct", "100 · n_excluded / n_samples", "%"),
+)
+
+_BY_NAME = {m.name: m for m in METRICS}
+_UNIT_DISPLAY = {"um": "µm"}
+
+
+def metric_key(name: str, unit: str) -> str:
+    """Dictionary / column key of a metric.
+
+    Parameters
+    ----------
+    name : str
+        A base name from :data:`METRICS` (``"rmse"``, ``"r2"``, ...).
+    unit : str
+        Output unit (``"um"``, ``"nm"``, ...).
+
+    Returns
+    -------
+    str
+        ``f"{name}_{unit}"`` for metrics in the output unit (``"rmse"`` → ``"rmse_um"``), otherwise
+        ``name`` unchanged.
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not a known metric.
+    """
+    return f"{name}_{unit}" if _spec(name).unit_kind == "output" else name
+
+
+def describe_metrics(unit: str, names: Sequence[str] | None = None) -> list[tuple[str, str]]:
+    """Legend rows ``(column key, formula text)`` for a report.
+
+    Parameters
+    ----------
+    unit : str
+        Output unit; used in the keys and shown after output-unit formulas (``"um"`` as ``µm``).
+    names : sequence of str, optional
+        Base names to describe, in this order; all of :data:`METRICS` by default.
+
+    Returns
+    -------
+    list of (str, str)
+    """
+    shown = _UNIT_DISPLAY.get(unit, unit)
+    specs = METRICS if names is None else [_spec(n) for n in names]
+    suffix = {"output": f" [{shown}]", "%": " [%]", "fraction": " [fraction]", "1": "", "count": ""}
+    return [(metric_key(s.name, unit), s.formula + suffix[s.unit_kind]) for s in specs]
+
+
+def _spec(name: str) -> MetricSpec:
+    try:
+        return _BY_NAME[name]
+    except KeyError:
+        raise ValueError(f"unknown metric {name!r}; known metrics: {', '.join(_BY_NAME)}") from None
+
+
+def _as_pair(y_meas, y_model, where: str = "") -> tuple[np.ndarray, np.ndarray]:
+    ym = np.asarray(y_meas, dtype=float)
+    yp = np.asarray(y_model, dtype=float)
+    if ym.shape != yp.shape:
+        raise ValueError(f"y_meas{where} has shape {ym.shape} but y_model{where} has shape {yp.shape}; "
+                         "they must be equal")
+    return ym.ravel(), yp.ravel()
+
+
+def compute_metrics(y_meas, y_model, unit: str = "um") -> dict[str, float]:
+    """All fit metrics of one model output against one measured output.
+
+    Parameters
+    ----------
+    y_meas : array_like, shape (N,)
+        Measured output in ``unit``; must be finite.
+    y_model : array_like, shape (N,)
+        Model output in ``unit``. NaN or ±inf anywhere makes every error metric ``inf`` and R²
+        ``-inf`` (see the module docstring); this never raises.
+    unit : str, default "um"
+        Output unit, appended to the keys of metrics that carry it.
+
+    Returns
+    -------
+    dict
+        ``rmse_<unit>``, ``nrmse_pct``, ``mape``, ``smape``, ``r2``, ``re``, ``j``,
+        ``max_error_<unit>`` (floats), ``n_samples``, ``n_excluded`` (ints) and ``n_excluded_pct``.
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ, there are no samples, or ``y_meas`` is not finite.
+
+    Examples
+    --------
+    >>> m = compute_metrics([1.0, 2.0, 3.0], [1.0, 2.0, 4.0], unit="nm")
+    >>> round(m["rmse_nm"], 6), m["max_error_nm"]
+    (0.57735, 1.0)
+    """
+    ym, yp = _as_pair(y_meas, y_model)
+    return _metrics(ym, yp, unit)
+
+
+def compute_metrics_pooled(pairs: Sequence[tuple[np.ndarray, np.ndarray]], unit: str = "um") -> dict[str, float]:
+    """Metrics over several captures of one condition, pooled sample by sample.
+
+    The captures are concatenated and measured as one series, so the result equals
+    ``compute_metrics(concatenate(y_meas_i), concatenate(y_model_i))``; in particular the stroke
+    used for NRMSE and the MAPE exclusion is that of all captures together.
+
+    Parameters
+    ----------
+    pairs : sequence of (y_meas, y_model)
+        One pair of equal-shape arrays per capture.
+    unit : str, default "um"
+        Output unit.
+
+    Returns
+    -------
+    dict
+        As :func:`compute_metrics`.
+
+    Raises
+    ------
+    ValueError
+        If ``pairs`` is empty or a pair has mismatched shapes (the message names its index).
+    """
+    pairs = list(pairs)
+    if not pairs:
+        raise ValueError("compute_metrics_pooled needs at least one (y_meas, y_model) pair; got none")
+    ms, ps = zip(*(_as_pair(a, b, f"[{i}]") for i, (a, b) in enumerate(pairs)))
+    return _metrics(np.concatenate(ms), np.concatenate(ps), unit)
+
+
+def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
+    n = ym.size
+    if n == 0:
+        raise ValueError("cannot compute metrics of an empty series (0 samples)")
+    if not np.all(np.isfinite(ym)):
+        bad = int(np.count_nonzero(~np.isfinite(ym)))
+        raise ValueError(f"y_meas contains {bad} non-finite value(s); measured data must be finite")
+
+    stroke = float(ym.max() - ym.min())
+    abs_meas = np.abs(ym)
+    keep = (abs_meas >= MAPE_THRESHOLD_FRACTION * stroke) & (abs_meas > 0)
+    n_kept = int(np.count_nonzero(keep))
+    n_excluded = n - n_kept
+    sum_sq_meas = float(np.dot(ym, ym))
+    ss_tot = float(np.sum((ym - ym.mean()) ** 2))
+
+    out: dict[str, float] = {}
+    if not np.all(np.isfinite(yp)):
+        inf = float("inf")
+        rmse = nrmse = mape = smape = re = j = max_err = inf
+        r2 = -inf
+    else:
+        e = yp - ym
+        sse = float(np.dot(e, e))
+        rmse = float(np.sqrt(sse / n))
+        abs_e = np.abs(e)
+        max_err = float(abs_e.max())
+        nrmse = 100.0 * rmse / stroke if stroke > 0 else float("nan")
+        r2 = 1.0 - sse / ss_tot if ss_tot > 0 else float("nan")
+        j = sse / sum_sq_meas if sum_sq_meas > 0 else float("nan")
+        re = float(np.sqrt(j))
+        if n_kept:
+            ek, mk, pk = abs_e[keep], abs_meas[keep], np.abs(yp[keep])
+            mape = float(np.mean(ek / mk))
+            smape = float(np.mean(ek / (0.5 * (pk + mk))))  # denominator ≥ |y_meas|/2 > 0
+        else:
+            mape = smape = float("nan")
+
+    out[metric_key("rmse", unit)] = rmse
+    out["nrmse_pct"] = nrmse
+    out["mape"] = mape
+    out["smape"] = smape
+    out["r2"] = r2
+    out["re"] = re
+    out["j"] = j
+    out[metric_key("max_error", unit)] = max_err
+    out["n_samples"] = n
+    out["n_excluded"] = n_excluded
+    out["n_excluded_pct"] = 100.0 * n_excluded / n
+    return out

@@ -1,0 +1,153 @@
+"""The model interface.
+
+A model is *structure plus a pure kernel*: a frozen dataclass holds the structure (for PI the
+number of operators and their thresholds), :meth:`Model.params` gives the parameter table for
+a data scale, and :meth:`Model.simulate` maps a whole population of parameter vectors to
+outputs at once::
+
+    theta (P, d), u (N,) [V], dt [s]  →  y (P, N) [output unit]
+
+The state is reset at the start of every call (one call per capture). Fitted values never live
+on the model: see :class:`FittedModel`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..params import DataScale, Param
+
+
+class Model(ABC):
+    """Base class of every hysteresis model (subclasses are frozen dataclasses)."""
+
+    name: ClassVar[str] = ""
+    title: ClassVar[str] = ""
+    reference: ClassVar[str] = ""
+    equation: ClassVar[str] = ""
+    rate_dependent: ClassVar[bool] = False
+
+    # ----------------------------------------------------------------- structure
+    def adapt(self, scale: DataScale) -> "Model":
+        """Fill data-dependent structure (e.g. PI thresholds) from the identification data.
+
+        The default has none and returns ``self``. Called once per fit; the adapted model is
+        what gets saved, so predictions on other captures use the same structure.
+        """
+        return self
+
+    def structure(self) -> dict[str, Any]:
+        """JSON-serialisable constructor arguments (the inverse of :meth:`from_structure`)."""
+        out = {}
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            v = getattr(self, f.name)
+            out[f.name] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    @classmethod
+    def from_structure(cls, data: dict[str, Any]) -> "Model":
+        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        unknown = set(data) - names
+        if unknown:
+            raise ConfigError(f"model {cls.name!r}: unknown structure field(s) {sorted(unknown)}")
+        kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+        return cls(**kwargs)
+
+    # ----------------------------------------------------------------- parameters
+    @abstractmethod
+    def params(self, scale: DataScale) -> tuple[Param, ...]:
+        """Parameter table with bounds derived from ``scale``."""
+
+    def param_names(self, scale: DataScale) -> list[str]:
+        return [p.name for p in self.params(scale)]
+
+    # ----------------------------------------------------------------- simulation
+    @abstractmethod
+    def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        """Simulate a population: θ (P, d), u (N,) in V, dt in s → y (P, N)."""
+
+    def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
+        """A closure ``theta (P, d) → y (P, N)`` for one capture.
+
+        Models override this to precompute what does not depend on θ (e.g. PI play-operator
+        outputs for fixed thresholds), so an optimizer's thousands of calls share the work.
+        """
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        return lambda theta: self.simulate(theta, u, dt)
+
+    def simulate_one(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        """Simulate a single parameter vector θ (d,) → y (N,)."""
+        return self.simulate(np.atleast_2d(np.asarray(theta, float)), np.asarray(u, float), dt)[0]
+
+    # ----------------------------------------------------------------- structure for exact solves
+    def separable(self):
+        """The model's separable structure (:class:`hystfit.separable.Separable`) or None.
+
+        Models whose output is linear in some parameters for fixed others declare it here, so
+        the ``auto`` optimizer solves those exactly and searches only the rest.
+        """
+        return None
+
+    # ----------------------------------------------------------------- stepping (for inverses)
+    def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
+        """Model memory (S,) before the first sample, for input ``u0`` (same reset as :meth:`simulate`)."""
+        raise ConfigError(f"model {self.name!r} does not support per-sample stepping")
+
+    def step(self, theta: np.ndarray, state: np.ndarray, u_prev: float, u_new: np.ndarray,
+             dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Advance one sample from ``state`` for each candidate input ``u_new`` (C,).
+
+        Returns the outputs (C,) at the new sample and the new states (C, S). Must agree with
+        :meth:`simulate`: stepping a whole input sample by sample reproduces ``simulate``.
+        The numerical inverse (:func:`hystfit.models.inverse.invert_by_stepping`) is built on it.
+        """
+        raise ConfigError(f"model {self.name!r} does not support per-sample stepping")
+
+    # ----------------------------------------------------------------- inverse
+    def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
+               u_range: tuple[float, float] | None = None) -> np.ndarray:
+        """Input voltage u (N,) whose simulated output follows ``y_target`` (N,).
+
+        The default is the robust per-sample numerical inverse: at every sample the input is
+        found by a bracketed search on the model's one-step map, with the model's memory
+        carried along (:func:`hystfit.models.inverse.invert_by_stepping`). ``u_range`` bounds
+        the search (default: a wide range around the identification data). Models with an
+        analytic inverse override this.
+        """
+        from .inverse import invert_by_stepping
+
+        return invert_by_stepping(self, np.asarray(theta, float).ravel(), np.asarray(y_target, float), dt,
+                                  u_range=u_range)
+
+    # ----------------------------------------------------------------- helpers
+    @staticmethod
+    def check_theta(theta: np.ndarray, d: int) -> np.ndarray:
+        theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
+        if theta.ndim != 2 or theta.shape[1] != d:
+            raise ValueError(f"theta must have shape (P, {d}), got {theta.shape}")
+        return theta
+
+
+@dataclass(frozen=True)
+class FittedModel:
+    """A model structure with one identified parameter vector."""
+
+    model: Model
+    theta: np.ndarray
+    scale: DataScale
+
+    @property
+    def params(self) -> tuple[Param, ...]:
+        return self.model.params(self.scale)
+
+    def as_dict(self) -> dict[str, float]:
+        return {p.name: float(v) for p, v in zip(self.params, self.theta)}
+
+    def predict(self, u: np.ndarray, dt: float) -> np.ndarray:
+        return self.model.simulate_one(self.theta, u, dt)

@@ -1,0 +1,158 @@
+"""Classical Prandtl–Ishlinskii model (paper 003 eq. 1–3, inverse eq. 17–20)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..params import DataScale, Param
+from ..registry import models
+from ._kernels import play_matrix, play_matrix_from
+from .base import Model
+
+THRESHOLD_PLACEMENTS = ("uniform", "quadratic")
+
+
+@models.register
+@dataclass(frozen=True)
+class PI(Model):
+    r"""Classical Prandtl–Ishlinskii hysteresis: a weighted sum of play operators.
+
+    .. math::
+
+        F_r[u](k) = \max(u_k - r,\ \min(u_k + r,\ F_r[u](k-1))),\qquad
+        F_r[u](0) = \max(u_0 - r,\ \min(u_0 + r,\ 0))
+
+        y(k) = \sum_{j=0}^{n-1} w_j\,F_{r_j}[u](k) + y_0
+
+    (paper 003 eq. 1–3; ``shared/papers/README.md``). ``r_0 = 0`` makes the first operator
+    the identity, i.e. the linear term.
+
+    Structure
+    ---------
+    n_operators : number of play operators n (including the linear one), default 10.
+    placement : ``"uniform"`` r_j = j·max|u|/n (the README's default) or ``"quadratic"``
+        r_j = (j/n)²·max|u| (denser at small thresholds, where loops of small amplitude live).
+    thresholds_V : the thresholds r_j in V; filled from the identification data by
+        :meth:`adapt` and saved with the fit so predictions use the same operators.
+    nonnegative : constrain the weights to w_j ≥ 0 (the physically sensible, invertible case).
+
+    Parameters (θ)
+    --------------
+    w0 … w{n−1} : operator weights, output unit per V (e.g. µm/V). With nonnegative weights and
+        w0 > 0 the model is invertible.
+    y0 : output offset, output unit.
+
+    The output is linear in θ: for fixed thresholds the least-squares optimum is exact
+    (non-negative least squares), see :meth:`design_matrix`.
+
+    Inverse (paper 003 eq. 17–20): another PI with weights w'_0 = 1/w_0,
+    w'_i = −w_i / ((Σ_{j≤i} w_j)(Σ_{j≤i−1} w_j)) and thresholds r'_i = Σ_{j≤i} w_j (r_i − r_j),
+    applied to y − y0.
+    """
+
+    name = "pi"
+    title = "Prandtl–Ishlinskii (classical)"
+    reference = "paper 003 eq. 1–3 (forward), eq. 17–20 (analytic inverse)"
+    equation = "y = Σ_j w_j·F_{r_j}[u] + y0,  F_r[u](k) = max(u_k − r, min(u_k + r, F_r[u](k−1)))"
+    rate_dependent = False
+
+    n_operators: int = 10
+    placement: str = "uniform"
+    thresholds_V: tuple[float, ...] | None = None
+    nonnegative: bool = True
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.n_operators, int) or not 1 <= self.n_operators <= 200:
+            raise ConfigError(f"pi: n_operators must be an integer in [1, 200], got {self.n_operators!r}")
+        if self.placement not in THRESHOLD_PLACEMENTS:
+            raise ConfigError(f"pi: placement must be one of {THRESHOLD_PLACEMENTS}, got {self.placement!r}")
+        if self.thresholds_V is not None:
+            r = np.asarray(self.thresholds_V, float)
+            if r.shape != (self.n_operators,) or np.any(r < 0) or np.any(np.diff(r) <= 0):
+                raise ConfigError(
+                    f"pi: thresholds_V must be {self.n_operators} increasing non-negative values, got {self.thresholds_V!r}"
+                )
+
+    # ------------------------------------------------------------------ structure
+    def adapt(self, scale: DataScale) -> "PI":
+        if self.thresholds_V is not None:
+            return self
+        n = self.n_operators
+        j = np.arange(n, dtype=float)
+        umax = scale.u_abs_max
+        r = j * umax / n if self.placement == "uniform" else (j / n) ** 2 * umax
+        return PI(n, self.placement, tuple(float(x) for x in r), self.nonnegative)
+
+    @property
+    def r(self) -> np.ndarray:
+        if self.thresholds_V is None:
+            raise ConfigError("pi: thresholds are not set; call adapt(scale) with the identification data first")
+        return np.asarray(self.thresholds_V, dtype=np.float64)
+
+    def params(self, scale: DataScale) -> tuple[Param, ...]:
+        g = scale.gain
+        lo = 0.0 if self.nonnegative else -3.0 * g
+        ps = [Param(f"w{j}", "out/V", lo, 3.0 * g, g / self.n_operators if j else g / 2,
+                    f"weight of the play operator with threshold r{j}") for j in range(self.n_operators)]
+        span = scale.y_range
+        ps.append(Param("y0", "out", scale.y_min - span, scale.y_max + span, 0.5 * (scale.y_min + scale.y_max) if scale.y_min > 0 or scale.y_max < 0 else 0.0,
+                        "output offset"))
+        return tuple(ps)
+
+    # ------------------------------------------------------------------ simulation
+    def design_matrix(self, u: np.ndarray, dt: float) -> np.ndarray:
+        """Regressors (N, n + 1): the play-operator outputs and a column of ones (offset).
+
+        y = Φ θ exactly, so θ follows from (non-negative) least squares.
+        """
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        return np.hstack([play_matrix(u, self.r), np.ones((u.shape[0], 1))])
+
+    def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        theta = self.check_theta(theta, self.n_operators + 1)
+        return theta @ self.design_matrix(u, dt).T
+
+    def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
+        phi_t = np.ascontiguousarray(self.design_matrix(u, dt).T)  # (n+1, N), computed once
+        d = self.n_operators + 1
+        return lambda theta: self.check_theta(theta, d) @ phi_t
+
+    def separable(self):
+        """Every parameter is linear (thresholds fixed): the optimum is one bounded least-squares solve."""
+        from ..separable import Separable
+
+        d = self.n_operators + 1
+
+        def factory(u, dt):
+            B = self.design_matrix(u, dt)[None, :, :]
+            return lambda theta_nl: B
+
+        return Separable(tuple(range(d)), (), factory)
+
+    # ------------------------------------------------------------------ inverse
+    def inverse_operator(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weights and thresholds of the inverse PI (paper 003 eq. 17–20)."""
+        w = np.asarray(theta[: self.n_operators], float)
+        r = self.r
+        csum = np.cumsum(w)
+        if w[0] <= 0 or np.any(csum <= 0):
+            raise ConfigError(
+                "pi: the inverse needs w0 > 0 and positive partial sums of the weights; refit with non-negative weights"
+            )
+        w_inv = np.empty_like(w)
+        w_inv[0] = 1.0 / w[0]
+        w_inv[1:] = -w[1:] / (csum[1:] * csum[:-1])
+        r_inv = np.array([np.sum(w[: i + 1] * (r[i] - r[: i + 1])) for i in range(len(w))])
+        return w_inv, r_inv
+
+    def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float) -> np.ndarray:
+        theta = np.asarray(theta, float).ravel()
+        w_inv, r_inv = self.inverse_operator(theta)
+        v = np.ascontiguousarray(np.asarray(y_target, float) - theta[-1])
+        # initial inverse-operator states consistent with a virgin forward state
+        state0 = np.maximum(v[0] - r_inv, np.minimum(v[0] + r_inv, 0.0))
+        return play_matrix_from(v, r_inv, state0) @ w_inv

@@ -1,0 +1,80 @@
+"""Identification objectives: pooled mean squared error of a model over several captures.
+
+Captures of one condition are *pooled*: each is simulated separately from a reset state (never
+concatenated into one simulation) and the squared errors are summed over all samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from .models.base import Model
+
+#: candidates × samples evaluated per block; bounds the (P, N) working memory (~64 MB of float64).
+BLOCK_ELEMENTS = 8_000_000
+
+
+@dataclass(frozen=True)
+class Series:
+    """One capture as the objective sees it: input (V), measured output, sample period (s)."""
+
+    u: np.ndarray
+    y: np.ndarray
+    dt: float
+
+
+class Objective:
+    """MSE(θ) = Σ_captures Σ_k (ŷ_k(θ) − y_k)² / Σ_captures N, for a whole population θ (P, d).
+
+    ``residuals(θ)`` returns the concatenated residual vector of one candidate (for least
+    squares). Non-finite simulations (a diverging parameter vector) score +inf, never raise.
+    ``nfev`` counts candidate evaluations.
+    """
+
+    def __init__(self, model: Model, series: Sequence[Series]) -> None:
+        self.model = model
+        self.series = list(series)
+        self._sims = [model.simulator(s.u, s.dt) for s in self.series]
+        self.n_total = int(sum(s.y.shape[0] for s in self.series))
+        self.nfev = 0
+
+    def _sse(self, theta: np.ndarray) -> np.ndarray:
+        total = np.zeros(theta.shape[0])
+        for sim, s in zip(self._sims, self.series):
+            block = max(1, BLOCK_ELEMENTS // max(s.y.shape[0], 1))
+            for i in range(0, theta.shape[0], block):
+                with np.errstate(all="ignore"):
+                    e = sim(theta[i:i + block]) - s.y[None, :]
+                    total[i:i + block] += np.einsum("ij,ij->i", e, e)
+        return total
+
+    def __call__(self, theta: np.ndarray) -> np.ndarray:
+        theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
+        self.nfev += theta.shape[0]
+        mse = self._sse(theta) / self.n_total
+        return np.where(np.isfinite(mse), mse, np.inf)
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
+        self.nfev += 1
+        with np.errstate(all="ignore"):
+            return np.concatenate([sim(theta)[0] - s.y for sim, s in zip(self._sims, self.series)])
+
+    def predict(self, theta: np.ndarray) -> list[np.ndarray]:
+        theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
+        return [sim(theta)[0] for sim in self._sims]
+
+    def jacobian(self, theta: np.ndarray, rel_step: float = 1e-6) -> np.ndarray:
+        """Forward-difference Jacobian of the residuals (M, d), all d+1 candidates in one population call."""
+        theta = np.asarray(theta, dtype=np.float64).ravel()
+        d = theta.size
+        h = rel_step * np.maximum(np.abs(theta), 1e-3 * (np.max(np.abs(theta)) + 1e-12))
+        pop = np.repeat(theta[None, :], d + 1, axis=0)
+        pop[1:] += np.diag(h)
+        with np.errstate(all="ignore"):
+            ys = [sim(pop) for sim in self._sims]
+        y = np.concatenate(ys, axis=1)  # (d+1, M)
+        return ((y[1:] - y[0]) / h[:, None]).T

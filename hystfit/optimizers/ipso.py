@@ -1,0 +1,176 @@
+"""Improved particle swarm optimization (paper 000): rank-adaptive coefficients, no iteration count."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..registry import optimizers
+from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box, reflect
+
+
+def rank_coefficients(pbest_f: np.ndarray, w_min: float = 0.4, w_max: float = 0.9, c_min: float = 1.5,
+                      c_max: float = 2.5) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rank-based inertia and acceleration coefficients of IPSO (paper 000, README formulation).
+
+    With the s particles ranked by personal-best value (rank 1 = best, ties broken by index)::
+
+        w_i  = w_min + (w_max − w_min)(s − rank_i)/(s − 1)
+        λ_i  = (w_i − w_min)/(w_max − w_min) = (s − rank_i)/(s − 1)
+        c1_i = c_min + (c_max − c_min) λ_i
+        c2_i = c_max − (c_max − c_min) λ_i
+
+    Better particles get the larger inertia and cognitive weight (they explore), worse ones the
+    smaller inertia and the larger social weight (they converge).
+
+    Parameters
+    ----------
+    pbest_f : ndarray, shape (s,)
+        Personal-best values, s ≥ 2.
+    w_min, w_max, c_min, c_max : float
+        Ranges of the inertia weight and the acceleration coefficients.
+
+    Returns
+    -------
+    rank : ndarray of int, shape (s,)
+        1-based rank of each particle.
+    w, c1, c2 : ndarray, shape (s,)
+        Inertia, cognitive and social coefficient of each particle.
+    """
+    s = pbest_f.shape[0]
+    order = np.argsort(pbest_f, kind="stable")
+    rank = np.empty(s, dtype=np.int64)
+    rank[order] = np.arange(1, s + 1)
+    lam = (s - rank) / (s - 1.0)
+    w = w_min + (w_max - w_min) * lam
+    c1 = c_min + (c_max - c_min) * lam
+    c2 = c_max - (c_max - c_min) * lam
+    return rank, w, c1, c2
+
+
+@optimizers.register
+@dataclass
+class IPSO(Optimizer):
+    """Improved PSO of paper 000 as ``shared/papers/README.md`` formulates it.
+
+    Each iteration the particles are ranked by personal-best value (rank 1 = best, s particles);
+    with λ_i = (s − rank_i)/(s − 1)::
+
+        w_i  = w_min + (w_max − w_min) λ_i            (better particles: larger inertia, explore)
+        c1_i = c_min + (c_max − c_min) λ_i,  c2_i = c_max − (c_max − c_min) λ_i
+        v_i ← w_i v_i + c1_i r1 (p_i − x_i) + c2_i r2 (p_{e(i)} − x_i),   x_i ← x_i + v_i
+
+    (see :func:`rank_coefficients`). *Diverse equilibrium points*: the social attractor p_{e(i)}
+    is the personal best of a particle drawn uniformly among those ranked better than i; the
+    best particle uses the global best. r1, r2 ~ U(0, 1) per particle and dimension.
+
+    Parameters
+    ----------
+    pop : int, default 40
+        Swarm size s (≥ 2); paper 000 uses 200.
+    w_min, w_max : float, default 0.4, 0.9
+        Inertia range.
+    c_min, c_max : float, default 1.5, 2.5
+        Acceleration coefficient range.
+    vmax_frac : float, default 0.2
+        Velocity clamp as a fraction of (upper − lower), as in :class:`~hystfit.optimizers.pso.PSO`.
+    max_evals : int or None, default 60000
+        Evaluation budget (200 particles × 300 iterations, paper 000's budget).
+    stall_iter : int or None, default 30
+        Stall window in iterations.
+    stall_tol : float, default 1e-6
+        Relative improvement of the best value that must be exceeded within the stall window.
+    target, time_limit_s : float or None
+        Stop when the best value reaches ``target`` or after ``time_limit_s`` seconds.
+
+    Notes
+    -----
+    Stop rules: there is *no preset iteration count* (paper 000's point: the inertia does not
+    follow an iteration schedule). The run stops when the best value improves by less than
+    ``stall_tol`` (relative) over ``stall_iter`` iterations (status 1), at ``max_evals``
+    evaluations (status 0), at ``target`` (2) or after ``time_limit_s`` (3). At least one of
+    ``max_evals``, ``stall_iter``, ``target``, ``time_limit_s`` must be set. ``--iters`` does
+    not apply.
+
+    Bounds: reflection at the violated face with the velocity component reversed, as in
+    :class:`~hystfit.optimizers.pso.PSO`.
+
+    Initialisation: uniform in the box, velocities uniform in ±V_max; if ``x0`` is given it
+    replaces the first particle (clipped into the box).
+    """
+
+    name = "ipso"
+    title = "Improved particle swarm (rank-adaptive, stall stop)"
+    reference = "paper 000 (improved PSO); shared/papers/README.md"
+
+    pop: int = 40
+    w_min: float = 0.4
+    w_max: float = 0.9
+    c_min: float = 1.5
+    c_max: float = 2.5
+    vmax_frac: float = 0.2
+    max_evals: int | None = 60_000
+    stall_iter: int | None = 30
+    stall_tol: float = 1e-6
+    target: float | None = None
+    time_limit_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.pop < 2:
+            raise ConfigError(f"ipso: pop must be ≥ 2, got {self.pop}")
+        if not 0 <= self.w_min < self.w_max:
+            raise ConfigError(f"ipso: need 0 ≤ w_min < w_max (got {self.w_min:g}, {self.w_max:g})")
+        if not 0 <= self.c_min <= self.c_max:
+            raise ConfigError(f"ipso: need 0 ≤ c_min ≤ c_max (got {self.c_min:g}, {self.c_max:g})")
+        if not self.vmax_frac > 0:
+            raise ConfigError(f"ipso: vmax_frac must be positive, got {self.vmax_frac:g}")
+        if self.max_evals is not None and self.max_evals < 1:
+            raise ConfigError(f"ipso: max_evals must be ≥ 1, got {self.max_evals}")
+        if self.stall_iter is not None and self.stall_iter < 1:
+            raise ConfigError(f"ipso: stall_iter must be ≥ 1, got {self.stall_iter}")
+        if self.max_evals is None and self.stall_iter is None and self.target is None and self.time_limit_s is None:
+            raise ConfigError("ipso: has no iteration count; set at least one of max_evals, stall_iter, "
+                              "target, time_limit_s")
+
+    def _rules(self) -> StopRules:
+        return StopRules(None, self.max_evals, self.stall_iter, self.stall_tol, self.target, self.time_limit_s)
+
+    def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
+                 x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
+        lower, upper = check_box(lower, upper)
+        d, P = lower.size, self.pop
+        width = upper - lower
+        vmax = self.vmax_frac * width
+        tr = Tracker(objective, self._rules(), callback)
+        x = lower + rng.random((P, d)) * width
+        if x0 is not None:
+            x[0] = np.clip(np.asarray(x0, float), lower, upper)
+        v = (rng.random((P, d)) * 2 - 1) * vmax
+        f = tr.evaluate(x)
+        pbest, pbest_f = x.copy(), f.copy()
+        if tr.end_iteration(f):
+            return tr.result(self.name)
+        idx = np.arange(P)
+        by_rank = np.empty(P, dtype=np.intp)
+        while True:
+            rank, w, c1, c2 = rank_coefficients(pbest_f, self.w_min, self.w_max, self.c_min, self.c_max)
+            # social attractor: personal best of a particle drawn uniformly among the better-ranked
+            # ones; for rank 1 the draw is rank 1 itself, i.e. the global best
+            by_rank[rank - 1] = idx          # by_rank[k] = particle of rank k + 1
+            att = by_rank[(rng.random(P) * (rank - 1)).astype(np.intp)]
+            r = rng.random((2, P, d))
+            v = (w[:, None] * v + c1[:, None] * r[0] * (pbest - x)
+                 + c2[:, None] * r[1] * (pbest[att] - x))
+            np.clip(v, -vmax, vmax, out=v)
+            x_new = x + v
+            out = (x_new < lower) | (x_new > upper)
+            x = reflect(x_new, lower, upper)
+            v[out] = -v[out]
+            f = tr.evaluate(x)
+            better = f < pbest_f
+            pbest[better] = x[better]
+            pbest_f[better] = f[better]
+            if tr.end_iteration(f):
+                return tr.result(self.name)

@@ -1,0 +1,132 @@
+"""Particle swarm optimization with Clerc's constriction factor (paper 001 eq. 6–7)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..registry import optimizers
+from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box, reflect
+
+
+def constriction_factor(phi: float) -> float:
+    """Clerc's constriction factor χ = 2 / |2 − φ − sqrt(φ² − 4φ)| (paper 001 eq. 7).
+
+    Parameters
+    ----------
+    phi : float
+        φ = φ1 + φ2; must exceed 4 (the square root is real and χ < 1 only then).
+
+    Returns
+    -------
+    float
+        χ; 0.729843… for the customary φ = 4.1.
+    """
+    if not phi > 4.0:
+        raise ConfigError(f"pso-cf: phi1 + phi2 must be greater than 4, got {phi:g}")
+    return 2.0 / abs(2.0 - phi - math.sqrt(phi * phi - 4.0 * phi))
+
+
+@optimizers.register
+@dataclass
+class ConstrictionPSO(Optimizer):
+    """Global-best PSO with constriction factor (paper 001 eq. 6–7; ``shared/papers/README.md``).
+
+    v ← χ [v + φ1 r1 (p_i − x) + φ2 r2 (p_g − x)],  x ← x + v,
+    χ = 2 / |2 − φ − sqrt(φ² − 4φ)|,  φ = φ1 + φ2 = 4.1 (φ1 = φ2 = 2.05) ⇒ χ ≈ 0.7298,
+
+    with r1, r2 ~ U(0, 1) drawn per particle and dimension, p_i the personal and p_g the global
+    best. Eq. 6 of paper 001 also carries an inertia weight W inside the bracket; Clerc's
+    constriction is the case W = 1, which is what we implement (χ alone damps the swarm, no
+    inertia schedule is needed).
+
+    Parameters
+    ----------
+    pop : int, default 40
+        Swarm size (≥ 2).
+    iters : int, default 200
+        Iterations, the initial evaluation included (``nfev = pop · iters`` when this rule stops).
+    phi1, phi2 : float, default 2.05
+        Cognitive and social acceleration; φ1 + φ2 must exceed 4.
+    vmax_frac : float, default 1.0
+        Velocity clamp as a fraction of (upper − lower). Constriction does not need a clamp;
+        Eberhart & Shi (2000) still recommend V_max = X_max, i.e. the box width (1.0).
+    max_evals, stall_iter, stall_tol, target, time_limit_s
+        The common stop rules (:class:`~hystfit.optimizers.base.StopRules`).
+
+    Notes
+    -----
+    Stop rules: ``iters`` iterations, ``max_evals`` evaluations, no relative improvement above
+    ``stall_tol`` for ``stall_iter`` iterations, ``target`` reached, or ``time_limit_s``.
+
+    Bounds: a particle that leaves the box is *reflected* back inside and the offending velocity
+    component reversed, as in :class:`~hystfit.optimizers.pso.PSO`.
+
+    Initialisation: uniform in the box, velocities uniform in ±V_max; if ``x0`` is given it
+    replaces the first particle (clipped into the box).
+    """
+
+    name = "pso-cf"
+    title = "Particle swarm (constriction factor)"
+    reference = "paper 001 eq. 6–7 (Clerc & Kennedy 2002)"
+
+    pop: int = 40
+    iters: int = 200
+    phi1: float = 2.05
+    phi2: float = 2.05
+    vmax_frac: float = 1.0
+    max_evals: int | None = None
+    stall_iter: int | None = None
+    stall_tol: float = 1e-9
+    target: float | None = None
+    time_limit_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.pop < 2 or self.iters < 1:
+            raise ConfigError(f"pso-cf: pop must be ≥ 2 and iters ≥ 1 (got pop={self.pop}, iters={self.iters})")
+        if self.phi1 < 0 or self.phi2 < 0:
+            raise ConfigError(f"pso-cf: phi1 and phi2 must be non-negative (got {self.phi1:g}, {self.phi2:g})")
+        if not self.vmax_frac > 0:
+            raise ConfigError(f"pso-cf: vmax_frac must be positive, got {self.vmax_frac:g}")
+        constriction_factor(self.phi1 + self.phi2)  # validates φ > 4
+
+    def _rules(self) -> StopRules:
+        return StopRules(self.iters, self.max_evals, self.stall_iter, self.stall_tol, self.target, self.time_limit_s)
+
+    def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
+                 x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
+        lower, upper = check_box(lower, upper)
+        d, P = lower.size, self.pop
+        width = upper - lower
+        vmax = self.vmax_frac * width
+        chi = constriction_factor(self.phi1 + self.phi2)
+        c1, c2 = chi * self.phi1, chi * self.phi2
+        tr = Tracker(objective, self._rules(), callback)
+        x = lower + rng.random((P, d)) * width
+        if x0 is not None:
+            x[0] = np.clip(np.asarray(x0, float), lower, upper)
+        v = (rng.random((P, d)) * 2 - 1) * vmax
+        f = tr.evaluate(x)
+        pbest, pbest_f = x.copy(), f.copy()
+        g = int(np.argmin(pbest_f))
+        if tr.end_iteration(f):
+            return tr.result(self.name)
+        while True:
+            r = rng.random((2, P, d))
+            # χ[v + φ1 r1 (p_i − x) + φ2 r2 (p_g − x)], with χ folded into the coefficients
+            v = chi * v + c1 * r[0] * (pbest - x) + c2 * r[1] * (pbest[g] - x)
+            np.clip(v, -vmax, vmax, out=v)
+            x_new = x + v
+            out = (x_new < lower) | (x_new > upper)
+            x = reflect(x_new, lower, upper)
+            v[out] = -v[out]
+            f = tr.evaluate(x)
+            better = f < pbest_f
+            pbest[better] = x[better]
+            pbest_f[better] = f[better]
+            g = int(np.argmin(pbest_f))
+            if tr.end_iteration(f):
+                return tr.result(self.name)

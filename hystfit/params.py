@@ -1,0 +1,124 @@
+"""Parameter specifications: name, unit, bounds, default and meaning of each model parameter.
+
+Bounds may scale with the data: a model builds its table from a :class:`DataScale`
+(input/output ranges, sample period), so one command works on µm/V stages and on nm/mV ones.
+``--bounds name=lo:hi`` overrides a bound (:func:`apply_bound_overrides`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from .errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Param:
+    """One model parameter.
+
+    Attributes
+    ----------
+    name : identifier used in JSON and ``--bounds`` (e.g. ``"w3"``, ``"alpha"``).
+    unit : physical unit as text (``"um/V"``, ``"1/V"``, ``"um"``, ``"1"`` for dimensionless).
+    lower, upper : search box; ``lower < upper`` is required (never silently swapped).
+    default : a sensible starting value inside the box.
+    description : one line, the parameter's meaning.
+    """
+
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    default: float
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.lower) and np.isfinite(self.upper)):
+            raise ConfigError(f"parameter {self.name!r}: bounds must be finite, got [{self.lower}, {self.upper}]")
+        if not self.lower < self.upper:
+            raise ConfigError(
+                f"parameter {self.name!r}: lower bound {self.lower:g} must be below upper bound {self.upper:g}"
+            )
+        if not self.lower <= self.default <= self.upper:
+            object.__setattr__(self, "default", float(min(max(self.default, self.lower), self.upper)))
+
+
+@dataclass(frozen=True)
+class DataScale:
+    """Scales of the identification data, from which default bounds are derived.
+
+    All in the captures' units: input in V, output in the capture's output unit, time in s.
+    """
+
+    u_min: float
+    u_max: float
+    y_min: float
+    y_max: float
+    dt: float
+    rate_max: float  # max |du/dt| in V/s
+
+    @property
+    def u_range(self) -> float:
+        return max(self.u_max - self.u_min, 1e-12)
+
+    @property
+    def y_range(self) -> float:
+        return max(self.y_max - self.y_min, 1e-12)
+
+    @property
+    def u_abs_max(self) -> float:
+        return max(abs(self.u_min), abs(self.u_max), 1e-12)
+
+    @property
+    def y_abs_max(self) -> float:
+        return max(abs(self.y_min), abs(self.y_max), 1e-12)
+
+    @property
+    def gain(self) -> float:
+        """Output range / input range: the natural gain scale (e.g. µm/V)."""
+        return self.y_range / self.u_range
+
+    @classmethod
+    def from_arrays(cls, us: Sequence[np.ndarray], ys: Sequence[np.ndarray], dts: Sequence[float]) -> "DataScale":
+        u_all = np.concatenate([np.asarray(u, float) for u in us])
+        y_all = np.concatenate([np.asarray(y, float) for y in ys])
+        rate = max(float(np.max(np.abs(np.diff(u)))) / dt if len(u) > 1 else 0.0 for u, dt in zip(us, dts))
+        return cls(float(u_all.min()), float(u_all.max()), float(y_all.min()), float(y_all.max()),
+                   float(min(dts)), max(rate, 1e-12))
+
+
+def parse_bound_overrides(items: Sequence[str]) -> dict[str, tuple[float, float]]:
+    """Parse ``["alpha=0.1:10", "w0=0:2"]`` into ``{"alpha": (0.1, 10.0), ...}``."""
+    out: dict[str, tuple[float, float]] = {}
+    for item in items:
+        name, sep, rng = item.partition("=")
+        lo, sep2, hi = rng.partition(":")
+        try:
+            if not (sep and sep2 and name.strip()):
+                raise ValueError
+            out[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise ConfigError(f"--bounds {item!r}: expected NAME=LOWER:UPPER, e.g. alpha=0.1:10") from None
+    return out
+
+
+def apply_bound_overrides(params: Sequence[Param], overrides: Mapping[str, tuple[float, float]]) -> tuple[Param, ...]:
+    """Return ``params`` with bounds replaced by ``overrides`` (unknown names are an error)."""
+    by_name = {p.name: p for p in params}
+    for name in overrides:
+        if name not in by_name:
+            raise ConfigError(
+                f"--bounds: unknown parameter {name!r}; this model has {', '.join(by_name)}"
+            )
+    out = []
+    for p in params:
+        if p.name in overrides:
+            lo, hi = overrides[p.name]
+            if not lo < hi:
+                raise ConfigError(f"--bounds {p.name}={lo:g}:{hi:g}: lower must be below upper")
+            p = replace(p, lower=lo, upper=hi, default=min(max(p.default, lo), hi))
+        out.append(p)
+    return tuple(out)

@@ -1,0 +1,104 @@
+"""Writes the outputs of ``hystfit identify``: params.json, report.csv, report.md and plots/."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..identify import IdentifyResult, unit_param
+from ..io import atomic_write_text, write_table
+from ..results import dumps, identify_to_dict
+from . import plots
+from .tables import fmt, frame, markdown_table, metric_columns, metric_legend
+
+UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m"}
+
+
+def summary_rows(res: IdentifyResult) -> list[dict]:
+    rows = []
+    for f in res.fits:
+        row = {"condition": f.label, "amplitude_V": f.amplitude_V, "frequency_Hz": f.frequency_Hz,
+               "captures": len(f.captures), "samples": int(sum(c.n for c in f.captures))}
+        for k in metric_columns(res.unit):
+            row[k] = f.metrics.get(k, np.nan)
+        row["runtime_s"] = f.runtime_s
+        row["evaluations"] = f.evaluations
+        if res.runs > 1:
+            sp = f.spread()
+            row[f"rmse_std_{res.unit}"] = sp[f"rmse_std_{res.unit}"]
+        rows.append(row)
+    return rows
+
+
+def _plots(res: IdentifyResult, plot_dir: Path) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    panels = []
+    for f in res.fits:
+        us = [c.u for c in f.captures]
+        ys = [c.y for c in f.captures]
+        title = f"{res.model_name} – {f.label}"
+        files = [
+            plots.loop_figure(plot_dir / f"loop_{f.label}.png", us, ys, list(f.predictions), unit=res.unit, title=title),
+            plots.timeseries_figure(plot_dir / f"timeseries_{f.label}.png", f.captures[0].t, f.captures[0].y,
+                                    f.predictions[0], unit=res.unit, title=f"{title} ({f.captures[0].name})"),
+            plots.convergence_figure(plot_dir / f"convergence_{f.label}.png", f.best.result.history_best,
+                                     f.best.result.history_mean, title=f"{title}: {res.optimizer_name}",
+                                     runs=[r.result.history_best for r in f.runs] if len(f.runs) > 1 else None),
+        ]
+        out[f.label] = [str(Path("plots") / Path(p).name) for p in files]
+        r2 = f.metrics.get("r2", np.nan)
+        rmse = f.metrics.get(f"rmse_{res.unit}", np.nan)
+        panels.append({"title": f.label, "u": us, "y_meas": ys, "y_model": list(f.predictions),
+                       "subtitle": f"R²={fmt(r2)} RMSE={fmt(rmse, 3)} {UNIT_DISPLAY.get(res.unit, res.unit)}"})
+    plots.overview_figure(plot_dir / "overview.png", panels, unit=res.unit,
+                          title=f"{res.model_name} identified with {res.optimizer_name}")
+    return out
+
+
+def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> str:
+    u = res.unit
+    lines = [f"# hystfit identification report", "",
+             f"- model: `{res.model_name}` — optimizer: `{res.optimizer_name}`"
+             f"{' + least-squares polish' if res.polish and res.optimizer_name not in ('lsq', 'auto') else ''}",
+             f"- mode: {res.mode}; runs per condition: {res.runs}; seed: {res.seed}; hystfit {__version__}",
+             f"- output unit: {u}; input unit: V; time: s", ""]
+    lines += ["## Metrics per condition", "", markdown_table(frame(summary_rows(res))), "",
+              "Formulas (e = model − measured):", "", metric_legend(u), ""]
+    for f in res.fits:
+        lines += [f"## {f.label}", "",
+                  f"Sources: {', '.join(c.source for c in f.captures)}", ""]
+        notes = [n for c in f.captures for n in c.notes]
+        if notes:
+            lines += ["Loading notes: " + "; ".join(notes), ""]
+        prow = [{"parameter": p.name, "unit": unit_param(p, u), "value": v, "stderr": se,
+                 "lower": p.lower, "upper": p.upper} for p, v, se in zip(f.params, f.theta, f.stderr)]
+        lines += [markdown_table(frame(prow)), ""]
+        if len(f.runs) > 1:
+            sp = f.spread()
+            lines += [f"Runs: {sp['runs']}; objective min {fmt(sp['fun_min'])}, max {fmt(sp['fun_max'])}, "
+                      f"mean {fmt(sp['fun_mean'])}, std {fmt(sp['fun_std'])}; median time {fmt(sp['time_median_s'])} s", ""]
+        for p in plot_files.get(f.label, []):
+            lines.append(f"![{Path(p).stem}]({p})")
+        lines.append("")
+    lines += ["Standard errors are asymptotic (σ²(JᵀJ)⁻¹ at the optimum); parameters on a bound have none. "
+              "A large standard error means the data do not determine that parameter well.", ""]
+    return "\n".join(lines)
+
+
+def write_identify_outputs(res: IdentifyResult, out_dir: Path, *, make_plots: bool = True) -> dict[str, Path]:
+    """Write every output of an identification into ``out_dir`` (which must exist)."""
+    out_dir = Path(out_dir)
+    paths = {"params": out_dir / "params.json", "report_csv": out_dir / "report.csv",
+             "report_md": out_dir / "report.md"}
+    atomic_write_text(paths["params"], dumps(identify_to_dict(res)))
+    write_table(paths["report_csv"], frame(summary_rows(res)))
+    plot_files: dict[str, list[str]] = {}
+    if make_plots:
+        plot_dir = out_dir / "plots"
+        plot_dir.mkdir(exist_ok=True)
+        plot_files = _plots(res, plot_dir)
+        paths["plots"] = plot_dir
+    atomic_write_text(paths["report_md"], markdown_report(res, plot_files))
+    return paths

@@ -1,0 +1,601 @@
+"""Figures for reports, written as PNG files.
+
+Every function takes plain arrays, a unit and a title, draws one figure, writes it atomically
+(a hidden temporary file in the target directory, then :func:`os.replace`, so a reader never sees
+a half-written PNG) and returns the :class:`~pathlib.Path` written. Nothing is printed and nothing
+is shown on screen.
+
+Figures are built with the object-oriented :class:`matplotlib.figure.Figure` API and rendered by
+the Agg canvas directly, without :mod:`matplotlib.pyplot`: no global backend is selected and no
+figure is registered in pyplot's state, so importing this module does not disturb an interactive
+session (Jupyter, an IDE) and no figure can leak.
+
+Long series are decimated before drawing (at most :data:`MAX_POINTS` points per line, see
+:func:`_decimate`), so a 10⁶-sample capture plots in well under a second; the residual trace keeps
+each bucket's minimum and maximum (:func:`_decimate_minmax`) so that error peaks stay visible.
+Non-finite model values (a diverged simulation) are drawn as gaps.
+
+Units: ``"um"`` is shown as ``µm``; see :func:`display_unit`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import uuid
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ..errors import OutputError
+
+__all__ = [
+    "MAX_POINTS",
+    "boxplot_figure",
+    "convergence_figure",
+    "display_unit",
+    "heatmap_figure",
+    "loop_figure",
+    "overview_figure",
+    "parity_figure",
+    "timeseries_figure",
+]
+
+#: most points drawn per line; longer series are decimated
+MAX_POINTS = 20_000
+#: default resolution of written PNGs (dots per inch)
+DPI = 110
+
+_UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m", "urad": "µrad", "mrad": "mrad",
+                 "rad": "rad", "deg": "°"}
+_QUANTITY = {"um": "Displacement", "nm": "Displacement", "mm": "Displacement", "m": "Displacement",
+             "urad": "Angle", "mrad": "Angle", "rad": "Angle", "deg": "Angle"}
+_MEAS_STYLE = {"color": "0.15", "lw": 0.8}
+_MODEL_STYLE = {"color": "tab:red", "lw": 1.1, "alpha": 0.9}
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+
+
+def display_unit(unit: str) -> str:
+    """Unit as printed on axes: ``"um"`` → ``"µm"``, ``"nm"`` → ``"nm"``, unknown units unchanged."""
+    return _UNIT_DISPLAY.get(unit, unit)
+
+
+def _output_label(unit: str, what: str | None = None) -> str:
+    return f"{what or _QUANTITY.get(unit, 'Output')} ({display_unit(unit)})"
+
+
+def _stride(n: int, max_points: int = MAX_POINTS) -> int:
+    """Step ``k`` such that ``x[::k]`` has at most ``max_points`` of ``n`` samples (1 if short)."""
+    if max_points < 1:
+        raise ValueError(f"max_points must be >= 1, got {max_points}")
+    return max(1, math.ceil(n / max_points))
+
+
+def _decimate(x, max_points: int = MAX_POINTS) -> np.ndarray:
+    """Every k-th sample of ``x`` so that at most ``max_points`` remain (``x`` itself if short).
+
+    Arrays of the same length get the same stride, so decimated ``u`` and ``y`` stay paired.
+    """
+    x = np.asarray(x)
+    return x[:: _stride(x.shape[0], max_points)]
+
+
+def _decimate_minmax(t, y, max_points: int = MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """Decimate ``(t, y)`` to at most ``max_points`` points, keeping each bucket's min and max of ``y``.
+
+    Used for residuals, where a stride would drop the peaks a reader is looking for. Falls back
+    to a plain stride when ``y`` holds non-finite values.
+    """
+    t, y = np.asarray(t), np.asarray(y)
+    n = y.shape[0]
+    if n <= max_points:
+        return t, y
+    if not np.all(np.isfinite(y)):
+        k = _stride(n, max_points)
+        return t[::k], y[::k]
+    k = _stride(n, max(1, max_points // 2))  # two points per bucket
+    nb = n // k
+    body = y[: nb * k].reshape(nb, k)
+    base = np.arange(nb) * k
+    idx = np.concatenate([base + body.argmin(axis=1), base + body.argmax(axis=1)])
+    if nb * k < n:  # tail shorter than a bucket
+        tail = y[nb * k:]
+        idx = np.concatenate([idx, nb * k + np.array([tail.argmin(), tail.argmax()])])
+    idx = np.unique(idx)
+    return t[idx], y[idx]
+
+
+def _finite_or_nan(y: np.ndarray) -> np.ndarray:
+    """Float copy with ±inf replaced by NaN (drawn as gaps, harmless to autoscaling)."""
+    y = np.asarray(y, dtype=float)
+    return np.where(np.isfinite(y), y, np.nan) if not np.all(np.isfinite(y)) else y
+
+
+def _is_multi(x) -> bool:
+    """True for a list/tuple of array-likes (several captures), False for one series."""
+    return isinstance(x, (list, tuple)) and len(x) > 0 and all(np.ndim(el) >= 1 for el in x)
+
+
+def _captures(name_arrays: Mapping[str, object]) -> list[tuple[np.ndarray, ...]]:
+    """Normalise one series or lists of series into a list of equal-length tuples per capture.
+
+    ``None`` values stay ``None`` in every tuple (e.g. no model output).
+    """
+    present = {k: v for k, v in name_arrays.items() if v is not None}
+    multi = {k: _is_multi(v) for k, v in present.items()}
+    if any(multi.values()) and not all(multi.values()):
+        raise ValueError("pass either one array or a list of arrays for each of "
+                         f"{', '.join(present)}, not a mixture")
+    lists = {k: (list(v) if multi[k] else [v]) for k, v in present.items()}
+    counts = {k: len(v) for k, v in lists.items()}
+    if len(set(counts.values())) > 1:
+        raise ValueError(f"different numbers of captures: {counts}")
+    n_cap = next(iter(counts.values()))
+    out = []
+    for i in range(n_cap):
+        row = {k: np.asarray(lists[k][i], dtype=float).ravel() for k in lists}
+        lengths = {k: a.size for k, a in row.items()}
+        if len(set(lengths.values())) > 1:
+            raise ValueError(f"capture {i}: arrays differ in length {lengths}")
+        out.append(tuple(row.get(k) for k in name_arrays))
+    return out
+
+
+def _save(fig: Figure, path, dpi: int) -> Path:
+    """Render ``fig`` to ``path`` as PNG atomically and return the path.
+
+    Raises
+    ------
+    OutputError
+        If the directory cannot be created or the file cannot be written.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "xb") as fh:
+            fig.savefig(fh, format="png", dpi=dpi)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"cannot write figure {path}: {exc.strerror or exc}") from exc
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        fig.clear()
+    return path
+
+
+def _new_figure(width: float, height: float) -> Figure:
+    return Figure(figsize=(width, height), layout="constrained")
+
+
+def _draw_loops(ax, caps, max_points: int, labels: Sequence[str], lw_scale: float = 1.0) -> None:
+    for i, (u, ym, yp) in enumerate(caps):
+        k = _stride(u.size, max_points)
+        ax.plot(u[::k], ym[::k], **{**_MEAS_STYLE, "lw": _MEAS_STYLE["lw"] * lw_scale},
+                label=labels[0] if i == 0 else None)
+        if yp is not None:
+            ax.plot(u[::k], _finite_or_nan(yp[::k]), **{**_MODEL_STYLE, "lw": _MODEL_STYLE["lw"] * lw_scale},
+                    label=labels[1] if i == 0 else None)
+
+
+# ----------------------------------------------------------------------------------------------
+# figures
+
+
+def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str = "",
+                labels: Sequence[str] = ("measured", "model"), dpi: int = DPI) -> Path:
+    """Hysteresis loop: output against input voltage, measured and modelled.
+
+    Parameters
+    ----------
+    path : str or Path
+        PNG file to write (parent directories are created).
+    u_V, y_meas, y_model : array_like or list of array_like
+        Input voltage in V, measured and model output in ``unit``; one capture, or lists with one
+        array per capture (several captures of one condition). ``y_model`` may be None.
+    unit : str, default "um"
+        Output unit.
+    title : str
+        Figure title.
+    labels : (str, str)
+        Legend labels of the measured and model curves.
+    dpi : int, default 110
+
+    Returns
+    -------
+    Path
+    """
+    caps = _captures({"u": u_V, "y_meas": y_meas, "y_model": y_model})
+    fig = _new_figure(6.4, 4.8)
+    ax = fig.add_subplot()
+    _draw_loops(ax, caps, max(1, MAX_POINTS // len(caps)), labels)
+    ax.set_xlabel("Voltage (V)")
+    ax.set_ylabel(_output_label(unit))
+    if title:
+        ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best")
+    return _save(fig, path, dpi)
+
+
+def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: str = "",
+                      dpi: int = DPI) -> Path:
+    """Measured and model output over time, with the residual below.
+
+    The lower axes show the residual ``e = y_model − y_meas`` and a shaded ``±RMSE`` band (RMSE of
+    all finite residuals, computed before decimation).
+
+    Parameters
+    ----------
+    path : str or Path
+    t_s : array_like or None
+        Time in s; ``None`` plots against the sample index.
+    y_meas, y_model : array_like
+        Measured and model output in ``unit`` (same length as ``t_s``).
+    unit : str, default "um"
+    title : str
+    dpi : int, default 110
+
+    Returns
+    -------
+    Path
+    """
+    ym = np.asarray(y_meas, dtype=float).ravel()
+    yp = np.asarray(y_model, dtype=float).ravel()
+    t = np.arange(ym.size, dtype=float) if t_s is None else np.asarray(t_s, dtype=float).ravel()
+    if not (t.size == ym.size == yp.size):
+        raise ValueError(f"t_s, y_meas and y_model differ in length ({t.size}, {ym.size}, {yp.size})")
+    resid = yp - ym if np.all(np.isfinite(yp)) else np.where(np.isfinite(yp), yp - ym, np.nan)
+    finite = np.isfinite(resid)
+    rmse = float(np.sqrt(np.mean(resid[finite] ** 2))) if finite.any() else float("nan")
+
+    fig = _new_figure(8.0, 5.6)
+    ax, axr = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1.0]})
+    k = _stride(t.size)
+    ax.plot(t[::k], ym[::k], **_MEAS_STYLE, label="measured")
+    ax.plot(t[::k], _finite_or_nan(yp[::k]), **_MODEL_STYLE, label="model")
+    ax.set_ylabel(_output_label(unit))
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right")
+    if title:
+        ax.set_title(title)
+
+    tr, rr = _decimate_minmax(t, resid)
+    u = display_unit(unit)
+    if np.isfinite(rmse):
+        axr.axhspan(-rmse, rmse, color="tab:blue", alpha=0.15, lw=0, label=f"±RMSE = {rmse:.3g} {u}")
+    axr.axhline(0.0, color="0.5", lw=0.6)
+    axr.plot(tr, rr, color="tab:blue", lw=0.7, label="model − measured")
+    axr.set_ylabel(f"Residual ({u})")
+    axr.set_xlabel("Time (s)" if t_s is not None else "Sample")
+    axr.grid(True, alpha=0.3)
+    axr.legend(loc="upper right", fontsize="small")
+    return _save(fig, path, dpi)
+
+
+def convergence_figure(path, history_best, history_mean=None, *, title: str = "",
+                       ylabel: str = "objective (MSE)", log: bool = True, runs=None,
+                       dpi: int = DPI) -> Path:
+    """Optimizer convergence: objective per iteration.
+
+    Parameters
+    ----------
+    path : str or Path
+    history_best : array_like or None
+        Best-so-far objective per iteration (plotted as given, bold).
+    history_mean : array_like, optional
+        Population mean per iteration (dashed).
+    title, ylabel : str
+    log : bool, default True
+        Logarithmic y axis; silently linear when a plotted value is ≤ 0.
+    runs : list of array_like, optional
+        Best-so-far histories of several runs (seeds), overlaid as thin lines.
+    dpi : int, default 110
+
+    Returns
+    -------
+    Path
+
+    Notes
+    -----
+    Non-finite values (e.g. a population whose every member diverged) are left out as gaps.
+    An empty history (a solver without iterations) gives a figure saying so.
+    """
+    fig = _new_figure(6.4, 4.2)
+    ax = fig.add_subplot()
+    plotted: list[np.ndarray] = []
+
+    def draw(h, **kw):
+        h = _finite_or_nan(np.ravel(np.asarray(h, dtype=float)))
+        if h.size == 0:
+            return
+        it = np.arange(h.size)
+        k = _stride(h.size)
+        marker = "o" if h.size == 1 else None
+        ax.plot(it[::k], h[::k], marker=marker, **kw)
+        plotted.append(h)
+
+    runs = list(runs) if runs is not None else []
+    for i, h in enumerate(runs):
+        draw(h, color="tab:gray", lw=0.8, alpha=0.6,
+             label=(f"runs (n={len(runs)})" if i == 0 else None))
+    if history_best is not None:
+        draw(history_best, color="tab:blue", lw=1.8, label="best so far")
+    if history_mean is not None:
+        draw(history_mean, color="tab:orange", lw=1.0, ls="--", label="population mean")
+
+    values = np.concatenate(plotted) if plotted else np.empty(0)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        ax.text(0.5, 0.5, "no iteration history", ha="center", va="center", transform=ax.transAxes)
+    else:
+        if log and np.all(values > 0):
+            ax.set_yscale("log")
+        ax.legend(loc="best")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel(ylabel)
+    ax.grid(True, which="both", alpha=0.3)
+    if title:
+        ax.set_title(title)
+    return _save(fig, path, dpi)
+
+
+def _grid_shape(n: int) -> tuple[int, int]:
+    """Near-square (rows, cols) grid for ``n`` panels, landscape, few empty cells.
+
+    At most 3 panels go in one row; otherwise among grids with ``rows ≤ cols ≤ 2·rows`` the one
+    with the fewest empty cells, then the squarest, is chosen (24 → 4×6, 9 → 3×3, 7 → 2×4).
+    """
+    if n < 1:
+        raise ValueError(f"need at least one panel, got {n}")
+    if n <= 3:
+        return 1, n
+    best = None
+    for rows in range(1, n + 1):
+        cols = math.ceil(n / rows)
+        if not rows <= cols <= 2 * rows:
+            continue
+        key = (rows * cols - n, cols - rows)
+        if best is None or key < best[0]:
+            best = (key, (rows, cols))
+    return best[1]
+
+
+def overview_figure(path, panels: Sequence[dict], *, unit: str = "um", title: str = "",
+                    dpi: int = DPI) -> Path:
+    """Grid of small loop plots, one per condition.
+
+    Parameters
+    ----------
+    path : str or Path
+    panels : sequence of dict
+        One dict per panel with keys ``"u"``, ``"y_meas"``, ``"y_model"`` (arrays or lists of
+        arrays, as :func:`loop_figure`), and optional ``"title"`` and ``"subtitle"``
+        (e.g. ``"R²=0.999 RMSE=0.01 µm"``).
+    unit : str, default "um"
+    title : str
+        Figure title.
+    dpi : int, default 110
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ValueError
+        If ``panels`` is empty or a panel lacks ``u`` / ``y_meas``.
+    """
+    panels = list(panels)
+    rows, cols = _grid_shape(len(panels))
+    fig = _new_figure(2.6 * cols, 2.25 * rows + (0.45 if title else 0.2) + 0.3)
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    budget = max(1000, MAX_POINTS // 4)
+    for i, (ax, p) in enumerate(zip(axes, panels)):
+        missing = [k for k in ("u", "y_meas") if k not in p]
+        if missing:
+            raise ValueError(f"panel {i} ({p.get('title', '')!r}) lacks {', '.join(missing)}")
+        caps = _captures({"u": p["u"], "y_meas": p["y_meas"], "y_model": p.get("y_model")})
+        _draw_loops(ax, caps, max(1, budget // len(caps)), ("measured", "model"), lw_scale=0.8)
+        head = p.get("title", "")
+        sub = p.get("subtitle", "")
+        ax.set_title(f"{head}\n{sub}" if sub else head, fontsize=7.5, pad=3)
+        ax.tick_params(labelsize=6.5, pad=1.5)
+        ax.grid(True, alpha=0.3)
+        c = i % cols
+        last_in_column = i + cols >= len(panels)
+        if last_in_column:
+            ax.set_xlabel("Voltage (V)", fontsize=7)
+        if c == 0:
+            ax.set_ylabel(_output_label(unit), fontsize=7)
+    for ax in axes[len(panels):]:
+        ax.set_axis_off()
+    handles, lbls = axes[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, lbls, loc="outside lower center", ncols=len(handles), fontsize=8, frameon=False)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path, dpi)
+
+
+def parity_figure(path, y_meas, y_model, *, unit: str = "um", title: str = "", dpi: int = DPI) -> Path:
+    """Model against measured output, sample by sample, with the 1:1 line.
+
+    Parameters
+    ----------
+    path : str or Path
+    y_meas, y_model : array_like or list of array_like
+        Measured and model output in ``unit``; lists (several captures) are pooled.
+    unit : str, default "um"
+    title : str
+    dpi : int, default 110
+
+    Returns
+    -------
+    Path
+    """
+    caps = _captures({"y_meas": y_meas, "y_model": y_model})
+    ym = np.concatenate([c[0] for c in caps])
+    yp = _finite_or_nan(np.concatenate([c[1] for c in caps]))
+    k = _stride(ym.size)
+    fig = _new_figure(5.2, 5.0)
+    ax = fig.add_subplot()
+    ax.scatter(ym[::k], yp[::k], s=3, alpha=0.35, color="tab:blue", lw=0, rasterized=True,
+               label="samples")
+    both = np.concatenate([ym, yp[np.isfinite(yp)]])
+    lo, hi = float(both.min()), float(both.max())
+    pad = 0.03 * (hi - lo) if hi > lo else 1.0
+    lim = (lo - pad, hi + pad)
+    ax.plot(lim, lim, color="0.2", lw=0.9, ls="--", label="1:1")
+    ax.set_xlim(lim)
+    ax.set_ylim(lim)
+    ax.set_aspect("equal", adjustable="box")
+    u = display_unit(unit)
+    q = _QUANTITY.get(unit, "output").lower()
+    ax.set_xlabel(f"Measured {q} ({u})")
+    ax.set_ylabel(f"Model {q} ({u})")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", markerscale=4)
+    if title:
+        ax.set_title(title)
+    return _save(fig, path, dpi)
+
+
+def _cell_text(v: float, fmt: str) -> str:
+    if np.isnan(v):
+        return "–"
+    if np.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    return fmt.format(v)
+
+
+def heatmap_figure(path, matrix, row_labels: Sequence[str], col_labels: Sequence[str], *,
+                   title: str = "", fmt: str = "{:.3g}", cmap: str = "viridis",
+                   colorbar_label: str = "", dpi: int = DPI) -> Path:
+    """Annotated heat map of a 2-D table (e.g. RMSE per model × condition).
+
+    Parameters
+    ----------
+    path : str or Path
+    matrix : array_like, shape (R, C)
+        Values; NaN and ±inf are drawn blank and annotated ``–`` / ``inf``.
+    row_labels : sequence of str, length R
+    col_labels : sequence of str, length C
+    title : str
+    fmt : str, default "{:.3g}"
+        Format of the cell annotations (annotations are skipped above 600 cells).
+    cmap : str, default "viridis"
+    colorbar_label : str
+    dpi : int, default 110
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ValueError
+        If ``matrix`` is not 2-D or the label counts do not match its shape.
+    """
+    m = np.asarray(matrix, dtype=float)
+    if m.ndim != 2:
+        raise ValueError(f"matrix must be 2-D, got shape {m.shape}")
+    R, C = m.shape
+    if len(row_labels) != R or len(col_labels) != C:
+        raise ValueError(f"matrix has shape {m.shape} but {len(row_labels)} row labels and "
+                         f"{len(col_labels)} column labels")
+    masked = np.ma.masked_invalid(m)
+    fig = _new_figure(min(20.0, max(4.5, 0.85 * C + 2.8)), min(16.0, max(3.0, 0.42 * R + 1.6)))
+    ax = fig.add_subplot()
+    im = ax.imshow(masked, aspect="auto", cmap=cmap, interpolation="nearest")
+    if masked.count() == 0:
+        im.set_clim(0.0, 1.0)
+    ax.set_xticks(np.arange(C), [str(c) for c in col_labels])
+    ax.set_yticks(np.arange(R), [str(r) for r in row_labels])
+    if C > 6 or max((len(str(c)) for c in col_labels), default=0) > 8:
+        ax.tick_params(axis="x", labelrotation=45)
+        for lab in ax.get_xticklabels():
+            lab.set_horizontalalignment("right")
+            lab.set_rotation_mode("anchor")
+    ax.tick_params(length=0)
+    if R * C <= 600:
+        size = 8 if R * C <= 150 else 6
+        for (i, j), v in np.ndenumerate(m):
+            if np.isfinite(v):
+                r, g, b, _ = im.cmap(im.norm(v))
+                colour = "white" if 0.299 * r + 0.587 * g + 0.114 * b < 0.5 else "black"
+            else:
+                colour = "0.3"
+            ax.text(j, i, _cell_text(v, fmt), ha="center", va="center", fontsize=size, color=colour)
+    cb = fig.colorbar(im, ax=ax)
+    if colorbar_label:
+        cb.set_label(colorbar_label)
+    if title:
+        ax.set_title(title)
+    return _save(fig, path, dpi)
+
+
+def boxplot_figure(path, groups: Mapping[str, Sequence[float]], *, title: str = "", ylabel: str = "",
+                   log: bool = False, dpi: int = DPI) -> Path:
+    """Box plot of several groups of values (e.g. RMSE over seeds per optimizer), points overlaid.
+
+    Parameters
+    ----------
+    path : str or Path
+    groups : mapping of str to sequence of float
+        Group name → values. Non-finite values (and values ≤ 0 with ``log``) are left out; the
+        tick label shows how many values each box holds.
+    title, ylabel : str
+    log : bool, default False
+        Logarithmic y axis.
+    dpi : int, default 110
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ValueError
+        If ``groups`` is empty.
+    """
+    if not groups:
+        raise ValueError("boxplot_figure needs at least one group")
+    names = [str(k) for k in groups]
+    data = []
+    for v in groups.values():
+        a = np.asarray(v, dtype=float).ravel()
+        keep = np.isfinite(a) & ((a > 0) if log else True)
+        data.append(a[keep])
+    n = len(names)
+    fig = _new_figure(min(20.0, max(4.5, 0.75 * n + 2.0)), 4.4)
+    ax = fig.add_subplot()
+    pos = np.arange(1, n + 1)
+    nonempty = [i for i, d in enumerate(data) if d.size]
+    if nonempty:
+        ax.boxplot([data[i] for i in nonempty], positions=pos[nonempty], widths=0.55,
+                   showfliers=False, medianprops={"color": "tab:red"})
+    jitter = np.random.default_rng(0)  # fixed: the same data gives the same picture
+    for i in nonempty:
+        d = data[i]
+        ax.scatter(pos[i] + jitter.uniform(-0.12, 0.12, d.size), d, s=9, alpha=0.55,
+                   color="tab:blue", lw=0, zorder=3)
+    ax.set_xticks(pos, [f"{nm}\n(n={d.size})" for nm, d in zip(names, data)])
+    ax.set_xlim(0.4, n + 0.6)
+    if n > 6 or max(len(s) for s in names) > 10:
+        ax.tick_params(axis="x", labelrotation=30)
+    if log and nonempty:
+        ax.set_yscale("log")
+    ax.set_ylabel(ylabel)
+    ax.grid(True, axis="y", which="both", alpha=0.3)
+    if title:
+        ax.set_title(title)
+    return _save(fig, path, dpi)

@@ -1,0 +1,62 @@
+"""Writes the outputs of ``hystfit simulate``: predictions, per-capture metrics, plots and report.md."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..io import atomic_write_text, write_table
+from ..predict import Prediction
+from ..results import ParamsFile, _clean, dumps
+from . import plots
+from .tables import frame, markdown_table, metric_columns, metric_legend
+
+
+def _stem(pred: Prediction, seen: dict[str, int]) -> str:
+    stem = Path(pred.capture.source).stem
+    n = seen.get(stem, 0)
+    seen[stem] = n + 1
+    return stem if n == 0 else f"{stem}_{n}"
+
+
+def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir: Path, *, fmt: str = "csv",
+                           make_plots: bool = True) -> list[dict]:
+    out_dir = Path(out_dir)
+    u = pf.unit
+    seen: dict[str, int] = {}
+    summary = []
+    if make_plots:
+        (out_dir / "plots").mkdir(exist_ok=True)
+    for p in preds:
+        c = p.capture
+        stem = _stem(p, seen)
+        cols = {"time_s": c.t, "voltage_V": c.u, f"predicted_displacement_{u}": p.y_model}
+        if c.y is not None:
+            cols[f"measured_displacement_{u}"] = c.y
+            cols[f"residual_{u}"] = p.y_model - c.y
+        write_table(out_dir / f"{stem}_prediction.{fmt}", pd.DataFrame(cols))
+        entry = {"capture": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
+                 "cells": [list(x) for x in p.cells], "metrics": p.metrics,
+                 "prediction_file": f"{stem}_prediction.{fmt}"}
+        if p.metrics is not None:
+            atomic_write_text(out_dir / f"{stem}_metrics.json", dumps(_clean(entry)))
+            if make_plots:
+                plots.loop_figure(out_dir / "plots" / f"loop_{stem}.png", c.u, c.y, p.y_model, unit=u,
+                                  title=f"{pf.model_name} prediction – {c.name}")
+                plots.timeseries_figure(out_dir / "plots" / f"timeseries_{stem}.png", c.t, c.y, p.y_model, unit=u,
+                                        title=f"{pf.model_name} prediction – {c.name}")
+        summary.append(_clean(entry))
+    rows = []
+    for s in summary:
+        row = {"capture": Path(s["capture"]).name, "amplitude_V": s["amplitude_V"], "frequency_Hz": s["frequency_Hz"],
+               "cells": ", ".join(f"{lab}×{w:.2f}" for lab, w in s["cells"])}
+        for k in metric_columns(u):
+            row[k] = (s["metrics"] or {}).get(k, np.nan)
+        rows.append(row)
+    text = "\n".join([f"# hystfit simulate report", "", f"- parameters: `{pf.path}` (model `{pf.model_name}`, {pf.mode})",
+                      f"- output unit: {u}", "", markdown_table(frame(rows)), "", "Formulas:", "", metric_legend(u), ""])
+    atomic_write_text(out_dir / "report.md", text)
+    return summary

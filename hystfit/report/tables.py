@@ -1,0 +1,50 @@
+"""Tables for reports: per-condition metric rows, CSV frames and Markdown rendering."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..metrics import describe_metrics, metric_key
+
+#: metric columns shown in per-condition reports, in order
+REPORT_METRICS = ("rmse", "nrmse_pct", "mape", "smape", "r2", "re", "j", "max_error")
+
+
+def metric_columns(unit: str) -> list[str]:
+    return [metric_key(m, unit) for m in REPORT_METRICS]
+
+
+def fmt(x, digits: int = 4) -> str:
+    """Compact number formatting for Markdown tables."""
+    if x is None:
+        return "–"
+    if isinstance(x, str):
+        return x
+    x = float(x)
+    if not np.isfinite(x):
+        return "inf" if x > 0 else ("-inf" if x < 0 else "–")
+    if x == 0:
+        return "0"
+    if abs(x) >= 1e5 or abs(x) < 1e-3:
+        return f"{x:.{digits - 1}e}"
+    return f"{x:.{digits}g}"
+
+
+def markdown_table(df: pd.DataFrame, digits: int = 4) -> str:
+    cols = list(df.columns)
+    lines = ["| " + " | ".join(str(c) for c in cols) + " |",
+             "|" + "|".join("---:" if pd.api.types.is_numeric_dtype(df[c]) else "---" for c in cols) + "|"]
+    for _, row in df.iterrows():
+        lines.append("| " + " | ".join(fmt(row[c], digits) if not isinstance(row[c], str) else row[c] for c in cols) + " |")
+    return "\n".join(lines)
+
+
+def metric_legend(unit: str) -> str:
+    return "\n".join(f"- `{key}`: {formula}" for key, formula in describe_metrics(unit))
+
+
+def frame(rows: Sequence[dict]) -> pd.DataFrame:
+    return pd.DataFrame(list(rows))

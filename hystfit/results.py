@@ -1,0 +1,160 @@
+"""The ``params.json`` schema: writing identification results and reading them back.
+
+Schema ``hystfit.params`` version 1 (documented in the README)::
+
+    {"schema": "hystfit.params", "schema_version": 1,
+     "tool": {"name": "hystfit", "version": "..."},
+     "model": {"name", "title", "reference", "equation", "options"},
+     "optimizer": {"name", "settings", "polish", "runs"},
+     "seed": int, "mode": "per-condition" | "global",
+     "units": {"input": "V", "output": "um", "time": "s"},
+     "bounds_overrides": {name: [lo, hi]},
+     "conditions": [{"label", "amplitude_V", "frequency_Hz", "sources", "model_structure",
+                     "data_scale", "parameters": [{"name", "unit", "value", "stderr", "lower", "upper", "at_bound"}],
+                     "metrics": {...}, "per_capture": [...], "runtime_s", "evaluations",
+                     "runs": [{"run", "seed", "fun", "rmse_<unit>", "nfev", "wall_time_s", "stop"}],
+                     "run_spread": {...}}]}
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import __version__
+from .errors import InputError
+from .identify import ConditionFit, IdentifyResult, unit_param
+from .models.base import Model
+from .params import DataScale
+from .registry import models
+
+SCHEMA = "hystfit.params"
+SCHEMA_VERSION = 1
+
+
+def _num(x: Any) -> Any:
+    """JSON-safe number: NaN/inf become None."""
+    if isinstance(x, (float, np.floating)):
+        x = float(x)
+        return x if math.isfinite(x) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    return x
+
+
+def _clean(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [_clean(v) for v in obj.tolist()]
+    return _num(obj)
+
+
+def condition_to_dict(fit: ConditionFit) -> dict[str, Any]:
+    u = fit.unit
+    width = np.array([p.upper - p.lower for p in fit.params])
+    params = []
+    for p, v, se, w in zip(fit.params, fit.theta, fit.stderr, width):
+        at = "lower" if v - p.lower <= 1e-6 * w else "upper" if p.upper - v <= 1e-6 * w else None
+        params.append({"name": p.name, "unit": unit_param(p, u), "value": float(v), "stderr": float(se),
+                       "lower": p.lower, "upper": p.upper, "at_bound": at, "description": p.description})
+    runs = [{"run": r.run, "seed": r.seed, "fun": r.fun, f"rmse_{u}": r.rmse, "nfev": r.nfev,
+             "iterations": r.result.nit, "wall_time_s": r.wall_time_s, "stop": r.result.message,
+             "polished": r.polish is not None} for r in fit.runs]
+    return {
+        "label": fit.label, "amplitude_V": fit.amplitude_V, "frequency_Hz": fit.frequency_Hz,
+        "sources": [c.source for c in fit.captures],
+        "model_structure": fit.model.structure(),
+        "data_scale": asdict(fit.scale),
+        "parameters": params,
+        "metrics": fit.metrics,
+        "per_capture": list(fit.per_capture),
+        "runtime_s": fit.runtime_s, "evaluations": fit.evaluations,
+        "best_run": fit.best_run, "runs": runs, "run_spread": fit.spread(),
+    }
+
+
+def identify_to_dict(res: IdentifyResult) -> dict[str, Any]:
+    m = models.get(res.model_name)
+    return _clean({
+        "schema": SCHEMA, "schema_version": SCHEMA_VERSION,
+        "tool": {"name": "hystfit", "version": __version__},
+        "model": {"name": m.name, "title": m.title, "reference": m.reference, "equation": m.equation,
+                  "options": res.model_options},
+        "optimizer": {"name": res.optimizer_name, "settings": res.optimizer_settings, "polish": res.polish,
+                      "runs": res.runs},
+        "seed": res.seed, "mode": res.mode,
+        "units": {"input": "V", "output": res.unit, "time": "s"},
+        "bounds_overrides": {k: list(v) for k, v in res.bounds_overrides.items()},
+        "conditions": [condition_to_dict(f) for f in res.fits],
+    })
+
+
+def dumps(data: dict) -> str:
+    return json.dumps(data, indent=2, allow_nan=False) + "\n"
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One look-up-table cell read back from ``params.json``."""
+
+    label: str
+    amplitude_V: float
+    frequency_Hz: float
+    model: Model
+    theta: np.ndarray
+    scale: DataScale
+
+    def predict(self, u: np.ndarray, dt: float) -> np.ndarray:
+        return self.model.simulate_one(self.theta, u, dt)
+
+
+@dataclass(frozen=True)
+class ParamsFile:
+    path: str
+    model_name: str
+    unit: str
+    mode: str
+    cells: tuple[Cell, ...]
+    raw: dict
+
+
+def load_params(path: str | Path) -> ParamsFile:
+    """Read a ``params.json`` written by ``hystfit identify`` (validated; errors name the field)."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such parameter file; pass the params.json written by 'hystfit identify'") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{p}: cannot read ({exc.__class__.__name__}); check the path and permissions") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{p}: line {exc.lineno}: not valid JSON ({exc.msg}); pass a params.json written by 'hystfit identify'") from None
+    if not isinstance(data, dict) or data.get("schema") != SCHEMA:
+        raise InputError(f"{p}: field 'schema' is not {SCHEMA!r}; this is not a hystfit parameter file")
+    if data.get("schema_version") != SCHEMA_VERSION:
+        raise InputError(f"{p}: field 'schema_version' is {data.get('schema_version')!r}; this hystfit reads version {SCHEMA_VERSION}")
+    try:
+        cls = models.get(data["model"]["name"])
+        cells = []
+        for i, c in enumerate(data["conditions"]):
+            model = cls.from_structure(c["model_structure"])
+            theta = np.array([float(q["value"]) for q in c["parameters"]])
+            scale = DataScale(**c["data_scale"])
+            a = c["amplitude_V"]
+            f = c["frequency_Hz"]
+            cells.append(Cell(c["label"], float("nan") if a is None else float(a),
+                              float("nan") if f is None else float(f), model, theta, scale))
+        unit = data["units"]["output"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{p}: malformed parameter file ({exc.__class__.__name__}: {exc}); regenerate it with 'hystfit identify'") from None
+    if not cells:
+        raise InputError(f"{p}: field 'conditions' is empty; regenerate it with 'hystfit identify'")
+    return ParamsFile(str(p), data["model"]["name"], unit, data.get("mode", "per-condition"), tuple(cells), data)

@@ -1,0 +1,618 @@
+"""Loading and validating captures, sidecars, atomic writes and staged output directories."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from hystfit.errors import InputError, OutputError
+from hystfit.io import (
+    LoadOptions,
+    atomic_write_bytes,
+    atomic_write_text,
+    expand_paths,
+    idle_samples,
+    load_capture,
+    load_captures,
+    staged_output_dir,
+    write_table,
+)
+
+FS = 1000.0  # Hz
+F = 10.0  # Hz
+A = 20.0  # V (sine amplitude: 40 V peak-to-peak)
+
+
+def sine(cycles=5.0, fs=FS, f=F, amp=A, idle=0):
+    """t (s), u (V), y (um): ``idle`` zero samples, then a sine starting at phase 0."""
+    n = idle + int(round(cycles * fs / f))
+    t = np.arange(n) / fs
+    k = np.clip(np.arange(n) - idle, 0, None)
+    u = amp * np.sin(2 * np.pi * f * k / fs)
+    y = 0.1 * u + 0.01 * np.cos(np.arange(n))
+    return t, u, y
+
+
+def write_csv(path: Path, header, columns, sep=",", fmt="{:.12g}", preamble=""):
+    lines = [sep.join(header)] if header is not None else []
+    lines += [sep.join(fmt.format(v) for v in row) for row in zip(*columns)]
+    path.write_text(preamble + "\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def std_file(tmp_path, name="cap.csv", header=("time_s", "voltage_V", "displacement_um"), **kw):
+    t, u, y = sine(**kw)
+    return write_csv(tmp_path / name, header, [t, u, y]), (t, u, y)
+
+
+def error_of(path, options=LoadOptions()) -> str:
+    with pytest.raises(InputError) as exc:
+        load_capture(path, options)
+    msg = str(exc.value)
+    assert "\n" not in msg
+    assert Path(str(path)).name in msg
+    return msg
+
+
+def set_line(path: Path, line_no: int, text: str) -> None:
+    """Replace 1-based file line ``line_no`` of ``path`` with ``text``."""
+    lines = path.read_text().splitlines()
+    lines[line_no - 1] = text
+    path.write_text("\n".join(lines) + "\n")
+
+
+# ----------------------------------------------------------------------------------------------
+# Happy paths and column detection
+# ----------------------------------------------------------------------------------------------
+
+
+def test_load_standard_csv(tmp_path):
+    path, (t, u, y) = std_file(tmp_path)
+    c = load_capture(path)
+    assert c.source == str(path)
+    assert c.dt == pytest.approx(1 / FS, rel=1e-12)
+    np.testing.assert_allclose(c.u, u, rtol=1e-11, atol=1e-11)
+    np.testing.assert_allclose(c.y, y, rtol=1e-11, atol=1e-11)
+    np.testing.assert_allclose(c.t, t, atol=1e-12)
+    for a in (c.t, c.u, c.y):
+        assert a.dtype == np.float64 and a.flags.c_contiguous
+    assert c.y_unit == "um" and c.notes == () and c.trimmed_samples == 0
+    assert c.condition == (40.0, 10.0) and c.condition_source == "detected"
+
+
+@pytest.mark.parametrize("header", [
+    ("t", "u", "y"),
+    ("Time (s)", "Voltage (V)", "Displacement (um)"),
+    ("TIME[s]", "VOLTAGE[V]", "DISPLACEMENT[µm]"),
+    ("time", "drive", "position"),
+    ("t_s", "u_V", "y_um"),
+    ("Time s", "Vin", "disp"),
+    ("seconds", "command", "pos [μm]"),
+])
+def test_header_aliases(tmp_path, header):
+    path, (t, u, y) = std_file(tmp_path, header=header)
+    c = load_capture(path)
+    np.testing.assert_allclose(c.u, u, atol=1e-9)
+    np.testing.assert_allclose(c.y, y, atol=1e-9)
+    assert c.y_unit == "um"
+
+
+def test_columns_in_any_order_with_extra_and_empty_columns(tmp_path):
+    t, u, y = sine()
+    path = tmp_path / "c.csv"
+    empty = np.full_like(t, np.nan)
+    write_csv(path, ("temperature_C", "displacement_um", "x", "voltage_V", "time_s"), [t * 0 + 25, y, empty, u, t])
+    path.write_text(path.read_text().replace("nan", ""))
+    c = load_capture(path)  # the empty 'x' column is not an output candidate
+    np.testing.assert_allclose(c.u, u, atol=1e-9)
+    np.testing.assert_allclose(c.y, y, atol=1e-9)
+
+
+def test_units_are_converted_or_kept(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "u.csv", ("time_ms", "voltage_mV", "displacement_nm"), [t * 1e3, u * 1e3, y])
+    c = load_capture(path)
+    assert c.dt == pytest.approx(1e-3)
+    np.testing.assert_allclose(c.u, u, atol=1e-9)
+    np.testing.assert_allclose(c.y, y, atol=1e-12)  # output keeps its unit
+    assert c.y_unit == "nm"
+    path = write_csv(tmp_path / "k.csv", ("Time [us]", "U [kV]", "pos (mm)"), [t * 1e6, u / 1e3, y])
+    c = load_capture(path)
+    assert c.dt == pytest.approx(1e-3) and c.y_unit == "mm"
+    np.testing.assert_allclose(c.u, u, atol=1e-9)
+
+
+def test_output_unit_assumed_or_from_option(tmp_path):
+    path, _ = std_file(tmp_path, header=("time_s", "voltage_V", "displacement"))
+    c = load_capture(path)
+    assert c.y_unit == "um" and any("assumed um" in n for n in c.notes)
+    c = load_capture(path, LoadOptions(output_unit="nm"))
+    assert c.y_unit == "nm" and not any("assumed" in n for n in c.notes)
+    path, _ = std_file(tmp_path, name="nm.csv", header=("time_s", "voltage_V", "displacement_nm"))
+    c = load_capture(path, LoadOptions(output_unit="mm"))  # the column's suffix wins
+    assert c.y_unit == "nm" and any("ignored" in n for n in c.notes)
+
+
+def test_select_columns_by_index_name_and_digit_string(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "c.csv", ("a", "b", "c"), [t, y, u])
+    for opts in (LoadOptions(time_col=0, input_col=2, output_col=1),
+                 LoadOptions(time_col="0", input_col="2", output_col="1"),
+                 LoadOptions(time_col="A", input_col="c", output_col="b")):
+        c = load_capture(path, opts)
+        np.testing.assert_allclose(c.u, u, atol=1e-9)
+        np.testing.assert_allclose(c.y, y, atol=1e-9)
+
+
+def test_explicit_column_excludes_it_from_auto_detection(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "c.csv", ("time_s", "voltage_V", "y_um", "x_um"), [t, u, y, y * 2])
+    c = load_capture(path, LoadOptions(output_col="x_um"))
+    np.testing.assert_allclose(c.y, 2 * y, atol=1e-9)
+
+
+def test_ambiguous_columns_list_candidates_and_flag(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "amb.csv", ("time_s", "voltage_V", "displacement_um", "position_um"), [t, u, y, y])
+    msg = error_of(path)
+    assert "'displacement_um'" in msg and "'position_um'" in msg and "--output-col" in msg
+
+
+def test_unknown_columns_are_listed(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "unk.csv", ("time_s", "channel_a", "channel_b"), [t, u, y])
+    msg = error_of(path)
+    assert "'channel_a'" in msg and "'channel_b'" in msg and "--input-col" in msg
+    path = write_csv(tmp_path / "inch.csv", ("time_s", "voltage_V", "displacement_in"), [t, u, y])
+    msg = error_of(path)
+    assert "'displacement_in'" in msg and "unit not recognised" in msg
+
+
+def test_headerless_file_needs_indices(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "nohdr.csv", None, [t, u, y])
+    msg = error_of(path)
+    assert "no header row" in msg and "0-based" in msg and "--input-col" in msg
+    c = load_capture(path, LoadOptions(time_col=0, input_col=1, output_col=2))
+    np.testing.assert_allclose(c.u, u, atol=1e-9)
+    assert any("assumed um" in n for n in c.notes)
+    msg = error_of(path, LoadOptions(no_header=True, time_col=0, input_col="voltage", output_col=2))
+    assert "--input-col 'voltage'" in msg and "0-based index" in msg
+
+
+def test_no_header_option_on_a_file_with_a_header(tmp_path):
+    path, _ = std_file(tmp_path)
+    msg = error_of(path, LoadOptions(no_header=True, time_col=0, input_col=1, output_col=2))
+    assert "row 1, column 0" in msg and "'time_s' is not a number" in msg and "--no-header" in msg
+
+
+@pytest.mark.parametrize("sep", [";", "\t", " ", "  "])
+def test_delimiters_and_comments(tmp_path, sep):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "d.txt", ("time_s", "voltage_V", "displacement_um"), [t, u, y], sep=sep,
+                     preamble="# rig 3\n\n# operator: x\n")
+    c = load_capture(path)
+    np.testing.assert_allclose(c.y, y, atol=1e-9)
+
+
+def test_row_numbers_count_comment_lines(tmp_path):
+    path, _ = std_file(tmp_path, name="cm.csv")
+    text = path.read_text().splitlines()
+    text.insert(3, "# a comment")  # becomes file line 4
+    text[10] = text[10].replace(text[10].split(",")[1], "abc")  # file line 11
+    path.write_text("\n".join(text) + "\n")
+    msg = error_of(path)
+    assert "row 11, column 'voltage_V': 'abc' is not a number" in msg and "fix the cell" in msg
+
+
+def test_parquet_round_trip_and_errors(tmp_path):
+    t, u, y = sine()
+    path = tmp_path / "p.parquet"
+    pd.DataFrame({"displacement_nm": y, "time_s": t, "voltage_V": u}).to_parquet(path)
+    c = load_capture(path)
+    np.testing.assert_array_equal(c.u, u)
+    np.testing.assert_array_equal(c.y, y)
+    assert c.y_unit == "nm"
+    u2 = u.astype(object)
+    u2[6] = "oops"
+    pd.DataFrame({"time_s": t, "voltage_V": u2.astype(str), "y_um": y}).to_parquet(tmp_path / "bad.pq")
+    msg = error_of(tmp_path / "bad.pq")
+    assert "row 7, column 'voltage_V': 'oops' is not a number" in msg
+    y2 = y.copy()
+    y2[4] = np.nan
+    pd.DataFrame({"time_s": t, "voltage_V": u, "y_um": y2}).to_parquet(tmp_path / "nan.pq")
+    assert "row 5, column 'y_um'" in error_of(tmp_path / "nan.pq")
+    (tmp_path / "junk.parquet").write_bytes(b"PAR1 this is not parquet")
+    assert "cannot read the Parquet file" in error_of(tmp_path / "junk.parquet")
+
+
+# ----------------------------------------------------------------------------------------------
+# Bad files
+# ----------------------------------------------------------------------------------------------
+
+
+def test_missing_empty_header_only_and_comment_only(tmp_path):
+    assert "no such file" in error_of(tmp_path / "missing.csv")
+    (tmp_path / "empty.csv").write_text("")
+    assert "is empty" in error_of(tmp_path / "empty.csv")
+    (tmp_path / "hdr.csv").write_text("time_s,voltage_V,displacement_um\n")
+    assert "header row but no data rows" in error_of(tmp_path / "hdr.csv")
+    (tmp_path / "com.csv").write_text("# nothing\n\n# here\n")
+    assert "only comments" in error_of(tmp_path / "com.csv")
+
+
+def test_unsupported_binary_and_directory(tmp_path):
+    (tmp_path / "c.xlsx").write_bytes(b"PK\x03\x04")
+    assert "unsupported file type '.xlsx'" in error_of(tmp_path / "c.xlsx")
+    (tmp_path / "b.dat").write_bytes(b"\x00\x01\x02binary")
+    assert "binary" in error_of(tmp_path / "b.dat")
+    (tmp_path / "dir.csv").mkdir()
+    assert "is a directory" in error_of(tmp_path / "dir.csv")
+
+
+def test_ragged_row(tmp_path):
+    path, _ = std_file(tmp_path)
+    set_line(path, 9, "0.007,1,2,3")
+    msg = error_of(path)
+    assert "row 9" in msg and "4 fields" in msg
+
+
+@pytest.mark.parametrize("cell", ["nan", "inf", "-inf", ""])
+def test_nonfinite_cell_is_refused(tmp_path, cell):
+    path, (t, u, y) = std_file(tmp_path)
+    set_line(path, 17, f"{t[15]:.12g},{u[15]:.12g},{cell}")
+    msg = error_of(path)
+    assert "row 17, column 'displacement_um'" in msg and "not a finite number" in msg and "--drop-nonfinite" in msg
+
+
+def test_drop_nonfinite_trailing_rows_are_dropped(tmp_path):
+    path, (t, u, y) = std_file(tmp_path)
+    with path.open("a") as fh:
+        fh.write(f"{t[-1] + 1 / FS:.12g},nan,1\n{t[-1] + 2 / FS:.12g},1,inf\n")
+    assert "row 502, column 'voltage_V'" in error_of(path)
+    c = load_capture(path, LoadOptions(drop_nonfinite=True))
+    assert c.n == t.size and any("dropped 2 row(s)" in n for n in c.notes)
+
+
+def test_drop_nonfinite_still_validates_sampling(tmp_path):
+    path, (t, u, y) = std_file(tmp_path)
+    set_line(path, 101, f"{t[99]:.12g},nan,{y[99]:.12g}")
+    msg = error_of(path, LoadOptions(drop_nonfinite=True))
+    assert "row 102" in msg and "not uniform" in msg
+
+
+def test_drop_nonfinite_without_time_column_refuses_interior_rows(tmp_path):
+    t, u, y = sine()
+    u[50] = np.nan
+    path = write_csv(tmp_path / "nt.csv", ("voltage_V", "displacement_um"), [u, y])
+    msg = error_of(path, LoadOptions(fs=FS, drop_nonfinite=True))
+    assert "row 52" in msg and "time column" in msg
+
+
+def test_time_not_increasing(tmp_path):
+    path, (t, u, y) = std_file(tmp_path)
+    set_line(path, 21, f"{t[18]:.12g},{u[19]:.12g},{y[19]:.12g}")  # data row 20 repeats row 19's time
+    msg = error_of(path)
+    assert "row 21, column 'time_s'" in msg and "strictly increase" in msg
+
+
+def test_time_gap_and_jitter(tmp_path):
+    t, u, y = sine()
+    tg = t.copy()
+    tg[40:] += 0.5 / FS
+    msg = error_of(write_csv(tmp_path / "gap.csv", ("time_s", "voltage_V", "displacement_um"), [tg, u, y]))
+    assert "row 42, column 'time_s'" in msg and "not uniform" in msg and "resample" in msg
+    rng = np.random.default_rng(1)
+    tj = t + rng.uniform(-0.4e-3, 0.4e-3, t.size) / FS  # relative step jitter < 1e-3
+    c = load_capture(write_csv(tmp_path / "jit.csv", ("time_s", "voltage_V", "displacement_um"), [tj, u, y]))
+    assert c.dt == pytest.approx(1 / FS, rel=1e-5)
+    tj = t + rng.uniform(-2e-3, 2e-3, t.size) / FS
+    assert "not uniform" in error_of(write_csv(tmp_path / "jit2.csv", ("t", "u", "y"), [tj, u, y]))
+
+
+def test_no_time_column_needs_fs(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "nt.csv", ("voltage_V", "displacement_um"), [u, y])
+    msg = error_of(path)
+    assert "no time column" in msg and "--fs" in msg
+    c = load_capture(path, LoadOptions(fs=FS))
+    np.testing.assert_allclose(c.t, t, atol=1e-12)
+    assert c.dt == 1 / FS
+
+
+def test_fs_disagreeing_with_time_column(tmp_path):
+    path, _ = std_file(tmp_path, header=("time", "voltage_V", "displacement_um"))
+    msg = error_of(path, LoadOptions(fs=2000.0))
+    assert "--fs" in msg and "1000 Hz" in msg
+
+
+def test_constant_input_and_too_few_cycles(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "const.csv", ("time_s", "voltage_V", "displacement_um"), [t, 0 * u + 3, y])
+    assert "input is constant" in error_of(path)
+    path, _ = std_file(tmp_path, name="short.csv", cycles=1.5)
+    msg = error_of(path)
+    assert "only 1.5 input cycles" in msg and "minimum is 2" in msg
+    assert load_capture(path, LoadOptions(min_cycles=1.0)).n == 150
+
+
+def test_column_selection_errors(tmp_path):
+    path, _ = std_file(tmp_path)
+    msg = error_of(path, LoadOptions(input_col=7))
+    assert "--input-col 7" in msg and "0–2" in msg
+    msg = error_of(path, LoadOptions(output_col="height"))
+    assert "'height'" in msg and "'displacement_um'" in msg
+    msg = error_of(path, LoadOptions(input_col=1, output_col="voltage_V"))
+    assert "both as input" in msg
+
+
+# ----------------------------------------------------------------------------------------------
+# Idle trimming
+# ----------------------------------------------------------------------------------------------
+
+
+def test_idle_segment_is_trimmed(tmp_path):
+    idle = 250
+    path, (t, u, y) = std_file(tmp_path, idle=idle)
+    c = load_capture(path)
+    # u[idle] == 0 is the last idle-level sample; u[idle + 1] is the first moving one
+    assert c.trimmed_samples == idle
+    assert c.trimmed_s == pytest.approx(idle / FS)
+    assert c.t[0] == 0.0 and c.u[0] == 0.0 and c.u[1] != 0.0
+    np.testing.assert_allclose(c.y, y[idle:], atol=1e-12)
+    assert any("trimmed 0.25 s" in n for n in c.notes)
+    assert c.condition == (40.0, 10.0)
+
+
+def test_idle_trim_variants():
+    u = np.r_[np.zeros(10), 5.0 + np.arange(5)]  # jump out of idle
+    assert idle_samples(u) == 9
+    t = np.arange(1000) / 1e4
+    assert idle_samples(10 * (1 - np.cos(2 * np.pi * 10 * t))) == 0  # raised cosine starts moving at once
+    rng = np.random.default_rng(0)
+    noisy = np.r_[1e-3 * rng.standard_normal(300), 20 * np.sin(2 * np.pi * np.arange(500) / 100)]
+    assert 290 <= idle_samples(noisy) <= 300  # noisy idle level below the 0.1 % band
+    assert idle_samples(np.full(10, 2.0)) == 0
+
+
+def real_capture_path() -> Path | None:
+    here = Path(__file__).resolve().parents[2]
+    for p in (here / "sample_data/real/hysteresis_v_150_1hz.csv",
+              Path("/work/shared/data/smarthysteresis_150V_1Hz/hysteresis_v_150_1hz.csv")):
+        if p.is_file():
+            return p
+    return None
+
+
+def test_real_capture():
+    path = real_capture_path()
+    if path is None:
+        pytest.skip("real capture not available")
+    opts = LoadOptions(no_header=True, time_col=1, output_col=2, input_col=3)
+    if Path(str(path) + ".hystfit.json").is_file():
+        opts = LoadOptions()
+    c = load_capture(path, opts)
+    assert c.dt == pytest.approx(2e-4, rel=1e-6)
+    assert c.trimmed_s == pytest.approx(3.257, abs=2e-3)
+    assert c.y_unit == "um"
+    assert c.duration_s * c.frequency_Hz == pytest.approx(6.74, abs=0.05)
+    assert c.condition == (300.0, 1.0) and c.condition_source == "detected"
+    assert np.ptp(c.u) == 300.0 and c.t[0] == 0.0
+
+
+# ----------------------------------------------------------------------------------------------
+# Condition sources and sidecars
+# ----------------------------------------------------------------------------------------------
+
+
+def test_condition_from_columns_and_option(tmp_path):
+    t, u, y = sine()
+    amp = np.full_like(t, np.nan)
+    amp[0] = 40.0
+    path = write_csv(tmp_path / "cc.csv", ("time_s", "voltage_V", "displacement_um", "amplitude_V", "frequency_Hz"),
+                     [t, u, y, amp, t * 0 + 10.5])
+    path.write_text(path.read_text().replace(",nan,", ",,"))
+    c = load_capture(path, LoadOptions(condition=(1.0, 2.0)))
+    assert c.condition == (40.0, 10.5) and c.condition_source == "column"
+    c = load_capture(std_file(tmp_path, name="o.csv")[0], LoadOptions(condition=(35.0, 9.5)))
+    assert c.condition == (35.0, 9.5) and c.condition_source == "option"
+    freq = t * 0 + 10
+    freq[30:] = 20
+    path = write_csv(tmp_path / "vary.csv", ("time_s", "voltage_V", "displacement_um", "frequency (Hz)"),
+                     [t, u, y, freq])
+    msg = error_of(path)
+    assert "row 32, column 'frequency (Hz)'" in msg and "constant" in msg
+
+
+def test_sidecar_supplies_defaults_and_cli_overrides(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "s.csv", None, [t * 0, t, y, u], fmt="{:.12g}")
+    path.write_text(path.read_text().replace("\n0,", "\n,").replace("0,", ",", 1))  # empty first column
+    side = tmp_path / "s.csv.hystfit.json"
+    side.write_text(json.dumps({"no_header": True, "time_col": 1, "output_col": "2", "input_col": 3,
+                                "output_unit": "nm", "condition": [40, 10], "source": "lab book p. 3"}))
+    c = load_capture(path)
+    assert c.y_unit == "nm" and c.condition_source == "option"
+    np.testing.assert_allclose(c.u, u, atol=1e-9)
+    assert any("s.csv.hystfit.json" in n for n in c.notes)
+    c = load_capture(path, LoadOptions(output_unit="mm", condition=(30.0, 10.0)))
+    assert c.y_unit == "mm" and c.condition == (30.0, 10.0)
+    c = load_captures([tmp_path])[0]  # the sidecar is not a capture, and it applies via directories too
+    assert c.y_unit == "nm"
+
+
+@pytest.mark.parametrize("content, key", [
+    ("{not json", None),
+    ('["a"]', None),
+    ('{"fs": -5}', "'fs'"),
+    ('{"time_col": -1}', "'time_col'"),
+    ('{"output_unit": "inch"}', "'output_unit'"),
+    ('{"condition": [40]}', "'condition'"),
+    ('{"no_header": "yes"}', "'no_header'"),
+    ('{"delimiter": ";"}', "'delimiter'"),
+])
+def test_malformed_sidecar(tmp_path, content, key):
+    path, _ = std_file(tmp_path)
+    side = tmp_path / "cap.csv.hystfit.json"
+    side.write_text(content)
+    with pytest.raises(InputError) as exc:
+        load_capture(path)
+    msg = str(exc.value)
+    assert str(side) in msg and "\n" not in msg
+    if key:
+        assert f"key {key}" in msg
+
+
+def test_input_only_file(tmp_path):
+    t, u, _ = sine()
+    path = write_csv(tmp_path / "target.csv", ("time_s", "voltage_V"), [t, u])
+    assert "no output (displacement) column" in error_of(path)
+    c = load_capture(path, LoadOptions(require_output=False))
+    assert c.y is None and c.n == t.size
+    path, _ = std_file(tmp_path, name="both.csv")
+    assert load_capture(path, LoadOptions(require_output=False)).y is not None
+
+
+# ----------------------------------------------------------------------------------------------
+# Paths
+# ----------------------------------------------------------------------------------------------
+
+
+def test_expand_paths(tmp_path):
+    d = tmp_path / "data"
+    (d / "sub").mkdir(parents=True)
+    (d / ".hidden").mkdir()
+    for name in ("b.csv", "a.parquet", "README.md", "readme.txt", "a.parquet.hystfit.json", "meta.json",
+                 ".c.csv", "sub/c.txt", ".hidden/h.csv", "notes.docx"):
+        (d / name).write_text("x")
+    assert expand_paths([d]) == [d / "a.parquet", d / "b.csv"]
+    assert expand_paths([d], recursive=True) == [d / "a.parquet", d / "b.csv", d / "sub/c.txt"]
+    assert expand_paths([d / "notes.docx", d, d / "b.csv"]) == [d / "notes.docx", d / "a.parquet", d / "b.csv"]
+    with pytest.raises(InputError, match="no capture file"):
+        expand_paths([tmp_path])  # only a sub-directory, no capture file at the top
+    with pytest.raises(InputError, match="missing.csv: no such file"):
+        expand_paths([d / "missing.csv"])
+    with pytest.raises(InputError, match="no capture files given"):
+        expand_paths([])
+
+
+def test_load_captures_from_directory(tmp_path):
+    std_file(tmp_path, name="a.csv")
+    std_file(tmp_path, name="b.csv", f=20.0)
+    caps = load_captures([tmp_path])
+    assert [c.name for c in caps] == ["a.csv", "b.csv"]
+    assert [c.frequency_Hz for c in caps] == [10.0, 20.0]
+
+
+# ----------------------------------------------------------------------------------------------
+# Writing
+# ----------------------------------------------------------------------------------------------
+
+
+def test_atomic_writes(tmp_path):
+    target = tmp_path / "new" / "out.txt"
+    atomic_write_text(target, "héllo\n")
+    assert target.read_bytes() == "héllo\n".encode()
+    atomic_write_bytes(target, b"\x00\x01")
+    assert target.read_bytes() == b"\x00\x01"
+    assert sorted(p.name for p in target.parent.iterdir()) == ["out.txt"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's 0600
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(OutputError, match="cannot write"):
+        atomic_write_text(blocker / "x.txt", "y")
+    os.chmod(tmp_path / "new", 0o500)
+    try:
+        if os.access(tmp_path / "new", os.W_OK):
+            pytest.skip("running with permissions that ignore chmod")
+        with pytest.raises(OutputError):
+            atomic_write_text(target, "z")
+        assert target.read_bytes() == b"\x00\x01"
+    finally:
+        os.chmod(tmp_path / "new", 0o700)
+    assert sorted(p.name for p in target.parent.iterdir()) == ["out.txt"]
+
+
+def test_write_table_csv_and_parquet(tmp_path):
+    df = pd.DataFrame({"a": [1.0, 2.5, 1 / 3], "b": ["x", "y", "z"]})
+    write_table(tmp_path / "t.csv", df)
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "t.csv"), df, check_dtype=False)
+    write_table(tmp_path / "t.parquet", df)
+    pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "t.parquet"), df, check_dtype=False)
+    write_table(tmp_path / "t.tsv", df)
+    assert (tmp_path / "t.tsv").read_text().splitlines()[0] == "a\tb"
+
+
+def test_staged_output_dir_success_creates_out(tmp_path):
+    out = tmp_path / "res"
+    with staged_output_dir(out, force=False) as stage:
+        assert stage.parent == tmp_path and stage.name.startswith(".res.tmp-") and stage.is_dir()
+        (stage / "params.json").write_text("{}")
+        assert not out.exists()
+    assert (out / "params.json").read_text() == "{}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
+
+
+def test_staged_output_dir_exception_leaves_nothing(tmp_path):
+    out = tmp_path / "res"
+    with pytest.raises(RuntimeError):
+        with staged_output_dir(out, force=False) as stage:
+            (stage / "partial.csv").write_text("1")
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+    out.mkdir()
+    (out / "old.txt").write_text("keep")
+    with pytest.raises(InputError):
+        with staged_output_dir(out, force=True) as stage:
+            (stage / "new.txt").write_text("x")
+            raise InputError("bad data")
+    assert [p.name for p in out.iterdir()] == ["old.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
+
+
+def test_staged_output_dir_refuses_nonempty_without_force(tmp_path):
+    out = tmp_path / "res"
+    out.mkdir()
+    (out / "old.txt").write_text("keep")
+    entered = []
+    with pytest.raises(OutputError) as exc:
+        with staged_output_dir(out, force=False):
+            entered.append(True)
+    assert not entered
+    assert "--force" in str(exc.value) and "--out" in str(exc.value) and str(out) in str(exc.value)
+    assert [p.name for p in out.iterdir()] == ["old.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
+    with staged_output_dir(out, force=True) as stage:
+        (stage / "new.txt").write_text("x")
+    assert [p.name for p in out.iterdir()] == ["new.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
+
+
+def test_staged_output_dir_empty_out_and_file_out(tmp_path):
+    out = tmp_path / "res"
+    out.mkdir()
+    with staged_output_dir(out, force=False) as stage:
+        (stage / "a").write_text("1")
+    assert [p.name for p in out.iterdir()] == ["a"]
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(OutputError, match="not a directory"):
+        with staged_output_dir(tmp_path / "f", force=True):
+            pass
+
+
+def test_staged_output_dir_refuses_to_replace_working_directory(tmp_path, monkeypatch):
+    work = tmp_path / "w"
+    work.mkdir()
+    (work / "data.csv").write_text("x")
+    monkeypatch.chdir(work)
+    with pytest.raises(OutputError, match="refusing"):
+        with staged_output_dir(Path("."), force=True):
+            pass
+    assert (work / "data.csv").exists()

@@ -1,0 +1,81 @@
+import numpy as np
+import pytest
+
+from hystfit.errors import ConfigError
+from hystfit.models._kernels import play_matrix
+from hystfit.models.pi import PI
+from hystfit.params import DataScale
+
+
+def reference_play(u, r):
+    """Plain-Python play operator (paper 003 eq. 1-2) to check the compiled kernel."""
+    out = np.empty(len(u))
+    prev = max(u[0] - r, min(u[0] + r, 0.0))
+    out[0] = prev
+    for k in range(1, len(u)):
+        prev = max(u[k] - r, min(u[k] + r, prev))
+        out[k] = prev
+    return out
+
+
+def test_play_matrix_matches_reference(rng):
+    u = np.cumsum(rng.normal(size=500))
+    r = np.array([0.0, 0.5, 2.0, 7.5])
+    F = play_matrix(u, r)
+    for j, rj in enumerate(r):
+        np.testing.assert_allclose(F[:, j], reference_play(u, rj), rtol=0, atol=1e-12)
+
+
+def test_zero_threshold_is_identity(rng):
+    u = rng.normal(size=100)
+    np.testing.assert_allclose(play_matrix(u, np.array([0.0]))[:, 0], u)
+
+
+def _scale(u, y, dt=1e-3):
+    return DataScale.from_arrays([u], [y], [dt])
+
+
+def test_pi_adapt_thresholds_uniform_and_quadratic():
+    u = np.linspace(0, 50, 10)
+    sc = _scale(u, u)
+    assert PI(5).adapt(sc).thresholds_V == (0.0, 10.0, 20.0, 30.0, 40.0)
+    q = PI(5, placement="quadratic").adapt(sc).thresholds_V
+    np.testing.assert_allclose(q, [0, 2, 8, 18, 32])
+
+
+def test_pi_rejects_bad_structure():
+    with pytest.raises(ConfigError):
+        PI(0)
+    with pytest.raises(ConfigError):
+        PI(3, thresholds_V=(0.0, 2.0, 1.0))
+    with pytest.raises(ConfigError, match="placement"):
+        PI(3, placement="random")
+
+
+def test_pi_simulate_population_shapes_and_linearity(rng):
+    t = np.arange(2000) * 1e-4
+    u = 30 * (1 - np.cos(2 * np.pi * 5 * t))
+    m = PI(6).adapt(_scale(u, u))
+    theta = rng.random((7, 7))
+    y = m.simulate(theta, u, 1e-4)
+    assert y.shape == (7, 2000)
+    np.testing.assert_allclose(m.simulate(theta[:1] + theta[1:2], u, 1e-4)[0], y[0] + y[1] - 0, atol=1e-9 + 0)
+
+
+def test_pi_inverse_round_trip(rng):
+    t = np.arange(4000) * 1e-4
+    u = 25 * (1 - np.cos(2 * np.pi * 2 * t)) * (1 - 0.3 * np.sin(2 * np.pi * 0.7 * t))
+    m = PI(10).adapt(_scale(u, u))
+    theta = np.r_[0.2, rng.random(9) * 0.05, 1.5]
+    y = m.simulate_one(theta, u, 1e-4)
+    u_back = m.invert(theta, y, 1e-4)
+    np.testing.assert_allclose(u_back, u, atol=1e-9)
+    # and forward(inverse(y_d)) = y_d for a target trajectory
+    y_d = 2 + 5 * (1 - np.cos(2 * np.pi * 3 * t))
+    np.testing.assert_allclose(m.simulate_one(theta, m.invert(theta, y_d, 1e-4), 1e-4), y_d, atol=1e-9)
+
+
+def test_pi_inverse_refuses_non_invertible_weights():
+    m = PI(3, thresholds_V=(0.0, 1.0, 2.0))
+    with pytest.raises(ConfigError, match="inverse"):
+        m.invert(np.array([0.0, 0.1, 0.1, 0.0]), np.zeros(10), 1e-3)
