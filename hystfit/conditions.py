@@ -76,10 +76,8 @@ def _sine_fit_residual(x: np.ndarray, tdt: np.ndarray, f: float) -> float:
     """Residual sum of squares of the least-squares fit ``c0 + c1 cos 2πft + c2 sin 2πft`` to ``x``."""
     w = 2.0 * np.pi * f * tdt
     basis = np.column_stack([np.ones_like(w), np.cos(w), np.sin(w)])
-    _, res, rank, _ = np.linalg.lstsq(basis, x, rcond=None)
-    if rank < 3 or res.size == 0:
-        return float(np.sum((x - basis @ np.linalg.lstsq(basis, x, rcond=None)[0]) ** 2))
-    return float(res[0])
+    coef = np.linalg.lstsq(basis, x, rcond=None)[0]
+    return float(np.sum((x - basis @ coef) ** 2))
 
 
 def _refine_Hz(u: np.ndarray, dt: float, f0: float) -> float:
@@ -181,7 +179,8 @@ class LookupTable:
         self.values: list[np.ndarray] = [np.asarray(v) for v in values]
         for a, f in self.keys:
             if not (math.isfinite(a) and math.isfinite(f) and f > 0):
-                raise ConfigError(f"LookupTable: key ({a:g} V, {f:g} Hz) needs a finite amplitude and a positive frequency")
+                raise ConfigError(f"LookupTable: key ({a:g} V, {f:g} Hz) needs a finite amplitude "
+                                  "and a positive frequency")
         if len(set(self.keys)) != len(self.keys):
             raise ConfigError("LookupTable: duplicate condition keys")
         amax = max(abs(a) for a, _ in self.keys)
@@ -229,7 +228,8 @@ class LookupTable:
             return self._fallback(key)
         vals = [self.values[self._index[k]] for k, _ in used]
         if len({v.shape for v in vals}) > 1:
-            raise ConfigError("LookupTable.interpolate: the surrounding cells have values of different shapes; use nearest")
+            raise ConfigError("LookupTable.interpolate: the surrounding cells have values of different shapes; "
+                              "use nearest")
         total = sum(w * np.asarray(v, dtype=np.float64) for (_, w), v in zip(used, vals))
         return np.asarray(total), used
 

@@ -80,8 +80,8 @@ _SUFFIX_RE = re.compile(r"^(.*?)[_\s]+([A-Za-zµμ]+)$")
 
 
 def _norm(text: str) -> str:
-    """Lower case, trimmed, inner blanks/dashes → ``_``."""
-    return re.sub(r"[\s\-]+", "_", str(text).strip().lower())
+    """Lower case, trimmed, inner blanks/dashes → ``_``, no leading/trailing ``_``."""
+    return re.sub(r"[\s\-]+", "_", str(text).strip().lower()).strip("_")
 
 
 def _interpretations(name: str) -> list[tuple[str, str | None]]:
@@ -371,7 +371,8 @@ def _read_text(path: Path, label: str, no_header: bool) -> _Table:
     try:
         raw = path.read_bytes()
     except OSError as exc:
-        raise InputError(f"{label}: cannot read the file ({exc.strerror or exc}); check the path and permissions") from None
+        raise InputError(f"{label}: cannot read the file ({exc.strerror or exc}); "
+                         "check the path and permissions") from None
     if not raw.strip():
         raise InputError(f"{label}: the file is empty; pass a capture with a header row and data rows")
     numbered = [(i + 1, ln) for i, ln in enumerate(_decode(raw, label).splitlines())
@@ -416,9 +417,11 @@ def _read_parquet(path: Path, label: str) -> _Table:
         df = pd.read_parquet(path)
     except Exception as exc:  # pyarrow raises many types for corrupt files
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"{label}: cannot read the Parquet file ({reason}); check that it is a valid Parquet file") from None
+        raise InputError(f"{label}: cannot read the Parquet file ({reason}); "
+                         "check that it is a valid Parquet file") from None
     if df.shape[1] == 0:
-        raise InputError(f"{label}: the Parquet file has no columns; pass a capture with time, input and output columns")
+        raise InputError(f"{label}: the Parquet file has no columns; "
+                         "pass a capture with time, input and output columns")
     if df.shape[0] == 0:
         raise InputError(f"{label}: the Parquet file has columns but no data rows; pass a capture with data")
     cols = [df.iloc[:, i].reset_index(drop=True) for i in range(df.shape[1])]
@@ -553,7 +556,8 @@ def _missing_column_error(table: _Table, role: str) -> InputError:
         if table.names is None:
             return InputError(f"{table.label}: the file has no header row and no time column was given: pass "
                               f"--time-col INDEX (0–{table.ncols - 1}), or --fs HZ if the file has no time column")
-        return InputError(f"{table.label}: no time column found ({table.listing()}){_bad_unit_hint(table.names, role)}; "
+        hint = _bad_unit_hint(table.names, role)
+        return InputError(f"{table.label}: no time column found ({table.listing()}){hint}; "
                           f"pass --time-col NAME, or --fs HZ if the file has no time column")
     examples = {"input": "voltage_V", "output": "displacement_um"}[role]
     return InputError(f"{table.label}: no {_WHAT[role]} column found ({table.listing()})"
@@ -663,7 +667,8 @@ def _condition_from_columns(table: _Table, chosen: dict) -> tuple[float | None, 
         v = v * (_UNITS[role][unit] if unit else 1.0)
         fin = np.flatnonzero(np.isfinite(v))
         if not fin.size:
-            raise InputError(f"{table.label}: {table.col_label(col)} has no numeric value; fill it or remove the column")
+            raise InputError(f"{table.label}: {table.col_label(col)} has no numeric value; "
+                             "fill it or remove the column")
         vals = v[fin]
         change = np.flatnonzero(np.abs(vals - vals[0]) > 1e-9 * max(abs(vals[0]), 1e-300))
         if change.size:
@@ -888,11 +893,10 @@ def _check_out(out: Path, force: bool) -> bool:
         return False
     if not out.is_dir():
         raise OutputError(f"{out}: exists and is not a directory; choose another --out")
-    if any(out.iterdir()):
-        if not force:
-            raise OutputError(f"{out}: output directory exists and is not empty; pass --force to replace it "
-                              "or choose another --out")
-        _refuse_dangerous(out)
+    if any(out.iterdir()) and not force:
+        raise OutputError(f"{out}: output directory exists and is not empty; pass --force to replace it "
+                          "or choose another --out")
+    _refuse_dangerous(out)
     return True
 
 

@@ -25,9 +25,10 @@ MAPE and SMAPE explode where the measured output crosses zero, so only samples w
 
 Conventions
 -----------
-* A model output containing NaN or ±inf (a diverged simulation) is *infinitely bad*, never an
-  exception: every error metric (RMSE, NRMSE, MAPE, SMAPE, RE, J, max error) is ``inf`` and R² is
-  ``-inf``, so results still sort correctly (best first) and JSON writers turn them into null.
+* A model output containing NaN or ±inf (a diverged simulation), or one so large that Σe²
+  overflows, is *infinitely bad*, never an exception (and no floating-point warning): every
+  error metric (RMSE, NRMSE, MAPE, SMAPE, RE, J, max error) is ``inf`` and R² is ``-inf``, so
+  results still sort correctly (best first) and JSON writers turn them into null.
 * A metric whose normaliser is zero is undefined and returned as NaN: NRMSE and R² when the
   measured output is constant, RE and J when it is identically zero, MAPE and SMAPE when no sample
   is kept.
@@ -236,14 +237,15 @@ def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
     sum_sq_meas = float(np.dot(ym, ym))
     ss_tot = float(np.sum((ym - ym.mean()) ** 2))
 
-    out: dict[str, float] = {}
-    if not np.all(np.isfinite(yp)):
+    with np.errstate(all="ignore"):  # huge-but-finite outputs may overflow; handled below
+        e = yp - ym
+        sse = float(np.dot(e, e))
+    if not np.isfinite(sse):
+        # NaN/inf in the model output, or an output so large that Σe² overflows: infinitely bad
         inf = float("inf")
         rmse = nrmse = mape = smape = re = j = max_err = inf
         r2 = -inf
     else:
-        e = yp - ym
-        sse = float(np.dot(e, e))
         rmse = float(np.sqrt(sse / n))
         abs_e = np.abs(e)
         max_err = float(abs_e.max())
@@ -253,11 +255,13 @@ def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
         re = float(np.sqrt(j))
         if n_kept:
             ek, mk, pk = abs_e[keep], abs_meas[keep], np.abs(yp[keep])
-            mape = float(np.mean(ek / mk))
-            smape = float(np.mean(ek / (0.5 * (pk + mk))))  # denominator ≥ |y_meas|/2 > 0
+            with np.errstate(over="ignore"):  # a ratio beyond 1e308 is reported as inf
+                mape = float(np.mean(ek / mk))
+                smape = float(np.mean(ek / (0.5 * (pk + mk))))  # denominator ≥ |y_meas|/2 > 0
         else:
             mape = smape = float("nan")
 
+    out: dict[str, float] = {}
     out[metric_key("rmse", unit)] = rmse
     out["nrmse_pct"] = nrmse
     out["mape"] = mape

@@ -5,112 +5,146 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..errors import ConfigError
 from ..registry import optimizers
 from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
 
 
-def sbx_crossover(p1: np.ndarray, p2: np.ndarray, lower: np.ndarray, upper: np.ndarray, eta: float,
-                  prob: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Bounded simulated binary crossover (Deb & Agrawal 1995; Deb's NSGA-II reference code).
+@njit(cache=True)
+def sbx_children(x1: float, x2: float, lower: float, upper: float, eta: float, u: float) -> tuple[float, float]:
+    """Bounded simulated binary crossover of one gene (Deb & Agrawal 1995; Deb's NSGA-II code).
 
-    For a pair of parents with y1 = min(p1, p2) < y2 = max(p1, p2) in one gene and u ~ U(0, 1)::
+    With y1 = min(x1, x2) < y2 = max(x1, x2) and u ~ U(0, 1) (the same u for both children)::
 
-        β  = 1 + 2 (y1 − lower)/(y2 − y1)           (for child 1; 1 + 2 (upper − y2)/(y2 − y1) for child 2)
+        β  = 1 + 2 (y1 − lower)/(y2 − y1)    (child below; 1 + 2 (upper − y2)/(y2 − y1) above)
         α  = 2 − β^{−(η+1)}
-        βq = (u α)^{1/(η+1)}               if u ≤ 1/α
+        βq = (u α)^{1/(η+1)}               if u α ≤ 1
              (1 / (2 − u α))^{1/(η+1)}     otherwise
-        c1 = ½ [(y1 + y2) − βq (y2 − y1)],   c2 = ½ [(y1 + y2) + βq (y2 − y1)]
+        c_lo = ½ [(y1 + y2) − βq (y2 − y1)],   c_hi = ½ [(y1 + y2) + βq (y2 − y1)]
 
-    The bound-aware spread keeps the children's distribution inside the box; children are
-    clipped for round-off. A pair crosses with probability ``prob``, each gene of a crossing
-    pair with probability ½ (genes closer than 1e-14 are copied), and the children swap genes
-    with probability ½.
-
-    Parameters
-    ----------
-    p1, p2 : ndarray, shape (m, d)
-        Paired parents.
-    lower, upper : ndarray, shape (d,)
-        The box.
-    eta : float
-        Distribution index η (larger: children closer to the parents).
-    prob : float
-        Crossover probability per pair.
-    rng : numpy.random.Generator
+    The bound-aware spread keeps the children's distribution inside [lower, upper]; they are
+    clipped for round-off only. Requires y2 − y1 > 0.
 
     Returns
     -------
-    c1, c2 : ndarray, shape (m, d)
+    (c_lo, c_hi) : the child below and the child above the parents' midpoint.
     """
-    m, d = p1.shape
-    u = rng.random((2, m, d))
-    y1 = np.minimum(p1, p2)
-    y2 = np.maximum(p1, p2)
+    y1 = min(x1, x2)
+    y2 = max(x1, x2)
     diff = y2 - y1
-    cross = (rng.random((m, 1)) < prob) & (u[1] < 0.5) & (diff > 1e-14)
-    # both children at once: row 0 the child below the midpoint, row 1 the one above
-    room = np.stack((y1 - lower, upper - y2))          # distance of each parent to its face
-    room /= np.where(cross, diff, 1.0)
-    beta = 1.0 + 2.0 * room
-    alpha = 2.0 - beta ** -(eta + 1.0)                 # in (1, 2]
-    ra = u[0] * alpha                                   # < 2, so 2 − ra > 0
-    betaq = np.where(ra <= 1.0, ra, 1.0 / (2.0 - ra)) ** (1.0 / (eta + 1.0))
-    betaq *= diff
-    mid = 0.5 * (y1 + y2)
-    lo_child = mid - 0.5 * betaq[0]
-    hi_child = mid + 0.5 * betaq[1]
-    np.clip(lo_child, lower, upper, out=lo_child)
-    np.clip(hi_child, lower, upper, out=hi_child)
-    swap = u[1] < 0.25                                  # independent of crossing (u[1] < 0.5) given it
-    c1 = np.where(cross, np.where(swap, hi_child, lo_child), p1)
-    c2 = np.where(cross, np.where(swap, lo_child, hi_child), p2)
-    return c1, c2
+    e = eta + 1.0
+    alpha = 2.0 - (1.0 + 2.0 * (y1 - lower) / diff) ** (-e)
+    ra = u * alpha                       # < 2, so 2 − ra > 0
+    bq = ra ** (1.0 / e) if ra <= 1.0 else (1.0 / (2.0 - ra)) ** (1.0 / e)
+    c_lo = 0.5 * ((y1 + y2) - bq * diff)
+    alpha = 2.0 - (1.0 + 2.0 * (upper - y2) / diff) ** (-e)
+    ra = u * alpha
+    bq = ra ** (1.0 / e) if ra <= 1.0 else (1.0 / (2.0 - ra)) ** (1.0 / e)
+    c_hi = 0.5 * ((y1 + y2) + bq * diff)
+    return min(max(c_lo, lower), upper), min(max(c_hi, lower), upper)
 
 
-def polynomial_mutation(x: np.ndarray, lower: np.ndarray, upper: np.ndarray, eta: float, prob: float,
-                        rng: np.random.Generator) -> np.ndarray:
-    """Bounded polynomial mutation (Deb & Goyal 1996; Deb's NSGA-II reference code).
+@njit(cache=True)
+def polynomial_mutation(x: float, lower: float, upper: float, eta: float, r: float) -> float:
+    """Bounded polynomial mutation of one gene (Deb & Goyal 1996; Deb's NSGA-II code).
 
-    Each gene mutates with probability ``prob``. With δ1 = (x − lower)/(upper − lower),
-    δ2 = (upper − x)/(upper − lower) and u ~ U(0, 1)::
+    With δ1 = (x − lower)/(upper − lower), δ2 = (upper − x)/(upper − lower), r ~ U(0, 1)::
 
-        δq = [2u + (1 − 2u)(1 − δ1)^{η+1}]^{1/(η+1)} − 1               if u < ½
-             1 − [2(1 − u) + 2(u − ½)(1 − δ2)^{η+1}]^{1/(η+1)}        otherwise
-        x ← x + δq (upper − lower),   clipped into the box (round-off only).
+        δq = [2r + (1 − 2r)(1 − δ1)^{η+1}]^{1/(η+1)} − 1               if r < ½
+             1 − [2(1 − r) + 2(r − ½)(1 − δ2)^{η+1}]^{1/(η+1)}        otherwise
+        x' = x + δq (upper − lower),   clipped into the box (round-off only).
+    """
+    width = upper - lower
+    e = eta + 1.0
+    if r < 0.5:
+        xy = 1.0 - (x - lower) / width
+        dq = (2.0 * r + (1.0 - 2.0 * r) * xy ** e) ** (1.0 / e) - 1.0
+    else:
+        xy = 1.0 - (upper - x) / width
+        dq = 1.0 - (2.0 * (1.0 - r) + 2.0 * (r - 0.5) * xy ** e) ** (1.0 / e)
+    return min(max(x + dq * width, lower), upper)
+
+
+def random_count(pop: int, elite: int, d: int, tournament: int) -> int:
+    """Number of U(0, 1) variates :func:`make_children` consumes per generation."""
+    n_child = pop - elite
+    m = (n_child + 1) // 2
+    return 2 * m * tournament + m + 2 * m * d + n_child * d
+
+
+@njit(cache=True)
+def make_children(x, f, lower, upper, n_child, tournament, eta_c, p_crossover, eta_m, p_mutation, u, out):
+    """One generation's children: tournament selection, SBX, polynomial mutation (in ``out``).
 
     Parameters
     ----------
-    x : ndarray, shape (m, d)
-    lower, upper : ndarray, shape (d,)
-    eta : float
-        Distribution index η.
-    prob : float
-        Mutation probability per gene.
-    rng : numpy.random.Generator
+    x : ndarray (P, d), f : ndarray (P,)
+        Population and its values.
+    lower, upper : ndarray (d,)
+    n_child : int
+        Children to make (rows of ``out``).
+    tournament : int
+        Tournament size k: each parent is the best of k members drawn uniformly (with replacement).
+    eta_c, p_crossover : float
+        SBX distribution index and crossover probability per pair.
+    eta_m, p_mutation : float
+        Polynomial-mutation distribution index and probability per gene.
+    u : ndarray
+        :func:`random_count` U(0, 1) variates, all the randomness of the generation.
+    out : ndarray (n_child, d)
+        Receives the children.
 
-    Returns
-    -------
-    ndarray, shape (m, d)
-        The mutated copy.
+    Notes
+    -----
+    m = ceil(n_child/2) pairs (parent i with parent m + i); child 1 of pair i goes to row i,
+    child 2 to row m + i (dropped when n_child is odd). In a crossing pair each gene crosses
+    with probability ½ (genes closer than 1e-14 of the box width are copied) and the two
+    children swap the gene with probability ½. One variate serves both the gene choice and
+    the swap (u_g < ½ crosses, u_g < ¼ swaps: independent given the crossing), and one both
+    the mutation choice and its r (u < p_m mutates with r = u/p_m): exact, and fewer draws.
     """
-    y = x.copy()
-    rows, cols = np.nonzero(rng.random(x.shape) < prob)
-    if rows.size == 0:
-        return y
-    lo, width = lower[cols], upper[cols] - lower[cols]
-    xm = x[rows, cols]
-    r = rng.random(rows.size)
-    e = eta + 1.0
-    low = r < 0.5
-    d1 = (xm - lo) / width          # in [0, 1]: x lies in the box
-    one_minus = np.where(low, 1.0 - d1, d1)            # 1 − δ1 below, 1 − δ2 = δ1 above
-    val = np.where(low, 2.0 * r + (1.0 - 2.0 * r) * one_minus ** e,
-                   2.0 * (1.0 - r) + (2.0 * r - 1.0) * one_minus ** e) ** (1.0 / e)
-    dq = np.where(low, val - 1.0, 1.0 - val)
-    y[rows, cols] = np.clip(xm + dq * width, lo, lo + width)
-    return y
+    P, d = x.shape
+    m = (n_child + 1) // 2
+    parents = np.empty(2 * m, dtype=np.int64)
+    pos = 0
+    for i in range(2 * m):
+        best = min(int(u[pos] * P), P - 1)
+        pos += 1
+        for _ in range(1, tournament):
+            c = min(int(u[pos] * P), P - 1)
+            pos += 1
+            if f[c] < f[best]:
+                best = c
+        parents[i] = best
+    for i in range(m):
+        a = parents[i]
+        b = parents[m + i]
+        crossing = u[pos] < p_crossover
+        pos += 1
+        second = m + i < n_child
+        for j in range(d):
+            x1 = x[a, j]
+            x2 = x[b, j]
+            ug = u[pos]
+            us = u[pos + 1]
+            pos += 2
+            if crossing and ug < 0.5 and abs(x1 - x2) > 1e-14 * (upper[j] - lower[j]):
+                lo_c, hi_c = sbx_children(x1, x2, lower[j], upper[j], eta_c, us)
+                if ug < 0.25:
+                    x1, x2 = hi_c, lo_c
+                else:
+                    x1, x2 = lo_c, hi_c
+            out[i, j] = x1
+            if second:
+                out[m + i, j] = x2
+    for i in range(n_child):
+        for j in range(d):
+            um = u[pos]
+            pos += 1
+            if um < p_mutation:
+                out[i, j] = polynomial_mutation(out[i, j], lower[j], upper[j], eta_m, um / p_mutation)
 
 
 @optimizers.register
@@ -120,13 +154,15 @@ class GA(Optimizer):
 
     One generation::
 
-        parents   ← tournament selection, k = 3 (the best of k uniformly drawn individuals)
-        children  ← SBX crossover of parent pairs (η_c = 15, p_c = 0.9)   (:func:`sbx_crossover`)
-        children  ← polynomial mutation (η_m = 20, p_m = 1/d per gene)  (:func:`polynomial_mutation`)
-        population ← the ``elite`` best individuals unchanged + pop − elite children
+        parents    ← tournament selection, k = 3 (the best of k uniformly drawn members)
+        children   ← SBX crossover of parent pairs (η_c = 15, p_c = 0.9)    (:func:`sbx_children`)
+        children   ← polynomial mutation (η_m = 20, p_m = 1/d per gene)   (:func:`polynomial_mutation`)
+        population ← the ``elite`` best members unchanged + (pop − elite) children
 
-    Everything is vectorized over the population: one objective call per generation with the
-    pop − elite children (the elite are not re-evaluated).
+    One objective call per generation with the pop − elite children (the elite are not
+    re-evaluated). Selection and variation of a whole generation run in one compiled kernel
+    (:func:`make_children`, numba, ``cache=True``) fed with one array of U(0, 1) variates drawn
+    from ``rng``: no per-individual Python calls.
 
     Parameters
     ----------
@@ -203,9 +239,10 @@ class GA(Optimizer):
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
         lower, upper = check_box(lower, upper)
         d, P, E, k = lower.size, self.pop, self.elite, self.tournament
-        p_mut = 1.0 / d if self.p_mutation is None else self.p_mutation
+        p_mut = 1.0 / d if self.p_mutation is None else float(self.p_mutation)
+        eta_c, p_c, eta_m = float(self.eta_c), float(self.p_crossover), float(self.eta_m)
         n_child = P - E
-        n_pair = (n_child + 1) // 2
+        n_rand = random_count(P, E, d, k)
         tr = Tracker(objective, self._rules(), callback)
         x = lower + rng.random((P, d)) * (upper - lower)
         if x0 is not None:
@@ -213,15 +250,9 @@ class GA(Optimizer):
         f = tr.evaluate(x)
         if tr.end_iteration(f):
             return tr.result(self.name)
-        rows = np.arange(2 * n_pair)
         while True:
-            # tournament selection of 2·n_pair parents
-            cand = rng.integers(0, P, size=(2 * n_pair, k))
-            parents = x[cand[rows, np.argmin(f[cand], axis=1)]]
-            c1, c2 = sbx_crossover(parents[:n_pair], parents[n_pair:], lower, upper, self.eta_c,
-                                   self.p_crossover, rng)
-            children = polynomial_mutation(np.concatenate((c1, c2))[:n_child], lower, upper, self.eta_m,
-                                           p_mut, rng)
+            children = np.empty((n_child, d))
+            make_children(x, f, lower, upper, n_child, k, eta_c, p_c, eta_m, p_mut, rng.random(n_rand), children)
             fc = tr.evaluate(children)
             keep = np.argpartition(f, E - 1)[:E]
             x = np.concatenate((x[keep], children))

@@ -63,9 +63,16 @@ def hunt(leaders: np.ndarray, x: np.ndarray, a: float, rng: np.random.Generator)
     """
     r = rng.random((2, 3) + x.shape)
     L = leaders[:, None, :]
-    A = (2.0 * a) * r[0] - a
-    D = np.abs(2.0 * r[1] * L - x)
-    return L - A * D
+    A = r[0]
+    A *= 2.0 * a
+    A -= a                       # A = 2 a r1 − a
+    D = r[1]
+    D *= 2.0
+    D *= L
+    D -= x
+    np.abs(D, out=D)             # D = |C L − X|, C = 2 r2
+    A *= D
+    return np.subtract(L, A, out=A)
 
 
 @optimizers.register
@@ -140,8 +147,7 @@ class GWO(Optimizer):
             return tr.result(self.name)
         t = 0
         while True:
-            xk = hunt(leaders, x, linear_convergence_factor(t, T), rng)
-            x = xk.sum(axis=0)
+            x = hunt(leaders, x, linear_convergence_factor(t, T), rng).sum(axis=0)
             x *= 1.0 / 3.0
             np.clip(x, lower, upper, out=x)
             f = tr.evaluate(x)

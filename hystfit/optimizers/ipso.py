@@ -50,6 +50,29 @@ def rank_coefficients(pbest_f: np.ndarray, w_min: float = 0.4, w_max: float = 0.
     return rank, w, c1, c2
 
 
+def social_attractors(rank: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Diverse equilibrium points: whose personal best each particle follows (paper 000, README).
+
+    Particle i of rank r_i > 1 follows a particle drawn uniformly among ranks 1 … r_i − 1; the
+    best particle (rank 1) follows itself, i.e. the global best.
+
+    Parameters
+    ----------
+    rank : ndarray of int, shape (s,)
+        1-based ranks, a permutation of 1 … s (from :func:`rank_coefficients`).
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray of int, shape (s,)
+        Index of the particle whose personal best is particle i's social attractor.
+    """
+    s = rank.shape[0]
+    by_rank = np.empty(s, dtype=np.intp)
+    by_rank[rank - 1] = np.arange(s)          # by_rank[k] = particle of rank k + 1
+    return by_rank[(rng.random(s) * (rank - 1)).astype(np.intp)]
+
+
 @optimizers.register
 @dataclass
 class IPSO(Optimizer):
@@ -64,7 +87,7 @@ class IPSO(Optimizer):
 
     (see :func:`rank_coefficients`). *Diverse equilibrium points*: the social attractor p_{e(i)}
     is the personal best of a particle drawn uniformly among those ranked better than i; the
-    best particle uses the global best. r1, r2 ~ U(0, 1) per particle and dimension.
+    best particle uses the global best (:func:`social_attractors`). r1, r2 ~ U(0, 1) per particle and dimension.
 
     Parameters
     ----------
@@ -78,8 +101,10 @@ class IPSO(Optimizer):
         Velocity clamp as a fraction of (upper − lower), as in :class:`~hystfit.optimizers.pso.PSO`.
     max_evals : int or None, default 60000
         Evaluation budget (200 particles × 300 iterations, paper 000's budget).
-    stall_iter : int or None, default 30
-        Stall window in iterations.
+    stall_iter : int or None, default 50
+        Stall window in iterations. This formulation improves in bursts (the top-ranked,
+        high-inertia particles keep exploring); with a window of 30 it stopped at 2–3× worse
+        values on the BW, Rosenbrock and Rastrigin checks than with 50.
     stall_tol : float, default 1e-6
         Relative improvement of the best value that must be exceeded within the stall window.
     target, time_limit_s : float or None
@@ -112,7 +137,7 @@ class IPSO(Optimizer):
     c_max: float = 2.5
     vmax_frac: float = 0.2
     max_evals: int | None = 60_000
-    stall_iter: int | None = 30
+    stall_iter: int | None = 50
     stall_tol: float = 1e-6
     target: float | None = None
     time_limit_s: float | None = None
@@ -152,22 +177,18 @@ class IPSO(Optimizer):
         pbest, pbest_f = x.copy(), f.copy()
         if tr.end_iteration(f):
             return tr.result(self.name)
-        idx = np.arange(P)
-        by_rank = np.empty(P, dtype=np.intp)
         while True:
             rank, w, c1, c2 = rank_coefficients(pbest_f, self.w_min, self.w_max, self.c_min, self.c_max)
-            # social attractor: personal best of a particle drawn uniformly among the better-ranked
-            # ones; for rank 1 the draw is rank 1 itself, i.e. the global best
-            by_rank[rank - 1] = idx          # by_rank[k] = particle of rank k + 1
-            att = by_rank[(rng.random(P) * (rank - 1)).astype(np.intp)]
+            att = social_attractors(rank, rng)
             r = rng.random((2, P, d))
             v = (w[:, None] * v + c1[:, None] * r[0] * (pbest - x)
                  + c2[:, None] * r[1] * (pbest[att] - x))
             np.clip(v, -vmax, vmax, out=v)
-            x_new = x + v
-            out = (x_new < lower) | (x_new > upper)
-            x = reflect(x_new, lower, upper)
-            v[out] = -v[out]
+            x = x + v                      # a new array: the objective may keep the previous one
+            out = (x < lower) | (x > upper)
+            if out.any():
+                x = reflect(x, lower, upper)
+                np.negative(v, out=v, where=out)
             f = tr.evaluate(x)
             better = f < pbest_f
             pbest[better] = x[better]

@@ -119,10 +119,11 @@ class ConstrictionPSO(Optimizer):
             # χ[v + φ1 r1 (p_i − x) + φ2 r2 (p_g − x)], with χ folded into the coefficients
             v = chi * v + c1 * r[0] * (pbest - x) + c2 * r[1] * (pbest[g] - x)
             np.clip(v, -vmax, vmax, out=v)
-            x_new = x + v
-            out = (x_new < lower) | (x_new > upper)
-            x = reflect(x_new, lower, upper)
-            v[out] = -v[out]
+            x = x + v                      # a new array: the objective may keep the previous one
+            out = (x < lower) | (x > upper)
+            if out.any():
+                x = reflect(x, lower, upper)
+                np.negative(v, out=v, where=out)
             f = tr.evaluate(x)
             better = f < pbest_f
             pbest[better] = x[better]

@@ -1,9 +1,9 @@
 """Figures for reports, written as PNG files.
 
 Every function takes plain arrays, a unit and a title, draws one figure, writes it atomically
-(a hidden temporary file in the target directory, then :func:`os.replace`, so a reader never sees
-a half-written PNG) and returns the :class:`~pathlib.Path` written. Nothing is printed and nothing
-is shown on screen.
+(:func:`hystfit.io.atomic_write_bytes`: a hidden temporary file in the target directory, then
+:func:`os.replace`, so a reader never sees a half-written PNG) and returns the
+:class:`~pathlib.Path` written. Nothing is printed and nothing is shown on screen.
 
 Figures are built with the object-oriented :class:`matplotlib.figure.Figure` API and rendered by
 the Agg canvas directly, without :mod:`matplotlib.pyplot`: no global backend is selected and no
@@ -20,16 +20,15 @@ Units: ``"um"`` is shown as ``µm``; see :func:`display_unit`.
 
 from __future__ import annotations
 
+import io
 import math
-import os
-import uuid
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..errors import OutputError
+from ..io import atomic_write_bytes
 
 __all__ = [
     "MAX_POINTS",
@@ -147,28 +146,24 @@ def _captures(name_arrays: Mapping[str, object]) -> list[tuple[np.ndarray, ...]]
 
 
 def _save(fig: Figure, path, dpi: int) -> Path:
-    """Render ``fig`` to ``path`` as PNG atomically and return the path.
+    """Render ``fig`` as PNG and write it to ``path`` atomically; return the path.
+
+    The PNG is rendered in memory and written by :func:`hystfit.io.atomic_write_bytes` (temporary
+    file in the same directory, then :func:`os.replace`; parent directories are created), so a
+    reader sees the previous file or the complete new one, and a failed render leaves nothing.
 
     Raises
     ------
     OutputError
-        If the directory cannot be created or the file cannot be written.
+        If the location cannot be written.
     """
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    buf = io.BytesIO()
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "xb") as fh:
-            fig.savefig(fh, format="png", dpi=dpi)
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise OutputError(f"cannot write figure {path}: {exc.strerror or exc}") from exc
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        fig.savefig(buf, format="png", dpi=dpi)
     finally:
         fig.clear()
+    atomic_write_bytes(path, buf.getvalue())
     return path
 
 
@@ -271,7 +266,8 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
     tr, rr = _decimate_minmax(t, resid)
     u = display_unit(unit)
     if np.isfinite(rmse):
-        axr.axhspan(-rmse, rmse, color="tab:blue", alpha=0.15, lw=0, label=f"±RMSE = {rmse:.3g} {u}")
+        which = "" if finite.all() else " (finite samples)"
+        axr.axhspan(-rmse, rmse, color="tab:blue", alpha=0.15, lw=0, label=f"±RMSE{which} = {rmse:.3g} {u}")
     axr.axhline(0.0, color="0.5", lw=0.6)
     axr.plot(tr, rr, color="tab:blue", lw=0.7, label="model − measured")
     axr.set_ylabel(f"Residual ({u})")

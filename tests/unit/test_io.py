@@ -528,16 +528,23 @@ def test_atomic_writes(tmp_path):
     blocker.write_text("x")
     with pytest.raises(OutputError, match="cannot write"):
         atomic_write_text(blocker / "x.txt", "y")
-    os.chmod(tmp_path / "new", 0o500)
+
+
+def test_atomic_write_failure_keeps_old_file(tmp_path):
+    d = tmp_path / "ro"
+    d.mkdir()
+    target = d / "out.txt"
+    target.write_text("old")
+    os.chmod(d, 0o500)
     try:
-        if os.access(tmp_path / "new", os.W_OK):
-            pytest.skip("running with permissions that ignore chmod")
-        with pytest.raises(OutputError):
-            atomic_write_text(target, "z")
-        assert target.read_bytes() == b"\x00\x01"
+        if os.access(d, os.W_OK):
+            pytest.skip("running with permissions that ignore chmod (root)")
+        with pytest.raises(OutputError, match="cannot write"):
+            atomic_write_text(target, "new")
     finally:
-        os.chmod(tmp_path / "new", 0o700)
-    assert sorted(p.name for p in target.parent.iterdir()) == ["out.txt"]
+        os.chmod(d, 0o700)
+    assert target.read_text() == "old"
+    assert [p.name for p in d.iterdir()] == ["out.txt"]
 
 
 def test_write_table_csv_and_parquet(tmp_path):

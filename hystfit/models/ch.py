@@ -1,0 +1,188 @@
+"""Coleman–Hodgdon model in explicit branch form (paper 001 eq. 1)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..params import DataScale, Param
+from ..registry import models
+from ._kernels_extra import ch_branches, ch_inverse, ch_population
+from .base import Model
+
+
+@models.register
+@dataclass(frozen=True)
+class ColemanHodgdon(Model):
+    r"""Coleman–Hodgdon hysteresis, explicit branches (paper 001 eq. 1; ``shared/papers/README.md``).
+
+    .. math::
+
+        y = \begin{cases}
+        K u - A_4\Bigl(1 - \dfrac{2 e^{-A_5 u}}{e^{-A_5 V_m} + e^{-A_5 V_M}}\Bigr) + A_6, & \dot u \ge 0\\[2ex]
+        K u + A_4\Bigl(1 - \dfrac{2 e^{A_5 u}}{e^{A_5 V_m} + e^{A_5 V_M}}\Bigr) + A_6, & \dot u < 0
+        \end{cases}
+        \qquad K = A_1 - A_2 e^{-A_3 V_R}
+
+    V_m, V_M are the minimum and maximum input of the identification data and V_R = V_M − V_m
+    (001 §2). The two branches meet at V_m and V_M, so a cycle between the extremes of the data
+    closes. The fraction is evaluated as 2/(e^{A5(u−V_m)} + e^{A5(u−V_M)}), which is the same
+    number without exponents that grow with |u| (no overflow on offset inputs).
+
+    Branch selection. The branch of sample k follows the sign of the backward difference
+    u_k − u_{k−1}; a sample with u̇ = 0 keeps the previous branch, and the first sample is on the
+    ascending branch (001's u̇ ≥ 0 case). Apart from that branch flag the model is
+    **memoryless**: the output is a function of (u, sgn u̇) only, so it cannot produce minor loops
+    — a reversal inside the range jumps to the other major branch. Captures with nested or
+    partial loops therefore show systematic residuals at the reversals, which the diagnosis
+    should reveal. Rate independent.
+
+    Structure
+    ---------
+    v_min, v_max : V_m and V_M in V. Filled from the identification data by :meth:`adapt` and
+        saved with the fit, so predictions on other captures use the same branch functions.
+
+    Parameters (θ)
+    --------------
+    A1 : out/V, A2 : out/V, A3 : 1/V — they enter only through the slope K = A1 − A2 e^{−A3 V_R}.
+        For one structure (fixed V_R) only K is identifiable; A2 and A3 are kept because 001
+        reports them (its Table 1), and K is what a fit determines.
+    A4 : out, loop amplitude; A4 > 0 puts the descending branch above the ascending one (the
+        counter-clockwise loop of a piezo stack), A4 < 0 the opposite orientation.
+    A5 : 1/V, loop shape (curvature of the branches); A5 → 0 closes the loop.
+    A6 : out, output offset.
+
+    Bounds scale with the data (gain g = output range / input range, ΔU = input range):
+    A1 ∈ [−3, 3]·g, A2 ∈ [0, 3]·g, A3 ∈ [0, 10]/ΔU, A4 ∈ [−1, 1]·(output range),
+    A5 ∈ [−20, 20]/ΔU, A6 within one output range of the data. (001's own A5 = −0.2 1/V on a
+    3.3 V range is −0.66/ΔU.)
+
+    Inverse: per branch. The branch of each target sample follows the sign of the target's
+    derivative (times the orientation of the ascending branch; zero keeps the previous branch),
+    and the input is the root of the active branch found by a scan from the previous input in the
+    branch's direction plus bisection (:func:`hystfit.models._kernels_extra.ch_inverse`).
+    """
+
+    name = "ch"
+    title = "Coleman–Hodgdon (explicit branches)"
+    reference = "paper 001 eq. 1"
+    equation = ("y = (A1 − A2·e^(−A3·V_R))·u ∓ A4·(1 − 2·e^(∓A5·u)/(e^(∓A5·V_m) + e^(∓A5·V_M))) + A6,"
+                "  upper signs for du/dt ≥ 0")
+    rate_dependent = False
+
+    v_min: float | None = None
+    v_max: float | None = None
+
+    def __post_init__(self) -> None:
+        if (self.v_min is None) != (self.v_max is None):
+            raise ConfigError("ch: give both v_min and v_max (or neither; adapt() fills them from the data)")
+        if self.v_min is not None:
+            lo, hi = float(self.v_min), float(self.v_max)  # type: ignore[arg-type]
+            if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+                raise ConfigError(f"ch: need finite v_min < v_max, got v_min={self.v_min!r}, v_max={self.v_max!r}")
+
+    # ------------------------------------------------------------------ structure
+    def adapt(self, scale: DataScale) -> "ColemanHodgdon":
+        if self.v_min is not None:
+            return self
+        lo, hi = float(scale.u_min), float(scale.u_max)
+        if not hi > lo:
+            hi = lo + scale.u_range
+        return ColemanHodgdon(lo, hi)
+
+    def _range(self) -> tuple[float, float]:
+        if self.v_min is None or self.v_max is None:
+            raise ConfigError("ch: V_m and V_M are not set; call adapt(scale) with the identification data first")
+        return float(self.v_min), float(self.v_max)
+
+    def params(self, scale: DataScale) -> tuple[Param, ...]:
+        g, du, yr = scale.gain, scale.u_range, scale.y_range
+        mid = 0.5 * (scale.y_min + scale.y_max)
+        return (
+            Param("A1", "out/V", -3 * g, 3 * g, g, "slope term A1 (slope K = A1 − A2·e^(−A3·V_R))"),
+            Param("A2", "out/V", 0.0, 3 * g, 0.0, "slope correction A2 (only K is identifiable)"),
+            Param("A3", "1/V", 0.0, 10.0 / du, 1.0 / du, "slope correction rate A3 (only K is identifiable)"),
+            Param("A4", "out", -yr, yr, 0.05 * yr, "loop amplitude A4 (> 0: counter-clockwise loop)"),
+            Param("A5", "1/V", -20.0 / du, 20.0 / du, 2.0 / du, "loop shape A5"),
+            Param("A6", "out", scale.y_min - yr, scale.y_max + yr, mid, "output offset A6"),
+        )
+
+    def slope(self, theta: np.ndarray) -> np.ndarray:
+        """K = A1 − A2 e^{−A3 V_R} for θ (P, 6) → (P,) (the identifiable combination)."""
+        theta = self.check_theta(theta, 6)
+        lo, hi = self._range()
+        with np.errstate(all="ignore"):
+            return theta[:, 0] - theta[:, 1] * np.exp(-theta[:, 2] * (hi - lo))
+
+    # ------------------------------------------------------------------ simulation
+    def _columns(self, theta: np.ndarray):
+        K = np.ascontiguousarray(self.slope(theta))
+        return (K,) + tuple(np.ascontiguousarray(theta[:, i]) for i in (3, 4, 5))
+
+    def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        theta = self.check_theta(theta, 6)
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        return self.simulator(u, dt)(theta)
+
+    def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
+        vm, vM = self._range()
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        s = ch_branches(u, 1.0)  # depends on u only: computed once per capture
+
+        def sim(theta: np.ndarray) -> np.ndarray:
+            theta = self.check_theta(theta, 6)
+            return ch_population(u, s, *self._columns(theta), vm, vM).T
+
+        return sim
+
+    # ------------------------------------------------------------------ stepping
+    def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
+        """State: the active branch (+1 ascending), +1 before the first sample."""
+        return np.ones(1)
+
+    def step(self, theta, state, u_prev, u_new, dt):
+        vm, vM = self._range()
+        th = np.asarray(theta, float).reshape(1, 6)
+        K, A4, A5, A6 = (float(c[0]) for c in self._columns(th))
+        u_new = np.asarray(u_new, dtype=np.float64)
+        du = u_new - float(u_prev)
+        s = np.where(du > 0, 1.0, np.where(du < 0, -1.0, float(state[0])))
+        with np.errstate(all="ignore"):
+            a = s * A5
+            phi = 1.0 - 2.0 / (np.exp(a * (u_new - vm)) + np.exp(a * (u_new - vM)))
+            y = K * u_new - s * A4 * phi + A6
+        return y, s[:, None]
+
+    # ------------------------------------------------------------------ inverse
+    def branch_value(self, theta: np.ndarray, u: np.ndarray, branch: float) -> np.ndarray:
+        """Output of one branch (+1 ascending, −1 descending) at inputs ``u``."""
+        vm, vM = self._range()
+        u = np.ascontiguousarray(np.atleast_1d(np.asarray(u, float)))
+        s = np.full(u.shape[0], float(branch))
+        return ch_population(u, s, *self._columns(np.asarray(theta, float).reshape(1, 6)), vm, vM)[:, 0]
+
+    def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
+               u_range: tuple[float, float] | None = None) -> np.ndarray:
+        """Input u (N,) whose simulated output follows ``y_target``, branch by branch.
+
+        ``u_range`` bounds the search (default: the data range widened by one V_R on each side).
+        The first sample's root is the one nearest 0 V clipped into the range (the usual rest
+        input); a target outside the reachable range saturates at the closest-output input.
+        """
+        vm, vM = self._range()
+        th = np.asarray(theta, float).reshape(1, 6)
+        y = np.ascontiguousarray(np.asarray(y_target, float))
+        if y.size == 0:
+            return np.empty(0)
+        lo, hi = u_range if u_range is not None else (vm - (vM - vm), vM + (vM - vm))
+        K, A4, A5, A6 = (float(c[0]) for c in self._columns(th))
+        rise = self.branch_value(th[0], np.array([vm, vM]), 1.0)
+        orient = 1.0 if not rise[1] < rise[0] else -1.0
+        # branch = orientation · sgn(Δy): ascending where the target moves the way the ascending
+        # branch does; Δy = 0 keeps the branch; the first sample is ascending, as in simulate()
+        s = ch_branches(np.ascontiguousarray(orient * y), 1.0)
+        return ch_inverse(y, s, K, A4, A5, A6, vm, vM, float(lo), float(hi),
+                          float(min(max(0.0, lo), hi)), 2048)

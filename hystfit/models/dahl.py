@@ -1,0 +1,106 @@
+"""Dahl hysteresis model (``shared/papers/README.md``; comparison model of paper 002)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..params import DataScale, Param
+from ..registry import models
+from ._kernels_extra import dahl_population, dahl_step
+from .base import Model
+
+
+@models.register
+@dataclass(frozen=True)
+class Dahl(Model):
+    r"""Dahl model: a linear term plus a Dahl friction-type hysteretic state.
+
+    .. math::
+
+        y = k\,u + h + d_0,\qquad
+        \dot h = \sigma\,\dot u\,\bigl|1 - \tfrac{h}{F}\,\mathrm{sgn}\,\dot u\bigr|^{a}
+                 \,\mathrm{sgn}\bigl(1 - \tfrac{h}{F}\,\mathrm{sgn}\,\dot u\bigr),
+        \qquad F = \mathrm{sgn}(\sigma)\,F_c,\qquad h(0) = 0
+
+    Five parameters (k, σ, F_c, a, d0) as counted in paper 002 Table 3; the equation is the one
+    ``shared/papers/README.md`` adopts.
+
+    Orientation (our convention, argued). The Dahl equation is invariant under
+    (σ, F_c, h) → (−σ, −F_c, −h). We take F_c > 0 as the *magnitude* of the saturation level
+    and let σ carry the sign (F = sgn(σ) F_c). With σ > 0 this is exactly the README's equation
+    (clockwise loop in (u, y): the state saturates at +F_c while u rises); σ < 0 gives the
+    counter-clockwise loop of piezo stacks (h → −F_c while u rises). Written the README's way,
+    the counter-clockwise case needs σ and F_c both negative, a box containing that would also
+    contain the unstable quadrants (σ F_c < 0) and the singular F_c = 0; ours has neither.
+
+    Integration. The model is rate independent: along each sample's straight input segment
+    (s = sgn Δu, v = |u| travelled), x = 1 − s h/F obeys dx/dv = −(σ/F) |x|^a sgn x, which has
+    the closed-form solution |x|^{1−a} = |x_0|^{1−a} − (1 − a)(σ/F) v (|x| = |x_0| e^{−(σ/F)v}
+    for a = 1; for a < 1, x reaches 0 in finite v and stays). The kernel uses it, so the state
+    is exact for piecewise-linear inputs at any sample rate and any a — no sub-steps
+    (:func:`hystfit.models._kernels_extra.dahl_population`).
+
+    Parameters (θ)
+    --------------
+    k : out/V, linear gain.
+    sigma : out/V, slope of h right after a reversal from h = 0; sign = loop orientation.
+    Fc : out, saturation level of h (> 0); the loop's half-height about the linear term.
+    a : 1, shape exponent (a = 1 exponential approach; a < 1 reaches saturation in finite travel).
+    d0 : out, output offset.
+
+    Identifiability. σ/F_c is a rate per volt: when σ ΔU/F_c ≫ 1 the state saturates right
+    after each reversal and only F_c (and k) are determined, σ and a trading against each other
+    near the reversals; when σ ΔU/F_c ≪ 1 the state never saturates, h ≈ σ·(travel) and σ merges
+    with k while F_c is poorly determined. Between (σΔU/F_c of a few) all five are identifiable,
+    a the least precisely.
+
+    Bounds (data-scaled; g = output range / input range): k ∈ [−3, 3] g, σ ∈ [−30, 30] g,
+    F_c ∈ [10⁻³, 1]·(output range), a ∈ [0.25, 4], d0 within one output range of the data.
+    """
+
+    name = "dahl"
+    title = "Dahl"
+    reference = "shared/papers/README.md (Dahl); paper 002 §4 comparison model, 5 parameters"
+    equation = "y = k·u + h + d0,  dh/dt = σ·du/dt·|1 − (h/F)·sgn(du/dt)|^a·sgn(1 − (h/F)·sgn(du/dt)),  F = sgn(σ)·Fc"
+    rate_dependent = False
+
+    def params(self, scale: DataScale) -> tuple[Param, ...]:
+        g, yr = scale.gain, scale.y_range
+        return (
+            Param("k", "out/V", -3 * g, 3 * g, g, "linear gain"),
+            Param("sigma", "out/V", -30 * g, 30 * g, -0.5 * g, "initial slope σ of h after a reversal (sign = orientation)"),
+            Param("Fc", "out", 1e-3 * yr, yr, 0.05 * yr, "saturation level F_c of h"),
+            Param("a", "1", 0.25, 4.0, 1.0, "shape exponent a"),
+            Param("d0", "out", scale.y_min - yr, scale.y_max + yr, 0.0, "output offset"),
+        )
+
+    def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        theta = self.check_theta(theta, 5)
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        k, sig, fc, a, d0 = (np.ascontiguousarray(theta[:, i]) for i in range(5))
+        h = dahl_population(u, sig, fc, a).T
+        with np.errstate(all="ignore"):
+            return k[:, None] * u[None, :] + h + d0[:, None]
+
+    def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
+        """State: h, zero before the first sample."""
+        return np.zeros(1)
+
+    def step(self, theta, state, u_prev, u_new, dt):
+        k, sig, fc, a, d0 = (float(v) for v in np.asarray(theta, float).ravel())
+        u_new = np.ascontiguousarray(u_new, dtype=np.float64)
+        h = dahl_step(float(state[0]), float(u_prev), u_new, sig, fc, a)
+        with np.errstate(all="ignore"):
+            return k * u_new + h + d0, h[:, None]
+
+    def _inverse_range(self, theta: np.ndarray, y_target: np.ndarray) -> tuple[float, float]:
+        """Search window of the numerical inverse: the static inverse ± the hysteresis, widened."""
+        k, sig, fc, a, d0 = (float(v) for v in np.asarray(theta, float).ravel())
+        yt = np.asarray(y_target, float)
+        kk = abs(k) if k != 0 else 1e-12
+        c = [(float(yt.min()) - d0) / kk, (float(yt.max()) - d0) / kk]
+        lo, hi = min(c), max(c)
+        pad = 0.5 * (hi - lo) + 2.0 * fc / kk
+        return lo - pad, hi + pad

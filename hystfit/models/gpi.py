@@ -1,0 +1,323 @@
+"""Generalized Prandtl–Ishlinskii model (paper 000; Al Janaideh, Rakheja & Su 2009)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from numba import njit
+
+from ..errors import ConfigError
+from ..params import DataScale, Param
+from ..registry import models
+from .base import Model
+
+#: |tanh argument| at which an envelope counts as saturated (tanh(6) = 1 − 1.2e-5): the default
+#: search range of the numerical inverse ends there.
+_TANH_SATURATION = 6.0
+
+
+@njit(cache=True)
+def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n):
+    """Density-weighted sum of generalized play operators for a population of candidates.
+
+    s_j(k) = max(γ_l(u_k) − r_j, min(γ_r(u_k) + r_j, s_j(k−1))),  s_j(−1) = 0 (virgin state),
+    γ_l(u) = a1 tanh(a2 u + a3) + a4,  γ_r(u) = b1 tanh(b2 u + b3) + b4,  r_j = α j,
+
+    z(k) = Σ_{j=0}^{n−1} e^{−τ r_j} s_j(k)
+
+    (the model output is y = ρ z + y0, see :class:`GPI`). The first sample is the README's
+    initial state max(γ_l(u_0) − r, min(γ_r(u_0) + r, 0)).
+
+    Layout (``shared/PERFORMANCE.md``): time loop outermost and sequential, candidates innermost
+    and contiguous; thresholds and density weights are per candidate (α and τ vary).
+
+    Parameters
+    ----------
+    u : (N,) input (V).
+    a1 … b4, tau, alpha : (P,) envelope, density-decay and threshold-step parameters.
+    n : number of operators.
+
+    Returns
+    -------
+    (N, P) array z (envelope units, V); the caller transposes.
+    """
+    N = u.shape[0]
+    P = a1.shape[0]
+    out = np.empty((N, P))
+    s = np.zeros((n, P))
+    r = np.empty((n, P))
+    q = np.empty((n, P))
+    for j in range(n):
+        for p in range(P):
+            r[j, p] = alpha[p] * j
+            q[j, p] = math.exp(-tau[p] * alpha[p] * j)
+    gl = np.empty(P)
+    gr = np.empty(P)
+    acc = np.empty(P)
+    for k in range(N):
+        uk = u[k]
+        for p in range(P):
+            gl[p] = a1[p] * math.tanh(a2[p] * uk + a3[p]) + a4[p]
+            gr[p] = b1[p] * math.tanh(b2[p] * uk + b3[p]) + b4[p]
+            acc[p] = 0.0
+        for j in range(n):
+            for p in range(P):
+                v = max(gl[p] - r[j, p], min(gr[p] + r[j, p], s[j, p]))
+                s[j, p] = v
+                acc[p] += q[j, p] * v
+        for p in range(P):
+            out[k, p] = acc[p]
+    return out
+
+
+@models.register
+@dataclass(frozen=True)
+class GPI(Model):
+    r"""Generalized Prandtl–Ishlinskii hysteresis: play operators on two tanh envelope functions.
+
+    .. math::
+
+        s_r[u](k) = \max\big(\gamma_l(u_k) - r,\ \min(\gamma_r(u_k) + r,\ s_r[u](k-1))\big),
+        \qquad s_r[u](-1) = 0
+
+        \gamma_l(u) = a_1 \tanh(a_2 u + a_3) + a_4,\qquad
+        \gamma_r(u) = b_1 \tanh(b_2 u + b_3) + b_4
+
+        y(k) = \sum_{j=0}^{n-1} p(r_j)\, s_{r_j}[u](k) + y_0,\qquad
+        p(r) = \rho\, e^{-\tau r},\qquad r_j = \alpha_r\, j
+
+    (paper 000, whose equations are images in our copy; formulation pinned down in
+    ``shared/papers/README.md`` after Al Janaideh, Rakheja & Su 2009). The first sample is
+    max(γ_l(u_0) − r, min(γ_r(u_0) + r, 0)), as for the classical play operator (003 eq. 2).
+    γ_l bounds the operator from below (it drives the output on rising input), γ_r from above
+    (falling input); with γ_l = γ_r = γ the model is the classical PI of γ(u).
+
+    Units: the envelopes γ map volts to a *generalized input* measured in V (γ(u) ≈ u for
+    a1·a2 = 1, a3 = −a2·u_c, a4 = u_c): thresholds r_j and α_r are in V, τ in 1/V, ρ in output
+    unit per V.
+
+    Structure
+    ---------
+    n_operators : number of generalized play operators n (r_0 = 0 is the envelope itself), default 10.
+
+    Parameters (θ), in this order
+    -----------------------------
+    a1, b1 : envelope amplitudes (V), > 0.   a2, b2 : envelope input scales (1/V), > 0.
+    a3, b3 : envelope shifts (tanh argument offset, 1).   a4, b4 : envelope offsets (V).
+    rho : density scale ρ = p(0), output unit per V (≥ 0; the weight of the r = 0 operator).
+    tau : density decay τ (1/V, ≥ 0): the weight of operator j is ρ e^{−τ α_r j}.
+    alpha_r : threshold step α_r (V): r_j = α_r·j.
+    y0 : output offset (output unit).
+
+    The offset y0 is ours (the README's formulation has none): real captures carry an arbitrary
+    sensor zero. Without y0 an offset could only be produced through a4, b4 — multiplied by
+    Σ_j p(r_j) and entangled with the operators' virgin state — which couples the offset to the
+    hysteresis shape. With y0 the offset is one linear parameter (solved exactly by variable
+    projection, :meth:`separable`).
+
+    Bounds scale with the data (``DataScale``): with h = half the input range and u_c its
+    centre, tanh arguments scale with 1/h (a2, b2 ∈ [0.05, 4]/h; a3, b3 ∈ ±(4 + 4|u_c|/h)),
+    amplitudes and offsets with h (a1, b1 ∈ [0.2, 20]·h; a4, b4 ∈ u_c ± 20h), α_r ∈
+    [0.01, 2]·(input range)/n, τ ∈ [0, 10]·n/(input range), ρ ∈ [0, 3]·gain (gain = output
+    range/input range). Every θ inside the box gives a finite output: |tanh| ≤ 1 and
+    e^{−τ r} ≤ 1.
+
+    Identifiability. The output is exactly invariant under (a1, a4, b1, b4, α_r) → c·(…),
+    (ρ, τ) → (…)/c for any c > 0 (all envelopes, thresholds and play outputs scale by c), so
+    one of these is not identifiable: fix it (narrow bounds on a1, say) or compare only the
+    invariants a2, a3, b2, b3, τ·α_r, ρ·a1, b1/a1, α_r/a1. A common shift of a4 and b4 changes
+    the output only through the virgin operator states, i.e. it is nearly confounded with y0.
+
+    Inverse. With equal envelopes (a_i = b_i) the model is the classical PI of γ(u): its exact
+    inverse is the inverse PI (paper 003 eq. 17–20) followed by γ⁻¹(v) = (atanh((v − a4)/a1) − a3)/a2.
+    Otherwise the input is found per sample by :func:`hystfit.models.inverse.invert_by_stepping`:
+    for fixed operator memory the output is non-decreasing in u_k when a1·a2 > 0, b1·b2 > 0 and
+    ρ ≥ 0 (README). Targets beyond the saturated envelopes saturate.
+    """
+
+    name = "gpi"
+    title = "Generalized Prandtl–Ishlinskii (tanh envelopes, exponential density)"
+    reference = "paper 000 (generalized PI of Al Janaideh, Rakheja & Su 2009); shared/papers/README.md"
+    equation = ("y = Σ_j ρ e^{−τ r_j} s_{r_j}[u] + y0,  s_r = max(γ_l(u) − r, min(γ_r(u) + r, s_r(k−1))),  "
+                "γ_l = a1 tanh(a2 u + a3) + a4,  γ_r = b1 tanh(b2 u + b3) + b4,  r_j = α_r j")
+    rate_dependent = False
+
+    n_operators: int = 10
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.n_operators, int) or isinstance(self.n_operators, bool) or not 1 <= self.n_operators <= 200:
+            raise ConfigError(f"gpi: n_operators must be an integer in [1, 200], got {self.n_operators!r}")
+
+    # ------------------------------------------------------------------ parameters
+    def params(self, scale: DataScale) -> tuple[Param, ...]:
+        n = self.n_operators
+        U = scale.u_range
+        h = 0.5 * U
+        uc = 0.5 * (scale.u_min + scale.u_max)
+        g = scale.gain
+        a2_def = 0.5 / h
+        a3_lim = 4.0 + 4.0 * abs(uc) / h
+        span = scale.y_range
+        ps = []
+        for side, what in (("a", "γ_l (rising-input envelope)"), ("b", "γ_r (falling-input envelope)")):
+            ps += [
+                Param(f"{side}1", "V", 0.2 * h, 20.0 * h, 2.0 * h, f"amplitude of {what}"),
+                Param(f"{side}2", "1/V", 0.05 / h, 4.0 / h, a2_def, f"input scale of {what}"),
+                Param(f"{side}3", "1", -a3_lim, a3_lim, -a2_def * uc, f"tanh-argument shift of {what}"),
+                Param(f"{side}4", "V", uc - 20.0 * h, uc + 20.0 * h, uc, f"offset of {what}"),
+            ]
+        ps += [
+            Param("rho", "out/V", 0.0, 3.0 * g, 0.5 * g, "density scale ρ = p(0), weight of the r = 0 operator"),
+            Param("tau", "1/V", 0.0, 10.0 * n / U, 0.6 * n / U, "density decay τ: p(r) = ρ·exp(−τ r)"),
+            Param("alpha_r", "V", 0.01 * U / n, 2.0 * U / n, 0.5 * U / n, "threshold step α_r: r_j = α_r·j"),
+            Param("y0", "out", scale.y_min - span, scale.y_max + span,
+                  0.5 * (scale.y_min + scale.y_max) if scale.y_min > 0 or scale.y_max < 0 else 0.0, "output offset"),
+        ]
+        return tuple(ps)
+
+    # ------------------------------------------------------------------ simulation
+    def _z(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Unit-density output z (N, P) = Σ_j e^{−τ r_j} s_j (y = ρ z + y0)."""
+        c = [np.ascontiguousarray(theta[:, i]) for i in range(11)]
+        a1, a2, a3, a4, b1, b2, b3, b4, _, tau, alpha = c
+        return gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, self.n_operators)
+
+    def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        theta = self.check_theta(theta, 12)
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        z = self._z(theta, u)  # (N, P)
+        return (z * theta[:, 8][None, :] + theta[:, 11][None, :]).T
+
+    def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        return lambda theta: self.simulate(theta, u, dt)
+
+    def separable(self):
+        """ρ and y0 enter linearly: y = ρ·z(a, b, τ, α_r) + y0; the other ten are searched."""
+        from ..separable import Separable
+
+        lin = (8, 11)
+        nl = (0, 1, 2, 3, 4, 5, 6, 7, 9, 10)
+
+        def factory(u, dt):
+            u = np.ascontiguousarray(u, dtype=np.float64)
+
+            def basis(theta_nl):
+                theta_nl = np.atleast_2d(theta_nl)
+                P = theta_nl.shape[0]
+                full = np.zeros((P, 12))
+                full[:, nl] = theta_nl
+                z = self._z(full, u)  # (N, P)
+                B = np.empty((P, u.shape[0], 2))
+                B[:, :, 0] = z.T
+                B[:, :, 1] = 1.0
+                return B
+
+            return basis
+
+        return Separable(lin, nl, factory)
+
+    # ------------------------------------------------------------------ stepping
+    def _unpack(self, theta: np.ndarray):
+        t = np.asarray(theta, dtype=np.float64).ravel()
+        if t.size != 12:
+            raise ValueError(f"gpi: theta must have 12 entries, got {t.size}")
+        return t
+
+    def _operators(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Thresholds r_j (V) and weights p(r_j) = ρ e^{−τ r_j} (out/V) of one parameter vector."""
+        r = t[10] * np.arange(self.n_operators, dtype=np.float64)
+        with np.errstate(over="ignore"):
+            p = t[8] * np.exp(-t[9] * r)
+        return r, p
+
+    @staticmethod
+    def _envelopes(t: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        u = np.asarray(u, dtype=np.float64)
+        return (t[0] * np.tanh(t[1] * u + t[2]) + t[3], t[4] * np.tanh(t[5] * u + t[6]) + t[7])
+
+    def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
+        """Operator states (n,) after the first sample u0 from the virgin state (the reset of :meth:`simulate`).
+
+        Applying the same input again leaves them unchanged, so stepping from here reproduces
+        :meth:`simulate` from the second sample on.
+        """
+        t = self._unpack(theta)
+        r, _ = self._operators(t)
+        gl, gr = self._envelopes(t, np.array([float(u0)]))
+        return np.maximum(gl[0] - r, np.minimum(gr[0] + r, 0.0))
+
+    def step(self, theta, state, u_prev, u_new, dt):
+        """One sample for candidate inputs u_new (C,): outputs (C,) and operator states (C, n)."""
+        t = self._unpack(theta)
+        r, p = self._operators(t)
+        gl, gr = self._envelopes(t, np.atleast_1d(u_new))
+        s = np.maximum(gl[:, None] - r[None, :], np.minimum(gr[:, None] + r[None, :], np.asarray(state, float)[None, :]))
+        return s @ p + t[11], s
+
+    # ------------------------------------------------------------------ inverse
+    def envelopes_equal(self, theta: np.ndarray, rtol: float = 1e-12) -> bool:
+        """True when γ_l = γ_r (a_i = b_i to ``rtol``): the analytic inverse applies."""
+        t = self._unpack(theta)
+        a, b = t[0:4], t[4:8]
+        return bool(np.all(np.abs(a - b) <= rtol * np.maximum(np.abs(a), np.abs(b)) + 1e-300))
+
+    def _inverse_range(self, theta: np.ndarray, y_target: np.ndarray) -> tuple[float, float]:
+        """Input interval on which both envelopes are unsaturated (|tanh argument| ≤ 6)."""
+        t = self._unpack(theta)
+        ends = [(s * _TANH_SATURATION - t[c3]) / t[c2] for c2, c3 in ((1, 2), (5, 6)) for s in (-1.0, 1.0)]
+        return float(min(ends)), float(max(ends))
+
+    def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
+               u_range: tuple[float, float] | None = None) -> np.ndarray:
+        """Input u (N,) whose simulated output follows ``y_target`` (N,).
+
+        Exact for equal envelopes (inverse PI of paper 003 eq. 17–20 on the generalized input,
+        then γ⁻¹ by atanh; generalized inputs beyond the envelope's open range are clipped to it,
+        i.e. the input saturates far out). Otherwise per-sample numerical inversion on
+        :meth:`step` over ``u_range`` (default: where the envelopes are unsaturated), starting
+        from the virgin operator state like :meth:`simulate`.
+        """
+        t = self._unpack(theta)
+        if not (t[0] * t[1] > 0 and t[4] * t[5] > 0 and t[8] > 0):
+            raise ConfigError("gpi: the inverse needs increasing envelopes (a1·a2 > 0, b1·b2 > 0) and rho > 0")
+        y_target = np.asarray(y_target, dtype=np.float64)
+        if self.envelopes_equal(t):
+            return self._invert_equal(t, y_target)
+        from .inverse import invert_by_stepping
+
+        return invert_by_stepping(_VirginStart(self), t, y_target, dt,
+                                  u_range=u_range or self._inverse_range(t, y_target))
+
+    def _invert_equal(self, t: np.ndarray, y_target: np.ndarray) -> np.ndarray:
+        from .pi import PI
+
+        r, p = self._operators(t)
+        if t[10] > 0 and self.n_operators > 1:
+            pi = PI(self.n_operators, thresholds_V=tuple(float(x) for x in r))
+            v = pi.invert(np.r_[p, t[11]], y_target, 1.0)
+        else:  # all thresholds zero: y = (Σ p) γ(u) + y0
+            v = (y_target - t[11]) / np.sum(p)
+        x = np.clip((v - t[3]) / t[0], -1.0 + 1e-12, 1.0 - 1e-12)
+        return (np.arctanh(x) - t[2]) / t[1]
+
+
+class _VirginStart:
+    """Adapter for :func:`invert_by_stepping`: the first sample is stepped from the virgin state.
+
+    ``GPI.initial_state(θ, u0)`` is the memory *after* a first sample u0 (so stepping reproduces
+    ``simulate`` from sample 1); the inverse must choose sample 0 itself, from the all-zero
+    operator states that :meth:`GPI.simulate` starts from.
+    """
+
+    def __init__(self, model: GPI) -> None:
+        self.model = model
+
+    def initial_state(self, theta, u0, dt):
+        return np.zeros(self.model.n_operators)
+
+    def step(self, theta, state, u_prev, u_new, dt):
+        return self.model.step(theta, state, u_prev, u_new, dt)

@@ -1,0 +1,172 @@
+"""The command line through typer's CliRunner: README commands, outputs, errors and exit codes."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from hystfit.cli import app
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "sample_data"
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def small_data(tmp_path_factory):
+    """Three campaign captures (two conditions at 20 V, one at 40 V) copied to a temp dir."""
+    d = tmp_path_factory.mktemp("data")
+    for name in ("a20V_f10Hz.csv", "a20V_f80Hz.csv", "a40V_f10Hz.csv"):
+        shutil.copy(SAMPLE / name, d / name)
+    return d
+
+
+def test_readme_quickstart_identify(tmp_path):
+    """README Quickstart: `hystfit identify sample_data --out results` (default model pi, optimizer auto)."""
+    out = tmp_path / "results"
+    r = run("identify", SAMPLE, "--out", out)
+    assert r.exit_code == 0, r.output
+    params = json.loads((out / "params.json").read_text())
+    assert params["schema"] == "hystfit.params" and params["model"]["name"] == "pi"
+    assert params["optimizer"]["name"] == "auto"
+    conds = params["conditions"]
+    assert len(conds) == 24
+    assert {(c["amplitude_V"], c["frequency_Hz"]) for c in conds} == {(a, f) for a in (20.0, 40.0, 60.0)
+                                                                       for f in range(10, 90, 10)}
+    for c in conds:
+        assert c["metrics"]["r2"] > 0.999
+        assert {p["name"] for p in c["parameters"]} == {f"w{j}" for j in range(10)} | {"y0"}
+        assert all(p["unit"] in ("um/V", "um") for p in c["parameters"])
+    report = (out / "report.md").read_text()
+    assert "RMSE" in report or "rmse_um" in report
+    csv = (out / "report.csv").read_text().splitlines()
+    assert len(csv) == 25 and "rmse_um" in csv[0]
+    plots = {p.name for p in (out / "plots").iterdir()}
+    assert "overview.png" in plots and "loop_40V_10Hz.png" in plots and "convergence_60V_80Hz.png" in plots
+    assert "timeseries_20V_10Hz.png" in plots
+
+
+def test_real_capture_identifies_with_r2_above_099(tmp_path):
+    r = run("identify", SAMPLE / "real", "--out", tmp_path / "o", "--no-plots", "--json", "--model", "pi")
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.stdout)
+    (cond,) = summary["conditions"]
+    assert (cond["amplitude_V"], cond["frequency_Hz"]) == (300.0, 1.0)
+    assert cond["metrics"]["r2"] > 0.99
+
+
+def test_json_summary_and_same_seed_same_numbers(small_data, tmp_path):
+    args = ("identify", small_data, "--model", "bw", "--opt", "pso", "--pop", "12", "--iters", "15", "--seed", "7",
+            "--no-plots", "--json")
+    a = run(*args, "--out", tmp_path / "a")
+    b = run(*args, "--out", tmp_path / "b")
+    assert a.exit_code == 0 and b.exit_code == 0, a.output
+    ja, jb = json.loads(a.stdout), json.loads(b.stdout)
+    assert [c["metrics"] for c in ja["conditions"]] == [c["metrics"] for c in jb["conditions"]]
+    pa = json.loads((tmp_path / "a" / "params.json").read_text())
+    assert pa["optimizer"]["settings"]["pop"] == 12 and pa["seed"] == 7
+
+
+def test_runs_and_global(small_data, tmp_path):
+    r = run("identify", small_data, "--model", "pi", "--opt", "pso", "--pop", "10", "--iters", "10", "--runs", "3",
+            "--global", "--no-plots", "--out", tmp_path / "g", "--quiet")
+    assert r.exit_code == 0, r.output
+    p = json.loads((tmp_path / "g" / "params.json").read_text())
+    assert p["mode"] == "global" and len(p["conditions"]) == 1
+    c = p["conditions"][0]
+    assert len(c["sources"]) == 3 and len(c["runs"]) == 3
+    assert len({run_["seed"] for run_ in c["runs"]}) == 3
+    assert c["run_spread"]["runs"] == 3
+
+
+def test_existing_output_refused_without_force(small_data, tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    r = run("identify", small_data, "--out", out, "--no-plots")
+    assert r.exit_code == 2
+    assert "--force" in r.stderr and "Traceback" not in r.output
+    assert (out / "keep.txt").read_text() == "mine"
+    r = run("identify", small_data, "--out", out, "--no-plots", "--force", "--quiet")
+    assert r.exit_code == 0 and (out / "params.json").exists() and not (out / "keep.txt").exists()
+
+
+@pytest.mark.parametrize("args, needle", [
+    (("--model", "nosuch"), "unknown model 'nosuch'"),
+    (("--opt", "nosuch"), "unknown optimizer 'nosuch'"),
+    (("--bounds", "w0=2"), "NAME=LOWER:UPPER"),
+    (("--bounds", "zz=0:1"), "unknown parameter 'zz'"),
+    (("--bounds", "w0=1:0"), "lower must be below upper"),
+    (("--model-option", "n_operators=0"), "n_operators"),
+    (("--condition", "abc"), "AMPLITUDE_V,FREQUENCY_HZ"),
+    (("--opt", "lsq", "--pop", "5"), "--pop does not apply"),
+])
+def test_bad_options_exit_2_one_line(small_data, tmp_path, args, needle):
+    out = tmp_path / "o"
+    r = run("identify", small_data, "--out", out, "--no-plots", *args)
+    assert r.exit_code == 2, r.output
+    assert needle in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.output
+    assert not out.exists()
+
+
+def test_bad_data_exit_2_nothing_written(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,voltage_V,displacement_um\n0,0,0\n0.001,1,abc\n0.002,2,0.2\n")
+    out = tmp_path / "o"
+    r = run("identify", bad, "--out", out)
+    assert r.exit_code == 2
+    assert "bad.csv" in r.stderr and "Traceback" not in r.output
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert not out.exists() and not list(tmp_path.glob(".o*"))
+    r = run("identify", tmp_path / "missing.csv", "--out", out)
+    assert r.exit_code == 2 and "missing.csv" in r.stderr
+
+
+def test_simulate_out_of_sample(small_data, tmp_path):
+    fit = tmp_path / "fit"
+    r = run("identify", small_data / "a20V_f10Hz.csv", small_data / "a40V_f10Hz.csv", "--out", fit, "--no-plots", "--quiet")
+    assert r.exit_code == 0, r.output
+    sim = tmp_path / "sim"
+    r = run("simulate", fit / "params.json", small_data / "a20V_f80Hz.csv", "--out", sim, "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)["captures"][0]
+    assert s["cells"][0][0] == "20V_10Hz"  # nearest cell in (amplitude, log-frequency)
+    assert s["metrics"]["r2"] > 0.99
+    pred = (sim / "a20V_f80Hz_prediction.csv").read_text().splitlines()[0]
+    assert pred.split(",")[:3] == ["time_s", "voltage_V", "predicted_displacement_um"]
+    m = json.loads((sim / "a20V_f80Hz_metrics.json").read_text())
+    assert np.isclose(m["metrics"]["rmse_um"], s["metrics"]["rmse_um"])
+    assert (sim / "plots" / "loop_a20V_f80Hz.png").exists() and (sim / "report.md").exists()
+    # interpolation between the 20 V and 40 V cells at 30 V would need a complete grid: falls back to nearest
+    r = run("simulate", fit / "params.json", small_data / "a20V_f80Hz.csv", "--out", tmp_path / "sim2",
+            "--method", "interpolate", "--quiet", "--no-plots")
+    assert r.exit_code == 0, r.output
+
+
+def test_simulate_rejects_bad_params_file(small_data, tmp_path):
+    p = tmp_path / "p.json"
+    p.write_text("{not json")
+    r = run("simulate", p, small_data, "--out", tmp_path / "s")
+    assert r.exit_code == 2 and "p.json" in r.stderr and "not valid JSON" in r.stderr
+
+
+def test_models_and_optimizers_listing():
+    r = run("models", "--json")
+    assert r.exit_code == 0
+    models = {m["name"]: m for m in json.loads(r.stdout)["models"]}
+    assert {"pi", "bw"} <= set(models)
+    assert models["pi"]["reference"].startswith("paper 003")
+    assert any(p["unit"] == "um/V" for p in models["bw"]["parameters"])
+    r = run("optimizers", "--json")
+    names = {o["name"] for o in json.loads(r.stdout)["optimizers"]}
+    assert {"pso", "lsq", "auto"} <= names
+    r = run("models")
+    assert r.exit_code == 0 and "Prandtl" in r.stdout

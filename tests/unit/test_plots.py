@@ -1,0 +1,216 @@
+"""Figures: readable PNGs of the expected size, written atomically, long inputs decimated."""
+
+import os
+
+import matplotlib.axes
+import matplotlib.image
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from hystfit.errors import OutputError
+from hystfit.report import plots
+from hystfit.report.plots import (
+    MAX_POINTS,
+    _decimate,
+    _decimate_minmax,
+    _grid_shape,
+    _stride,
+    boxplot_figure,
+    convergence_figure,
+    display_unit,
+    heatmap_figure,
+    loop_figure,
+    overview_figure,
+    parity_figure,
+    timeseries_figure,
+)
+
+
+def _loop(rng, n=400, amp=60.0):
+    t = np.linspace(0.0, 2.0, n)
+    u = amp / 2 * (1 - np.cos(2 * np.pi * t))
+    y_model = 0.15 * u + 0.8 * np.sin(2 * np.pi * t)
+    return t, u, y_model + rng.normal(0, 0.02, n), y_model
+
+
+def _read(path):
+    """Image read back by matplotlib: (height, width, channels)."""
+    assert path.is_file() and path.stat().st_size > 1000
+    return matplotlib.image.imread(path)
+
+
+def _only(tmp_path, *names):
+    """The directory holds exactly these files: no temporary leftovers."""
+    assert sorted(os.listdir(tmp_path)) == sorted(names)
+
+
+def test_loop_figure_size_and_no_temp_files(tmp_path, rng):
+    _, u, y, yp = _loop(rng)
+    out = loop_figure(tmp_path / "loop.png", u, y, yp, unit="um", title="pi – 60 V 1 Hz")
+    assert out == tmp_path / "loop.png"
+    img = _read(out)
+    assert img.shape[:2] == (round(4.8 * plots.DPI), round(6.4 * plots.DPI))  # (height, width), landscape
+    small = _read(loop_figure(tmp_path / "small.png", u, y, yp, dpi=55))
+    assert small.shape[0] == img.shape[0] // 2
+    _only(tmp_path, "loop.png", "small.png")
+
+
+def test_loop_figure_accepts_lists_of_captures_and_checks_them(tmp_path, rng):
+    caps = [_loop(rng, n) for n in (300, 500)]
+    out = loop_figure(tmp_path / "l.png", [c[1] for c in caps], [c[2] for c in caps], [c[3] for c in caps])
+    _read(out)
+    with pytest.raises(ValueError, match="numbers of captures"):
+        loop_figure(tmp_path / "bad.png", [c[1] for c in caps], [c[2] for c in caps], [caps[0][3]])
+    with pytest.raises(ValueError, match="differ in length"):
+        loop_figure(tmp_path / "bad.png", [caps[0][1]], [caps[1][2]], [caps[0][3]])
+    _only(tmp_path, "l.png")
+
+
+def test_timeseries_figure_with_non_finite_model(tmp_path, rng):
+    t, _, y, yp = _loop(rng)
+    yp[50:60] = np.inf
+    yp[70] = np.nan
+    img = _read(timeseries_figure(tmp_path / "ts.png", t, y, yp, unit="nm", title="ts"))
+    assert img.shape[0] > 300 and img.shape[1] > img.shape[0]
+    with pytest.raises(ValueError, match="length"):
+        timeseries_figure(tmp_path / "bad.png", t[:-1], y, yp)
+    _only(tmp_path, "ts.png")
+
+
+def test_convergence_figure_variants(tmp_path, rng):
+    best = np.minimum.accumulate(np.exp(-np.linspace(0, 6, 200)) + rng.random(200) * 0.01)
+    _read(convergence_figure(tmp_path / "c1.png", best, best * 2, title="pso", runs=[best * 1.1, best * 0.9]))
+    # zero/negative values fall back to a linear axis; inf (diverged population) becomes a gap
+    mean = best * 3
+    mean[:5] = np.inf
+    _read(convergence_figure(tmp_path / "c2.png", best - best[-1], mean, log=True))
+    _read(convergence_figure(tmp_path / "c3.png", [], None))  # solver without iterations
+    _read(convergence_figure(tmp_path / "c4.png", [0.3], None))
+    _only(tmp_path, "c1.png", "c2.png", "c3.png", "c4.png")
+
+
+def test_overview_figure_grid(tmp_path, rng):
+    panels = []
+    for i in range(24):
+        _, u, y, yp = _loop(rng, 200, amp=20 + i)
+        caps = 2 if i % 5 == 0 else 1
+        panels.append({"title": f"{20 + i}V_{10 * (i % 6 + 1)}Hz", "u": [u] * caps, "y_meas": [y] * caps,
+                       "y_model": [yp] * caps, "subtitle": "R²=0.999 RMSE=0.01 µm"})
+    img = _read(overview_figure(tmp_path / "ov.png", panels, unit="um", title="overview"))
+    assert img.shape[1] > img.shape[0]  # 4 rows × 6 columns: landscape
+    with pytest.raises(ValueError, match="lacks"):
+        overview_figure(tmp_path / "bad.png", [{"title": "x", "u": [1.0, 2.0]}])
+    with pytest.raises(ValueError, match="at least one panel"):
+        overview_figure(tmp_path / "bad.png", [])
+    _only(tmp_path, "ov.png")
+
+
+@pytest.mark.parametrize("n", range(1, 41))
+def test_grid_shape_is_near_square_and_fits(n):
+    rows, cols = _grid_shape(n)
+    assert rows * cols >= n
+    assert rows * cols - n < cols  # no empty row
+    assert rows <= cols <= max(3, 2 * rows)
+
+
+def test_grid_shape_examples():
+    assert _grid_shape(24) == (4, 6)
+    assert _grid_shape(9) == (3, 3)
+    assert _grid_shape(1) == (1, 1)
+    assert _grid_shape(3) == (1, 3)
+
+
+def test_parity_heatmap_boxplot(tmp_path, rng):
+    _, _, y, yp = _loop(rng)
+    par = _read(parity_figure(tmp_path / "p.png", [y, y], [yp, yp], unit="um"))
+    assert abs(par.shape[0] - par.shape[1]) < 0.1 * par.shape[1]  # roughly square
+    m = rng.random((5, 8))
+    m[1, 2], m[3, 4] = np.nan, np.inf
+    hm = _read(heatmap_figure(tmp_path / "h.png", m, [f"m{i}" for i in range(5)], [f"c{j}" for j in range(8)],
+                              title="RMSE", colorbar_label="RMSE (µm)"))
+    assert hm.shape[1] > hm.shape[0]
+    _read(heatmap_figure(tmp_path / "h_nan.png", np.full((2, 2), np.nan), ["a", "b"], ["c", "d"]))
+    with pytest.raises(ValueError, match="labels"):
+        heatmap_figure(tmp_path / "bad.png", m, ["a"], [f"c{j}" for j in range(8)])
+    _read(boxplot_figure(tmp_path / "b.png", {"pso": rng.random(10), "de": [], "lsq": [0.0, 0.2, np.nan]},
+                         ylabel="RMSE (µm)", log=True))
+    with pytest.raises(ValueError, match="at least one group"):
+        boxplot_figure(tmp_path / "bad.png", {})
+    _only(tmp_path, "p.png", "h.png", "h_nan.png", "b.png")
+
+
+def test_decimate_helpers():
+    assert _stride(MAX_POINTS) == 1
+    assert _stride(MAX_POINTS + 1) == 2
+    short = np.arange(1000.0)
+    np.testing.assert_array_equal(_decimate(short), short)
+    x = np.arange(10**6)
+    d = _decimate(x)
+    assert MAX_POINTS // 2 < d.size <= MAX_POINTS
+    assert d[0] == 0 and np.all(np.diff(d) == d[1])  # an even stride
+
+
+def test_decimate_minmax_keeps_peaks(rng):
+    n = 10**6 + 7
+    t = np.arange(n, dtype=float)
+    r = rng.normal(0, 0.01, n)
+    r[123_457], r[n - 2] = 5.0, -4.0  # a spike a plain stride would drop, one in the short tail
+    td, rd = _decimate_minmax(t, r)
+    assert rd.size <= MAX_POINTS + 2
+    assert rd.max() == 5.0 and rd.min() == -4.0
+    assert np.all(np.diff(td) > 0)
+    assert r[::_stride(n)].max() < 5.0  # the spike really is between stride points
+
+
+def test_long_capture_is_drawn_decimated(tmp_path, monkeypatch):
+    drawn = []
+    original = matplotlib.axes.Axes.plot
+
+    def spy(self, *args, **kwargs):
+        drawn.append(len(args[0]))
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", spy)
+    n = 10**6
+    t = np.arange(n) * 1e-5
+    u = 30 * (1 - np.cos(2 * np.pi * 10 * t))
+    loop_figure(tmp_path / "big.png", u, 0.1 * u, 0.1 * u + 0.01)
+    timeseries_figure(tmp_path / "bigts.png", t, 0.1 * u, 0.1 * u + 0.01)
+    assert drawn and max(drawn) <= MAX_POINTS + 2
+    _only(tmp_path, "big.png", "bigts.png")
+
+
+def test_failed_save_leaves_previous_file_and_no_temp(tmp_path, rng, monkeypatch):
+    _, u, y, yp = _loop(rng)
+    target = tmp_path / "loop.png"
+    target.write_bytes(b"previous")
+
+    def boom(self, *args, **kwargs):
+        raise RuntimeError("renderer failed")
+
+    monkeypatch.setattr(Figure, "savefig", boom)
+    with pytest.raises(RuntimeError, match="renderer failed"):
+        loop_figure(target, u, y, yp)
+    assert target.read_bytes() == b"previous"
+    _only(tmp_path, "loop.png")
+
+
+def test_unwritable_location_is_an_output_error(tmp_path, rng):
+    _, u, y, yp = _loop(rng)
+    blocker = tmp_path / "not_a_dir"
+    blocker.write_text("x")
+    with pytest.raises(OutputError, match="not_a_dir"):
+        loop_figure(blocker / "loop.png", u, y, yp)
+    _only(tmp_path, "not_a_dir")
+
+
+def test_parent_directories_are_created(tmp_path, rng):
+    _, u, y, yp = _loop(rng)
+    _read(loop_figure(tmp_path / "plots" / "sub" / "l.png", u, y, yp))
+
+
+def test_unit_display():
+    assert display_unit("um") == "µm"
+    assert display_unit("nm") == "nm"
+    assert display_unit("furlong") == "furlong"
