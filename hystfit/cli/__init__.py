@@ -8,6 +8,7 @@ from .app import app, main
 # Command modules (import order = order in ``hystfit --help``).
 from . import identify as _identify  # noqa: E402,F401
 from . import simulate as _simulate  # noqa: E402,F401
+from . import compare as _compare  # noqa: E402,F401
 from . import synth as _synth  # noqa: E402,F401
 from . import listing as _listing  # noqa: E402,F401
 

@@ -120,7 +120,7 @@ class GPI(Model):
 
     Bounds scale with the data (``DataScale``): with h = half the input range and u_c its
     centre, tanh arguments scale with 1/h (a2, b2 ∈ [0.05, 4]/h; a3, b3 ∈ ±(4 + 4|u_c|/h)),
-    amplitudes and offsets with h (a1, b1 ∈ [0.2, 20]·h; a4, b4 ∈ u_c ± 20h), α_r ∈
+    amplitudes and offsets with h (a1, b1 ∈ [0.2, 10]·h; a4, b4 ∈ u_c ± 3h), α_r ∈
     [0.01, 2]·(input range)/n, τ ∈ [0, 10]·n/(input range), ρ ∈ [0, 3]·gain (gain = output
     range/input range). Every θ inside the box gives a finite output: |tanh| ≤ 1 and
     e^{−τ r} ≤ 1.
@@ -164,10 +164,10 @@ class GPI(Model):
         ps = []
         for side, what in (("a", "γ_l (rising-input envelope)"), ("b", "γ_r (falling-input envelope)")):
             ps += [
-                Param(f"{side}1", "V", 0.2 * h, 20.0 * h, 2.0 * h, f"amplitude of {what}"),
+                Param(f"{side}1", "V", 0.2 * h, 10.0 * h, 2.0 * h, f"amplitude of {what}"),
                 Param(f"{side}2", "1/V", 0.05 / h, 4.0 / h, a2_def, f"input scale of {what}"),
                 Param(f"{side}3", "1", -a3_lim, a3_lim, -a2_def * uc, f"tanh-argument shift of {what}"),
-                Param(f"{side}4", "V", uc - 20.0 * h, uc + 20.0 * h, uc, f"offset of {what}"),
+                Param(f"{side}4", "V", scale.u_min - U, scale.u_max + U, uc, f"offset of {what}"),
             ]
         ps += [
             Param("rho", "out/V", 0.0, 3.0 * g, 0.5 * g, "density scale ρ = p(0), weight of the r = 0 operator"),

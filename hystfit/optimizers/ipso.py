@@ -87,7 +87,10 @@ class IPSO(Optimizer):
 
     (see :func:`rank_coefficients`). *Diverse equilibrium points*: the social attractor p_{e(i)}
     is the personal best of a particle drawn uniformly among those ranked better than i; the
-    best particle uses the global best (:func:`social_attractors`). r1, r2 ~ U(0, 1) per particle and dimension.
+    best particle uses the global best (:func:`social_attractors`). r1, r2 ~ U(0, 1) per particle
+    and dimension. With c1 + c2 = 4 for every particle, the top ranks (w near 0.9) lie outside
+    PSO's second-order stability region and keep exploring at up to V_max; convergence comes
+    from the lower ranks, which settle between their own and a better particle's best.
 
     Parameters
     ----------

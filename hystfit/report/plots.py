@@ -36,6 +36,8 @@ __all__ = [
     "convergence_figure",
     "display_unit",
     "heatmap_figure",
+    "loop_overlay_figure",
+    "convergence_compare_figure",
     "loop_figure",
     "overview_figure",
     "parity_figure",
@@ -594,4 +596,71 @@ def boxplot_figure(path, groups: Mapping[str, Sequence[float]], *, title: str = 
     ax.grid(True, axis="y", which="both", alpha=0.3)
     if title:
         ax.set_title(title)
+    return _save(fig, path, dpi)
+
+
+def loop_overlay_figure(path, u_V, y_meas, models: Mapping[str, np.ndarray], *, unit: str = "um",
+                        title: str = "", dpi: int = DPI) -> Path:
+    """One capture's measured loop with several models' loops overlaid (one colour per model).
+
+    Parameters
+    ----------
+    path : str or Path
+    u_V, y_meas : array_like
+        Input voltage (V) and measured output (``unit``) of one capture.
+    models : mapping of str to array_like
+        Model name → model output for the same input.
+    unit, title : str
+    dpi : int, default 110
+    """
+    u = _decimate(np.asarray(u_V, float))
+    fig = _new_figure(6.8, 5.0)
+    ax = fig.add_subplot()
+    ax.plot(u, _decimate(np.asarray(y_meas, float)), label="measured", **_MEAS_STYLE)
+    for i, (name, y) in enumerate(models.items()):
+        ax.plot(u, _finite_or_nan(_decimate(np.asarray(y, float))), lw=1.0, alpha=0.85, label=str(name),
+                color=f"C{i % 10}")
+    ax.set_xlabel("Voltage (V)")
+    ax.set_ylabel(_output_label(unit))
+    if title:
+        ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
+    return _save(fig, path, dpi)
+
+
+def convergence_compare_figure(path, histories: Mapping[str, Sequence[Sequence[float]]], *, title: str = "",
+                               ylabel: str = "objective (MSE)", log: bool = True, dpi: int = DPI) -> Path:
+    """Best-so-far objective per iteration of several optimizers, each with one line per run.
+
+    Parameters
+    ----------
+    path : str or Path
+    histories : mapping of str to list of array_like
+        Optimizer name → its runs' best-so-far histories; the median over runs is drawn bold.
+    title, ylabel : str
+    log : bool, default True
+    dpi : int, default 110
+    """
+    fig = _new_figure(6.8, 4.6)
+    ax = fig.add_subplot()
+    any_nonpos = False
+    for i, (name, runs) in enumerate(histories.items()):
+        color = f"C{i % 10}"
+        arrs = [np.asarray(h, float) for h in runs if len(h)]
+        for a in arrs:
+            ax.plot(np.arange(1, a.size + 1), a, color=color, lw=0.5, alpha=0.35)
+            any_nonpos |= bool(np.any(a[np.isfinite(a)] <= 0))
+        if arrs:
+            n = max(a.size for a in arrs)
+            padded = np.vstack([np.r_[a, np.full(n - a.size, a[-1])] for a in arrs])
+            ax.plot(np.arange(1, n + 1), np.median(padded, axis=0), color=color, lw=1.8, label=str(name))
+    if log and not any_nonpos:
+        ax.set_yscale("log")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel(ylabel)
+    ax.grid(True, which="both", alpha=0.3)
+    if title:
+        ax.set_title(title)
+    ax.legend(loc="best", fontsize="small")
     return _save(fig, path, dpi)

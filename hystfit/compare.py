@@ -1,0 +1,223 @@
+"""Comparison orchestration: models × optimizers × conditions (× runs).
+
+Each *cell* (one model, one optimizer, one condition) is an independent job: R seeded runs of
+:func:`hystfit.identify.fit_captures`, summarized into a picklable :class:`CellResult`. Cells run
+serially or in a process pool (``jobs``); the numbers do not depend on ``jobs`` because every
+run's seed is derived from (seed, cell index, run) and the cell order is fixed. A cell that fails
+is recorded with its error and the comparison goes on.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import traceback
+from contextlib import contextmanager
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Optional, Sequence
+
+import numpy as np
+
+from .capture import Capture
+from .conditions import condition_label, group_by_condition
+from .errors import ConfigError, HystfitError
+from .identify import fit_captures
+from .metrics import compute_metrics_pooled
+from .objective import Objective, Series
+from .registry import models as model_registry
+from .registry import optimizers as optimizer_registry
+from .setup import make_model, make_optimizer
+
+Progress = Optional[Callable[[str, dict], None]]
+
+
+@dataclass(frozen=True)
+class CellSpec:
+    index: int
+    model: str
+    optimizer: str
+    key: tuple[float, float]
+    label: str
+    captures: tuple[Capture, ...]
+    runs: int
+    seed: int
+    polish: bool
+    model_options: dict
+    optimizer_options: dict
+
+
+@dataclass(frozen=True)
+class RunMetrics:
+    run: int
+    seed: int
+    fun: float
+    j: float
+    metrics: dict
+    wall_time_s: float
+    nfev: int
+    history_best: np.ndarray
+
+
+@dataclass(frozen=True)
+class CellResult:
+    model: str
+    optimizer: str
+    amplitude_V: float
+    frequency_Hz: float
+    label: str
+    n_params: int
+    runs: tuple[RunMetrics, ...] = ()
+    best_run: int = 0
+    theta: np.ndarray | None = None
+    param_names: tuple[str, ...] = ()
+    predictions: tuple[np.ndarray, ...] = ()
+    runtime_s: float = 0.0
+    error: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+    @property
+    def best(self) -> RunMetrics:
+        return self.runs[self.best_run]
+
+
+@dataclass(frozen=True)
+class CompareResult:
+    models: tuple[str, ...]
+    optimizers: tuple[str, ...]
+    conditions: tuple[tuple[tuple[float, float], str], ...]
+    captures: dict = field(default_factory=dict)  # label -> tuple of captures
+    cells: tuple[CellResult, ...] = ()
+    runs: int = 1
+    seed: int = 0
+    unit: str = "um"
+    jobs: int = 1
+    polish: bool = True
+
+    def cell(self, model: str, optimizer: str, label: str) -> CellResult | None:
+        for c in self.cells:
+            if c.model == model and c.optimizer == optimizer and c.label == label:
+                return c
+        return None
+
+
+def run_cell(spec: CellSpec) -> CellResult:
+    """Fit one cell (R runs) and summarize it; errors become a CellResult with ``error`` set."""
+    a, f = spec.key
+    t0 = time.perf_counter()
+    try:
+        model = make_model(model_registry.get(spec.model), spec.model_options)
+        opt = make_optimizer(optimizer_registry.get(spec.optimizer), spec.optimizer_options)
+        fit = fit_captures(spec.captures, model, opt, seed=spec.seed, cell=spec.index, runs=spec.runs,
+                           polish=spec.polish, label=spec.label, condition=spec.key)
+        objective = Objective(fit.model, [Series(c.u, c.y, c.dt) for c in spec.captures])
+        sum_y2 = float(sum(np.dot(c.y, c.y) for c in spec.captures))
+        runs = []
+        for r in fit.runs:
+            preds = objective.predict(r.x)
+            m = compute_metrics_pooled([(c.y, p) for c, p in zip(spec.captures, preds)], fit.unit)
+            runs.append(RunMetrics(r.run, r.seed, r.fun, r.fun * objective.n_total / sum_y2 if sum_y2 > 0 else np.nan,
+                                   m, r.wall_time_s, r.nfev, np.asarray(r.result.history_best)))
+        return CellResult(spec.model, spec.optimizer, a, f, spec.label, len(fit.params), tuple(runs), fit.best_run,
+                          fit.theta, tuple(p.name for p in fit.params), tuple(fit.predictions),
+                          time.perf_counter() - t0)
+    except HystfitError as exc:
+        err = str(exc)
+    except Exception as exc:  # a failing model/optimizer must not stop the comparison
+        err = f"{exc.__class__.__name__}: {exc} ({traceback.extract_tb(exc.__traceback__)[-1].name})"
+    return CellResult(spec.model, spec.optimizer, a, f, spec.label, 0, error=err,
+                      runtime_s=time.perf_counter() - t0)
+
+
+def _init_worker() -> None:
+    """Pool workers run single-threaded kernels: processes already occupy the cores."""
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except Exception:  # pragma: no cover
+        pass
+
+
+#: thread-count variables of BLAS/OpenMP/numba, set to 1 for pool workers
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
+                "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+@contextmanager
+def single_threaded_children():
+    """Spawned workers inherit the environment: one thread each, so processes × threads ≤ cores."""
+    saved = {k: os.environ.get(k) for k in _THREAD_VARS}
+    os.environ.update({k: "1" for k in _THREAD_VARS})
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def default_jobs() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover
+        return max(1, os.cpu_count() or 1)
+
+
+def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_names: Sequence[str], *,
+            runs: int = 1, seed: int = 0, jobs: int | None = None, polish: bool = True,
+            model_options: Mapping[str, dict] | None = None, optimizer_options: Mapping[str, dict] | None = None,
+            progress: Progress = None) -> CompareResult:
+    """Run the cross product models × optimizers × conditions with ``runs`` runs per cell."""
+    if not model_names or not optimizer_names:
+        raise ConfigError("compare needs at least one model and one optimizer")
+    for m in model_names:
+        model_registry.get(m)
+    for o in optimizer_names:
+        optimizer_registry.get(o)
+    if runs < 1:
+        raise ConfigError(f"--runs must be at least 1, got {runs}")
+    units = {c.y_unit for c in captures}
+    if len(units) != 1:
+        raise ConfigError(f"captures have different output units {sorted(units)}; convert them to one unit first")
+    groups = group_by_condition(captures)
+    conds = tuple((k, condition_label(k)) for k in groups)
+    specs = []
+    for ci, (key, caps) in enumerate(groups.items()):
+        for mi, m in enumerate(model_names):
+            for oi, o in enumerate(optimizer_names):
+                # the cell index (for seeds) depends on the condition and optimizer only, so every
+                # model sees the same seeds on a condition, and the numbers never depend on --jobs
+                specs.append(CellSpec(ci * 1000 + oi, m, o, key, condition_label(key), tuple(caps), runs, seed, polish,
+                                      dict((model_options or {}).get(m, {})),
+                                      dict((optimizer_options or {}).get(o, {}))))
+    jobs = default_jobs() if jobs is None else max(1, int(jobs))
+    if progress:
+        progress("start", {"total": len(specs)})
+    results: dict[int, CellResult] = {}
+    if jobs == 1 or len(specs) == 1:
+        for i, s in enumerate(specs):
+            results[i] = run_cell(s)
+            if progress:
+                progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}"})
+    else:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        with single_threaded_children(), ProcessPoolExecutor(max_workers=min(jobs, len(specs)), mp_context=ctx,
+                                                             initializer=_init_worker) as ex:
+            futs = {ex.submit(run_cell, s): i for i, s in enumerate(specs)}
+            for fut in as_completed(futs):
+                i = futs[fut]
+                results[i] = fut.result()
+                if progress:
+                    s = specs[i]
+                    progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}"})
+    cells = tuple(results[i] for i in range(len(specs)))
+    return CompareResult(tuple(model_names), tuple(optimizer_names), conds,
+                         {lab: tuple(groups[k]) for k, lab in conds}, cells, runs, seed, units.pop(), jobs, polish)
