@@ -2,14 +2,14 @@
 
 Library entry points::
 
-    from hystfit import load_captures, models, optimizers
+    from hystfit import load_captures
     from hystfit.identify import identify
+    from hystfit.registry import models, optimizers   # name → class registries
 """
 
 __version__ = "0.1.0"
 
 from .errors import ConfigError, HystfitError, InputError, OutputError  # noqa: E402
-from .registry import models, optimizers  # noqa: E402
 
 
 def __getattr__(name):  # lazy imports keep `import hystfit` light
@@ -20,5 +20,5 @@ def __getattr__(name):  # lazy imports keep `import hystfit` light
     raise AttributeError(name)
 
 
-__all__ = ["__version__", "HystfitError", "InputError", "ConfigError", "OutputError", "models", "optimizers",
+__all__ = ["__version__", "HystfitError", "InputError", "ConfigError", "OutputError",
            "load_captures", "load_capture", "LoadOptions"]

@@ -63,7 +63,9 @@ def _load_builtin() -> None:
     if _loaded:
         return
     _loaded = True
-    from . import models as _m  # noqa: F401
-    from . import optimizers as _o  # noqa: F401
+    import importlib
+
+    importlib.import_module(f"{__package__}.models")
+    importlib.import_module(f"{__package__}.optimizers")
 
 

@@ -1,6 +1,6 @@
 """Hysteresis models. Each module registers one model on :data:`hystfit.registry.models`."""
 
 from .base import FittedModel, Model
-from . import pi, bw, ch, dahl, lugre, fp, nt  # noqa: F401  (registration)
+from . import pi, bw, ch, dahl, lugre, fp, nt, gpi, pi2, hammerstein  # noqa: F401  (registration)
 
 __all__ = ["Model", "FittedModel"]

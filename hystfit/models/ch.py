@@ -118,6 +118,23 @@ class ColemanHodgdon(Model):
             return theta[:, 0] - theta[:, 1] * np.exp(-theta[:, 2] * (hi - lo))
 
     # ------------------------------------------------------------------ simulation
+    def linear_design(self, u: np.ndarray, dt: float, A5: float) -> np.ndarray:
+        """Regressors (N, 3) [u, −s·φ_s(u), 1] for (K, A4, A6) at a fixed A5.
+
+        y = Φ (K, A4, A6)ᵀ exactly, with s the branch of each sample and
+        φ_s(u) = 1 − 2/(e^{sA5(u−V_m)} + e^{sA5(u−V_M)}). For fixed A5 the fit is linear least
+        squares; only A5 needs a nonlinear (1-D) search. The likelihood in the full 6-D box has
+        a secondary minimum (large A4 with small A5 of the other sign mimics a parabolic loop),
+        which this variable projection avoids.
+        """
+        vm, vM = self._range()
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        s = ch_branches(u, 1.0)
+        with np.errstate(all="ignore"):
+            a = s * float(A5)
+            phi = 1.0 - 2.0 / (np.exp(a * (u - vm)) + np.exp(a * (u - vM)))
+        return np.column_stack([u, -s * phi, np.ones_like(u)])
+
     def _columns(self, theta: np.ndarray):
         K = np.ascontiguousarray(self.slope(theta))
         return (K,) + tuple(np.ascontiguousarray(theta[:, i]) for i in (3, 4, 5))

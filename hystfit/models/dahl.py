@@ -56,6 +56,12 @@ class Dahl(Model):
     with k while F_c is poorly determined. Between (σΔU/F_c of a few) all five are identifiable,
     a the least precisely.
 
+    Inverse: the generic per-sample numerical inverse on :meth:`step`, started at rest at
+    u_0 = (y_0 − d0)/k as :meth:`simulate` starts (h = 0 there). It needs the one-step map to
+    increase with u_k: right after a reversal from saturation the slope is k + σ·2^a, so a
+    counter-clockwise loop (σ < 0) needs |σ| 2^a < k — true of any physical loop, whose
+    slope stays positive.
+
     Bounds (data-scaled; g = output range / input range): k ∈ [−3, 3] g, σ ∈ [−30, 30] g,
     F_c ∈ [10⁻³, 1]·(output range), a ∈ [0.25, 4], d0 within one output range of the data.
     """
@@ -70,7 +76,8 @@ class Dahl(Model):
         g, yr = scale.gain, scale.y_range
         return (
             Param("k", "out/V", -3 * g, 3 * g, g, "linear gain"),
-            Param("sigma", "out/V", -30 * g, 30 * g, -0.5 * g, "initial slope σ of h after a reversal (sign = orientation)"),
+            Param("sigma", "out/V", -30 * g, 30 * g, -0.2 * g,
+                  "initial slope σ of h after a reversal (sign = orientation)"),
             Param("Fc", "out", 1e-3 * yr, yr, 0.05 * yr, "saturation level F_c of h"),
             Param("a", "1", 0.25, 4.0, 1.0, "shape exponent a"),
             Param("d0", "out", scale.y_min - yr, scale.y_max + yr, 0.0, "output offset"),
@@ -94,6 +101,25 @@ class Dahl(Model):
         h = dahl_step(float(state[0]), float(u_prev), u_new, sig, fc, a)
         with np.errstate(all="ignore"):
             return k * u_new + h + d0, h[:, None]
+
+    def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
+               u_range: tuple[float, float] | None = None) -> np.ndarray:
+        """Generic per-sample numerical inverse, started where :meth:`simulate` starts.
+
+        :meth:`simulate` puts the stage at rest at the first input (zero state, no rate), so the
+        first sample is the static inverse u_0 = (y_0 − d0)/k and the per-sample search
+        (:func:`hystfit.models.inverse.invert_by_stepping`) continues from there.
+        """
+        from .inverse import invert_by_stepping
+
+        th = np.asarray(theta, float).ravel()
+        y = np.asarray(y_target, float)
+        if y.size == 0:
+            return np.empty(0)
+        u0 = (float(y[0]) - th[4]) / th[0] if th[0] != 0 else 0.0
+        if u_range is not None:
+            u0 = min(max(u0, min(u_range)), max(u_range))
+        return invert_by_stepping(self, th, y, dt, u_range=u_range, u0=u0)
 
     def _inverse_range(self, theta: np.ndarray, y_target: np.ndarray) -> tuple[float, float]:
         """Search window of the numerical inverse: the static inverse ± the hysteresis, widened."""

@@ -65,12 +65,17 @@ class LuGre(Model):
     acts while z is in transit and is correlated with σ2 (both multiply rates).
 
     Bounds (g = output range / input range, Y = output range, R = max |u̇|): k ∈ [−3, 3] g,
-    σ0 ∈ [−50, 50] g, σ1, σ2 ∈ [−1, 1] Y/R, F_c, F_s ∈ [10⁻³, 1] Y, v_s ∈ [10⁻³, 2] R.
+    σ0 ∈ [−10, 10] g (z then saturates over ≥ 10⁻⁴ of the stroke), σ1, σ2 ∈ [−0.2, 0.2] Y/R (a
+    rate term alone opens a loop of up to 20 % of the stroke), F_c, F_s ∈ [10⁻³, 1] Y,
+    v_s ∈ [10⁻³, 2] R. Wider boxes for σ0, σ1, σ2 leave PSO in spurious minima where large
+    σ0 z, σ1 ż and σ2 u̇ cancel.
 
-    Inverse: the generic per-sample numerical inverse on :meth:`step`. Like every model with a
-    u̇ term, it can only track a target causally if the one-step map is not dominated by a
-    negative rate term (σ2 + σ1 < 0 with |σ2 + σ1|/Ts larger than the static slope makes the
-    exact inverse unstable).
+    Inverse: the generic per-sample numerical inverse on :meth:`step`, started at rest at
+    u_0 = (y_0 − y0)/k as :meth:`simulate` starts. It needs a one-step map that increases with
+    u_k: after a reversal the slope is about k + 2σ0 (z swings from one level to the other), so
+    σ0 < 0 needs |σ0| < k/2, as any physical loop has. As for NT, a negative rate coefficient
+    (σ2, or σ1 while z is in transit) larger than about half the static slope times Ts makes the
+    exact causal inverse unstable (a non-minimum-phase discrete zero).
     """
 
     name = "lugre"
@@ -92,10 +97,10 @@ class LuGre(Model):
 
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         g, yr, R = scale.gain, scale.y_range, scale.rate_max
-        c = yr / R
+        c = 0.2 * yr / R
         ps = [
             Param("k", "out/V", -3 * g, 3 * g, g, "linear gain"),
-            Param("sigma0", "out/V", -50 * g, 50 * g, -g, "bristle stiffness σ0 (sign = orientation)"),
+            Param("sigma0", "out/V", -10 * g, 10 * g, -g, "bristle stiffness σ0 (sign = orientation)"),
             Param("sigma1", "out*s/V", -c, c, 0.0, "bristle damping σ1"),
             Param("sigma2", "out*s/V", -c, c, 0.0, "viscous coefficient σ2"),
             Param("Fc", "out", 1e-3 * yr, yr, 0.05 * yr, "Coulomb level F_c"),
@@ -129,6 +134,25 @@ class LuGre(Model):
         if self.offset:
             y = y + th[7]
         return y, z[:, None]
+
+    def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
+               u_range: tuple[float, float] | None = None) -> np.ndarray:
+        """Generic per-sample numerical inverse, started where :meth:`simulate` starts.
+
+        :meth:`simulate` puts the stage at rest at the first input (zero state, no rate), so the
+        first sample is the static inverse u_0 = (y_0 − y0)/k and the per-sample search
+        (:func:`hystfit.models.inverse.invert_by_stepping`) continues from there.
+        """
+        from .inverse import invert_by_stepping
+
+        th = np.asarray(theta, float).ravel()
+        y = np.asarray(y_target, float)
+        if y.size == 0:
+            return np.empty(0)
+        u0 = (float(y[0]) - (th[7] if self.offset else 0.0)) / th[0] if th[0] != 0 else 0.0
+        if u_range is not None:
+            u0 = min(max(u0, min(u_range)), max(u_range))
+        return invert_by_stepping(self, th, y, dt, u_range=u_range, u0=u0)
 
     def _inverse_range(self, theta: np.ndarray, y_target: np.ndarray) -> tuple[float, float]:
         """Search window of the numerical inverse: the static inverse ± the loop, widened."""

@@ -162,6 +162,11 @@ class IGWO(Optimizer):
 
     Initialisation: logistic chaos; if ``x0`` is given it replaces the first wolf (clipped).
 
+    Precision: the Lévy steps do not shrink as the pack converges (Γ is fixed by the box), so
+    the positions keep jittering by about ``levy_scale``·(upper − lower) and the final values
+    stay above plain GWO's on smooth problems; hystfit's least-squares polish removes that, or
+    lower ``levy_scale``.
+
     Paper 004's Algorithm 1 applies the Lévy update only when |A| < 1 and is ambiguous about the
     other case; we apply it to every wolf, as the README formulation states.
     """

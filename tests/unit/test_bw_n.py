@@ -52,7 +52,8 @@ def test_rate_independent_and_population_columns(rng):
     a, b, g, n = rng.random(P), rng.random(P) * 0.01, rng.random(P) * 0.005, 1 + 2 * rng.random(P)
     H = bouc_wen_n_population(fine, a, b, g, n)
     for p in range(P):
-        np.testing.assert_array_equal(H[:, p], bouc_wen_n_population(fine, a[p:p + 1], b[p:p + 1], g[p:p + 1], n[p:p + 1])[:, 0])
+        single = bouc_wen_n_population(fine, a[p:p + 1], b[p:p + 1], g[p:p + 1], n[p:p + 1])[:, 0]
+        np.testing.assert_array_equal(H[:, p], single)
 
 
 def test_step_agrees_with_population(rng):
