@@ -30,7 +30,8 @@ class Separable:
 
     ``linear`` and ``nonlinear`` are index arrays into θ (together a permutation of range(d));
     ``basis_factory(u, dt)`` returns a function of θ_nl (P, m) giving B (P, N, L) with
-    L = len(linear), so that simulate(θ) = B(θ_nl) @ θ_lin exactly.
+    L = len(linear), so that simulate(θ) = B(θ_nl) @ θ_lin exactly — or a pair (B, C) with a
+    known part C (P, N): simulate(θ) = C(θ_nl) + B(θ_nl) @ θ_lin.
     """
 
     linear: tuple[int, ...]
@@ -76,13 +77,18 @@ class ProjectedObjective:
         L = len(self.lin)
         G = np.zeros((P, L, L))
         c = np.zeros((P, L))
-        Bs = []
+        Bs, Cs = [], []
         with np.errstate(all="ignore"):
             for basis, s in zip(self.bases, self.series):
-                B = basis(theta_nl)  # (P, N, L)
+                B = basis(theta_nl)  # (P, N, L) or ((P, N, L), (P, N))
+                C = None
+                if isinstance(B, tuple):
+                    B, C = B
                 Bs.append(B)
+                Cs.append(C)
+                target = s.y[None, :] if C is None else s.y[None, :] - C
                 G += np.einsum("pnl,pnk->plk", B, B)
-                c += np.einsum("pnl,n->pl", B, s.y)
+                c += np.einsum("pnl,pn->pl", B, np.broadcast_to(target, (B.shape[0], B.shape[1])))
         theta_lin = np.full((P, L), np.nan)
         ok = np.all(np.isfinite(G.reshape(P, -1)), axis=1) & np.all(np.isfinite(c), axis=1)
         for p in np.flatnonzero(ok):
@@ -95,8 +101,10 @@ class ProjectedObjective:
             theta_lin[p] = x
         sse = np.zeros(P)
         with np.errstate(all="ignore"):
-            for B, s in zip(Bs, self.series):
+            for B, C, s in zip(Bs, Cs, self.series):
                 e = np.einsum("pnl,pl->pn", B, theta_lin) - s.y[None, :]
+                if C is not None:
+                    e += C
                 sse += np.einsum("pn,pn->p", e, e)
         mse = sse / self.n_total
         return theta_lin, np.where(np.isfinite(mse), mse, np.inf)

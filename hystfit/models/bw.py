@@ -9,6 +9,7 @@ import numpy as np
 from ..params import DataScale, Param
 from ..registry import models
 from ._kernels import bouc_wen_h, bouc_wen_step
+from ._kernels_extra import bouc_wen_n_population, bouc_wen_n_step
 from .base import Model
 
 
@@ -39,6 +40,13 @@ class BoucWen(Model):
     :func:`hystfit.models._kernels.bouc_wen_population`: no sub-steps, stable at any sample
     rate, exact for piecewise-linear inputs.
 
+    Free exponent (structure ``free_exponent=True``, paper 004 eq. 2 with n free):
+    ḣ = α u̇ − β |u̇| |h|^{n−1} h − γ u̇ |h|^n, integrated with stable sub-steps
+    (:func:`hystfit.models._kernels_extra.bouc_wen_n_population`); θ gains ``n`` ∈ [1, 4]. Since
+    the units of β, γ depend on n, they are searched normalised: β_phys = β·h_ref^{1−n} with
+    h_ref = the output range of the identification data (saved in the structure), so at n = 1
+    they mean exactly what they mean in the default model.
+
     Bounds scale with the data: Kv, α in [−3, 3]·gain (gain = output range / input range),
     β in [0, 50]/ΔU, γ in [−50, 50]/ΔU with ΔU the input range; paper 004 uses [0.1, 10] on
     its own scale.
@@ -50,29 +58,59 @@ class BoucWen(Model):
     equation = "y = Kv·u + h + y0,  dh/dt = α·du/dt − β·|du/dt|·h − γ·du/dt·|h|"
     rate_dependent = False
 
+    free_exponent: bool = False
+    h_ref: float | None = None
+
+    def adapt(self, scale: DataScale) -> "BoucWen":
+        if self.free_exponent and self.h_ref is None:
+            return BoucWen(free_exponent=True, h_ref=float(scale.y_range))
+        return self
+
+    @property
+    def d(self) -> int:
+        return 6 if self.free_exponent else 5
+
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         g, du = scale.gain, scale.u_range
         span = scale.y_range
-        return (
+        ps = (
             Param("Kv", "out/V", -3 * g, 3 * g, g, "linear gain"),
             Param("alpha", "out/V", -3 * g, 3 * g, 0.1 * g, "hysteresis input gain α"),
-            Param("beta", "1/V", 0.0, 50.0 / du, 2.0 / du, "shape parameter β"),
-            Param("gamma", "1/V", -50.0 / du, 50.0 / du, 0.0, "shape parameter γ"),
+            Param("beta", "1/V", 0.0, 50.0 / du, 2.0 / du, "shape parameter β (normalised by h_ref^(1−n) when n is free)"),
+            Param("gamma", "1/V", -50.0 / du, 50.0 / du, 0.0, "shape parameter γ (normalised by h_ref^(1−n) when n is free)"),
             Param("y0", "out", scale.y_min - span, scale.y_max + span, 0.0, "output offset"),
         )
+        if self.free_exponent:
+            ps += (Param("n", "1", 1.0, 4.0, 1.0, "Bouc–Wen exponent n"),)
+        return ps
+
+    def _physical(self, theta: np.ndarray):
+        """(Kv, α, β, γ, y0, n) with β, γ de-normalised: β_phys = β·h_ref^(1−n)."""
+        kv, a, b, g, y0 = (np.ascontiguousarray(theta[:, i]) for i in range(5))
+        if not self.free_exponent:
+            return kv, a, b, g, y0, None
+        n = np.ascontiguousarray(theta[:, 5])
+        f = float(self.h_ref or 1.0) ** (1.0 - n)
+        return kv, a, np.ascontiguousarray(b * f), np.ascontiguousarray(g * f), y0, n
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
-        theta = self.check_theta(theta, 5)
+        theta = self.check_theta(theta, self.d)
         u = np.ascontiguousarray(u, dtype=np.float64)
-        kv, a, b, g, y0 = (np.ascontiguousarray(theta[:, i]) for i in range(5))
-        h = bouc_wen_h(u, a, b, g).T  # (P, N)
+        kv, a, b, g, y0, n = self._physical(theta)
+        if n is None:
+            h = bouc_wen_h(u, a, b, g).T  # (P, N), exact for n = 1
+        else:
+            h = bouc_wen_n_population(u, a, b, g, n).T
         y = kv[:, None] * u[None, :] + h + y0[:, None]
         return y
 
     def separable(self):
-        """Kv, α and y0 enter linearly: with h = α·g, g solves the same equation with α = 1
+        """Kv, α and y0 enter linearly (n = 1): with h = α·g, g solves the same equation with α = 1
         (ġ = u̇ − β|u̇|g − γu̇|g|), so y = Kv·u + α·g(β, γ) + y0. Only β and γ are searched."""
         from ..separable import Separable
+
+        if self.free_exponent:
+            return None  # with a free n, α no longer scales h: no exact split
 
         def factory(u, dt):
             u = np.ascontiguousarray(u, dtype=np.float64)
@@ -95,7 +133,11 @@ class BoucWen(Model):
         return np.zeros(1)
 
     def step(self, theta, state, u_prev, u_new, dt):
-        kv, a, b, g, y0 = (float(v) for v in np.asarray(theta, float).ravel())
+        kv, a, b, g, y0, n = (float(v[0]) if v is not None else None
+                              for v in self._physical(np.atleast_2d(np.asarray(theta, float))))
         u_new = np.ascontiguousarray(u_new, dtype=np.float64)
-        h = bouc_wen_step(float(state[0]), float(u_prev), u_new, a, b, g)
+        if n is None:
+            h = bouc_wen_step(float(state[0]), float(u_prev), u_new, a, b, g)
+        else:
+            h = bouc_wen_n_step(float(state[0]), float(u_prev), u_new, a, b, g, n)
         return kv * u_new + h + y0, h[:, None]

@@ -135,6 +135,33 @@ class ColemanHodgdon(Model):
             phi = 1.0 - 2.0 / (np.exp(a * (u - vm)) + np.exp(a * (u - vM)))
         return np.column_stack([u, -s * phi, np.ones_like(u)])
 
+    def separable(self):
+        """A1, A4 and A6 enter linearly for fixed (A2, A3, A5) (:meth:`linear_design`, with the known
+        part −A2·e^{−A3·V_R}·u): the search runs over (A2, A3, A5), of which only A5 shapes the fit."""
+        from ..separable import Separable
+
+        def factory(u, dt):
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            vm, vM = self._range()
+            s_ = ch_branches(u, 1.0)
+
+            def basis(theta_nl):
+                A2, A3, A5 = theta_nl[:, 0:1], theta_nl[:, 1:2], theta_nl[:, 2:3]
+                P = theta_nl.shape[0]
+                with np.errstate(all="ignore"):
+                    a = s_[None, :] * A5
+                    phi = 1.0 - 2.0 / (np.exp(a * (u[None, :] - vm)) + np.exp(a * (u[None, :] - vM)))
+                    C = -(A2 * np.exp(-A3 * (vM - vm))) * u[None, :]
+                B = np.empty((P, u.shape[0], 3))
+                B[:, :, 0] = u[None, :]
+                B[:, :, 1] = -s_[None, :] * phi
+                B[:, :, 2] = 1.0
+                return B, C
+
+            return basis
+
+        return Separable((0, 3, 5), (1, 2, 4), factory)
+
     def _columns(self, theta: np.ndarray):
         K = np.ascontiguousarray(self.slope(theta))
         return (K,) + tuple(np.ascontiguousarray(theta[:, i]) for i in (3, 4, 5))

@@ -125,6 +125,31 @@ class NT(Model):
             cols.append(np.ones_like(u))
         return np.column_stack(cols)
 
+    def separable(self):
+        """k0, c0, k1 (and y0) enter linearly for fixed k2 (:meth:`linear_design`): only k2 is searched."""
+        from ..separable import Separable
+
+        lin = (0, 1, 2, 4) if self.offset else (0, 1, 2)
+
+        def factory(u, dt):
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            v = backward_rate(u, dt)
+
+            def basis(theta_nl):
+                P = theta_nl.shape[0]
+                B = np.empty((P, u.shape[0], len(lin)))
+                B[:, :, 0] = u[None, :]
+                B[:, :, 1] = v[None, :]
+                z = theta_nl[:, 0:1] * u[None, :]
+                B[:, :, 2] = z / (1.0 + np.abs(z))
+                if self.offset:
+                    B[:, :, 3] = 1.0
+                return B
+
+            return basis
+
+        return Separable(lin, (3,), factory)
+
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         return self.simulator(u, dt)(theta)
 

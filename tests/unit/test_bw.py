@@ -87,3 +87,21 @@ def test_step_agrees_with_simulate(rng):
         ys.append(yk[0])
         state = st[0]
     np.testing.assert_allclose(ys, y, atol=1e-12)
+
+
+def test_free_exponent_n1_matches_default_and_n2_differs():
+    t = np.arange(2000) * 1e-4
+    u = 30 * (1 - np.cos(2 * np.pi * 5 * t))
+    sc = DataScale.from_arrays([u], [0.3 * u], [1e-4])
+    m1 = BoucWen()
+    mn = BoucWen(free_exponent=True).adapt(sc)
+    assert mn.h_ref == sc.y_range and [p.name for p in mn.params(sc)][-1] == "n"
+    th = np.array([0.25, 0.15, 0.03, 0.01, 0.2])
+    y1 = m1.simulate_one(th, u, 1e-4)
+    yn = mn.simulate_one(np.r_[th, 1.0], u, 1e-4)
+    np.testing.assert_allclose(yn, y1, atol=1e-7 * np.ptp(y1))
+    y2 = mn.simulate_one(np.r_[th, 2.0], u, 1e-4)
+    assert np.all(np.isfinite(y2)) and np.max(np.abs(y2 - y1)) > 1e-3
+    assert mn.separable() is None and m1.separable() is not None
+    # structure round-trips through JSON
+    assert BoucWen.from_structure(mn.structure()) == mn

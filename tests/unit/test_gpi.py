@@ -14,7 +14,7 @@ from hystfit.params import DataScale
 from hystfit.registry import models
 
 # a1 a2 a3 a4 | b1 b2 b3 b4 | rho tau alpha_r y0 — asymmetric tanh envelopes on a 0…55 V stage
-TRUE = np.array([30.0, 0.05, -1.4, 30.0, 33.0, 0.055, -1.6, 29.0, 0.2, 0.1, 2.5, 1.0])
+TRUE = np.array([30.0, 0.05, -1.4, 30.0, 28.0, 0.055, -1.6, 31.0, 0.2, 0.1, 2.5, 1.0])
 
 
 def reference_gpi(theta, u, n):
@@ -109,9 +109,11 @@ def test_step_agrees_with_simulate(rng):
 
 
 def _raised_cosine_target(m, theta, N=1500):
-    """A realistic target: 10 %→90 % of the model's reachable 0→55 V stroke, raised cosine, two cycles."""
-    y_ref = m.simulate_one(theta, np.linspace(0, 55, 200), 1e-3)
-    lo, hi = y_ref[0], y_ref[-1]
+    """A realistic target: raised cosine, two cycles, over 10 %…90 % of the range the model can reach
+    both rising to 55 V and falling back (the falling envelope bounds how far down it can return)."""
+    u_low = (-6.0 - max(theta[2], theta[6])) / min(theta[1], theta[5])  # both envelopes saturated
+    y_path = m.simulate_one(theta, np.r_[np.linspace(0, 55, 200), np.linspace(55, u_low, 200)], 1e-3)
+    lo, hi = y_path[-1], y_path[199]
     t = np.arange(N) / N
     return lo + 0.1 * (hi - lo) + 0.8 * (hi - lo) * 0.5 * (1 - np.cos(2 * np.pi * 2 * t)), hi - lo
 
@@ -169,7 +171,9 @@ def test_recovery_with_noise():
     * a1 — the output is exactly invariant under (a1, a4, b1, b4, α_r)·c, (ρ, τ)/c: one scale is free;
     * a4 — a common shift of a4 and b4 changes the output only through the virgin operator states,
       i.e. it is (nearly) the offset y0.
-    The ten others are then identifiable from loops of several amplitudes (0…55 V).
+    The ten others are then identifiable from loops of several amplitudes (0…55 V). The search
+    has local minima (threshold-step aliasing: α_r → 2α_r with ρ → 2ρ reuses every other
+    threshold), hence three restarts; errors seen over 8 noise seeds ≤ 0.3 %.
     """
     u = _input(2000)
     dt = 1e-3
@@ -186,8 +190,8 @@ def test_recovery_with_noise():
     x = res.x
     rel = np.abs(x - TRUE) / np.abs(TRUE)
     names = [p.name for p in m.params(DataScale.from_arrays([u], [y], [dt]))]
-    tol = {"a2": 0.02, "a3": 0.02, "b1": 0.03, "b2": 0.02, "b3": 0.02, "b4": 0.03, "rho": 0.03,
-           "tau": 0.05, "alpha_r": 0.02}
+    tol = {"a2": 0.01, "a3": 0.01, "b1": 0.01, "b2": 0.01, "b3": 0.01, "b4": 0.01, "rho": 0.02,
+           "tau": 0.02, "alpha_r": 0.01}
     for name, t in tol.items():
         i = names.index(name)
         assert rel[i] < t, f"{name}: fitted {x[i]:.5g}, true {TRUE[i]:.5g}"
