@@ -187,6 +187,17 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
         raise ConfigError(f"captures have different output units {sorted(units)}; convert them to one unit first")
     groups = group_by_condition(captures)
     conds = tuple((k, condition_label(k)) for k in groups)
+    # structure shared by all conditions (e.g. a Hammerstein model's stage dynamics) is identified
+    # once from all captures here and handed to every cell as fixed structure
+    model_options = {m: dict((model_options or {}).get(m, {})) for m in model_names}
+    for m in model_names:
+        try:
+            base = make_model(model_registry.get(m), model_options[m])
+            prepared = base.prepare(captures)
+            if prepared is not base:
+                model_options[m] = prepared.structure()
+        except HystfitError:
+            pass  # reported by the cells themselves
     specs = []
     for ci, (key, caps) in enumerate(groups.items()):
         for mi, m in enumerate(model_names):

@@ -20,7 +20,7 @@ from .metrics import compute_metrics, compute_metrics_pooled
 from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import OptimizeResult, Optimizer
-from .optimizers.lsq import LSQ
+from .optimizers.lsq import polisher
 from .params import DataScale, Param, apply_bound_overrides
 
 #: progress(event, info) — events: "start" (total units), "advance" (one run done), "note" (text).
@@ -132,7 +132,7 @@ def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer
             raise InputError(f"{c.source}: no measured output column; identification needs one (see --output-col)")
     unit = _output_unit(captures)
     scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
-    model = model.adapt(scale)
+    model = model.prepare(captures).adapt(scale)
     params = apply_bound_overrides(model.params(scale), bounds or {})
     lower = np.array([p.lower for p in params])
     upper = np.array([p.upper for p in params])
@@ -148,7 +148,7 @@ def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer
         pol = None
         x, fun = res.x, res.fun
         if polish and optimizer.name not in ("lsq", "auto") and np.isfinite(fun):
-            pol = LSQ().minimize(objective, lower, upper, rng=rng, x0=res.x)
+            pol = polisher().minimize(objective, lower, upper, rng=rng, x0=res.x)
             if pol.fun <= fun:
                 x, fun = pol.x, pol.fun
         records.append(RunRecord(r, s, res, pol, np.asarray(x, float), float(fun), float(np.sqrt(fun)),
@@ -211,6 +211,7 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         groups = group_by_condition(captures)
     if progress:
         progress("start", {"total": len(groups) * runs})
+    model = model.prepare(captures)  # structure shared by all conditions (e.g. stage dynamics)
     fits = []
     for cell, (key, caps) in enumerate(groups.items()):
         if global_fit:

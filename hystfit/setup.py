@@ -22,8 +22,13 @@ def _build(cls: type, options: Mapping[str, Any], what: str):
 
 
 def make_model(cls: type, options: Mapping[str, Any] | None = None):
-    """Instantiate a registered model class with structure options (e.g. ``n_operators=12``)."""
-    return _build(cls, dict(options or {}), "model")
+    """Instantiate a registered model class with structure options (e.g. ``n_operators=12``).
+
+    JSON lists (e.g. ``thresholds_V=[0,5,10]`` or a saved structure) become tuples, as the
+    frozen model dataclasses store them.
+    """
+    opts = {k: tuple(v) if isinstance(v, list) else v for k, v in dict(options or {}).items()}
+    return _build(cls, opts, "model")
 
 
 def make_optimizer(cls: type, options: Mapping[str, Any] | None = None, *, pop: int | None = None,

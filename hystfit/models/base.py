@@ -42,6 +42,16 @@ class Model(ABC):
         """
         return self
 
+    def prepare(self, captures) -> "Model":
+        """Identify structure that is shared by every operating condition, from all captures.
+
+        Called once by :func:`hystfit.identify.identify` and :func:`hystfit.compare.compare`
+        before the per-condition fits (e.g. the stage's linear dynamics of a Hammerstein model,
+        which do not change with amplitude or frequency). The default has none and returns
+        ``self``; a model whose shared structure is already set also returns ``self``.
+        """
+        return self
+
     def structure(self) -> dict[str, Any]:
         """JSON-serialisable constructor arguments (the inverse of :meth:`from_structure`)."""
         out = {}

@@ -84,7 +84,8 @@ class LinearSS:
     ``order`` 0 is the identity (no dynamics: y = v). ``singular_values`` are the Hankel
     singular values of an ERA identification (empty otherwise); ``method`` says how the model
     was obtained ("era", "sine-gain-phase", "given", "identity"); ``fit_points`` holds the
-    measured (frequency Hz, complex gain) pairs of a sine fit.
+    measured (frequency Hz, complex gain) pairs of a sine fit and ``continuous`` its fitted
+    continuous-time (K, f_n Hz, ζ).
     """
 
     A: np.ndarray
@@ -96,6 +97,7 @@ class LinearSS:
     method: str = "given"
     D: float = 0.0
     fit_points: tuple = ()
+    continuous: tuple = ()
 
     @classmethod
     def identity(cls, dt: float | None = None) -> "LinearSS":
@@ -431,33 +433,42 @@ def _fundamental(x: np.ndarray) -> float:
     return k / N
 
 
-def _harmonic_phasor(x: np.ndarray, f: float, harmonics: int) -> complex:
-    """Complex amplitude X of the fundamental, x ≈ c + Re(X e^{i2πfk}) + harmonics, by least squares."""
+def _harmonic_phasors(x: np.ndarray, f: float, harmonics: int) -> np.ndarray:
+    """Complex amplitudes X of the fundamental of each column of x (L, m):
+    x ≈ c + Re(X e^{i2πfk}) + harmonics, by one least-squares solve."""
     k = np.arange(x.shape[0], dtype=np.float64)
     cols = [np.ones_like(k)]
     for h in range(1, harmonics + 1):
-        cols += [np.cos(2 * np.pi * h * f * k), np.sin(2 * np.pi * h * f * k)]
-    coef = np.linalg.lstsq(np.stack(cols, axis=1), x, rcond=None)[0]
-    return complex(coef[1], -coef[2])
+        ph = 2 * np.pi * h * f * k
+        cols += [np.cos(ph), np.sin(ph)]
+    X = np.stack(cols, axis=1)
+    coef = np.linalg.solve(X.T @ X, X.T @ x)  # near-orthogonal basis over whole periods: well conditioned
+    return coef[1] - 1j * coef[2]
 
 
 def measure_gain_phase(v, y, dt: float, skip: float = 0.05) -> list[tuple[float, complex]]:
     """Frequency (Hz) and complex gain Y/V at the fundamental of each (v, y) capture.
 
-    The fundamental is the FFT peak of v; both signals are fitted by least squares with an
-    offset and up to 5 harmonics (so the harmonics of a hysteretic signal do not leak into the
-    fundamental even for a non-integer number of periods); the first ``skip`` fraction of each
-    capture (the start transient) is left out.
+    The fundamental is the FFT peak of v. The analysis window leaves out the start (the larger
+    of the ``skip`` fraction and one period: the first cycle of a hysteretic signal is the
+    virgin curve, and the linear part's start transient decays there) and spans a whole number
+    of periods; both signals are fitted there by least squares with an offset and up to 5
+    harmonics, so the harmonics of the hysteretic signal do not leak into the fundamental.
     """
     out = []
     for a, b in zip(_as_list(v), _as_list(y)):
         f = _fundamental(a)
         if not 0 < f < 0.5:
             raise InputError("fit_linear_to_sine: a capture has no oscillation to measure a gain/phase from")
-        i0 = int(skip * a.shape[0])
+        N = a.shape[0]
+        i0 = max(int(skip * N), int(math.ceil(1.0 / f)))
+        periods = math.floor((N - i0) * f)
+        if periods < 1:
+            raise InputError(
+                f"fit_linear_to_sine: a capture holds {N * f:.2f} periods; at least 2 are needed (the first is skipped)")
+        i1 = i0 + int(round(periods / f))
         harmonics = max(1, min(5, int(0.45 / f)))
-        Vc = _harmonic_phasor(a[i0:], f, harmonics)
-        Yc = _harmonic_phasor(b[i0:], f, harmonics)
+        Vc, Yc = _harmonic_phasors(np.stack([a[i0:i1], b[i0:i1]], axis=1), f, harmonics)
         # phasors refer to sample i0 for both signals, so the ratio is unaffected
         if abs(Vc) == 0:
             raise InputError("fit_linear_to_sine: zero input amplitude at the fundamental")
@@ -466,6 +477,7 @@ def measure_gain_phase(v, y, dt: float, skip: float = 0.05) -> list[tuple[float,
 
 
 def _zoh_second_order(K: float, fn: float, zeta: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """ZOH discretization (b, a) of K ω_n²/(s² + 2ζω_n s + ω_n²)."""
     wn = 2 * np.pi * fn
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", signal.BadCoefficients)
@@ -473,8 +485,26 @@ def _zoh_second_order(K: float, fn: float, zeta: float, dt: float) -> tuple[np.n
     return np.asarray(b, float).ravel(), np.asarray(a, float).ravel()
 
 
+def _zoh_second_order_response(K: float, fn: float, zeta: float, dt: float, f: np.ndarray) -> np.ndarray:
+    """Frequency response of :func:`_zoh_second_order` in closed form (no matrix exponential).
+
+    G(s)/s = K [1/s + Σ_i c_i/(s − p_i)], c_i = ω_n²/(p_i (p_i − p_j)), so the ZOH equivalent is
+    H(z) = K [1 + (1 − z⁻¹) Σ_i c_i/(1 − e^{p_i T} z⁻¹)] (ζ = 1 is nudged by 1e-9 to keep the poles distinct).
+    """
+    wn = 2 * np.pi * fn
+    if abs(zeta - 1.0) < 1e-9:
+        zeta = 1.0 + (1e-9 if zeta >= 1.0 else -1e-9)
+    root = np.sqrt(complex(zeta * zeta - 1.0))
+    p1, p2 = wn * (-zeta + root), wn * (-zeta - root)
+    c1 = wn * wn / (p1 * (p1 - p2))
+    c2 = wn * wn / (p2 * (p2 - p1))
+    zi = np.exp(-2j * np.pi * f * dt)  # z⁻¹
+    return K * (1.0 + (1.0 - zi) * (c1 / (1.0 - np.exp(p1 * dt) * zi) + c2 / (1.0 - np.exp(p2 * dt) * zi)))
+
+
 def fit_linear_to_sine(v, y, dt: float, *, fn_bounds_Hz: tuple[float, float] | None = None,
-                       zeta_bounds: tuple[float, float] = (0.01, 2.0)) -> LinearSS:
+                       zeta_bounds: tuple[float, float] = (0.01, 2.0),
+                       start: tuple[float, float, float] | None = None) -> LinearSS:
     r"""Second-order linear part fitted to the gain/phase measured by sine captures at several frequencies.
 
     For sine-only data (no broadband capture) the correlation/Hankel route of paper 003 has no
@@ -484,6 +514,8 @@ def fit_linear_to_sine(v, y, dt: float, *, fn_bounds_Hz: tuple[float, float] | N
     squares on G_model/G_meas − 1, real and imaginary parts; grid start over f_n × ζ). ZOH keeps
     D = 0 like the ERA model; its half-sample delay is absorbed by ζ at the measured frequencies.
 
+    ``start`` = (K, f_n Hz, ζ) replaces the grid start (warm start of an iteration).
+
     Needs captures at ≥ 2 distinct frequencies (3 real unknowns, 2 equations per frequency;
     captures at the same frequency are averaged). With all frequencies far below the resonance
     only the low-frequency behaviour (≈ phase lag 2ζf/f_n) is determined; f_n and ζ separately
@@ -491,7 +523,8 @@ def fit_linear_to_sine(v, y, dt: float, *, fn_bounds_Hz: tuple[float, float] | N
 
     Returns
     -------
-    :class:`LinearSS` with ``method="sine-gain-phase"`` and ``fit_points`` = the measured (f, G).
+    :class:`LinearSS` with ``method="sine-gain-phase"``, ``fit_points`` = the measured (f, G) and
+    ``continuous`` = the fitted (K, f_n Hz, ζ).
     """
     pts = measure_gain_phase(v, y, dt)
     freqs = np.array([p[0] for p in pts])
@@ -514,28 +547,30 @@ def fit_linear_to_sine(v, y, dt: float, *, fn_bounds_Hz: tuple[float, float] | N
     lo_f, hi_f = fn_bounds_Hz if fn_bounds_Hz is not None else (min(2.0 * f_u.max(), 0.4 * fs), 0.45 * fs)
 
     def resid(x):
-        K, fn, z = math.exp(x[0]), math.exp(x[1]), x[2]
-        b, a = _zoh_second_order(K, fn, z, dt)
-        _, Gm = signal.freqz(b, a, worN=f_u, fs=fs)
+        Gm = _zoh_second_order_response(math.exp(x[0]), math.exp(x[1]), x[2], dt, f_u)
         e = Gm / G_u - 1.0
         return np.r_[e.real, e.imag]
 
     K0 = float(np.median(np.abs(G_u)))
-    best = None
-    for fn0 in np.geomspace(lo_f, hi_f, 12):
-        for z0 in (0.05, 0.2, 0.5, 1.0):
-            x = np.array([math.log(K0), math.log(fn0), z0])
-            c = float(np.sum(resid(x) ** 2))
-            if best is None or c < best[0]:
-                best = (c, x)
+    if start is not None:
+        x_start = np.array([math.log(start[0]), math.log(start[1]), float(start[2])])
+    else:
+        best = None
+        for fn0 in np.geomspace(lo_f, hi_f, 12):
+            for z0 in (0.05, 0.2, 0.5, 1.0):
+                x = np.array([math.log(K0), math.log(fn0), z0])
+                c = float(np.sum(resid(x) ** 2))
+                if best is None or c < best[0]:
+                    best = (c, x)
+        x_start = best[1]
     lb = np.array([math.log(K0) - 3.0, math.log(lo_f), zeta_bounds[0]])
     ub = np.array([math.log(K0) + 3.0, math.log(hi_f), zeta_bounds[1]])
-    x0 = np.clip(best[1], lb + 1e-9 * (ub - lb), ub - 1e-9 * (ub - lb))
+    x0 = np.clip(x_start, lb + 1e-9 * (ub - lb), ub - 1e-9 * (ub - lb))
     sol = optimize.least_squares(resid, x0, bounds=(lb, ub), method="trf", x_scale="jac")
     K, fn, z = math.exp(sol.x[0]), math.exp(sol.x[1]), float(sol.x[2])
     b, a = _zoh_second_order(K, fn, z, dt)
     lin = LinearSS.from_tf(b, a, dt, method="sine-gain-phase")
-    return replace(lin, fit_points=tuple((float(f), complex(g)) for f, g in zip(f_u, G_u)))
+    return replace(lin, fit_points=tuple((float(f), complex(g)) for f, g in zip(f_u, G_u)), continuous=(K, fn, z))
 
 
 def is_broadband(u: np.ndarray, min_bins: int = 64, level: float = 1e-3) -> bool:
@@ -578,7 +613,9 @@ class Hammerstein(Model):
     procedure (:meth:`from_data`, :func:`identify_linear_era`, :func:`fit_linear_to_sine`) and
     stored in the structure fields below, so it round-trips through JSON
     (:meth:`structure`/:meth:`from_structure`); :meth:`adapt` fills only the PI thresholds.
-    With no linear part (``order`` 0, the default) the model is the static PI.
+    With no linear part (``order`` 0, the default) the model is the static PI — which is also
+    what a generic fit of ``Hammerstein()`` gives, since :meth:`adapt` sees only the data scale:
+    identify the linear part first (:meth:`from_data`) and fit the returned model.
 
     Structure
     ---------
@@ -664,6 +701,24 @@ class Hammerstein(Model):
                        B=tuple(float(x) for x in lin.B), C=tuple(float(x) for x in lin.C), D=float(lin.D),
                        dt_s=float(lin.dt) if lin.order else None, linear_method=lin.method,
                        singular_values=tuple(float(x) for x in lin.singular_values))
+
+    def prepare(self, captures) -> "Hammerstein":
+        """Identify the linear part once from all captures (:meth:`from_data`), unless already set.
+
+        ERA when a capture is broadband, otherwise the second-order fit to the gain/phase measured
+        per frequency across the captures. The thresholds are left to :meth:`adapt`, so each
+        operating condition gets operators spread over its own input range.
+        """
+        if self.order > 0 or self.linear_method != "none":
+            return self
+        caps = [c for c in captures if c.y is not None]
+        dts = {round(c.dt, 12) for c in caps}
+        if len(dts) != 1:
+            raise ConfigError("hammerstein: the captures have different sample periods "
+                              f"({sorted(dts)} s); resample them to one rate before identifying the linear part")
+        fitted = type(self).from_data([c.u for c in caps], [c.y for c in caps], caps[0].dt, self.n_operators,
+                                      placement=self.placement, nonnegative=self.nonnegative)
+        return replace(fitted, thresholds_V=self.thresholds_V)
 
     def adapt(self, scale: DataScale) -> "Hammerstein":
         """Fill the PI thresholds from the data; the linear part is left as identified."""
@@ -775,12 +830,12 @@ class Hammerstein(Model):
     @classmethod
     def from_data(cls, captures_u: Sequence[np.ndarray], captures_y: Sequence[np.ndarray], dt: float,
                   n_operators: int = 10, *, method: str = "auto", max_order: int = 8,
-                  n_markov: int | None = None, feedthrough: bool = True, iterations: int = 2,
-                  placement: str = "uniform", nonnegative: bool = True) -> "Hammerstein":
+                  n_markov: int | None = None, feedthrough: bool = True, iterations: int | None = None,
+                  sine_tol: float = 1e-5, placement: str = "uniform", nonnegative: bool = True) -> "Hammerstein":
         """Identify the linear part from captures and return the model with it fixed (unit static gain).
 
         Two-step identification in the spirit of paper 003 §3 (static PI, then the linear part
-        from the PI output), alternated ``iterations`` times:
+        from the PI output), alternated:
 
         * ``method="era"`` (chosen by ``"auto"`` when a capture is broadband, :func:`is_broadband`):
           the first pass identifies the linear part from v = u (:func:`identify_linear_era` on
@@ -789,7 +844,11 @@ class Hammerstein(Model):
         * ``method="sine"`` (sine-only data): the PI is first fitted statically on the
           lowest-frequency captures (paper 003 identifies it at 1 Hz), then the second-order
           model is fitted to the gain/phase Y/V measured per frequency
-          (:func:`fit_linear_to_sine`), weights re-solved, and so on.
+          (:func:`fit_linear_to_sine`), weights re-solved, and so on until the model's response
+          at the measured frequencies changes by less than ``sine_tol`` (relative) between
+          passes. The alternation converges linearly (≈ × 0.6 per pass: the static start
+          attributes part of the dynamic lag to the hysteresis), hence up to 60 passes, each
+          warm-started.
 
         The linear part is scaled to unit static gain (the gain goes to the PI weights). The
         returned model's θ still has to be fitted (:meth:`fit_weights` or any optimizer).
@@ -800,6 +859,7 @@ class Hammerstein(Model):
         dt : common sample period (s).
         n_operators, placement, nonnegative : the PI structure (thresholds from the data range).
         max_order, n_markov, feedthrough : passed to :func:`identify_linear_era`.
+        iterations : number of passes (default 2 for ERA, at most 60 for the sine route).
         """
         us, ys = _as_list(captures_u), _as_list(captures_y)
         if not us or len(us) != len(ys) or any(a.shape != b.shape for a, b in zip(us, ys)):
@@ -820,19 +880,28 @@ class Hammerstein(Model):
             low = [i for i in sel if freqs[i] <= 1.01 * freqs.min()]
             theta = base.fit_weights([us[i] for i in low], [ys[i] for i in low], dt)  # static PI (order 0)
             vs = [base.pi.design_matrix(us[i], dt)[:, :n_operators] @ theta[:n_operators] for i in sel]
+        n_iter = int(iterations) if iterations is not None else (2 if method == "era" else 60)
         model = base
-        for it in range(max(1, int(iterations))):
+        start = None
+        G_prev = None
+        for it in range(max(1, n_iter)):
             if method == "era":
                 lin = identify_linear_era(vs, [ys[i] for i in sel], dt, max_order=max_order, n_markov=n_markov,
                                           feedthrough=feedthrough)
             else:
-                lin = fit_linear_to_sine(vs, [ys[i] for i in sel], dt)
+                lin = fit_linear_to_sine(vs, [ys[i] for i in sel], dt, start=start)
+                start = lin.continuous
             if not lin.is_stable:
                 raise InputError(
                     f"Hammerstein.from_data: the identified linear part is unstable (spectral radius "
                     f"{lin.spectral_radius:.4f}); use a longer or richer capture or a lower max_order")
             model = base.with_linear(lin.normalized())
-            if it + 1 < iterations:
+            if method == "sine":
+                G = model.linear.freqresp(np.array([f for f, _ in lin.fit_points]))
+                if G_prev is not None and np.max(np.abs(G / G_prev - 1.0)) < sine_tol:
+                    break
+                G_prev = G
+            if it + 1 < n_iter:
                 theta = model.fit_weights(us, ys, dt)
                 vs = [model.pi.design_matrix(us[i], dt)[:, :n_operators] @ theta[:n_operators] for i in sel]
         return model

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..registry import optimizers
 from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
-from .lsq import LSQ
+from .lsq import polisher
 from .pso import PSO
 
 
@@ -23,7 +23,8 @@ class Auto(Optimizer):
        A model with no nonlinear parameter (PI with fixed thresholds, Hammerstein with a fixed
        linear part) is solved in one step: the exact optimum.
     2. The remaining nonlinear parameters (often 1–2) are searched by PSO (``pop`` × ``iters``,
-       stall stop after ``stall_iter`` iterations without relative improvement ``stall_tol``).
+       stall stop after ``stall_iter`` iterations without relative improvement ``stall_tol``;
+       with m > 2 nonlinear parameters at least 5m particles, 15m iterations and a 3m stall window).
        ``restarts`` independent searches (own seeds from ``rng``) guard against a local basin.
     3. A bounded least-squares polish of the full θ from the best point (skipped for linear models).
 
@@ -72,8 +73,13 @@ class Auto(Optimizer):
                 tr.status = 5
                 return tr.result(self.name)
             best_nl, best_f = None, np.inf
+            m = int(nl.size)
+            # the search grows with the number of nonlinear parameters (1–2 for most models, 10 for gpi)
+            pop = max(self.pop, 5 * m) if m > 2 else self.pop
+            iters = max(self.iters, 15 * m) if m > 2 else self.iters
+            stall = max(self.stall_iter, 3 * m) if m > 2 else self.stall_iter
             for _ in range(max(self.restarts, 1)):
-                pso = PSO(pop=self.pop, iters=self.iters, stall_iter=self.stall_iter, stall_tol=self.stall_tol,
+                pso = PSO(pop=pop, iters=iters, stall_iter=stall, stall_tol=self.stall_tol,
                           max_evals=self.max_evals, time_limit_s=self.time_limit_s)
                 g = pso.minimize(proj, lower[nl], upper[nl], rng=rng,
                                  x0=None if x0 is None else np.asarray(x0)[nl], callback=callback)
@@ -84,7 +90,7 @@ class Auto(Optimizer):
                     best_nl, best_f = g.x, g.fun
             start = proj.full(best_nl[None, :])[0]
         f = tr.evaluate(np.clip(start, lower, upper)[None, :])
-        pol = LSQ().minimize(objective, lower, upper, rng=rng, x0=np.clip(start, lower, upper))
+        pol = polisher().minimize(objective, lower, upper, rng=rng, x0=np.clip(start, lower, upper))
         tr.evaluate(pol.x[None, :])
         tr.nfev += nfev + pol.nfev
         tr.hist_best = [min(hist_b[: i + 1]) for i in range(len(hist_b))] + [tr.best_f]

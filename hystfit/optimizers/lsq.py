@@ -63,3 +63,10 @@ class LSQ(Optimizer):
         tr.status = 5 if sol.status > 0 else 0
         tr.message = sol.message
         return tr.result(self.name)
+
+
+def polisher() -> LSQ:
+    """The least-squares polish used after global searches: a bounded budget (300 residual
+    evaluations) and tolerances of 1e-9, enough to land on the noise floor from a good start
+    without hundreds of iterations along a flat, poorly identifiable direction."""
+    return LSQ(max_evals=300, ftol=1e-9, xtol=1e-9, gtol=1e-9)

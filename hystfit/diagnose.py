@@ -1,0 +1,1230 @@
+"""``hystfit diagnose``: where the sim-to-real gap lies, which unmodelled effect causes it, how far it shrinks.
+
+The procedure (issue 7), for captures and a base model of any kind:
+
+1. **Gap.** Fit the base model (one parameter set over all captures, or one per condition) and
+   estimate the sensor noise floor from the data themselves (:func:`estimate_noise`): the part
+   of the gap no model can remove.
+2. **Where.** Break the residual down by condition, branch, loop position, time in the capture
+   and frequency band (:func:`where_analysis`).
+3. **Which.** For every candidate effect of :mod:`hystfit.effects`, measure its signature in the
+   residual and refit base + effect jointly (variable projection with a Gauss–Newton step of the
+   base parameters, checked by a true re-simulation).
+4. **How far.** Every fit uses the first part of each capture only (whole cycles for periodic
+   captures, :attr:`DiagnoseSettings.fit_fraction`); the rest is held out. The held-out RMSE
+   before and after, the fraction of the gap above the noise floor removed
+   (``reduction = (before − after)/(before − floor)`` in [0, 1]), and the same for placebo
+   augmentations of equal size. The verdict rule is :func:`choose_effect`. The effects are then
+   added greedily (the best one becomes part of the model and the others are tested again), so
+   the effects that explain the gap are named *in order*.
+
+Everything is deterministic for a given seed. This module never prints; progress goes through
+an optional callback ``progress(event, info)`` (events ``start``, ``advance``, ``note``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from .capture import Capture
+from .conditions import condition_label, group_by_condition
+from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Linearization, Placebo, make_effect,
+                      signature_share, solve_coefficients)
+from .errors import ConfigError, InputError
+from .identify import fit_captures
+from .models.base import Model
+from .objective import Objective, Series
+from .optimizers.base import Optimizer
+
+__all__ = [
+    "DiagnoseSettings",
+    "EffectResult",
+    "Diagnosis",
+    "diagnose",
+    "choose_effect",
+    "estimate_noise",
+    "where_analysis",
+    "fit_masks",
+    "is_periodic",
+    "withheld_effect_captures",
+]
+
+Progress = Optional[Callable[[str, dict], None]]
+
+
+# ----------------------------------------------------------------------------------------------
+# Settings and results
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DiagnoseSettings:
+    """The knobs of the diagnosis, with the reasons for their defaults.
+
+    Attributes
+    ----------
+    fit_fraction : share of every capture used to fit (the rest is held out), 0.6. Periodic
+        captures are cut at a whole cycle (round(0.6 × cycles), at least 1, at most all but one),
+        so the held-out part is the last cycles; others at 60 % of their samples. A temporal split
+        is the one split that is honest for every effect: creep and drift must be *extrapolated*
+        into later time (a flexible trend that only interpolates would look good), and per-capture
+        parameters (drift) exist for every held-out sample.
+    threshold : minimum held-out ``reduction`` for a verdict, 0.3. Below a third of the gap above
+        noise an effect is at most a minor contributor: naming it as *the* cause would send an
+        engineer after the wrong fix. (The withheld-effect suite shows the true effect removes
+        ≥ 0.8 when present, wrong candidates mostly < 0.3.)
+    occam_tolerance : two effects whose reductions differ by less than this (0.05) explain the
+        data equally well; the one with fewer parameters is named (a pure delay is also fitted by a
+        well-damped stage filter, never the other way round).
+    min_excess_ratio : the held-out gap must exceed the noise floor by a meaningful amount before
+        anything is named: sqrt(before² − floor²) ≥ 0.25·floor (a model error a quarter of the
+        noise: below that the model is as good as the sensor allows).
+    placebo_draws : random placebo augmentations per parameter layout, 5; an effect must beat the
+        best of them on held-out data.
+    max_effects : how many effects the greedy forward selection may name, 3.
+    iterations : Gauss–Newton iterations of the joint base + effect refit, 2 (the second is skipped
+        when the linearization was exact, e.g. PI).
+    """
+
+    fit_fraction: float = 0.6
+    threshold: float = 0.3
+    occam_tolerance: float = 0.05
+    min_excess_ratio: float = 0.25
+    placebo_draws: int = 5
+    max_effects: int = 3
+    iterations: int = 2
+
+    def __post_init__(self) -> None:
+        checks = [("fit_fraction", 0.1 <= self.fit_fraction <= 0.9, "in [0.1, 0.9]"),
+                  ("threshold", 0.0 < self.threshold < 1.0, "in (0, 1)"),
+                  ("occam_tolerance", 0.0 <= self.occam_tolerance < 1.0, "in [0, 1)"),
+                  ("min_excess_ratio", self.min_excess_ratio >= 0.0, ">= 0"),
+                  ("placebo_draws", self.placebo_draws >= 1, ">= 1"),
+                  ("max_effects", self.max_effects >= 1, ">= 1"),
+                  ("iterations", self.iterations >= 1, ">= 1")]
+        for name, ok, rule in checks:
+            if not ok:
+                raise ConfigError(f"diagnose: {name} must be {rule}. Got {getattr(self, name)!r} instead.")
+
+
+@dataclass(frozen=True)
+class EffectResult:
+    """One candidate effect tested on top of the current model (one step of the selection).
+
+    RMSE values are in the output unit; ``improvement`` = before − after (held out).
+    """
+
+    effect: str
+    title: str
+    step: int
+    heldout_rmse_before: float
+    heldout_rmse_after: float
+    fit_rmse_before: float
+    fit_rmse_after: float
+    reduction: float
+    placebo_improvement: float
+    placebo_improvement_mean: float
+    placebo_reduction: float
+    n_parameters: int
+    signature_share: float
+    signature_r2: float
+    params: dict
+    evidence: str
+    passes: dict
+    fit: EffectFit = field(repr=False, compare=False, default=None)
+
+    @property
+    def improvement(self) -> float:
+        return self.heldout_rmse_before - self.heldout_rmse_after
+
+    @property
+    def eligible(self) -> bool:
+        return all(self.passes.values())
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """The outcome of :func:`diagnose` (see :meth:`to_dict` for the JSON contract)."""
+
+    base_model: str
+    optimizer: str
+    mode: str
+    unit: str
+    seed: int
+    settings: DiagnoseSettings
+    noise: dict
+    gap: dict
+    where: dict
+    effects: tuple[EffectResult, ...]          # step 1, best first
+    steps: tuple[tuple[EffectResult, ...], ...]  # every step of the greedy selection, best first
+    verdict: str
+    explained_by: tuple[str, ...]
+    split: dict
+    captures: tuple[dict, ...]
+    runtime_s: float
+    figures_data: dict = field(repr=False, compare=False, default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """The JSON document (``diagnosis.json``); unit-bearing names end in the output unit."""
+        u = self.unit
+
+        def eff(r: EffectResult) -> dict:
+            return {"effect": r.effect, "title": r.title,
+                    f"heldout_rmse_before_{u}": _num(r.heldout_rmse_before),
+                    f"heldout_rmse_after_{u}": _num(r.heldout_rmse_after),
+                    "reduction": _num(r.reduction),
+                    f"improvement_{u}": _num(r.improvement),
+                    f"placebo_improvement_{u}": _num(r.placebo_improvement),
+                    "placebo_reduction": _num(r.placebo_reduction),
+                    f"fit_rmse_before_{u}": _num(r.fit_rmse_before),
+                    f"fit_rmse_after_{u}": _num(r.fit_rmse_after),
+                    "n_parameters": r.n_parameters,
+                    "signature_share": _num(r.signature_share),
+                    "evidence": r.evidence,
+                    "params": _clean(_unit_names(r.params, u)),
+                    "passes": dict(r.passes), "eligible": r.eligible}
+
+        return _clean({
+            "schema": "hystfit.diagnosis", "schema_version": 1,
+            "base_model": self.base_model, "optimizer": self.optimizer, "mode": self.mode,
+            "seed": self.seed, "units": {"input": "V", "output": u, "time": "s"},
+            f"noise_floor_{u}": self.noise["sigma"],
+            "noise": _unit_names(self.noise, u),
+            "gap": _unit_names(self.gap, u),
+            "where": _unit_names(self.where, u),
+            "effects": [eff(r) for r in self.effects],
+            "verdict": self.verdict,
+            "explained_by": list(self.explained_by),
+            "steps": [{"step": i + 1, "effects": [eff(r) for r in step]} for i, step in enumerate(self.steps)],
+            "split": self.split,
+            "rule": {"threshold": self.settings.threshold, "occam_tolerance": self.settings.occam_tolerance,
+                     "min_excess_ratio": self.settings.min_excess_ratio,
+                     "placebo_draws": self.settings.placebo_draws, "max_effects": self.settings.max_effects},
+            "captures": list(self.captures),
+            "runtime_s": self.runtime_s,
+        })
+
+
+def _num(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _unit_names(d, unit: str):
+    """Rename keys ending in ``_out`` (and ``out`` inside unit strings) to the output unit."""
+    if isinstance(d, dict):
+        out = {}
+        for k, v in d.items():
+            key = k
+            if isinstance(k, str):
+                if k == "sigma":
+                    key = f"sigma_{unit}"
+                elif k.endswith("_out"):
+                    key = k[:-4] + f"_{unit}"
+                elif "_out_" in k:
+                    key = k.replace("_out_", f"_{unit}_")
+            out[key] = _unit_names(v, unit)
+        return out
+    if isinstance(d, (list, tuple)):
+        return [_unit_names(v, unit) for v in d]
+    return d
+
+
+def _clean(x):
+    """JSON-safe: numpy scalars to Python, NaN/inf to None, tuples to lists."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return _num(x)
+    if isinstance(x, np.ndarray):
+        return _clean(x.tolist())
+    return x
+
+
+# ----------------------------------------------------------------------------------------------
+# Captures: periodicity, split
+# ----------------------------------------------------------------------------------------------
+
+
+def is_periodic(u: np.ndarray, dt: float, frequency_Hz: float, tol: float = 0.02) -> bool:
+    """Whether ``u`` (V) repeats with period 1/frequency_Hz (s) over at least two periods.
+
+    Compares u(t + P) with u(t) (linear interpolation for a fractional period): periodic when
+    the largest difference is below ``tol`` × the input range.
+    """
+    u = np.asarray(u, float)
+    if not (np.isfinite(frequency_Hz) and frequency_Hz > 0):
+        return False
+    P = 1.0 / (frequency_Hz * dt)
+    n = u.shape[0]
+    if n < 2 * P + 1 or P < 4:
+        return False
+    k = np.arange(int(n - P - 1))
+    shifted = np.interp(k + P, np.arange(n), u)
+    rng = float(u.max() - u.min())
+    return bool(rng > 0 and np.max(np.abs(shifted - u[k])) <= tol * rng)
+
+
+def fit_masks(captures: Sequence[Capture], periodic: Sequence[bool], fraction: float) -> list[np.ndarray]:
+    """Per capture, the boolean mask of the samples used to fit (the rest is held out).
+
+    Periodic captures: the first round(fraction × cycles) whole cycles (at least one, at most all
+    but one); other captures: the first ``fraction`` of their samples.
+    """
+    masks = []
+    for c, per in zip(captures, periodic):
+        n = c.n
+        if per:
+            P = 1.0 / (c.frequency_Hz * c.dt)
+            cycles = (n - 1) / P
+            k = int(np.clip(round(fraction * cycles), 1, max(math.floor(cycles) - 1, 1)))
+            n_fit = int(round(k * P)) + 1
+        else:
+            n_fit = int(round(fraction * n))
+        n_fit = int(np.clip(n_fit, 2, n - 2))
+        m = np.zeros(n, bool)
+        m[:n_fit] = True
+        masks.append(m)
+    return masks
+
+
+def _truncate(c: Capture, n: int) -> Capture:
+    return replace(c, t=c.t[:n], u=c.u[:n], y=c.y[:n])
+
+
+# ----------------------------------------------------------------------------------------------
+# Noise floor
+# ----------------------------------------------------------------------------------------------
+
+#: Third-order difference with unit gain for white noise: (−1, 3, −3, 1)/√20.
+_D3 = np.array([-1.0, 3.0, -3.0, 1.0]) / math.sqrt(20.0)
+
+
+def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
+                   periodic: Sequence[bool]) -> dict:
+    """Sensor noise floor estimated from the data (output unit), never from the model fit quality.
+
+    Two estimates:
+
+    - ``sigma`` (the floor used everywhere): the robust scale 1.4826·MAD of the third-order
+      difference (−1, 3, −3, 1)/√20 of the base model's residual, pooled over all captures.
+      The difference removes anything smooth (the model error of a slowly varying loop, drift,
+      creep: polynomials up to degree two vanish) and keeps white noise at unit gain; the median
+      ignores the few samples where the residual has a kink (turning points, steps). It measures
+      the white, sample-to-sample part of the noise.
+    - ``repeatability`` (a cross-check, periodic captures with an integer number of samples per
+      period and at least three cycles): the measured output one period apart, y(t + P) − y(t),
+      after the first cycle, with its slow part (moving average over a period) removed, divided
+      by √2. It also contains low-frequency noise and anything else that does not repeat from
+      cycle to cycle, so it is an upper bound; a value well above ``sigma`` says the noise is
+      coloured or the process does not repeat.
+
+    Returns
+    -------
+    dict
+        ``sigma``, ``method``, ``per_capture`` (list of per-capture σ), ``repeatability`` (or None),
+        ``quantization_step`` (the smallest nonzero step between output samples, for reference).
+    """
+    diffs = []
+    per = []
+    for r in residuals:
+        r = np.asarray(r, float)
+        if r.size < 8:
+            per.append(float("nan"))
+            continue
+        d = np.convolve(r, _D3, mode="valid")
+        diffs.append(d)
+        per.append(1.4826 * float(np.median(np.abs(d - np.median(d)))))
+    pooled = np.concatenate(diffs) if diffs else np.zeros(1)
+    sigma = 1.4826 * float(np.median(np.abs(pooled - np.median(pooled))))
+    rep = []
+    for c, is_per in zip(captures, periodic):
+        if not is_per:
+            continue
+        P = 1.0 / (c.frequency_Hz * c.dt)
+        Pi = int(round(P))
+        if abs(P - Pi) > 1e-6 * P or c.n < 3 * Pi + 1:
+            continue
+        e = c.y[2 * Pi:] - c.y[Pi:-Pi]
+        if e.size < Pi + 1:
+            continue
+        kern = np.ones(Pi) / Pi
+        slow = np.convolve(e, kern, mode="same")
+        core = (e - slow)[Pi // 2: e.size - Pi // 2]
+        rep.append((float(np.sum(core ** 2)) / 2.0 / (1.0 - 1.0 / Pi), core.size))
+    repeat = math.sqrt(sum(s for s, _ in rep) / sum(n for _, n in rep)) if rep else None
+    steps = np.concatenate([np.abs(np.diff(c.y)) for c in captures])
+    steps = steps[steps > 0]
+    q = float(steps.min()) if steps.size else 0.0
+    return {"sigma": sigma, "method": "1.4826·MAD of the third difference (−1,3,−3,1)/√20 of the base residual",
+            "per_capture": per, "repeatability": repeat, "quantization_step": q}
+
+
+# ----------------------------------------------------------------------------------------------
+# Where
+# ----------------------------------------------------------------------------------------------
+
+
+def _rms(x: np.ndarray) -> float:
+    x = np.asarray(x, float)
+    return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
+
+
+def _excess(rmse: float, sigma: float) -> float:
+    return math.sqrt(max(rmse * rmse - sigma * sigma, 0.0)) if math.isfinite(rmse) else float("nan")
+
+
+def _reversals(u: np.ndarray) -> np.ndarray:
+    """Indices where the input changes direction (the turning points), plus both ends."""
+    du = np.diff(u)
+    moving = np.flatnonzero(du != 0)
+    if moving.size == 0:
+        return np.array([0, u.size - 1])
+    s = np.sign(du[moving])
+    flips = moving[1:][s[1:] != s[:-1]]
+    return np.unique(np.concatenate([[0], flips, [u.size - 1]]))
+
+
+def _loop_position(u: np.ndarray) -> np.ndarray:
+    """Position of every sample within its half-cycle: 0 at the previous turning point, 1 at the
+    next one (by input value, so a raised cosine and a triangle agree); NaN on holds."""
+    u = np.asarray(u, float)
+    rev = _reversals(u)
+    pos = np.full(u.size, np.nan)
+    for a, b in zip(rev[:-1], rev[1:]):
+        span = u[b] - u[a]
+        if span != 0:
+            pos[a:b + 1] = (u[a:b + 1] - u[a]) / span
+    du = np.diff(u, prepend=u[0])
+    pos[du == 0] = np.nan
+    return np.clip(pos, 0.0, 1.0)
+
+
+def _bands(r: np.ndarray, dt: float, f0: float) -> dict:
+    """Residual power (mean square, out²) per band relative to the excitation frequency f0:
+    ``drift`` below f0/2, ``low_harmonics`` f0/2 … 5.5·f0, ``high_harmonics`` 5.5·f0 … 50.5·f0,
+    ``broadband`` above; each with the fraction of the frequency axis it covers (for the
+    expected white-noise share)."""
+    r = np.asarray(r, float)
+    n = r.size
+    R = np.fft.rfft(r)
+    p = np.abs(R) ** 2
+    p[1:] *= 2.0
+    if n % 2 == 0:
+        p[-1] /= 2.0
+    p /= n * n  # Σ p = mean(r²)
+    f = np.fft.rfftfreq(n, dt)
+    edges = {"drift": (0.0, 0.5 * f0), "low_harmonics": (0.5 * f0, 5.5 * f0),
+             "high_harmonics": (5.5 * f0, 50.5 * f0), "broadband": (50.5 * f0, np.inf)}
+    out = {}
+    nyq = 0.5 / dt
+    for k, (a, b) in edges.items():
+        sel = (f >= a) & (f < b)
+        out[k] = (float(p[sel].sum()), float((min(b, nyq) - min(a, nyq)) / nyq))
+    return out
+
+
+def where_analysis(captures: Sequence[Capture], residuals: Sequence[np.ndarray], sigma: float,
+                   periodic: Sequence[bool], residuals_alone: Sequence[np.ndarray] | None = None
+                   ) -> tuple[dict, dict]:
+    """Break the base model's residual e = model − measured down (output unit).
+
+    Returns
+    -------
+    (where, data)
+        ``where``: JSON-ready numbers — ``by_condition`` (RMSE and excess over noise per amplitude ×
+        frequency), ``by_capture``, ``by_branch`` (ascending / descending / hold: RMSE and mean),
+        ``by_loop_position`` (within 10 % of the half-cycle stroke from a turning point vs
+        mid-stroke, and RMSE per tenth of the half-cycle), ``by_time`` (first cycle vs later, RMSE
+        and mean per tenth of the capture), ``by_band`` (share of the residual power above the
+        white-noise expectation in the drift band below f0/2, the fundamental and low harmonics up
+        to 5.5 f0, the high harmonics up to 50.5 f0, and broadband above), and ``summary``
+        (exponents of the gap vs frequency and amplitude, low/high frequency shares, long-capture
+        ratio, first-cycle ratio) with ``pointers``, plain sentences. ``data`` holds arrays for
+        the figures.
+
+        With ``residuals_alone`` (the residuals of the base model fitted to each condition on its
+        own), ``by_condition_alone`` and the ``*_alone`` exponents describe the gap *within* a
+        condition: a global model spreads a condition-dependent error over all conditions (it
+        compromises), a model fitted per condition shows where the loop shape itself is wrong.
+        ``by_level`` is the mean residual per tenth of each capture's input range on each
+        branch: the "residual loop" (a lag draws an ellipse, a bow an arch).
+    """
+    s2 = sigma * sigma
+    caps = list(captures)
+    res = [np.asarray(r, float) for r in residuals]
+    # by capture / condition
+    by_capture = []
+    for c, r, per in zip(caps, res, periodic):
+        rm = _rms(r)
+        by_capture.append({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
+                           "duration_s": c.duration_s, "periodic": bool(per), "rmse_out": rm,
+                           "excess_rmse_out": _excess(rm, sigma), "mean_out": float(np.mean(r))})
+    groups: dict = {}
+    for i, c in enumerate(caps):
+        groups.setdefault((float(c.amplitude_V), float(c.frequency_Hz)), []).append(i)
+
+    def condition_rows(rs):
+        rows = []
+        for (a, f), idx in sorted(groups.items()):
+            rm = _rms(np.concatenate([rs[i] for i in idx]))
+            rows.append({"label": condition_label((a, f)), "amplitude_V": a, "frequency_Hz": f,
+                         "rmse_out": rm, "excess_rmse_out": _excess(rm, sigma), "n_captures": len(idx),
+                         "periodic": bool(all(periodic[i] for i in idx))})
+        return rows
+
+    by_condition = condition_rows(res)
+    by_condition_alone = condition_rows([np.asarray(r, float) for r in residuals_alone]) \
+        if residuals_alone is not None else None
+    level_sum = {"ascending": np.zeros(10), "descending": np.zeros(10)}
+    level_n = {"ascending": np.zeros(10), "descending": np.zeros(10)}
+    # branch
+    br = {"ascending": [], "descending": [], "hold": []}
+    pos_bins = np.linspace(0.0, 1.0, 11)
+    pos_sq = {"ascending": np.zeros(10), "descending": np.zeros(10)}
+    pos_n = {"ascending": np.zeros(10), "descending": np.zeros(10)}
+    near, mid = [], []
+    first, later = [], []
+    tenth_sum = np.zeros(10)
+    tenth_sq = np.zeros(10)
+    tenth_n = np.zeros(10)
+    band_tot = {"drift": 0.0, "low_harmonics": 0.0, "high_harmonics": 0.0, "broadband": 0.0}
+    band_noise = dict.fromkeys(band_tot, 0.0)
+    n_all = 0
+    spectra = []
+    for c, r, per in zip(caps, res, periodic):
+        du = np.diff(c.u, prepend=c.u[0])
+        tol = 1e-9 * max(float(np.ptp(c.u)), 1e-12)
+        asc, desc = du > tol, du < -tol
+        hold = ~(asc | desc)
+        br["ascending"].append(r[asc])
+        br["descending"].append(r[desc])
+        br["hold"].append(r[hold])
+        lv = np.clip(((c.u - c.u.min()) / max(float(np.ptp(c.u)), 1e-300) * 10).astype(int), 0, 9)
+        for name, sel in (("ascending", asc), ("descending", desc)):
+            np.add.at(level_sum[name], lv[sel], r[sel])
+            np.add.at(level_n[name], lv[sel], 1)
+        pos = _loop_position(c.u)
+        ok = np.isfinite(pos)
+        near.append(r[ok & ((pos < 0.1) | (pos > 0.9))])
+        mid.append(r[ok & (pos >= 0.1) & (pos <= 0.9)])
+        b = np.clip((pos[ok] * 10).astype(int), 0, 9)
+        for name, sel in (("ascending", asc[ok]), ("descending", desc[ok])):
+            np.add.at(pos_sq[name], b[sel], r[ok][sel] ** 2)
+            np.add.at(pos_n[name], b[sel], 1)
+        n1 = int(round(1.0 / (c.frequency_Hz * c.dt))) if per else int(round(0.1 * c.n))
+        n1 = int(np.clip(n1, 1, c.n - 1))
+        first.append(r[:n1])
+        later.append(r[n1:])
+        tb = np.clip((np.arange(c.n) * 10) // c.n, 0, 9)
+        np.add.at(tenth_sum, tb, r)
+        np.add.at(tenth_sq, tb, r * r)
+        np.add.at(tenth_n, tb, 1)
+        f0 = c.frequency_Hz if np.isfinite(c.frequency_Hz) and c.frequency_Hz > 0 else 1.0 / c.duration_s
+        bands = _bands(r, c.dt, f0)
+        for k, (pw, frac) in bands.items():
+            band_tot[k] += pw * c.n
+            band_noise[k] += s2 * frac * c.n
+        n_all += c.n
+        if per:
+            n = r.size
+            Rm = np.abs(np.fft.rfft(r)) * 2.0 / n
+            spectra.append((np.fft.rfftfreq(n, c.dt) / f0, Rm, c.source))
+    by_branch = {k: {"rmse_out": _rms(np.concatenate(v)) if v else float("nan"),
+                     "mean_out": float(np.mean(np.concatenate(v))) if sum(x.size for x in v) else float("nan"),
+                     "n_samples": int(sum(x.size for x in v))} for k, v in br.items()}
+    nr, mr = np.concatenate(near), np.concatenate(mid)
+    by_loop = {"near_turning_points": {"rmse_out": _rms(nr), "n_samples": int(nr.size)},
+               "mid_stroke": {"rmse_out": _rms(mr), "n_samples": int(mr.size)},
+               "definition": "near = within 10 % of the half-cycle stroke from a turning point of the input",
+               "rmse_by_position_out": {k: [float(math.sqrt(q / n)) if n else None for q, n in zip(pos_sq[k], pos_n[k])]
+                                        for k in pos_sq}}
+    fr, lr = np.concatenate(first), np.concatenate(later)
+    by_time = {"first_cycle": {"rmse_out": _rms(fr), "mean_out": float(np.mean(fr)), "n_samples": int(fr.size)},
+               "later": {"rmse_out": _rms(lr), "mean_out": float(np.mean(lr)), "n_samples": int(lr.size)},
+               "definition": "first cycle = the first period of a periodic capture, else the first 10 % of it",
+               "mean_by_tenth_out": [float(s / n) if n else None for s, n in zip(tenth_sum, tenth_n)],
+               "rmse_by_tenth_out": [float(math.sqrt(q / n)) if n else None for q, n in zip(tenth_sq, tenth_n)]}
+    above = {k: max(band_tot[k] - band_noise[k], 0.0) for k in band_tot}
+    tot_above = sum(above.values())
+    by_band = {k: {"rms_out": math.sqrt(band_tot[k] / n_all), "expected_noise_rms_out": math.sqrt(band_noise[k] / n_all),
+                   "share_above_noise": (above[k] / tot_above) if tot_above > 0 else 0.0} for k in band_tot}
+    by_band["definition"] = ("bands relative to each capture's excitation frequency f0: drift < f0/2, low harmonics "
+                             "f0/2…5.5·f0, high harmonics 5.5·f0…50.5·f0, broadband above; shares of the residual "
+                             "power above the white-noise expectation")
+    by_level = {"definition": "mean residual per tenth of each capture's input range (0 = lowest input), per branch",
+                "mean_by_level_out": {k: [float(q / n) if n else None for q, n in zip(level_sum[k], level_n[k])]
+                                      for k in level_sum}}
+    asc = np.array([np.nan if v is None else v for v in by_level["mean_by_level_out"]["ascending"]])
+    desc = np.array([np.nan if v is None else v for v in by_level["mean_by_level_out"]["descending"]])
+    both = np.isfinite(asc) & np.isfinite(desc)
+    if both.sum() >= 3:
+        common = 0.5 * (asc[both] + desc[both])
+        common = common - common.mean()  # a constant offset is not a level dependence
+        diff = 0.5 * (asc[both] - desc[both])
+        by_level["level_dependent_rms_out"] = _rms(common)
+        by_level["branch_opposite_rms_out"] = _rms(diff)
+    summary = _summary(by_condition, by_capture, by_band, by_time, sigma)
+    summary["level_dependent_rms_out"] = by_level.get("level_dependent_rms_out")
+    summary["branch_opposite_rms_out"] = by_level.get("branch_opposite_rms_out")
+    if by_condition_alone is not None:
+        fa, aa = _loglog_fit(by_condition_alone, sigma)
+        summary["frequency_exponent_alone"] = fa
+        summary["amplitude_exponent_alone"] = aa
+    where = {"by_condition": by_condition, "by_capture": by_capture, "by_branch": by_branch,
+             "by_loop_position": by_loop, "by_level": by_level, "by_time": by_time, "by_band": by_band}
+    if by_condition_alone is not None:
+        where["by_condition_alone"] = by_condition_alone
+    where["summary"] = summary
+    where["pointers"] = _pointers(summary, by_branch, by_loop, sigma)
+    data = {"spectra": spectra}
+    return where, data
+
+
+def _loglog_fit(rows: list[dict], sigma: float) -> tuple[float | None, float | None]:
+    """Exponents b, c of excess RMSE ≈ k·f^b·A^c over periodic conditions (None when undetermined)."""
+    pts = [(r["frequency_Hz"], r["amplitude_V"], r["excess_rmse_out"]) for r in rows
+           if r["periodic"] and r["frequency_Hz"] > 0 and r["amplitude_V"] > 0]
+    if len(pts) < 2:
+        return None, None
+    f, a, e = (np.array(x, float) for x in zip(*pts))
+    e = np.maximum(e, 0.05 * max(sigma, 1e-300))
+    cols, names = [np.ones_like(f)], []
+    if np.unique(f).size >= 2:
+        cols.append(np.log(f))
+        names.append("f")
+    if np.unique(a).size >= 2:
+        cols.append(np.log(a))
+        names.append("a")
+    if len(names) == 0 or len(pts) < len(cols):
+        return None, None
+    X = np.column_stack(cols)
+    coef = np.linalg.lstsq(X, np.log(e), rcond=None)[0]
+    out = dict(zip(names, coef[1:]))
+    return (float(out["f"]) if "f" in out else None), (float(out["a"]) if "a" in out else None)
+
+
+def _summary(by_condition, by_capture, by_band, by_time, sigma) -> dict:
+    bf, ba = _loglog_fit(by_condition, sigma)
+    durations = np.array([c["duration_s"] for c in by_capture])
+    ratio = None
+    if durations.size >= 2 and durations.max() > 2.0 * np.median(durations):
+        longest = durations >= 0.5 * durations.max()
+        ex = np.array([c["excess_rmse_out"] for c in by_capture])
+        rest = ex[~longest]
+        if rest.size:
+            ratio = float(np.max(ex[longest]) / max(np.median(rest), 1e-3 * max(sigma, 1e-300)))
+    worst = max(by_condition, key=lambda r: r["rmse_out"]) if by_condition else None
+    fc = by_time["first_cycle"]["rmse_out"]
+    lt = by_time["later"]["rmse_out"]
+    return {"frequency_exponent": bf, "amplitude_exponent": ba,
+            "low_frequency_share": by_band["drift"]["share_above_noise"],
+            "high_frequency_share": by_band["high_harmonics"]["share_above_noise"] + by_band["broadband"]["share_above_noise"],
+            "long_capture_ratio": ratio,
+            "first_cycle_ratio": float(fc / lt) if lt > 0 else None,
+            "worst_condition": worst["label"] if worst else None}
+
+
+#: A gap growing at least this fast with the amplitude points to a static output nonlinearity: the
+#: error of a scale-invariant loop shape grows ∝ A, a quadratic bow ∝ A².
+AMPLITUDE_EXPONENT_LARGE = 2.0
+
+
+def _pointers(summary: dict, by_branch: dict, by_loop: dict, sigma: float) -> list[str]:
+    """Plain sentences for the strong findings of :func:`where_analysis` (thresholds in the text)."""
+    out = []
+    for suffix, how in (("", ""), ("_alone", " when every condition is fitted on its own")):
+        bf, ba = summary.get("frequency_exponent" + suffix), summary.get("amplitude_exponent" + suffix)
+        if bf is not None and bf > 0.3:
+            out.append(f"high frequencies: the gap above noise grows with the excitation frequency{how} (∝ f^{bf:.2f})")
+        elif bf is not None and bf < -0.3:
+            out.append(f"low frequencies: the gap above noise shrinks with the excitation frequency{how} (∝ f^{bf:.2f})")
+        if ba is not None and ba >= AMPLITUDE_EXPONENT_LARGE:
+            out.append(f"large amplitudes: the gap grows with the square of the amplitude or faster{how} (∝ A^{ba:.2f}; "
+                       "a scale-invariant loop-shape error grows ∝ A)")
+    if summary.get("heldout_to_fit_ratio") is not None and summary["heldout_to_fit_ratio"] > 1.15:
+        out.append(f"later time: fitted on the first part of each capture, the model misses "
+                   f"{summary['heldout_to_fit_ratio']:.2f}× more (above noise) on the later part")
+    if summary["low_frequency_share"] > 0.25:
+        out.append(f"low frequencies: {100 * summary['low_frequency_share']:.0f} % of the residual power above noise lies "
+                   "below half the excitation frequency (slow trends)")
+    if summary["high_frequency_share"] > 0.3:
+        out.append(f"high frequencies: {100 * summary['high_frequency_share']:.0f} % of the residual power above noise lies "
+                   "above the fifth harmonic")
+    if summary["long_capture_ratio"] is not None and summary["long_capture_ratio"] > 1.5:
+        out.append(f"long captures: the longest captures miss {summary['long_capture_ratio']:.1f}× more (above noise) "
+                   "than the others")
+    lv, bo = summary.get("level_dependent_rms_out"), summary.get("branch_opposite_rms_out")
+    if lv is not None and bo is not None and max(lv, bo) > 2.0 * sigma:
+        if lv > 1.5 * bo:
+            out.append(f"displacement level: the error follows the input level the same way on both branches "
+                       f"({lv:.3g} vs {bo:.3g} opposite between branches): a static output nonlinearity")
+        elif bo > 1.5 * lv:
+            out.append(f"branches: at the same input level the error has opposite signs on the two branches "
+                       f"({bo:.3g} vs {lv:.3g} common): the loop is too narrow or too wide, a lag or lead")
+    a, d = by_branch["ascending"], by_branch["descending"]
+    if a["n_samples"] and d["n_samples"] and math.isfinite(a["mean_out"]) and math.isfinite(d["mean_out"]):
+        if a["mean_out"] * d["mean_out"] < 0 and \
+                abs(a["mean_out"] - d["mean_out"]) > max(2.0 * sigma, 0.25 * max(a["rmse_out"], d["rmse_out"])):
+            out.append(f"branches: the model sits {a['mean_out']:+.3g} on the ascending and {d['mean_out']:+.3g} on the "
+                       "descending branch on average (opposite biases: lag or branch asymmetry)")
+    n, m = by_loop["near_turning_points"]["rmse_out"], by_loop["mid_stroke"]["rmse_out"]
+    if math.isfinite(n) and math.isfinite(m) and m > 0:
+        if n > 1.3 * m:
+            out.append(f"turning points: the error near turning points is {n / m:.1f}× the mid-stroke error")
+        elif m > 1.3 * n:
+            out.append(f"mid-stroke: the error mid-stroke is {m / n:.1f}× the error near turning points")
+    if summary["first_cycle_ratio"] is not None and summary["first_cycle_ratio"] > 1.5:
+        out.append(f"start-up: the first cycle misses {summary['first_cycle_ratio']:.1f}× more than the later ones")
+    if not out:
+        out.append("no concentration: the residual is spread evenly over conditions, branches, time and frequency")
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Base model + chain of effects: predictions, linearization, refits
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Group:
+    label: str
+    condition: tuple[float, float]
+    model: Model
+    params: tuple
+    theta: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    indices: tuple[int, ...]
+
+
+@dataclass
+class _State:
+    """Base parameters per group plus the chain of effects added so far."""
+
+    groups: list[_Group]
+    chain: list[EffectFit]
+    group_of: tuple[int, ...]
+
+    def copy(self) -> "_State":
+        return _State([replace(g, theta=g.theta.copy()) for g in self.groups],
+                      [replace(f, shared=f.shared.copy(), local=f.local.copy()) for f in self.chain], self.group_of)
+
+
+def _base_predictions(state: _State, captures: Sequence[Capture], lengths: Sequence[int] | None = None) -> list:
+    out = []
+    for i, c in enumerate(captures):
+        g = state.groups[state.group_of[i]]
+        n = c.n if lengths is None else lengths[i]
+        with np.errstate(all="ignore"):
+            out.append(g.model.simulate_one(g.theta, c.u[:n], c.dt))
+    return out
+
+
+def _predictions(state: _State, captures, views, lengths=None) -> list:
+    base = _base_predictions(state, captures, lengths)
+    out = []
+    for i, (x, v) in enumerate(zip(base, views)):
+        vv = v if x.shape[0] == v.n else v.head(x.shape[0])
+        for link in state.chain:
+            x = link.apply(x, vv, i)
+        out.append(x)
+    return out
+
+
+def _layout(state: _State, n_captures: int) -> tuple[list[int], list[tuple[int, int]], int]:
+    """Column offsets: per group (base θ), per chain link (shared, local); total columns."""
+    off = 0
+    g_off = []
+    for g in state.groups:
+        g_off.append(off)
+        off += g.theta.size
+    l_off = []
+    for link in state.chain:
+        ks, kl = link.effect.layout()
+        l_off.append((off, off + ks))
+        off += ks + kl * n_captures
+    return g_off, l_off, off
+
+
+def _linearize(state: _State, captures, views) -> tuple[list[np.ndarray], Linearization]:
+    """The current model's output over each capture's fit part and its Jacobian w.r.t. every
+    base parameter and every chain coefficient (pushed through the chain's tangents)."""
+    C = len(captures)
+    lengths = [max(v.fit_end, 1) for v in views]
+    g_off, l_off, n = _layout(state, C)
+    lower = np.empty(n)
+    upper = np.empty(n)
+    jac_rows: dict[int, list] = {}
+    for gi, g in enumerate(state.groups):
+        sl = slice(g_off[gi], g_off[gi] + g.theta.size)
+        lower[sl] = g.lower - g.theta
+        upper[sl] = g.upper - g.theta
+        series = [Series(captures[i].u[:lengths[i]], captures[i].y[:lengths[i]], captures[i].dt) for i in g.indices]
+        J = Objective(g.model, series).jacobian(g.theta)
+        start = 0
+        for i in g.indices:
+            jac_rows[i] = J[start:start + lengths[i]]
+            start += lengths[i]
+    for li, link in enumerate(state.chain):
+        sl_lo, sl_hi, ll_lo, ll_hi = link.effect.coefficient_bounds()
+        s0, l0 = l_off[li]
+        ks, kl = link.effect.layout()
+        lower[s0:s0 + ks] = sl_lo - link.shared
+        upper[s0:s0 + ks] = sl_hi - link.shared
+        for c in range(C):
+            a = l0 + c * kl
+            lower[a:a + kl] = ll_lo - link.local[c]
+            upper[a:a + kl] = ll_hi - link.local[c]
+    base = _base_predictions(state, captures, lengths)
+    xs, jacs, cols = [], [], []
+    for i in range(C):
+        v = views[i].head(lengths[i])
+        gi = state.group_of[i]
+        J = jac_rows[i]
+        col = list(range(g_off[gi], g_off[gi] + state.groups[gi].theta.size))
+        x = base[i]
+        for li, link in enumerate(state.chain):
+            Rs, Rl = link.effect.regressors(x, v, link.phi)
+            J = link.tangent(J, x, v, i)
+            x = link.apply(x, v, i)
+            ks, kl = link.effect.layout()
+            s0, l0 = l_off[li]
+            J = np.hstack([J, Rs, Rl])
+            col += list(range(s0, s0 + ks)) + list(range(l0 + i * kl, l0 + (i + 1) * kl))
+        xs.append(x)
+        jacs.append(np.ascontiguousarray(J))
+        cols.append(np.asarray(col, int))
+    return xs, Linearization(tuple(jacs), tuple(cols), lower, upper)
+
+
+def _step(state: _State, delta: np.ndarray, alpha: float, n_captures: int) -> _State:
+    """A copy of ``state`` moved by α·δ (clipped to every bound)."""
+    new = state.copy()
+    if delta.size == 0 or alpha == 0.0:
+        return new
+    g_off, l_off, _ = _layout(state, n_captures)
+    for gi, g in enumerate(new.groups):
+        d = delta[g_off[gi]:g_off[gi] + g.theta.size]
+        g.theta = np.clip(g.theta + alpha * d, g.lower, g.upper)
+    for li, link in enumerate(new.chain):
+        ks, kl = link.effect.layout()
+        s0, l0 = l_off[li]
+        slo, shi, llo, lhi = link.effect.coefficient_bounds()
+        shared = np.clip(link.shared + alpha * delta[s0:s0 + ks], slo, shi)
+        local = np.clip(link.local + alpha * delta[l0:l0 + n_captures * kl].reshape(n_captures, kl), llo, lhi)
+        new.chain[li] = replace(link, shared=shared, local=local)
+    return new
+
+
+def _sse(preds, views, which: str) -> tuple[float, int]:
+    s, n = 0.0, 0
+    for p, v in zip(preds, views):
+        m = v.fit if which == "fit" else ~v.fit
+        m = m[: p.shape[0]]
+        e = p[: m.size][m] - v.y[: m.size][m]
+        s += float(e @ e)
+        n += int(m.sum())
+    return s, n
+
+
+def _rmse(preds, views, which: str) -> float:
+    s, n = _sse(preds, views, which)
+    return math.sqrt(s / n) if n else float("nan")
+
+
+def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, iterations: int,
+             phi0: np.ndarray | None = None) -> tuple[_State, EffectFit]:
+    """Fit ``effect`` on top of ``state`` jointly with the base and the earlier effects.
+
+    Each iteration: search φ with the linear coefficients and a Gauss–Newton step δ of every
+    earlier parameter solved exactly (:meth:`Effect.fit` with the linearization), then a true
+    re-simulation at α·δ for α ∈ {1, ½, 0} with the new coefficients re-solved on the true
+    output; the best true fit-sample SSE wins (α = 0 is the effect on the fixed base, so the
+    result is never worse than that). A second iteration re-linearizes at the new point.
+    """
+    C = len(captures)
+    xs, lin = lin_cache
+    best_state, best_fit, best_sse = None, None, math.inf
+    cur = state
+    phi_start = phi0
+    for it in range(iterations):
+        if it > 0:
+            xs, lin = _linearize(cur, captures, views)
+        fit = effect.fit(xs, views, lin, phi0=phi_start, local_search=(it > 0 or phi0 is not None))
+        improved = False
+        exact = False
+        for alpha in (1.0, 0.5, 0.0):
+            cand = _step(cur, fit.delta, alpha, C)
+            heads = [v.head(max(v.fit_end, 1)) for v in views]
+            lengths = [h.n for h in heads]
+            preds = _predictions(cand, captures, views, lengths)
+            sh, lo, _, sse = solve_coefficients(effect, fit.phi, preds, heads, None, bounded=True)
+            f2 = EffectFit(effect, fit.phi, sh, lo, np.empty(0), sse, fit.evaluations)
+            if sse < best_sse:
+                best_sse = sse
+                best_state = cand
+                best_fit = f2
+                improved = True
+            if alpha == 1.0 and sse <= fit.sse * (1.0 + 1e-3) + 1e-300:
+                exact = True  # the linear model predicted the true fit: nothing to gain from a shorter step
+                break
+        if not improved or exact:
+            break
+        cur = best_state
+        phi_start = best_fit.phi
+    new = best_state.copy()
+    new.chain.append(best_fit)
+    return new, best_fit
+
+
+# ----------------------------------------------------------------------------------------------
+# Verdict
+# ----------------------------------------------------------------------------------------------
+
+
+def choose_effect(results: Sequence[EffectResult], settings: DiagnoseSettings) -> EffectResult | None:
+    """The effect to name, or None.
+
+    Eligible effects pass all of: held-out ``reduction`` ≥ ``threshold``; held-out improvement
+    above the best placebo of the same size; the held-out gap exceeds the noise floor by
+    ``min_excess_ratio`` (:class:`DiagnoseSettings`). Among them the largest reduction wins,
+    except that an eligible effect with fewer parameters within ``occam_tolerance`` of it is
+    preferred (the simpler explanation of equally good evidence).
+    """
+    ok = [r for r in results if r.eligible]
+    if not ok:
+        return None
+    best = max(ok, key=lambda r: r.reduction)
+    close = [r for r in ok if r.reduction >= best.reduction - settings.occam_tolerance]
+    return min(close, key=lambda r: (r.n_parameters, -r.reduction))
+
+
+# ----------------------------------------------------------------------------------------------
+# Evidence text
+# ----------------------------------------------------------------------------------------------
+
+
+def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
+    """Plain-language evidence of one effect: signature, where-pointer, parameters, held-out numbers."""
+    s = where["summary"]
+    p = res["params"]
+    sig = f"its signature explains {100 * res['signature_share']:.0f} % of the residual above noise"
+    parts = []
+    if name == "dynamics":
+        parts.append(f"{sig} (lag ∝ dŷ/dt plus gain rise ∝ d²ŷ/dt²)")
+        if s["frequency_exponent"] is not None:
+            parts.append(f"the gap grows with frequency as f^{s['frequency_exponent']:.2f}")
+        parts.append(f"fitted stage: f_n = {p['fn_Hz']:.4g} Hz, ζ = {p['zeta']:.3g}"
+                     + (f" ({p['phase_lag_at_highest_excitation_deg']:.2f}° lag at {p['at_highest_excitation_Hz']:g} Hz)"
+                        if "phase_lag_at_highest_excitation_deg" in p else ""))
+    elif name == "delay":
+        parts.append(f"{sig} (lag ∝ dŷ/dt)")
+        if s["frequency_exponent"] is not None:
+            parts.append(f"the gap grows with frequency as f^{s['frequency_exponent']:.2f}")
+        parts.append(f"fitted delay {p['delay_ms'] * 1e3:.4g} µs ({p['delay_samples']:.2f} samples)")
+    elif name == "creep":
+        parts.append(f"{sig} (slow low-pass responses of the output)")
+        parts.append(f"{100 * s['low_frequency_share']:.0f} % of the residual power above noise is below half the "
+                     "excitation frequency")
+        if s["long_capture_ratio"] is not None:
+            parts.append(f"longest captures miss {s['long_capture_ratio']:.1f}× more")
+        parts.append("fitted gains " + ", ".join(f"{100 * g:.2g} % at τ = {t:g} s" for t, g in zip(p["tau_s"], p["gain"]))
+                     + f" (total {100 * p['total_gain']:.2g} %)")
+    elif name == "asymmetry":
+        parts.append(f"{sig} (residual ∝ ŷ², ŷ³)")
+        if s["amplitude_exponent"] is not None:
+            parts.append(f"the gap grows with amplitude as A^{s['amplitude_exponent']:.2f}")
+        parts.append(f"fitted bow {p['mid_stroke_bow_out']:+.3g} {unit} at mid-stroke ({p['bow_pct_of_stroke']:.2g} % of the "
+                     "stroke)")
+    elif name == "drift":
+        parts.append(f"{sig} (an offset and a ramp per capture)")
+        parts.append(f"{100 * s['low_frequency_share']:.0f} % of the residual power above noise is below half the "
+                     "excitation frequency")
+        parts.append(f"fitted rates: median |v| = {p['median_abs_rate_out_per_s']:.3g} {unit}/s")
+    parts.append(f"held out: RMSE {res['before']:.4g} → {res['after']:.4g} {unit} (reduction {res['reduction']:.2f}; "
+                 f"best placebo of the same size improves by {res['placebo']:.3g} {unit})")
+    return "; ".join(parts)
+
+
+# ----------------------------------------------------------------------------------------------
+# The diagnosis
+# ----------------------------------------------------------------------------------------------
+
+
+def _library(effects: Sequence[Effect], xs: Sequence[np.ndarray], views: Sequence[CaptureView]) -> list[np.ndarray]:
+    """Placebo library: every effect's signature columns over the whole capture, each scaled to
+    unit RMS over the fit samples (columns without variation dropped)."""
+    per_cap = []
+    for x, v in zip(xs, views):
+        cols = []
+        for e in effects:
+            Ss, Sl = e.signature(x, v)
+            cols += [Ss, Sl]
+        t = v.t - v.t[0]
+        cols.append(np.column_stack([t, t * t]))
+        per_cap.append(np.hstack(cols))
+    fitstack = np.vstack([L[v.fit] for L, v in zip(per_cap, views)])
+    scale = np.sqrt(np.mean((fitstack - fitstack.mean(axis=0)) ** 2, axis=0))
+    keep = scale > 1e-12 * max(scale.max(), 1e-300)
+    return [L[:, keep] / scale[keep] for L in per_cap]
+
+
+def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0,
+             per_condition: bool = False, effects: Sequence[str] | None = None,
+             settings: DiagnoseSettings = DiagnoseSettings(), progress: Progress = None) -> Diagnosis:
+    """Diagnose the gap between ``model`` and the captures (see the module docstring).
+
+    Parameters
+    ----------
+    captures : validated captures with measured outputs, one output unit.
+    model : the base model (any registered model; it is adapted to the data).
+    optimizer : optimizer of the base fits (``auto`` recommended).
+    seed : seed of the base fits and of the placebo draws.
+    per_condition : one base parameter set per condition (look-up table) instead of one for all.
+    effects : candidate effect names (default: all of :data:`hystfit.effects.EFFECTS`).
+    settings : :class:`DiagnoseSettings`.
+    progress : optional callback ``progress(event, info)``.
+
+    Returns
+    -------
+    Diagnosis
+    """
+    t_start = time.perf_counter()
+    caps = list(captures)
+    if not caps:
+        raise InputError("diagnose: no captures")
+    for c in caps:
+        if c.y is None:
+            raise InputError(f"{c.source}: no measured output column; the diagnosis needs one (see --output-col)")
+    units = {c.y_unit for c in caps}
+    if len(units) > 1:
+        raise InputError("diagnose: captures have different output units "
+                         f"({', '.join(f'{c.name}: {c.y_unit}' for c in caps)}); convert them to one unit")
+    unit = units.pop()
+    names = list(EFFECTS) if effects is None else [make_effect(n).name for n in effects]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"diagnose: an effect is listed twice in {', '.join(names)}")
+    C = len(caps)
+    periodic = [is_periodic(c.u, c.dt, c.frequency_Hz) for c in caps]
+    masks = fit_masks(caps, periodic, settings.fit_fraction)
+    views = [CaptureView(c.t, c.dt, c.y, m, float(c.frequency_Hz), p, i)
+             for i, (c, m, p) in enumerate(zip(caps, masks, periodic))]
+
+    # groups
+    if per_condition:
+        keyed = group_by_condition(caps)
+        order = {id(c): i for i, c in enumerate(caps)}
+        group_idx = [tuple(order[id(c)] for c in v) for v in keyed.values()]
+        labels = [condition_label(k) for k in keyed]
+        conds = list(keyed)
+    else:
+        group_idx = [tuple(range(C))]
+        labels = ["global"]
+        conds = [(float("nan"), float("nan"))]
+    group_of = [0] * C
+    for gi, idx in enumerate(group_idx):
+        for i in idx:
+            group_of[i] = gi
+    n_units = 2 * len(group_idx) + 1 + len(names) + 1
+    if progress:
+        progress("start", {"total": n_units})
+
+    def advance(label: str) -> None:
+        if progress:
+            progress("advance", {"label": label})
+
+    # 1. gap: base fitted on everything
+    full_fits = []
+    for gi, idx in enumerate(group_idx):
+        full_fits.append(fit_captures([caps[i] for i in idx], model, optimizer, seed=seed, cell=gi,
+                                      label=labels[gi], condition=conds[gi]))
+        advance(f"base fit {labels[gi]}")
+    full_pred = [None] * C
+    for gi, idx in enumerate(group_idx):
+        for k, i in enumerate(idx):
+            full_pred[i] = np.asarray(full_fits[gi].predictions[k], float)
+    residuals = [p - c.y for p, c in zip(full_pred, caps)]
+    noise = estimate_noise(caps, residuals, periodic)
+    sigma = noise["sigma"]
+    rmse_full = math.sqrt(sum(float(r @ r) for r in residuals) / sum(r.size for r in residuals))
+    residuals_alone = None
+    by_cond = group_by_condition(caps)
+    if not per_condition and len(by_cond) > 1:
+        residuals_alone = [None] * C
+        order = {id(c): i for i, c in enumerate(caps)}
+        for ci, (key, cs) in enumerate(by_cond.items()):
+            f = fit_captures(cs, model, optimizer, seed=seed, cell=1000 + ci, label=condition_label(key), condition=key)
+            for c, p in zip(cs, f.predictions):
+                residuals_alone[order[id(c)]] = np.asarray(p, float) - c.y
+    where, fig_where = where_analysis(caps, residuals, sigma, periodic, residuals_alone)
+    advance("where")
+
+    # 2. base fitted on the fit part only
+    groups = []
+    for gi, idx in enumerate(group_idx):
+        train = [_truncate(caps[i], int(views[i].fit_end)) for i in idx]
+        f = fit_captures(train, model, optimizer, seed=seed, cell=gi, label=labels[gi], condition=conds[gi])
+        groups.append(_Group(labels[gi], conds[gi], f.model, f.params, np.asarray(f.theta, float).copy(),
+                             np.array([p.lower for p in f.params]), np.array([p.upper for p in f.params]), idx))
+        advance(f"base fit (fit part) {labels[gi]}")
+    state0 = _State(groups, [], tuple(group_of))
+    pred0 = _predictions(state0, caps, views)
+    before0 = _rmse(pred0, views, "test")
+    fit_before0 = _rmse(pred0, views, "fit")
+    ex_fit = _excess(fit_before0, sigma)
+    where["summary"]["heldout_to_fit_ratio"] = _excess(before0, sigma) / ex_fit if ex_fit > 0 else None
+    where["pointers"] = _pointers(where["summary"], where["by_branch"], where["by_loop_position"], sigma)
+
+    # configure the candidates on the fit data
+    heads0 = [p[: v.fit_end] for p, v in zip(pred0, views)]
+    cands = [make_effect(n).configure(views, heads0) for n in names]
+    all_effects = [make_effect(n).configure(views, heads0) for n in EFFECTS]
+
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+    steps: list[tuple[EffectResult, ...]] = []
+    chosen: list[str] = []
+    state = state0
+    preds_state = pred0
+    best_preds = {}
+    remaining = list(cands)
+    for step in range(settings.max_effects):
+        if not remaining:
+            break
+        before = _rmse(preds_state, views, "test")
+        fit_before = _rmse(preds_state, views, "fit")
+        lin_cache = _linearize(state, caps, views)
+        xs_full = _predictions(state, caps, views)
+        library = _library(all_effects, xs_full, views)
+        placebo_cache: dict = {}
+        results = []
+        states = {}
+        for eff in remaining:
+            ks, kl = eff.layout()
+            m = eff.searched_bounds()[0].size
+            key = (ks + m, kl)
+            if key not in placebo_cache:
+                imps = []
+                for _ in range(settings.placebo_draws):
+                    pl = Placebo.build(library, key[0], key[1], rng)
+                    st_p, _ = _augment(state, pl, caps, views, lin_cache, 1)
+                    imps.append(before - _rmse(_predictions(st_p, caps, views), views, "test"))
+                placebo_cache[key] = (max(imps), float(np.mean(imps)))
+            pl_best, pl_mean = placebo_cache[key]
+            st_e, efit = _augment(state, eff, caps, views, lin_cache, settings.iterations)
+            preds_e = _predictions(st_e, caps, views)
+            after = _rmse(preds_e, views, "test")
+            fit_after = _rmse(preds_e, views, "fit")
+            denom = before - sigma
+            red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
+            pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
+            xs_fit = [p[: v.fit_end] for p, v in zip(preds_state, views)]
+            share, r2 = signature_share(eff, xs_fit, [v.head(v.fit_end) for v in views], sigma * sigma)
+            params = efit.params(views, [c.source for c in caps])
+            excess = _excess(before, sigma)
+            passes = {"reduction_at_least_threshold": red >= settings.threshold,
+                      "beats_placebo": (before - after) > pl_best,
+                      "gap_above_noise": excess >= settings.min_excess_ratio * sigma}
+            ev = _evidence(eff.name, {"signature_share": share, "params": params, "before": before, "after": after,
+                                      "reduction": red, "placebo": pl_best}, where, unit)
+            results.append(EffectResult(eff.name, eff.title, step + 1, before, after, fit_before, fit_after, red,
+                                        pl_best, pl_mean, pl_red, efit.n_parameters, share, r2, params, ev, passes,
+                                        efit))
+            states[eff.name] = (st_e, preds_e)
+            if step == 0:
+                advance(f"effect {eff.name}")
+        results.sort(key=lambda r: (-r.reduction, r.n_parameters))
+        steps.append(tuple(results))
+        pick = choose_effect(results, settings)
+        if pick is None:
+            break
+        chosen.append(pick.effect)
+        state, preds_state = states[pick.effect]
+        best_preds[pick.effect] = preds_state
+        remaining = [e for e in remaining if e.name != pick.effect]
+    advance("verdict")
+
+    verdict = chosen[0] if chosen else "none"
+    final_after = _rmse(preds_state, views, "test")
+    gap = {"rmse_out": rmse_full, "heldout_rmse_out": before0, "fit_rmse_out": fit_before0,
+           "excess_rmse_out": _excess(rmse_full, sigma), "heldout_excess_rmse_out": _excess(before0, sigma),
+           "noise_share_of_gap": (sigma / rmse_full) ** 2 if rmse_full > 0 else None,
+           "heldout_rmse_after_explained_out": final_after,
+           "heldout_reduction_explained": float(np.clip((before0 - final_after) / (before0 - sigma), 0, 1))
+           if before0 > sigma else 0.0}
+    split = {"kind": "temporal",
+             "fit_fraction": settings.fit_fraction,
+             "description": ("every fit (base, base + effect, placebo) uses the first part of each capture: whole cycles "
+                             f"(round({settings.fit_fraction:g} × cycles)) of periodic captures, the first "
+                             f"{100 * settings.fit_fraction:.0f} % of the samples of the others; the remaining samples "
+                             "of every capture are held out and only they score 'heldout_*' (the model is simulated "
+                             "from the start of the capture, so its state at the split is its own)"),
+             "per_capture": [{"source": c.source, "fit_samples": int(v.fit.sum()), "heldout_samples": int((~v.fit).sum()),
+                              "split_time_s": float(c.t[v.fit_end - 1])} for c, v in zip(caps, views)]}
+    cap_info = tuple({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
+                      "samples": c.n, "dt_s": c.dt, "duration_s": c.duration_s, "periodic": bool(p)}
+                     for c, p in zip(caps, periodic))
+    figures_data = {"captures": caps, "views": views, "full_predictions": full_pred, "residuals": residuals,
+                    "base_predictions": pred0, "explained_predictions": preds_state, "chosen": list(chosen),
+                    "spectra": fig_where["spectra"], "group_labels": labels}
+    return Diagnosis(base_model=model.name, optimizer=optimizer.name,
+                     mode="per-condition" if per_condition else "global", unit=unit, seed=int(seed),
+                     settings=settings, noise=noise, gap=gap, where=where,
+                     effects=steps[0] if steps else (), steps=tuple(steps), verdict=verdict,
+                     explained_by=tuple(chosen), split=split, captures=cap_info,
+                     runtime_s=time.perf_counter() - t_start, figures_data=figures_data)
+
+
+# ----------------------------------------------------------------------------------------------
+# The withheld-effect proof data
+# ----------------------------------------------------------------------------------------------
+
+
+def withheld_effect_captures(effect: str, strength: float = 1.0, seed: int = 0, *,
+                             amplitudes_V: Sequence[float] = (30.0, 60.0),
+                             frequencies_Hz: Sequence[float] = (10.0, 40.0, 80.0),
+                             cycles: int = 5, fs_Hz: float = 10_000.0, steps_s: float = 3.0,
+                             noise_um: float = 0.008) -> list[Capture]:
+    """Captures of the virtual actuator with exactly one effect on (or none), for the proof.
+
+    ``effect`` is one of :data:`hystfit.effects.EFFECTS` or ``"none"``; ``strength`` scales its
+    default (:meth:`hystfit.synth.Effects.only`). The plant is :meth:`hystfit.synth.Plant.default`'s
+    hysteresis with that one effect plus white sensor noise σ = ``noise_um`` µm. Captures: raised
+    cosines 0→A→0 for every amplitude × frequency (``cycles`` periods) and one step-and-hold
+    capture of ``steps_s`` seconds at the largest amplitude (slow effects need long data).
+    Each capture draws its noise from its own seed derived from ``seed``.
+    """
+    from .conditions import detect_condition
+    from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
+
+    e = Effects.none() if effect == "none" else Effects.only(effect, strength)
+    if noise_um > 0:
+        e = e.with_noise(noise_um)
+    plant = Plant().with_effects(e)
+    out = []
+    k = 0
+    for a in amplitudes_V:
+        for f in frequencies_Hz:
+            t, u = raised_cosine(a, f, cycles, fs_Hz)
+            y = simulate_plant(plant, t, u, seed=int(seed) * 1000 + k)
+            out.append(Capture(source=f"synth_{effect}_{a:g}V_{f:g}Hz", t=t, u=u, y=y, dt=1.0 / fs_Hz,
+                               amplitude_V=float(a), frequency_Hz=float(f), condition_source="option"))
+            k += 1
+    if steps_s > 0:
+        t, u = step_pattern(max(amplitudes_V), steps_s, fs_Hz)
+        y = simulate_plant(plant, t, u, seed=int(seed) * 1000 + k)
+        a, f = detect_condition(u, 1.0 / fs_Hz)
+        out.append(Capture(source=f"synth_{effect}_steps", t=t, u=u, y=y, dt=1.0 / fs_Hz, amplitude_V=a,
+                           frequency_Hz=f, condition_source="detected"))
+    return out

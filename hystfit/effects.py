@@ -1,0 +1,1020 @@
+"""Candidate unmodelled effects: augmentations of any base hysteresis model, and how they are fitted.
+
+Every effect is an operator on the *base prediction* ŷ (the output of whatever base model was
+identified: PI, Bouc–Wen, …), so it works for any registered model::
+
+    y ≈ E_φ,a[ŷ] = T_φ[ŷ] + R_φ(ŷ) · a
+
+- ``T_φ`` is a linear operator on the base output (a stage filter, a delay; identity for the
+  additive effects), with a few *searched* parameters φ (natural frequency and damping, delay);
+- ``R_φ(ŷ)`` are regressors whose coefficients ``a`` enter linearly (creep gains, polynomial
+  coefficients, drift offsets and rates): they are solved exactly.
+
+Fitting is variable projection (Golub & Pereyra 1973): for each candidate φ, the linear
+coefficients ``a`` — and, optionally, a Gauss–Newton step δ of the base model's own parameters —
+come from one linear least-squares solve, so only φ (0–2 numbers) is searched. The base step uses
+the base model's Jacobian J = ∂ŷ/∂θ pushed through the effect, ``y ≈ T_φ[ŷ + Jδ] + R a``: the
+base is re-fitted *with* the effect instead of keeping the compromise it made without it (a PI
+model fitted to a lagging stage widens its loops to mimic the lag; the effect can only remove the
+lag if those loops may narrow again). For a model linear in its parameters (PI with fixed
+thresholds) this is the exact joint optimum; otherwise one step of Gauss–Newton, which
+:mod:`hystfit.diagnose` iterates and checks against a true re-simulation.
+
+Units: time s, input V, output in the capture's unit (written ``out``, e.g. µm).
+This module never prints and holds no state between calls.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, replace
+from typing import ClassVar, Sequence
+
+import numpy as np
+from scipy import optimize, signal
+
+from .errors import ConfigError
+
+__all__ = [
+    "CaptureView",
+    "EffectParam",
+    "EffectFit",
+    "Linearization",
+    "Effect",
+    "Dynamics",
+    "Creep",
+    "Asymmetry",
+    "Drift",
+    "Delay",
+    "Placebo",
+    "EFFECTS",
+    "make_effect",
+    "prepare_design",
+    "solve_coefficients",
+    "signature_share",
+]
+
+
+# ----------------------------------------------------------------------------------------------
+# Data the effects see
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class CaptureView:
+    """One capture as the effects see it.
+
+    Attributes
+    ----------
+    t : (N,) time from the start of the capture (s).
+    dt : sample period (s).
+    y : (N,) measured output (output unit).
+    fit : (N,) bool, the samples used to fit (the rest is held out). Fitting only ever reads
+        samples up to the last ``True`` one (every operator here is causal).
+    frequency_Hz : excitation frequency of the capture (Hz), the loader's condition value.
+    periodic : whether the input repeats with period 1/frequency_Hz.
+    index : position of the capture in the data set (per-capture coefficients use it).
+    """
+
+    t: np.ndarray
+    dt: float
+    y: np.ndarray
+    fit: np.ndarray
+    frequency_Hz: float = float("nan")
+    periodic: bool = False
+    index: int = 0
+
+    @property
+    def n(self) -> int:
+        return int(self.y.shape[0])
+
+    @property
+    def fit_end(self) -> int:
+        """One past the last fitted sample: operators on ``[:fit_end]`` see all the fit data."""
+        idx = np.flatnonzero(self.fit)
+        return int(idx[-1]) + 1 if idx.size else 0
+
+    def head(self, n: int) -> "CaptureView":
+        """The first ``n`` samples (same sample period and flags)."""
+        return replace(self, t=self.t[:n], y=self.y[:n], fit=self.fit[:n])
+
+
+@dataclass(frozen=True)
+class EffectParam:
+    """One parameter of an effect.
+
+    ``kind`` is ``"searched"`` (nonlinear, found by a bounded search), ``"linear"`` (one
+    coefficient for all captures, solved exactly), ``"per-capture"`` (one coefficient per
+    capture, solved exactly) or ``"fixed"`` (set from the data, not fitted).
+    """
+
+    name: str
+    unit: str
+    kind: str
+    description: str
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """The local linear model of the base (and of effects already added): ŷ(θ + δ) ≈ ŷ + J δ.
+
+    Attributes
+    ----------
+    jac : per capture, (N_c, m_c) columns ∂ŷ_c/∂δ over the capture's first N_c samples
+        (N_c ≥ the capture's ``fit_end``).
+    cols : per capture, (m_c,) int indices of those columns in the step vector δ.
+    lower, upper : (n,) bounds of δ (parameter bounds minus current values; ±inf when free).
+    """
+
+    jac: tuple[np.ndarray, ...]
+    cols: tuple[np.ndarray, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.lower.shape[0])
+
+
+@dataclass(frozen=True)
+class EffectFit:
+    """A fitted effect: its searched parameters φ and linear coefficients.
+
+    Attributes
+    ----------
+    effect : the (configured) effect.
+    phi : (m,) searched parameters, in the order of ``effect.searched_params()``.
+    shared : (k_s,) coefficients common to all captures.
+    local : (C, k_l) per-capture coefficients.
+    delta : (n,) step of the linearized parameters (base model, earlier effects); empty when the
+        base was held fixed.
+    sse : residual sum of squares on the fit samples predicted by the linear model (out²).
+    evaluations : number of candidate φ evaluated.
+    """
+
+    effect: "Effect"
+    phi: np.ndarray
+    shared: np.ndarray
+    local: np.ndarray
+    delta: np.ndarray
+    sse: float
+    evaluations: int = 0
+
+    def apply(self, yhat: np.ndarray, view: CaptureView, index: int) -> np.ndarray:
+        """The augmented prediction E[ŷ] of capture ``index``."""
+        return self.effect.apply(yhat, view, self.phi, self.shared, self.local[index])
+
+    def tangent(self, x: np.ndarray, yhat: np.ndarray, view: CaptureView, index: int) -> np.ndarray:
+        """∂E/∂ŷ applied to the columns of ``x`` (N, m)."""
+        return self.effect.tangent(x, yhat, view, self.phi, self.shared, self.local[index])
+
+    def params(self, views: Sequence[CaptureView], sources: Sequence[str] | None = None) -> dict:
+        """Named parameters with units (see :meth:`Effect.describe`)."""
+        return self.effect.describe(self.phi, self.shared, self.local, views, sources)
+
+    @property
+    def n_parameters(self) -> int:
+        return int(self.phi.size + self.shared.size + self.local.size)
+
+
+# ----------------------------------------------------------------------------------------------
+# Signal operators (pure)
+# ----------------------------------------------------------------------------------------------
+
+
+def _as_cols(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    return x[:, None] if x.ndim == 1 else x
+
+
+def lowpass_at_rest(x: np.ndarray, tau_s: float, dt: float) -> np.ndarray:
+    """First-order low-pass τ ẋ_f = x − x_f, exact for piecewise-constant input (ZOH), started at
+    rest at x(0): x_f[k] = p x_f[k−1] + (1 − p) x[k], p = e^{−dt/τ}, x_f[0] = x[0].
+
+    ``x`` is (N,) or (N, m) (filtered along axis 0); the same shape is returned.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    p = math.exp(-dt / tau_s)
+    xc = _as_cols(x)
+    zi = (p * xc[0])[None, :]
+    out, _ = signal.lfilter([1.0 - p], [1.0, -p], xc, axis=0, zi=zi)
+    return out[:, 0] if x.ndim == 1 else out
+
+
+def second_order_coefficients(fn_Hz: float, zeta: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Discrete ω_n²/(s² + 2ζω_n s + ω_n²): bilinear transform prewarped at ω_n = 2π f_n.
+
+    With s = k(z − 1)/(z + 1), k = ω_n / tan(ω_n dt/2) (prewarping: the discrete resonance sits
+    exactly at f_n; the plain bilinear map would shift it down), the coefficients in closed form
+    are b = ω_n²(1, 2, 1)/a₀, a = (1, 2(ω_n² − k²)/a₀, (k² − 2ζω_n k + ω_n²)/a₀) with
+    a₀ = k² + 2ζω_n k + ω_n² (what ``scipy.signal.bilinear`` returns, 100× faster). The DC gain
+    is exactly 1. Requires f_n below the Nyquist frequency 1/(2 dt).
+    """
+    wn = 2.0 * math.pi * fn_Hz
+    if not 0.0 < wn * dt / 2.0 < math.pi / 2.0:
+        raise ConfigError(f"dynamics: f_n = {fn_Hz:g} Hz must lie below the Nyquist frequency {0.5 / dt:g} Hz")
+    k = wn / math.tan(wn * dt / 2.0)
+    w2, k2, c = wn * wn, k * k, 2.0 * zeta * wn * k
+    a0 = k2 + c + w2
+    b = np.array([w2, 2.0 * w2, w2]) / a0
+    a = np.array([1.0, 2.0 * (w2 - k2) / a0, (k2 - c + w2) / a0])
+    return b, a
+
+
+def second_order_at_rest(x: np.ndarray, fn_Hz: float, zeta: float, dt: float) -> np.ndarray:
+    """Filter ``x`` ((N,) or (N, m), axis 0) by the prewarped second-order stage, at rest at x(0).
+
+    The initial state of the transposed direct form is the steady state for the constant input
+    x(0): z₁ = (b₁ − a₁ + b₂ − a₂)·x(0), z₂ = (b₂ − a₂)·x(0) (unit DC gain).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    b, a = second_order_coefficients(fn_Hz, zeta, dt)
+    xc = _as_cols(x)
+    zi = np.array([b[1] - a[1] + b[2] - a[2], b[2] - a[2]])[:, None] * xc[0][None, :]
+    out, _ = signal.lfilter(b, a, xc, axis=0, zi=zi)
+    return out[:, 0] if x.ndim == 1 else out
+
+
+def fractional_delay(x: np.ndarray, delay_s: float, dt: float) -> np.ndarray:
+    """x(t − T) by linear interpolation between samples; x(t < T) = x(0) (held first value)."""
+    x = np.asarray(x, dtype=np.float64)
+    d = max(float(delay_s) / dt, 0.0)
+    n = int(math.floor(d))
+    f = d - n
+    N = x.shape[0]
+    idx = np.arange(N) - n
+    i0 = np.clip(idx, 0, N - 1)
+    i1 = np.clip(idx - 1, 0, N - 1)
+    if f == 0.0:
+        return x[i0]
+    return (1.0 - f) * x[i0] + f * x[i1]
+
+
+def _derivative(x: np.ndarray, dt: float) -> np.ndarray:
+    return np.gradient(np.asarray(x, dtype=np.float64), dt, axis=0)
+
+
+# ----------------------------------------------------------------------------------------------
+# The effect interface
+# ----------------------------------------------------------------------------------------------
+
+
+class Effect(ABC):
+    """An augmentation E_φ,a of a base model's output ŷ (see the module docstring).
+
+    Subclasses are frozen dataclasses. Data-dependent settings (search ranges, time constants,
+    normalisation) are filled by :meth:`configure` from the fit data, which returns a new
+    instance; nothing is stored after a fit (results live in :class:`EffectFit`).
+    """
+
+    name: ClassVar[str] = ""
+    title: ClassVar[str] = ""
+    equation: ClassVar[str] = ""
+
+    # ------------------------------------------------------------------ structure
+    def configure(self, views: Sequence[CaptureView], yhats: Sequence[np.ndarray]) -> "Effect":
+        """Fill data-dependent settings from the fit data (default: none)."""
+        return self
+
+    def param_table(self) -> tuple[EffectParam, ...]:
+        """Every parameter, with unit and kind."""
+        return ()
+
+    def searched_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of the searched parameters φ: (lower (m,), upper (m,)); m = 0 when none."""
+        return np.empty(0), np.empty(0)
+
+    def search_grid(self) -> np.ndarray:
+        """Start candidates for φ, (G, m). The default for m = 0 is one empty candidate."""
+        return np.empty((1, 0))
+
+    def layout(self) -> tuple[int, int]:
+        """(k_s, k_l): number of shared and of per-capture linear coefficients."""
+        return 0, 0
+
+    def coefficient_bounds(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Bounds of (shared lower, shared upper, local lower, local upper); default unbounded."""
+        ks, kl = self.layout()
+        return (np.full(ks, -np.inf), np.full(ks, np.inf), np.full(kl, -np.inf), np.full(kl, np.inf))
+
+    def n_parameters(self, n_captures: int) -> int:
+        """Number of fitted parameters for ``n_captures`` captures (searched + linear)."""
+        ks, kl = self.layout()
+        return int(self.searched_bounds()[0].size + ks + kl * n_captures)
+
+    # ------------------------------------------------------------------ the operator
+    def operator(self, x: np.ndarray, view: CaptureView, phi: np.ndarray) -> np.ndarray:
+        """T_φ applied to the columns of ``x`` (N, m) (identity by default)."""
+        return x
+
+    def regressors(self, yhat: np.ndarray, view: CaptureView, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """R_φ(ŷ): (N, k_s) shared and (N, k_l) per-capture regressors (default: none)."""
+        N = yhat.shape[0]
+        ks, kl = self.layout()
+        return np.zeros((N, ks)), np.zeros((N, kl))
+
+    def apply(self, yhat: np.ndarray, view: CaptureView, phi: np.ndarray, shared: np.ndarray,
+              local: np.ndarray) -> np.ndarray:
+        """E[ŷ] = T_φ[ŷ] + R_s a_s + R_l a_l for one capture; (N,)."""
+        out = self.operator(yhat[:, None], view, phi)[:, 0]
+        Rs, Rl = self.regressors(yhat, view, phi)
+        if Rs.shape[1]:
+            out = out + Rs @ shared
+        if Rl.shape[1]:
+            out = out + Rl @ local
+        return out
+
+    def tangent(self, x: np.ndarray, yhat: np.ndarray, view: CaptureView, phi: np.ndarray, shared: np.ndarray,
+                local: np.ndarray) -> np.ndarray:
+        """∂E/∂ŷ applied to the columns of ``x`` (N, m); equals :meth:`operator` for effects linear in ŷ."""
+        return self.operator(x, view, phi)
+
+    # ------------------------------------------------------------------ evidence
+    def signature(self, yhat: np.ndarray, view: CaptureView) -> tuple[np.ndarray, np.ndarray]:
+        """First-order signature of the effect in the residual y − ŷ: (N, q_s) shared and (N, q_l)
+        per-capture columns. A residual explained by these columns points to the effect."""
+        return self.regressors(yhat, view, self.search_grid()[0])
+
+    @abstractmethod
+    def describe(self, phi: np.ndarray, shared: np.ndarray, local: np.ndarray, views: Sequence[CaptureView],
+                 sources: Sequence[str] | None = None) -> dict:
+        """Named parameter values with units in the names (and derived quantities)."""
+
+    # ------------------------------------------------------------------ fitting
+    def fit(self, yhats: Sequence[np.ndarray], views: Sequence[CaptureView], lin: Linearization | None = None, *,
+            phi0: np.ndarray | None = None, local_search: bool = False, bounded: bool = True) -> EffectFit:
+        """Fit the effect to the measured outputs given the base predictions.
+
+        Parameters
+        ----------
+        yhats : per capture, the base prediction ŷ_c (output unit), at least ``fit_end`` samples.
+        views : the captures (:class:`CaptureView`); only fit samples are used.
+        lin : the base's linearization; None holds the base output fixed.
+        phi0 : a start for the search of φ (e.g. from a previous iteration).
+        local_search : search only around ``phi0`` (no global grid).
+        bounded : solve the final coefficients within their bounds (and δ within the base's).
+
+        Returns
+        -------
+        EffectFit
+            φ minimizing the fit-sample SSE (coarse grid, then Nelder–Mead in log space), with
+            the linear coefficients (and base step) solved exactly for it.
+        """
+        lo, hi = self.searched_bounds()
+        m = lo.size
+        design = prepare_design(yhats, views, lin)
+        evals = 0
+
+        def score(phi: np.ndarray) -> float:
+            nonlocal evals
+            evals += 1
+            try:
+                return solve_coefficients(self, phi, design=design, bounded=False)[3]
+            except (ConfigError, np.linalg.LinAlgError, ValueError):
+                return math.inf
+
+        if m == 0:
+            best = np.empty(0)
+        else:
+            cands = self.search_grid() if not (local_search and phi0 is not None) else _local_grid(phi0, lo, hi)
+            if phi0 is not None:
+                cands = np.vstack([cands, np.clip(np.asarray(phi0, float), lo, hi)[None, :]])
+            scores = np.array([score(c) for c in cands])
+            best = cands[int(np.argmin(scores))]
+            best = _polish(score, best, lo, hi, self._log_scaled())
+        shared, local, delta, sse = solve_coefficients(self, best, design=design, bounded=bounded)
+        return EffectFit(self, np.asarray(best, float), shared, local, delta, float(sse), evals)
+
+    def _log_scaled(self) -> np.ndarray:
+        """Which searched parameters are searched in log space (all positive scale parameters)."""
+        lo, _ = self.searched_bounds()
+        return lo > 0
+
+
+def _local_grid(phi0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """A small grid around φ0: ×/÷ 1.25 in log-scaled coordinates (±5 % of the range otherwise)."""
+    phi0 = np.clip(np.asarray(phi0, float), lo, hi)
+    axes = []
+    for p, a, b in zip(phi0, lo, hi):
+        if a > 0:
+            axes.append(np.clip(p * np.array([0.8, 1.0, 1.25]), a, b))
+        else:
+            axes.append(np.clip(p + 0.05 * (b - a) * np.array([-1.0, 0.0, 1.0]), a, b))
+    mesh = np.meshgrid(*axes, indexing="ij")
+    return np.stack([g.ravel() for g in mesh], axis=1)
+
+
+def _polish(score, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, logs: np.ndarray,
+            maxfev: int = 40) -> np.ndarray:
+    """Nelder–Mead from ``x0`` in a coordinate system where log-scaled parameters are logs;
+    points outside the bounds are clipped (so the search never leaves the box)."""
+    x0 = np.asarray(x0, float)
+    if x0.size == 1 and not logs[0]:
+        # one linear parameter: bounded Brent around the start
+        span = 0.1 * (hi[0] - lo[0])
+        a, b = max(lo[0], x0[0] - span), min(hi[0], x0[0] + span)
+        if b <= a:
+            return x0
+        res = optimize.minimize_scalar(lambda v: score(np.array([v])), bounds=(a, b), method="bounded",
+                                       options={"xatol": 1e-4 * (hi[0] - lo[0]), "maxiter": maxfev})
+        return np.array([res.x]) if res.fun <= score(x0) else x0
+
+    def to_z(x):
+        return np.where(logs, np.log(np.maximum(x, 1e-300)), x)
+
+    def from_z(z):
+        return np.clip(np.where(logs, np.exp(z), z), lo, hi)
+
+    z0 = to_z(x0)
+    step = np.where(logs, 0.15, 0.05 * (hi - lo))
+    simplex = np.vstack([z0] + [z0 + np.eye(x0.size)[i] * step[i] for i in range(x0.size)])
+    res = optimize.minimize(lambda z: score(from_z(z)), z0, method="Nelder-Mead",
+                            options={"initial_simplex": simplex, "maxfev": maxfev, "xatol": 1e-3, "fatol": 0.0})
+    best = from_z(res.x)
+    return best if score(best) <= score(x0) else x0
+
+
+# ----------------------------------------------------------------------------------------------
+# The exact linear solve (variable projection)
+# ----------------------------------------------------------------------------------------------
+
+
+def _scaled_solve(G: np.ndarray, b: np.ndarray, lo: np.ndarray | None = None, hi: np.ndarray | None = None,
+                  ridge: float = 1e-10) -> np.ndarray:
+    """argmin xᵀGx − 2bᵀx (within [lo, hi] if given), on the Jacobi-scaled problem.
+
+    Columns are scaled to unit norm and a relative ridge of 1e-10 is added, so collinear
+    regressors (a per-capture offset next to the base model's offset, PI weights of thresholds
+    the input never reaches) get a unique, small solution instead of a singular matrix.
+    """
+    n = b.shape[0]
+    if n == 0:
+        return np.empty(0)
+    d = np.sqrt(np.maximum(np.diag(G), 0.0))
+    d = np.where(d > 1e-12 * max(d.max(), 1e-300), d, 1.0)
+    Gs = G / d[:, None] / d[None, :] + ridge * np.eye(n)
+    bs = b / d
+    try:
+        z = np.linalg.solve(Gs, bs)
+    except np.linalg.LinAlgError:
+        z = np.linalg.lstsq(Gs, bs, rcond=None)[0]
+    x = z / d
+    if lo is None or (np.all(x >= lo) and np.all(x <= hi)):
+        return x
+    w, V = np.linalg.eigh(Gs)
+    R = (V * np.sqrt(np.maximum(w, ridge))).T  # Gs = RᵀR
+    q = np.linalg.lstsq(R.T, bs, rcond=None)[0]
+    los, his = lo * d, hi * d
+    method = "bvls" if n <= 150 else "trf"
+    res = optimize.lsq_linear(R, q, bounds=(los, his), method=method, tol=1e-12)
+    z = res.x if res.status >= 0 else np.clip(z, los, his)
+    return z / d
+
+
+@dataclass(frozen=True, eq=False)
+class _Design:
+    """What every candidate φ of one fit shares: per capture the fit-part view, the stacked
+    columns X = [ŷ | J] (Fortran order: the filters run down contiguous columns), y·y, and the
+    column indices of the base step."""
+
+    views: tuple
+    X: tuple
+    yy: tuple
+    cols: tuple
+    lin: Linearization | None
+
+
+def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
+                   lin: Linearization | None = None) -> _Design:
+    """Precompute the data of :func:`solve_coefficients` for the fit samples of every capture."""
+    vs, Xs, yys, cols = [], [], [], []
+    for c, (yh, v) in enumerate(zip(yhats, views)):
+        N = min(int(np.asarray(yh).shape[0]), v.fit_end)
+        vv = v.head(N)
+        parts = [np.asarray(yh, float)[:N, None]]
+        if lin is not None:
+            parts.append(lin.jac[c][:N])
+        Xs.append(np.asfortranarray(np.hstack(parts)))
+        yf = vv.y[vv.fit]
+        yys.append(float(yf @ yf))
+        vs.append(vv)
+        cols.append(None if lin is None else np.asarray(lin.cols[c], int))
+    return _Design(tuple(vs), tuple(Xs), tuple(yys), tuple(cols), lin)
+
+
+def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarray] | None = None,
+                       views: Sequence[CaptureView] | None = None, lin: Linearization | None = None, *,
+                       bounded: bool = True, design: _Design | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Exact least-squares coefficients of ``effect`` at fixed φ, over the fit samples.
+
+    Model: y_c ≈ T_φ[ŷ_c + J_c δ] + R_s,c a_s + R_l,c a_l,c (J, δ only with ``lin``). Pass either
+    ``yhats``, ``views`` (and ``lin``) or a ``design`` from :func:`prepare_design` (reused across
+    candidates φ).
+
+    The normal equations are assembled from Gram products: with T = T_φ[X], X = [ŷ | J], the
+    block of the base step is (TJ)ᵀTJ, its right-hand side (TJ)ᵀy − (TJ)ᵀt₀, and
+    ‖y − t₀‖² = yᵀy − 2t₀ᵀy + t₀ᵀt₀ — one matrix product per capture, no copies.
+
+    Returns
+    -------
+    shared (k_s,), local (C, k_l), delta (n,), sse
+        ``sse`` is the fit-sample residual sum of squares of that linear model (out²).
+    """
+    if design is None:
+        design = prepare_design(yhats, views, lin)
+    lin = design.lin
+    phi = np.asarray(phi, float)
+    ks, kl = effect.layout()
+    C = len(design.views)
+    nb = 0 if lin is None else lin.n
+    n = ks + C * kl + nb
+    G = np.zeros((n, n))
+    b = np.zeros(n)
+    s0 = 0.0
+    for c, (vv, X, yy, bcols) in enumerate(zip(design.views, design.X, design.yy, design.cols)):
+        mask = vv.fit
+        if not mask.any():
+            continue
+        full = bool(mask.all())
+        T = effect.operator(X, vv, phi)
+        y = vv.y
+        yhat = X[:, 0]
+        Rs, Rl = effect.regressors(yhat, vv, phi) if ks + kl else (None, None)
+        if not full:
+            T = T[mask]
+            y = y[mask]
+            if Rs is not None:
+                Rs, Rl = Rs[mask], Rl[mask]
+        parts = []
+        idx = []
+        if ks + kl:
+            parts += [Rs, Rl]
+            idx += [np.arange(ks), ks + c * kl + np.arange(kl)]
+        if lin is not None:
+            idx.append(ks + C * kl + bcols)
+        ix = np.concatenate(idx).astype(int) if idx else np.empty(0, int)
+        if parts:
+            A = np.hstack(parts + [T])  # [R | t0 | TJ]
+            P = A.T @ A
+            Ay = A.T @ y
+            k = ks + kl
+            t0A = P[k]  # t0 against every column
+            sel = np.r_[0:k, k + 1:A.shape[1]]
+            Gc = P[np.ix_(sel, sel)]
+            bc = Ay[sel] - t0A[sel]
+            t0y, t0t0 = Ay[k], P[k, k]
+        else:
+            P = T.T @ T
+            Ty = T.T @ y
+            Gc = P[1:, 1:]
+            bc = Ty[1:] - P[1:, 0]
+            t0y, t0t0 = Ty[0], P[0, 0]
+        if ix.size:
+            G[np.ix_(ix, ix)] += Gc
+            b[ix] += bc
+        s0 += yy - 2.0 * float(t0y) + float(t0t0)
+    if bounded:
+        sl, sh, ll, lh = effect.coefficient_bounds()
+        lo = np.concatenate([sl, np.tile(ll, C), lin.lower if lin is not None else np.empty(0)])
+        hi = np.concatenate([sh, np.tile(lh, C), lin.upper if lin is not None else np.empty(0)])
+        x = _scaled_solve(G, b, lo, hi)
+    else:
+        x = _scaled_solve(G, b)
+    sse = max(s0 - 2.0 * float(x @ b) + float(x @ G @ x), 0.0)
+    shared = x[:ks]
+    local = x[ks: ks + C * kl].reshape(C, kl)
+    delta = x[ks + C * kl:]
+    return shared, local, delta, sse
+
+
+def signature_share(effect: Effect, yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
+                    noise_var: float) -> tuple[float, float]:
+    """How much of the base residual on the fit samples the effect's first-order signature explains.
+
+    Regresses r = y − ŷ on the effect's :meth:`Effect.signature` columns (base held fixed).
+
+    Returns
+    -------
+    (share, r2)
+        ``r2`` = 1 − SSE₁/SSE₀; ``share`` = (SSE₀ − SSE₁)/(SSE₀ − N·σ²), the fraction of the
+        residual *above the noise floor* it explains, clipped to [0, 1].
+    """
+    ks = kl = None
+    G_parts = []
+    for yh, v in zip(yhats, views):
+        Ss, Sl = effect.signature(np.asarray(yh, float)[: v.n], v)
+        ks, kl = Ss.shape[1], Sl.shape[1]
+        G_parts.append((Ss, Sl))
+    C = len(views)
+    n = ks + C * kl
+    G = np.zeros((n, n))
+    b = np.zeros(n)
+    s0 = 0.0
+    n_fit = 0
+    for c, ((Ss, Sl), yh, v) in enumerate(zip(G_parts, yhats, views)):
+        m = v.fit
+        r = (v.y - np.asarray(yh, float)[: v.n])[m]
+        A = np.hstack([Ss[m], Sl[m]])
+        ix = np.concatenate([np.arange(ks), ks + c * kl + np.arange(kl)]).astype(int)
+        G[np.ix_(ix, ix)] += A.T @ A
+        b[ix] += A.T @ r
+        s0 += float(r @ r)
+        n_fit += int(m.sum())
+    x = _scaled_solve(G, b)
+    s1 = max(s0 - 2.0 * float(x @ b) + float(x @ G @ x), 0.0)
+    r2 = 1.0 - s1 / s0 if s0 > 0 else 0.0
+    above = s0 - n_fit * noise_var
+    share = (s0 - s1) / above if above > 0 else 0.0
+    return float(np.clip(share, 0.0, 1.0)), float(r2)
+
+
+# ----------------------------------------------------------------------------------------------
+# Helpers shared by configure()
+# ----------------------------------------------------------------------------------------------
+
+
+def _periodic_fmax(views: Sequence[CaptureView]) -> float:
+    fs = [v.frequency_Hz for v in views if v.periodic and np.isfinite(v.frequency_Hz) and v.frequency_Hz > 0]
+    return max(fs) if fs else float("nan")
+
+
+def _fmt_list(x) -> list[float]:
+    return [float(v) for v in np.asarray(x, float).ravel()]
+
+
+# ----------------------------------------------------------------------------------------------
+# The candidate effects
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Dynamics(Effect):
+    r"""Linear stage dynamics after the hysteresis: a second-order low-pass of the base output.
+
+    .. math:: \ddot y + 2\zeta\omega_n\dot y + \omega_n^2 y = \omega_n^2\,\hat y,\qquad \omega_n = 2\pi f_n
+
+    the "electromechanical" linear subsystem of paper 000 (``shared/papers/README.md``, model
+    pi2), unit DC gain, discretized exactly for a resonance: bilinear transform prewarped at ω_n
+    (the discrete peak sits at f_n), started at rest at ŷ(0), ``scipy.signal.lfilter``.
+
+    Why this form: a piezo stage is a mass on a spring; below its first resonance it adds a
+    phase lag ≈ 2ζ f/f_n and a gain rise ≈ (1 − 2ζ²)(f/f_n)² that grow with the drive frequency,
+    and it rings at f_n after fast input changes — the rate dependence a rate-independent
+    hysteresis model cannot show. Two searched parameters, nothing linear (the DC gain belongs
+    to the base model).
+
+    Parameters
+    ----------
+    fn_Hz : natural frequency f_n (Hz), searched log-spaced in [fn_min_Hz, fn_max_Hz].
+    zeta : damping ratio ζ (1), searched log-spaced in [0.02, 2].
+    fn_min_Hz, fn_max_Hz : search range (Hz); :meth:`configure` sets 2× the highest periodic
+        excitation frequency (a resonance inside the excitation band would be obvious in the
+        loops) … 0.45·f_s (below Nyquist).
+    """
+
+    name: ClassVar[str] = "dynamics"
+    title: ClassVar[str] = "linear stage dynamics (second-order)"
+    equation: ClassVar[str] = "y'' + 2ζω_n y' + ω_n² y = ω_n² ŷ"
+
+    fn_min_Hz: float = 10.0
+    fn_max_Hz: float = 4000.0
+    zeta_min: float = 0.02
+    zeta_max: float = 2.0
+    n_fn: int = 16
+    n_zeta: int = 8
+
+    def configure(self, views, yhats):
+        fs_min = min(1.0 / v.dt for v in views)
+        fmax = _periodic_fmax(views)
+        dur = min(v.t[-1] - v.t[0] + v.dt for v in views)
+        lo = 2.0 * fmax if np.isfinite(fmax) else 20.0 / dur
+        hi = 0.45 * fs_min
+        lo = min(max(lo, 1.0), hi / 4.0)
+        return replace(self, fn_min_Hz=float(lo), fn_max_Hz=float(hi))
+
+    def param_table(self):
+        return (EffectParam("fn_Hz", "Hz", "searched", "natural frequency of the stage"),
+                EffectParam("zeta", "1", "searched", "damping ratio"))
+
+    def searched_bounds(self):
+        return np.array([self.fn_min_Hz, self.zeta_min]), np.array([self.fn_max_Hz, self.zeta_max])
+
+    def search_grid(self):
+        fn = np.geomspace(self.fn_min_Hz, self.fn_max_Hz, self.n_fn)
+        z = np.geomspace(self.zeta_min, self.zeta_max, self.n_zeta)
+        F, Z = np.meshgrid(fn, z, indexing="ij")
+        return np.column_stack([F.ravel(), Z.ravel()])
+
+    def operator(self, x, view, phi):
+        return second_order_at_rest(x, float(phi[0]), float(phi[1]), view.dt)
+
+    def signature(self, yhat, view):
+        d1 = _derivative(yhat, view.dt)
+        d2 = _derivative(d1, view.dt)
+        return np.column_stack([d1, d2]), np.zeros((yhat.shape[0], 0))
+
+    def describe(self, phi, shared, local, views, sources=None):
+        fn, z = float(phi[0]), float(phi[1])
+        fmax = _periodic_fmax(views)
+        out = {"fn_Hz": fn, "zeta": z,
+               "group_delay_low_frequency_us": 1e6 * z / (math.pi * fn),
+               "search_fn_Hz": [self.fn_min_Hz, self.fn_max_Hz]}
+        if np.isfinite(fmax):
+            r = fmax / fn
+            h = 1.0 / complex(1.0 - r * r, 2.0 * z * r)
+            out["at_highest_excitation_Hz"] = fmax
+            out["phase_lag_at_highest_excitation_deg"] = -math.degrees(math.atan2(h.imag, h.real))
+            out["gain_at_highest_excitation"] = abs(h)
+        return out
+
+
+@dataclass(frozen=True)
+class Delay(Effect):
+    r"""Pure time delay between input and output: y(t) = ŷ(t − T_d).
+
+    Fractional samples by linear interpolation, ŷ(0) held for t < T_d (as an amplifier or a
+    sensor filter with a constant group delay would look from the data). Applied to the base
+    output; for a rate-independent base model this equals delaying the input.
+
+    Why this form: DAQ pipelines, amplifiers and digital sensor filters delay the signal by a
+    few samples; it shows as a phase lag 2πfT_d that grows linearly with frequency, with no gain
+    change and no ringing (which separates it from :class:`Dynamics`). One searched parameter.
+
+    Parameters
+    ----------
+    delay_s : T_d (s), searched in [0, max_delay_s].
+    max_delay_s : :meth:`configure` sets min(50 samples, 5 % of the shortest excitation period).
+    """
+
+    name: ClassVar[str] = "delay"
+    title: ClassVar[str] = "pure time delay"
+    equation: ClassVar[str] = "y(t) = ŷ(t − T_d)"
+
+    max_delay_s: float = 0.005
+    n_grid: int = 41
+
+    def configure(self, views, yhats):
+        dt = max(v.dt for v in views)
+        fmax = _periodic_fmax(views)
+        hi = 50.0 * dt
+        if np.isfinite(fmax):
+            hi = min(hi, 0.05 / fmax)
+        return replace(self, max_delay_s=float(max(hi, 2.0 * dt)))
+
+    def param_table(self):
+        return (EffectParam("delay_s", "s", "searched", "delay between input and output"),)
+
+    def searched_bounds(self):
+        return np.array([0.0]), np.array([self.max_delay_s])
+
+    def search_grid(self):
+        return np.linspace(0.0, self.max_delay_s, self.n_grid)[:, None]
+
+    def operator(self, x, view, phi):
+        return fractional_delay(x, float(phi[0]), view.dt)
+
+    def signature(self, yhat, view):
+        return _derivative(yhat, view.dt)[:, None], np.zeros((yhat.shape[0], 0))
+
+    def describe(self, phi, shared, local, views, sources=None):
+        d = float(phi[0])
+        dt = min(v.dt for v in views)
+        out = {"delay_s": d, "delay_ms": 1e3 * d, "delay_samples": d / dt, "search_max_ms": 1e3 * self.max_delay_s}
+        fmax = _periodic_fmax(views)
+        if np.isfinite(fmax):
+            out["phase_lag_at_highest_excitation_deg"] = 360.0 * fmax * d
+        return out
+
+
+@dataclass(frozen=True)
+class Creep(Effect):
+    r"""Slow viscoelastic creep driven by the base output (a Kelvin–Voigt chain).
+
+    .. math:: y = \hat y + \sum_i c_i\,(\mathrm{LP}_{\tau_i}[\hat y] - \hat y),\qquad
+              \tau_i \dot x_i = \hat y - x_i
+
+    LP_τ a first-order low-pass started at rest at ŷ(0). After a step Δŷ the output keeps
+    moving by Δŷ·Σ c_i(1 − e^{−t/τ_i}); with one τ per decade and equal gains that is ≈ c per
+    decade of time, the logarithmic creep of piezo stacks. The quasi-static gain grows by
+    1 + Σc_i (absorbed by the base refit).
+
+    Why this form: creep is slow and follows the displacement history, not the input alone; a
+    fixed log-spaced bank of time constants spans 0.01 s … the capture length without a
+    nonlinear search, and the gains c_i enter linearly (solved exactly, c_i ≥ 0: creep follows
+    the motion). Time constants below 10 ms are excluded on purpose: they would make creep a
+    second way to fit stage dynamics.
+
+    Parameters
+    ----------
+    tau_s : the time constants τ_i (s), one per decade from 0.01 s to the first decade at or
+        above the longest capture (at most 100 s), set by :meth:`configure`.
+    c_i (``gain``) : fraction of a step added with time constant τ_i (1), linear, ≥ 0.
+    """
+
+    name: ClassVar[str] = "creep"
+    title: ClassVar[str] = "viscoelastic creep"
+    equation: ClassVar[str] = "y = ŷ + Σ c_i (LP_τi[ŷ] − ŷ)"
+
+    tau_s: tuple[float, ...] = (0.01, 0.1, 1.0, 10.0)
+
+    def configure(self, views, yhats):
+        longest = max(v.t[-1] - v.t[0] + v.dt for v in views)
+        top = min(max(10.0 ** math.ceil(math.log10(max(longest, 1e-3)) - 1e-9), 0.1), 100.0)
+        taus = tuple(float(x) for x in 10.0 ** np.arange(-2, round(math.log10(top)) + 1))
+        dt_max = max(v.dt for v in views)
+        taus = tuple(t for t in taus if t >= 5.0 * dt_max) or (float(top),)
+        return replace(self, tau_s=taus)
+
+    def param_table(self):
+        return tuple(EffectParam(f"c{i}", "1", "linear", f"creep gain with time constant {t:g} s")
+                     for i, t in enumerate(self.tau_s))
+
+    def layout(self):
+        return len(self.tau_s), 0
+
+    def coefficient_bounds(self):
+        k = len(self.tau_s)
+        return np.zeros(k), np.full(k, np.inf), np.empty(0), np.empty(0)
+
+    def _bank(self, x: np.ndarray, dt: float) -> list[np.ndarray]:
+        return [lowpass_at_rest(x, tau, dt) - x for tau in self.tau_s]
+
+    def regressors(self, yhat, view, phi):
+        cols = self._bank(yhat, view.dt)
+        return np.column_stack(cols), np.zeros((yhat.shape[0], 0))
+
+    def tangent(self, x, yhat, view, phi, shared, local):
+        out = np.array(x, dtype=float, copy=True)
+        for c, term in zip(shared, self._bank(x, view.dt)):
+            if c != 0.0:
+                out += c * term
+        return out
+
+    def describe(self, phi, shared, local, views, sources=None):
+        c = _fmt_list(shared)
+        return {"tau_s": list(self.tau_s), "gain": c, "total_gain": float(np.sum(c)),
+                "gain_per_decade": float(np.sum(c)) / max(len(c), 1)}
+
+
+@dataclass(frozen=True)
+class Asymmetry(Effect):
+    r"""Static output nonlinearity after the hysteresis: a polynomial bow of the base output.
+
+    .. math:: y = \hat y + a_2 s^2 + a_3 s^3,\qquad s = (\hat y - m)/h
+
+    m and h the middle and half-range of the measured output (fixed by :meth:`configure`), so
+    a₂ and a₃ are in output units: a₂ is how far the stroke ends sit above a straight line
+    through mid-stroke (a₂ < 0: the middle bulges up, saturation), a₃ a skew (stiffening at
+    one end).
+
+    Why this form: the classical PI model's loops are point-symmetric (ascending and descending
+    branches are the same curve rotated by 180°) and its quasi-static curve is what the weights
+    allow. A static bow after the hysteresis — the form a Wiener–Hammerstein or generalized-PI
+    model adds — breaks that symmetry: the two branches bend differently, and the error grows
+    faster than the stroke. Linear in a₂, a₃ (solved exactly); it is the first two terms of any
+    smooth monotone output map (linear and constant terms belong to the base model).
+    """
+
+    name: ClassVar[str] = "asymmetry"
+    title: ClassVar[str] = "asymmetry / saturation (static output bow)"
+    equation: ClassVar[str] = "y = ŷ + a2·s² + a3·s³, s = (ŷ − m)/h"
+
+    center: float = 0.0
+    half_range: float = 1.0
+
+    def configure(self, views, yhats):
+        ys = np.concatenate([v.y[v.fit] for v in views])
+        lo, hi = float(ys.min()), float(ys.max())
+        return replace(self, center=0.5 * (lo + hi), half_range=max(0.5 * (hi - lo), 1e-12))
+
+    def param_table(self):
+        return (EffectParam("a2", "out", "linear", "quadratic bow: stroke ends vs mid-stroke"),
+                EffectParam("a3", "out", "linear", "cubic skew"),
+                EffectParam("center", "out", "fixed", "middle of the measured output range"),
+                EffectParam("half_range", "out", "fixed", "half the measured output range"))
+
+    def layout(self):
+        return 2, 0
+
+    def _s(self, yhat):
+        return (np.asarray(yhat, float) - self.center) / self.half_range
+
+    def regressors(self, yhat, view, phi):
+        s = self._s(yhat)
+        return np.column_stack([s * s, s ** 3]), np.zeros((s.shape[0], 0))
+
+    def tangent(self, x, yhat, view, phi, shared, local):
+        s = self._s(yhat)
+        slope = 1.0 + (2.0 * shared[0] * s + 3.0 * shared[1] * s * s) / self.half_range
+        return x * slope[:, None]
+
+    def describe(self, phi, shared, local, views, sources=None):
+        a2, a3 = float(shared[0]), float(shared[1])
+        return {"a2_out": a2, "a3_out": a3, "center_out": self.center, "half_range_out": self.half_range,
+                "mid_stroke_bow_out": -a2,
+                "bow_pct_of_stroke": 100.0 * abs(a2) / (2.0 * self.half_range)}
+
+
+@dataclass(frozen=True)
+class Drift(Effect):
+    r"""Slow output drift not driven by the input: an offset and a rate per capture.
+
+    .. math:: y_c(t) = \hat y_c(t) + d_{0,c} + v_c\,t
+
+    Why this form: thermal drift of the sensor or the mechanics changes from one capture to
+    the next (captures are taken at different times), so it gets its own offset d₀ (out) and
+    rate v (out/s) per capture; over one capture (seconds) a thermal drift is close to linear,
+    and a higher-order polynomial would extrapolate wildly into held-out time. Independent of the
+    input: the same rate at every amplitude, which separates it from :class:`Creep`.
+    """
+
+    name: ClassVar[str] = "drift"
+    title: ClassVar[str] = "slow output drift (per capture)"
+    equation: ClassVar[str] = "y_c = ŷ_c + d0_c + v_c·t"
+
+    def param_table(self):
+        return (EffectParam("offset", "out", "per-capture", "output offset of the capture"),
+                EffectParam("rate", "out/s", "per-capture", "drift rate of the capture"))
+
+    def layout(self):
+        return 0, 2
+
+    def regressors(self, yhat, view, phi):
+        t = view.t[: yhat.shape[0]] - view.t[0]
+        return np.zeros((t.shape[0], 0)), np.column_stack([np.ones_like(t), t])
+
+    def describe(self, phi, shared, local, views, sources=None):
+        local = np.asarray(local, float).reshape(-1, 2)
+        names = list(sources) if sources is not None else [f"capture{i}" for i in range(local.shape[0])]
+        rates = local[:, 1]
+        return {"per_capture": [{"source": s, "offset_out": float(o), "rate_out_per_s": float(r)}
+                                for s, (o, r) in zip(names, local)],
+                "median_abs_rate_out_per_s": float(np.median(np.abs(rates))) if rates.size else 0.0,
+                "mean_rate_out_per_s": float(np.mean(rates)) if rates.size else 0.0}
+
+
+@dataclass(frozen=True)
+class Placebo(Effect):
+    r"""A random augmentation of a given size: the yardstick an effect must beat.
+
+    Its regressors are random linear combinations of a library (the first-order signatures of
+    every candidate effect, each scaled to unit RMS over the fit samples), with ``n_shared``
+    coefficients common to all captures and ``n_local`` per capture — the same number of
+    parameters as the effect it is compared with. It knows nothing of which effect is present:
+    whatever a named effect removes beyond what a random mixture of the same size removes on
+    held-out data is evidence for that effect specifically.
+
+    Parameters
+    ----------
+    library : per capture (in the order of ``CaptureView.index``), (N_c, q) library columns
+        over the whole capture (fit and held-out samples).
+    weights : (q, n_shared + n_local) random mixing matrix.
+    """
+
+    name: ClassVar[str] = "placebo"
+    title: ClassVar[str] = "placebo (random augmentation of the same size)"
+    equation: ClassVar[str] = "y = ŷ + L·W·a (random mixtures of the effect library)"
+
+    library: tuple = field(default=(), compare=False, repr=False)
+    weights: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), compare=False, repr=False)
+    n_shared: int = 0
+    n_local: int = 0
+
+    @classmethod
+    def build(cls, library: Sequence[np.ndarray], n_shared: int, n_local: int,
+              rng: np.random.Generator) -> "Placebo":
+        """A placebo with ``n_shared`` + ``n_local`` random mixtures of the ``library`` columns."""
+        lib = tuple(np.asarray(L, float) for L in library)
+        q = lib[0].shape[1]
+        W = rng.standard_normal((q, n_shared + n_local)) / math.sqrt(max(q, 1))
+        return cls(library=lib, weights=W, n_shared=int(n_shared), n_local=int(n_local))
+
+    def layout(self):
+        return self.n_shared, self.n_local
+
+    def regressors(self, yhat, view, phi):
+        R = self.library[view.index][: yhat.shape[0]] @ self.weights
+        return R[:, : self.n_shared], R[:, self.n_shared:]
+
+    def describe(self, phi, shared, local, views, sources=None):
+        return {"n_shared": self.n_shared, "n_per_capture": self.n_local}
+
+
+#: The candidate effects, in the order they are reported when tied.
+EFFECTS: dict[str, type[Effect]] = {
+    "dynamics": Dynamics,
+    "creep": Creep,
+    "asymmetry": Asymmetry,
+    "drift": Drift,
+    "delay": Delay,
+}
+
+
+def make_effect(name: str) -> Effect:
+    """A fresh (unconfigured) effect by name; :class:`ConfigError` for an unknown name."""
+    key = name.strip().lower()
+    if key not in EFFECTS:
+        raise ConfigError(f"unknown effect {name!r}: choose from {', '.join(EFFECTS)}")
+    return EFFECTS[key]()
