@@ -164,6 +164,7 @@ class Diagnosis:
     steps: tuple[tuple[EffectResult, ...], ...]  # every step of the greedy selection, best first
     verdict: str
     explained_by: tuple[str, ...]
+    alternatives: tuple[tuple[str, ...], ...]  # per step: other eligible effects as good as the one named
     split: dict
     captures: tuple[dict, ...]
     runtime_s: float
@@ -200,7 +201,9 @@ class Diagnosis:
             "effects": [eff(r) for r in self.effects],
             "verdict": self.verdict,
             "explained_by": list(self.explained_by),
-            "steps": [{"step": i + 1, "effects": [eff(r) for r in step]} for i, step in enumerate(self.steps)],
+            "steps": [{"step": i + 1, "named": self.explained_by[i] if i < len(self.explained_by) else None,
+                       "equally_good": list(self.alternatives[i]) if i < len(self.alternatives) else [],
+                       "effects": [eff(r) for r in step]} for i, step in enumerate(self.steps)],
             "split": self.split,
             "rule": {"threshold": self.settings.threshold, "occam_tolerance": self.settings.occam_tolerance,
                      "min_excess_ratio": self.settings.min_excess_ratio,
@@ -261,7 +264,8 @@ def is_periodic(u: np.ndarray, dt: float, frequency_Hz: float, tol: float = 0.02
     """Whether ``u`` (V) repeats with period 1/frequency_Hz (s) over at least two periods.
 
     Compares u(t + P) with u(t) (linear interpolation for a fractional period): periodic when
-    the largest difference is below ``tol`` × the input range.
+    99 % of the differences are below ``tol`` × the input range (a few samples may differ: a
+    capture that starts with a jump from the idle level onto the running drive is still periodic).
     """
     u = np.asarray(u, float)
     if not (np.isfinite(frequency_Hz) and frequency_Hz > 0):
@@ -273,7 +277,7 @@ def is_periodic(u: np.ndarray, dt: float, frequency_Hz: float, tol: float = 0.02
     k = np.arange(int(n - P - 1))
     shifted = np.interp(k + P, np.arange(n), u)
     rng = float(u.max() - u.min())
-    return bool(rng > 0 and np.max(np.abs(shifted - u[k])) <= tol * rng)
+    return bool(rng > 0 and np.quantile(np.abs(shifted - u[k]), 0.99) <= tol * rng)
 
 
 def fit_masks(captures: Sequence[Capture], periodic: Sequence[bool], fraction: float) -> list[np.ndarray]:
@@ -318,7 +322,9 @@ def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
     Two estimates:
 
     - ``sigma`` (the floor used everywhere): the robust scale 1.4826·MAD of the third-order
-      difference (−1, 3, −3, 1)/√20 of the base model's residual, pooled over all captures.
+      difference (−1, 3, −3, 1)/√20 of the base model's residual per capture, then the median
+      over the captures (the sensor is the same for all; a broadband capture whose residual rings
+      at a resonance would bias a pooled estimate up).
       The difference removes anything smooth (the model error of a slowly varying loop, drift,
       creep: polynomials up to degree two vanish) and keeps white noise at unit gain; the median
       ignores the few samples where the residual has a kink (turning points, steps). It measures
@@ -336,7 +342,6 @@ def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
         ``sigma``, ``method``, ``per_capture`` (list of per-capture σ), ``repeatability`` (or None),
         ``quantization_step`` (the smallest nonzero step between output samples, for reference).
     """
-    diffs = []
     per = []
     for r in residuals:
         r = np.asarray(r, float)
@@ -344,10 +349,9 @@ def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
             per.append(float("nan"))
             continue
         d = np.convolve(r, _D3, mode="valid")
-        diffs.append(d)
         per.append(1.4826 * float(np.median(np.abs(d - np.median(d)))))
-    pooled = np.concatenate(diffs) if diffs else np.zeros(1)
-    sigma = 1.4826 * float(np.median(np.abs(pooled - np.median(pooled))))
+    finite = [v for v in per if math.isfinite(v)]
+    sigma = float(np.median(finite)) if finite else 0.0
     rep = []
     for c, is_per in zip(captures, periodic):
         if not is_per:
@@ -367,7 +371,8 @@ def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
     steps = np.concatenate([np.abs(np.diff(c.y)) for c in captures])
     steps = steps[steps > 0]
     q = float(steps.min()) if steps.size else 0.0
-    return {"sigma": sigma, "method": "1.4826·MAD of the third difference (−1,3,−3,1)/√20 of the base residual",
+    return {"sigma": sigma, "method": "1.4826·MAD of the third difference (−1,3,−3,1)/√20 of the base residual, "
+                                      "median over the captures",
             "per_capture": per, "repeatability": repeat, "quantization_step": q}
 
 
@@ -1095,6 +1100,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
     steps: list[tuple[EffectResult, ...]] = []
     chosen: list[str] = []
+    alternatives: list[tuple[str, ...]] = []
     state = state0
     preds_state = pred0
     best_preds = {}
@@ -1149,6 +1155,9 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         pick = choose_effect(results, settings)
         if pick is None:
             break
+        top = max(r.reduction for r in results if r.eligible)
+        alternatives.append(tuple(r.effect for r in results if r.eligible and r is not pick
+                                  and r.reduction >= top - settings.occam_tolerance))
         chosen.append(pick.effect)
         state, preds_state = states[pick.effect]
         best_preds[pick.effect] = preds_state
@@ -1182,7 +1191,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                      mode="per-condition" if per_condition else "global", unit=unit, seed=int(seed),
                      settings=settings, noise=noise, gap=gap, where=where,
                      effects=steps[0] if steps else (), steps=tuple(steps), verdict=verdict,
-                     explained_by=tuple(chosen), split=split, captures=cap_info,
+                     explained_by=tuple(chosen), alternatives=tuple(alternatives), split=split, captures=cap_info,
                      runtime_s=time.perf_counter() - t_start, figures_data=figures_data)
 
 

@@ -39,6 +39,38 @@ class Separable:
     basis_factory: BasisFactory
 
 
+def separable_by_simulation(model, linear: Sequence[int], d: int) -> Separable:
+    """A :class:`Separable` for a model whose output is affine in θ[linear] for fixed other entries.
+
+    The basis is obtained from the model's own simulator: for each candidate, one simulation with
+    θ_lin = 0 (the known part C) and one per unit vector e_j (columns B_j = y(e_j) − C), all in
+    one population call of P·(L+1) candidates. Exact whenever the model is affine in those
+    parameters (checked for every model by the contract tests).
+    """
+    linear = tuple(int(i) for i in linear)
+    nonlinear = tuple(i for i in range(d) if i not in linear)
+    L = len(linear)
+
+    def factory(u, dt):
+        sim = model.simulator(u, dt)
+
+        def basis(theta_nl):
+            P = theta_nl.shape[0]
+            th = np.zeros((P * (L + 1), d))
+            th[:, list(nonlinear)] = np.repeat(theta_nl, L + 1, axis=0)
+            for j, idx in enumerate(linear):
+                th[j + 1::L + 1, idx] = 1.0
+            with np.errstate(all="ignore"):
+                Y = sim(th).reshape(P, L + 1, -1)
+                C = Y[:, 0, :]
+                B = np.ascontiguousarray((Y[:, 1:, :] - C[:, None, :]).transpose(0, 2, 1))
+            return B, C
+
+        return basis
+
+    return Separable(linear, nonlinear, factory)
+
+
 def _bounded_solve(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """argmin θᵀGθ − 2cᵀθ over lo ≤ θ ≤ hi, via the Cholesky factor (an L×L least-squares problem)."""
     L = G.shape[0]

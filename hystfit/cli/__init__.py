@@ -13,3 +13,4 @@ from . import synth as _synth  # noqa: E402,F401
 from . import listing as _listing  # noqa: E402,F401
 
 __all__ = ["app", "main"]
+from . import diagnose as _diagnose  # noqa: E402,F401

@@ -40,6 +40,13 @@ class BoucWen(Model):
     :func:`hystfit.models._kernels.bouc_wen_population`: no sub-steps, stable at any sample
     rate, exact for piecewise-linear inputs.
 
+    Sign convention of γ. θ stores γ such that paper 004's γ is γ·sgn(α) (identical for α ≥ 0,
+    the case paper 004 bounds to). Then h = α·g exactly, with g the solution of
+    ġ = u̇ − β|u̇|g − γu̇|g| for *either* sign of α: the output is linear in (Kv, α, y0) and the
+    ``auto`` optimizer solves them exactly, searching only (β, γ). Without this convention the
+    split would be wrong for α < 0 (|h| = |α||g|), and loops of both orientations (clockwise and
+    counter-clockwise) must be representable.
+
     Free exponent (structure ``free_exponent=True``, paper 004 eq. 2 with n free):
     ḣ = α u̇ − β |u̇| |h|^{n−1} h − γ u̇ |h|^n, integrated with stable sub-steps
     (:func:`hystfit.models._kernels_extra.bouc_wen_n_population`); θ gains ``n`` ∈ [1, 4]. Since
@@ -85,8 +92,10 @@ class BoucWen(Model):
         return ps
 
     def _physical(self, theta: np.ndarray):
-        """(Kv, α, β, γ, y0, n) with β, γ de-normalised: β_phys = β·h_ref^(1−n)."""
+        """(Kv, α, β, γ, y0, n) of paper 004's equation: γ_paper = γ·sgn(α), and with a free
+        exponent β, γ de-normalised by h_ref^(1−n)."""
         kv, a, b, g, y0 = (np.ascontiguousarray(theta[:, i]) for i in range(5))
+        g = np.ascontiguousarray(g * np.where(a < 0, -1.0, 1.0))  # γ_paper = γ·sgn(α), see the class docstring
         if not self.free_exponent:
             return kv, a, b, g, y0, None
         n = np.ascontiguousarray(theta[:, 5])

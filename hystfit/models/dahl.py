@@ -83,6 +83,12 @@ class Dahl(Model):
             Param("d0", "out", scale.y_min - yr, scale.y_max + yr, 0.0, "output offset"),
         )
 
+    def separable(self):
+        """k and d0 enter linearly; σ, Fc and a (the friction state's shape) are searched."""
+        from ..separable import separable_by_simulation
+
+        return separable_by_simulation(self, (0, 4), 5)
+
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         theta = self.check_theta(theta, 5)
         u = np.ascontiguousarray(u, dtype=np.float64)

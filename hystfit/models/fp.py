@@ -120,6 +120,13 @@ class FractionalZener(Model):
         return tuple(ps)
 
     # ------------------------------------------------------------------ simulation
+    def separable(self):
+        """E0, E∞ (and y0) enter linearly for fixed (τ, a): the fractional operator is linear, so
+        y = E0·L⁻¹[u] + E∞·L⁻¹[τ^a D^a u] + y0 with L = 1 + τ^a D^a. Only τ and a are searched."""
+        from ..separable import separable_by_simulation
+
+        return separable_by_simulation(self, (0, 1, 4) if self.offset else (0, 1), 5 if self.offset else 4)
+
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         return self.simulator(u, dt)(theta)
 

@@ -114,6 +114,12 @@ class LuGre(Model):
     def _cols(self, theta: np.ndarray):
         return tuple(np.ascontiguousarray(theta[:, i]) for i in range(7))
 
+    def separable(self):
+        """k, σ1, σ2 (and y0) enter linearly for a fixed bristle state z(σ0, Fc, Fs, vs): only those four are searched."""
+        from ..separable import separable_by_simulation
+
+        return separable_by_simulation(self, (0, 2, 3, 7) if self.offset else (0, 2, 3), 8 if self.offset else 7)
+
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         theta = self.check_theta(theta, self.n_params)
         u = np.ascontiguousarray(u, dtype=np.float64)

@@ -103,21 +103,35 @@ def optimizer_table(res: CompareResult) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _rank_text(names: list[str], means: list[float], spreads: list[float], what: str, unit: str) -> list[str]:
+def _rank_text(names: list[str], means: list[float], samples: list[np.ndarray], what: str, unit: str) -> list[str]:
+    """Rank by mean; between neighbours, say whether the difference is beyond run-to-run variation.
+
+    With at least 3 values per group the two-sided Mann–Whitney U test decides (p < 0.05);
+    with fewer, the gap is compared with twice the larger standard deviation; a single run per
+    group has no spread to compare with, and the text says so.
+    """
+    from scipy.stats import mannwhitneyu
+
     order = np.argsort(means)
     lines = []
     for pos, i in enumerate(order):
         note = ""
         if pos + 1 < len(order):
             j = order[pos + 1]
+            a, b = np.asarray(samples[i], float), np.asarray(samples[j], float)
             gap = means[j] - means[i]
-            spread = max(spreads[i], spreads[j])
             if gap <= 1e-6 * max(abs(means[i]), 1e-300):
-                note = f" — tied with `{names[j]}` (relative gap {gap / max(abs(means[i]), 1e-300):.1e})"
-            elif not np.isfinite(spread) or spread == 0:
-                note = " (single run: run-to-run spread unknown)" if spreads[i] == 0 else ""
-            elif gap <= 2 * spread:
-                note = f" — within run-to-run spread of `{names[j]}` (gap {fmt(gap)} ≤ 2σ = {fmt(2 * spread)})"
+                note = f" — tied with `{names[j]}`"
+            elif min(a.size, b.size) >= 3:
+                p = float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
+                verdict = "better than" if p < 0.05 else "not distinguishable from"
+                note = f" — {verdict} `{names[j]}` (Mann–Whitney U over runs, p = {p:.2g})"
+            elif min(a.size, b.size) >= 2:
+                spread = max(np.std(a, ddof=1), np.std(b, ddof=1))
+                if gap <= 2 * spread:
+                    note = f" — within run-to-run spread of `{names[j]}` (gap {fmt(gap)} ≤ 2σ = {fmt(2 * spread)})"
+            else:
+                note = " (single run: run-to-run spread unknown)"
         lines.append(f"{pos + 1}. `{names[i]}`: mean {what} {fmt(means[i])} {unit}{note}")
     return lines
 
@@ -125,33 +139,39 @@ def _rank_text(names: list[str], means: list[float], spreads: list[float], what:
 def ranking(res: CompareResult) -> list[str]:
     u = res.unit
     out = []
-    for o in res.optimizers:
-        names, means, spreads = [], [], []
-        for m in res.models:
-            cells = [c for c in res.cells if c.model == m and c.optimizer == o and c.ok]
-            if len(cells) != len(res.conditions):
-                continue
-            names.append(m)
-            means.append(float(np.mean([c.best.metrics[f"rmse_{u}"] for c in cells])))
-            sd = [np.std([r.metrics[f"rmse_{u}"] for r in c.runs], ddof=1) if len(c.runs) > 1 else 0.0 for c in cells]
-            spreads.append(float(np.mean(sd)))
-        if names:
-            out += [f"Models with `{o}`, by mean RMSE over the {len(res.conditions)} condition(s):", ""]
-            out += _rank_text(names, means, spreads, "RMSE", u) + [""]
+    if len(res.models) > 1:
+        for o in res.optimizers:
+            names, means, samples = [], [], []
+            for m in res.models:
+                cells = [c for c in res.cells if c.model == m and c.optimizer == o and c.ok]
+                if len(cells) != len(res.conditions):
+                    continue
+                names.append(m)
+                means.append(float(np.mean([c.best.metrics[f"rmse_{u}"] for c in cells])))
+                # per run: the RMSE averaged over conditions
+                nr = min(len(c.runs) for c in cells)
+                samples.append(np.array([np.mean([c.runs[r].metrics[f"rmse_{u}"] for c in cells]) for r in range(nr)]))
+            if names:
+                out += [f"Models with `{o}`, by mean RMSE (best run per condition) over the "
+                        f"{len(res.conditions)} condition(s):", ""]
+                out += _rank_text(names, means, samples, "RMSE", u) + [""]
     if len(res.optimizers) > 1:
         for m in res.models:
-            names, means, spreads = [], [], []
+            names, means, samples = [], [], []
             for o in res.optimizers:
                 cells = [c for c in res.cells if c.model == m and c.optimizer == o and c.ok]
                 if len(cells) != len(res.conditions):
                     continue
                 names.append(o)
-                means.append(float(np.mean([np.mean([r.j for r in c.runs]) for c in cells])))
-                spreads.append(float(np.mean([np.std([r.j for r in c.runs], ddof=1) if len(c.runs) > 1 else 0.0
-                                              for c in cells])))
+                nr = min(len(c.runs) for c in cells)
+                per_run = np.array([np.mean([c.runs[r].j for c in cells]) for r in range(nr)])
+                means.append(float(per_run.mean()))
+                samples.append(per_run)
             if names:
-                out += [f"Optimizers on `{m}`, by mean final J over runs and conditions:", ""]
-                out += _rank_text(names, means, spreads, "J", "") + [""]
+                out += [f"Optimizers on `{m}`, by mean final J over runs (averaged over conditions):", ""]
+                out += _rank_text(names, means, samples, "J", "") + [""]
+    if not out:
+        out = ["One model and one optimizer: nothing to rank.", ""]
     return out
 
 

@@ -1,0 +1,96 @@
+"""``hystfit diagnose``: where the model misses, which unmodelled effect causes it, how far it shrinks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from .app import app, guarded
+from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
+                     TimeCol, load_options, parse_key_values, print_json, progress_bar, stderr, stdout)
+
+
+def _parse_effects(value: Optional[str]) -> list[str] | None:
+    if value is None:
+        return None
+    names = [v.strip() for v in value.split(",") if v.strip()]
+    if not names:
+        from ..errors import ConfigError
+
+        raise ConfigError("--effects: give at least one effect name, e.g. --effects dynamics,creep")
+    return names
+
+
+@app.command()
+@guarded
+def diagnose(
+    data: DataArg,
+    model: Annotated[str, typer.Option("--model", "-m", help="Base model (see 'hystfit models').")] = "pi",
+    opt: Annotated[str, typer.Option("--opt", "-o", help="Optimizer of the base fits (see 'hystfit optimizers').")] = "auto",
+    out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-diagnose"),
+    per_condition: Annotated[bool, typer.Option("--per-condition", help="One base parameter set per condition (look-up table) instead of one for all captures.")] = False,
+    effects: Annotated[Optional[str], typer.Option("--effects", help="Candidate effects, comma-separated (default: dynamics,creep,asymmetry,drift,delay).")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the base fits and of the placebo draws.")] = 0,
+    fit_fraction: Annotated[float, typer.Option("--fit-fraction", help="Share of every capture used to fit; the rest is held out.")] = 0.6,
+    threshold: Annotated[float, typer.Option("--threshold", help="Minimum held-out reduction for naming an effect.")] = 0.3,
+    max_effects: Annotated[int, typer.Option("--max-effects", help="How many effects may be named, in order.", min=1)] = 3,
+    model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE (repeatable).")] = None,
+    opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE (repeatable).")] = None,
+    figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write the figures.")] = True,
+    json_out: Annotated[bool, typer.Option("--json", help="Print diagnosis.json on stdout.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no summary table.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
+    fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
+    recursive: Recursive = False,
+) -> None:
+    """Diagnose the gap between MODEL and the captures: noise floor, where it lies, which unmodelled
+    effect (dynamics, creep, asymmetry, drift, delay) causes it, and how much of it each removes on
+    held-out data.
+
+    Writes OUT/diagnosis.json, OUT/diagnosis.md and OUT/figures/.
+    """
+    from ..diagnose import DiagnoseSettings
+    from ..diagnose import diagnose as run_diagnose
+    from ..io import load_captures, staged_output_dir
+    from ..registry import models, optimizers
+    from ..report.diagnose_report import write_diagnose_outputs
+    from ..setup import make_model, make_optimizer
+
+    model_cls = models.get(model)
+    opt_cls = optimizers.get(opt)
+    m = make_model(model_cls, parse_key_values(model_option or [], "--model-option"))
+    o = make_optimizer(opt_cls, parse_key_values(opt_option or [], "--opt-option"))
+    names = _parse_effects(effects)
+    settings = DiagnoseSettings(fit_fraction=fit_fraction, threshold=threshold, max_effects=max_effects)
+    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
+    with staged_output_dir(out, force) as stage:
+        captures = load_captures(data, options, recursive=recursive)
+        if not quiet:
+            for c in captures:
+                for note in c.notes:
+                    stderr.print(f"[dim]{c.name}: {note}[/dim]")
+        with progress_bar(not quiet and not json_out, f"diagnose {model_cls.name}") as cb:
+            d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
+                             settings=settings, progress=cb)
+        write_diagnose_outputs(d, stage, make_figures=figures)
+    if json_out:
+        print_json(d.to_dict())
+        return
+    if quiet:
+        return
+    u = d.unit
+    table = Table(title=f"{d.base_model}: held-out gap per added effect (noise floor {d.noise['sigma']:.3g} {u}) — "
+                        f"verdict: {d.verdict}")
+    for col in ("effect", f"before_{u}", f"after_{u}", "reduction", f"placebo_{u}", "passes"):
+        table.add_column(col, justify="right")
+    for r in d.effects:
+        table.add_row(r.effect, f"{r.heldout_rmse_before:.4g}", f"{r.heldout_rmse_after:.4g}", f"{r.reduction:.2f}",
+                      f"{r.placebo_improvement:.3g}", "yes" if r.eligible else "no")
+    stdout.print(table)
+    for p in d.where["pointers"]:
+        stdout.print(f"where: {p}")
+    stdout.print(f"explained by (in order): {', '.join(d.explained_by) or 'none'}; report: {out / 'diagnosis.md'}")

@@ -1,0 +1,1073 @@
+"""Feedforward voltages from an identified look-up table: the inverse of the hysteresis model.
+
+Given a desired displacement y_d(t) (a :class:`Target`), :func:`invert_target` returns the
+voltage u(t) to send to the amplifier and a preview of the tracking error it gives, computed by
+simulating the identified forward model on that voltage (paper 002 Table 4 figures: maximum
+error, RMSE, both also in % of the stroke).
+
+Pipeline (every step is reported in :class:`InversionResult`, nothing is silent):
+
+1. **Target.** A file (:func:`load_target`) or a built-in trajectory: :func:`sine_target`
+   (paper 002 eq. 16, y = A/2·sin(2πft − π/2) + A/2, i.e. 0 → A → 0, plus an offset),
+   :func:`triangle_target`, :func:`steps_target` and :func:`multi_target` (002's
+   10/8/6/4/2 µm at 0.5/1/2/5/10 Hz sequence). A target is split into *segments* of one
+   nominal frequency each (one segment for a file).
+2. **Table cell per segment.** The look-up table (002 §3.1) is keyed by the drive's
+   peak-to-peak voltage and frequency, but the voltage is what we are solving for. We iterate
+   (:func:`choose_condition`): guess A₀ = target stroke / table gain, pick the cell(s) for
+   (A₀, f), invert, measure the peak-to-peak of the resulting voltage A₁, re-pick, … until the
+   amplitude is self-consistent (|A_{i+1} − A_i| ≤ 0.1 % of A) and the cells no longer change.
+   ``condition=`` forces the condition instead.
+3. **Bilinear interpolation** between the (up to four) surrounding cells, linear in amplitude
+   and log-frequency (:class:`hystfit.conditions.LookupTable`; a query outside the grid is
+   clamped onto its edge, so weights stay continuous and the iteration converges). We blend
+   the **inverted voltages** of the cells, u = Σ_c w_c·H_c⁻¹[y_d], rather than numerically
+   inverting the blended forward model Σ_c w_c·H_c[u] = y_d. Reasons: (a) every model's own
+   inverse is used, exact where it is analytic (PI: paper 003 eq. 17–20; models whose output
+   lags the input by a sample, such as ``hammerstein``, have no per-sample numerical inverse at
+   all); (b) each cell is inverted once and the result reused across iterations and across
+   segments with different weights; (c) the two differ only to second order in the difference
+   between neighbouring cells, Σw_cH_c[Σw_dH_d⁻¹y] − y = O(w(1−w)·ΔH²), below the first-order
+   error of interpolating the table at all; (d) no root search on a blended map, which need
+   not be monotone if one cell is poorly identified. The consequence is measured, not hidden:
+   the predicted error is computed with the *blended forward* model (as ``hystfit simulate
+   --method interpolate`` predicts), so it includes this blending residual.
+4. **Model memory.** Models start from their reset (virgin) state, i.e. the stage at rest at
+   the first input after coming monotonically from 0 V. By default the first voltage is the
+   inverse of the target's first sample from that state (consistent by construction). With
+   ``initial_voltage=V`` the stage rests at V: every cell is inverted with a short rest
+   segment at its own output for V prepended (so its memory is that of the stage at V), and the
+   forward preview is simulated the same way; a jump from the rest output to y_d[0] is reported.
+5. **Limits.** Voltages outside [vmin, vmax] are clipped (default: the table's identification
+   voltage range ± 10 %), then a slew-rate limit |Δu| ≤ S·dt is applied causally, starting
+   from the initial voltage. Every clipped or slew-limited span is reported with its time span
+   and worst excess.
+6. **Preview.** The blended forward model is simulated on the final voltages; the error
+   e = y_pred − y_d gives max|e|, RMSE and both in % of the stroke (max y_d − min y_d),
+   overall and per segment.
+
+Memory. A model inverts and simulates whole arrays of N samples with O(N·n) memory (n the
+model's state size, ≈ 10 for PI), never (P, N) populations; per-cell voltages are kept once.
+10⁶ samples need ≈ 0.3 GB (measured in ``tests/unit/test_invert.py``). The generic numerical
+inverse (:mod:`hystfit.models.inverse`, e.g. Bouc–Wen) is a per-sample Python loop: memory is
+small but it takes ≈ 50 µs per sample and cell.
+
+Units: time s, voltage V, displacement in the parameter file's output unit (``um`` below).
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+from numba import njit
+
+from .conditions import LookupTable, condition_label, detect_condition
+from .errors import ConfigError, InputError
+from .results import Cell, ParamsFile
+
+__all__ = [
+    "Segment",
+    "Target",
+    "Span",
+    "CellUse",
+    "SegmentChoice",
+    "InversionResult",
+    "sine_target",
+    "triangle_target",
+    "steps_target",
+    "multi_target",
+    "target_from_array",
+    "load_target",
+    "default_voltage_limits",
+    "select_cells",
+    "choose_condition",
+    "apply_limits",
+    "find_spans",
+    "invert_target",
+    "MULTI_AMPLITUDES_UM",
+    "MULTI_FREQUENCIES_HZ",
+]
+
+#: Paper 002's variable-amplitude, variable-frequency sequence (§5, Table 5 "0.5 to 10 Hz").
+MULTI_AMPLITUDES_UM: tuple[float, ...] = (10.0, 8.0, 6.0, 4.0, 2.0)
+MULTI_FREQUENCIES_HZ: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0, 10.0)
+#: Margin added on both sides of the identification voltage range for the default limits.
+LIMIT_MARGIN = 0.10
+#: Relative amplitude change under which the condition iteration has converged.
+AMPLITUDE_RTOL = 1e-3
+#: Samples of rest at the initial voltage prepended when ``initial_voltage`` is given.
+PREROLL = 4
+#: Progress callback: ``progress(event, info)`` with events "start", "advance", "note".
+Progress = Callable[[str, dict], None] | None
+
+
+# ----------------------------------------------------------------------------------------------
+# Targets
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A part of a target with one nominal frequency (samples ``start`` … ``stop − 1``).
+
+    frequency_Hz : nominal frequency of the segment (Hz); NaN means "detect from the target".
+    label : short description, e.g. ``"10 um, 0.5 Hz"``.
+    """
+
+    start: int
+    stop: int
+    frequency_Hz: float
+    label: str
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step of a step target: at sample ``index`` the target jumps ``from_level`` → ``to_level``.
+
+    ``stop`` is the end (exclusive) of the hold that follows. Levels in the target's unit.
+    """
+
+    index: int
+    stop: int
+    from_level: float
+    to_level: float
+
+
+@dataclass(frozen=True, eq=False)
+class Target:
+    """A desired displacement trajectory.
+
+    Attributes
+    ----------
+    t_s : (N,) time in s from 0, uniform.
+    y : (N,) desired displacement in ``unit``.
+    dt : sample period (s).
+    unit : displacement unit (``um``, ``nm``, ``mm``, ``m``).
+    description : human-readable origin, e.g. ``"sine 10 um p-p, 1 Hz, 5 cycles, offset 2 um"``.
+    kind : ``"sine"``, ``"triangle"``, ``"steps"``, ``"multi"``, ``"file"`` or ``"array"``.
+    segments : parts of one nominal frequency each, covering 0 … N in order.
+    steps : for step targets, the steps (for rise/settling metrics); empty otherwise.
+    """
+
+    t_s: np.ndarray
+    y: np.ndarray
+    dt: float
+    unit: str
+    description: str
+    kind: str
+    segments: tuple[Segment, ...]
+    steps: tuple[Step, ...] = ()
+
+    @property
+    def n(self) -> int:
+        return int(self.y.shape[0])
+
+    @property
+    def fs(self) -> float:
+        return 1.0 / self.dt
+
+    @property
+    def stroke(self) -> float:
+        """max y − min y (``unit``): the denominator of "% of stroke"."""
+        return float(self.y.max() - self.y.min())
+
+
+def _positive(name: str, value: float) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value > 0):
+        raise ConfigError(f"{name} must be a finite number > 0. Got {value!r} instead.")
+    return value
+
+
+def _finite(name: str, value: float) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise ConfigError(f"{name} must be a finite number. Got {value!r} instead.")
+    return value
+
+
+def _periodic_n(freq_Hz: float, cycles: float, fs: float) -> int:
+    n = int(math.floor(cycles * fs / freq_Hz + 1e-9)) + 1
+    if n < 3:
+        raise ConfigError(f"{cycles:g} cycles at {freq_Hz:g} Hz give fewer than 3 samples at {fs:g} Hz; "
+                          "raise the sample rate (--fs) or the number of cycles")
+    return n
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"
+
+
+def sine_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 10_000.0, *, offset: float = 0.0,
+                unit: str = "um") -> Target:
+    """Sine trajectory of paper 002 eq. 16: y = A/2·sin(2πft − π/2) + A/2 + offset.
+
+    It starts at ``offset`` at rest (zero slope), peaks at ``offset + A`` and returns to
+    ``offset`` after every cycle; ``amp`` is the peak-to-peak amplitude A (002's "10 µm").
+
+    Parameters
+    ----------
+    amp : peak-to-peak amplitude A in ``unit`` (> 0).
+    freq_Hz : frequency f (Hz, > 0).
+    cycles : number of cycles (> 0); samples 0 … cycles/f inclusive.
+    fs : sample rate (Hz).
+    offset : displacement at the start and at every minimum (``unit``).
+    unit : displacement unit.
+    """
+    amp, freq_Hz, cycles, fs = (_positive(n, v) for n, v in
+                                (("amplitude", amp), ("frequency_Hz", freq_Hz), ("cycles", cycles), ("fs", fs)))
+    offset = _finite("offset", offset)
+    n = _periodic_n(freq_Hz, cycles, fs)
+    t = np.arange(n, dtype=np.float64) / fs
+    y = offset + 0.5 * amp * np.sin(2.0 * np.pi * freq_Hz * t - 0.5 * np.pi) + 0.5 * amp
+    desc = f"sine {_fmt(amp)} {unit} p-p, {_fmt(freq_Hz)} Hz, {_fmt(cycles)} cycles, offset {_fmt(offset)} {unit}"
+    return Target(t, y, 1.0 / fs, unit, desc, "sine", (Segment(0, n, freq_Hz, f"{_fmt(amp)} {unit}, {_fmt(freq_Hz)} Hz"),))
+
+
+def triangle_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 10_000.0, *, offset: float = 0.0,
+                    unit: str = "um") -> Target:
+    """Triangle trajectory offset → offset + A → offset per cycle (constant speed 2·A·f).
+
+    Parameters as :func:`sine_target`.
+    """
+    amp, freq_Hz, cycles, fs = (_positive(n, v) for n, v in
+                                (("amplitude", amp), ("frequency_Hz", freq_Hz), ("cycles", cycles), ("fs", fs)))
+    offset = _finite("offset", offset)
+    n = _periodic_n(freq_Hz, cycles, fs)
+    t = np.arange(n, dtype=np.float64) / fs
+    phase = np.mod(freq_Hz * t, 1.0)
+    y = offset + amp * (1.0 - np.abs(2.0 * phase - 1.0))
+    desc = f"triangle {_fmt(amp)} {unit} p-p, {_fmt(freq_Hz)} Hz, {_fmt(cycles)} cycles, offset {_fmt(offset)} {unit}"
+    return Target(t, y, 1.0 / fs, unit, desc, "triangle",
+                  (Segment(0, n, freq_Hz, f"{_fmt(amp)} {unit}, {_fmt(freq_Hz)} Hz"),))
+
+
+def steps_target(levels: Sequence[float] = (10.0,), hold_s: float = 0.2, fs: float = 10_000.0, *,
+                 offset: float = 0.0, lead_s: float | None = None, unit: str = "um") -> Target:
+    """Step-and-hold trajectory (paper 002 Table 6 uses one 10 µm step).
+
+    The target rests at ``offset`` for ``lead_s`` (default ``hold_s / 4``), then jumps to
+    ``offset + levels[0]`` and holds it ``hold_s``, then ``offset + levels[1]``, …
+
+    Parameters
+    ----------
+    levels : step levels relative to ``offset`` (``unit``), at least one; consecutive levels
+        must differ.
+    hold_s : hold time of every level (s).
+    fs : sample rate (Hz).
+    offset : rest level before the first step (``unit``).
+    lead_s : rest time before the first step (s).
+    unit : displacement unit.
+
+    Notes
+    -----
+    The table lookup needs a frequency: a step sequence is treated as the square wave of
+    period 2·hold_s, i.e. f = 1/(2·hold_s).
+    """
+    levels = [_finite("step level", v) for v in levels]
+    if not levels:
+        raise ConfigError("steps: give at least one level")
+    hold_s, fs = _positive("hold_s", hold_s), _positive("fs", fs)
+    offset = _finite("offset", offset)
+    lead_s = hold_s / 4.0 if lead_s is None else float(lead_s)
+    if not (math.isfinite(lead_s) and lead_s >= 0):
+        raise ConfigError(f"lead_s must be a finite number >= 0. Got {lead_s!r} instead.")
+    n_hold = int(round(hold_s * fs))
+    n_lead = int(round(lead_s * fs))
+    if n_hold < 3:
+        raise ConfigError(f"hold_s {hold_s:g} s gives fewer than 3 samples at {fs:g} Hz; raise the hold time or --fs")
+    seq = [0.0] + levels
+    for a, b in zip(seq, seq[1:]):
+        if a == b:
+            raise ConfigError(f"steps: consecutive levels must differ (got {a:g} twice); drop the repeated level")
+    n = n_lead + n_hold * len(levels)
+    y = np.full(n, offset, dtype=np.float64)
+    steps = []
+    for i, lev in enumerate(levels):
+        k = n_lead + i * n_hold
+        y[k:k + n_hold] = offset + lev
+        steps.append(Step(k, k + n_hold, offset + seq[i], offset + lev))
+    t = np.arange(n, dtype=np.float64) / fs
+    f = 1.0 / (2.0 * hold_s)
+    desc = (f"steps {', '.join(_fmt(v) for v in levels)} {unit} (relative to {_fmt(offset)} {unit}), "
+            f"hold {_fmt(hold_s)} s")
+    return Target(t, y, 1.0 / fs, unit, desc, "steps", (Segment(0, n, f, f"steps, hold {_fmt(hold_s)} s"),),
+                  tuple(steps))
+
+
+def multi_target(amps: Sequence[float] = MULTI_AMPLITUDES_UM, freqs_Hz: Sequence[float] = MULTI_FREQUENCIES_HZ,
+                 cycles: float = 1, fs: float = 10_000.0, *, offset: float = 0.0, unit: str = "um") -> Target:
+    """Variable-amplitude, variable-frequency sequence of eq. 16 sines (paper 002 §5, Table 5).
+
+    Default: 10, 8, 6, 4, 2 µm at 0.5, 1, 2, 5, 10 Hz, ``cycles`` whole cycles each (every
+    segment starts and ends at ``offset`` at rest, so the joins are smooth). One segment per
+    (amplitude, frequency), so each gets its own table cell.
+    """
+    amps, freqs_Hz = list(amps), list(freqs_Hz)
+    if not amps or len(amps) != len(freqs_Hz):
+        raise ConfigError(f"multi: give as many amplitudes as frequencies (got {len(amps)} and {len(freqs_Hz)})")
+    cycles, fs = _positive("cycles", cycles), _positive("fs", fs)
+    parts, segs, start = [], [], 0
+    for a, f in zip(amps, freqs_Hz):
+        s = sine_target(a, f, cycles, fs, offset=offset, unit=unit)
+        y = s.y if not parts else s.y[1:]  # the joins coincide (offset at rest): keep one sample
+        parts.append(y)
+        segs.append(Segment(start, start + y.size, float(f), s.segments[0].label))
+        start += y.size
+    y = np.concatenate(parts)
+    t = np.arange(y.size, dtype=np.float64) / fs
+    desc = (f"multi: {', '.join(f'{_fmt(a)} {unit} at {_fmt(f)} Hz' for a, f in zip(amps, freqs_Hz))}; "
+            f"{_fmt(cycles)} cycle(s) each, offset {_fmt(offset)} {unit}")
+    return Target(t, y, 1.0 / fs, unit, desc, "multi", tuple(segs))
+
+
+def target_from_array(y: np.ndarray, dt: float, *, unit: str = "um", description: str = "array",
+                      frequency_Hz: float | None = None) -> Target:
+    """Wrap an array (N,) sampled every ``dt`` s as a one-segment target.
+
+    ``frequency_Hz`` is the nominal frequency for the table lookup (default: the dominant
+    frequency of ``y``, :func:`hystfit.conditions.detect_condition`).
+    """
+    y = np.ascontiguousarray(y, dtype=np.float64).ravel()
+    dt = _positive("dt", dt)
+    if y.size < 4:
+        raise ConfigError(f"a target needs at least 4 samples, got {y.size}")
+    if not np.all(np.isfinite(y)):
+        raise ConfigError("the target contains NaN or inf")
+    f = _target_frequency(y, dt) if frequency_Hz is None else _positive("frequency_Hz", frequency_Hz)
+    t = np.arange(y.size, dtype=np.float64) * dt
+    return Target(t, y, dt, unit, description, "array", (Segment(0, y.size, f, f"{_fmt(f)} Hz"),))
+
+
+def _target_frequency(y: np.ndarray, dt: float) -> float:
+    """Dominant frequency (Hz) of a target; 1/duration for a constant one."""
+    if float(y.max() - y.min()) <= 1e-12 * max(1.0, float(np.abs(y).max())):
+        return 1.0 / (y.size * dt)
+    return float(detect_condition(y, dt)[1])
+
+
+#: Column names read as the desired displacement, before the generic output names of captures.
+TARGET_ALIASES = frozenset({"target", "reference", "ref", "setpoint", "set_point", "desired", "y_d", "yd", "y_ref",
+                            "yref", "r", "trajectory", "target_displacement", "desired_displacement",
+                            "reference_displacement", "command_displacement", "demand"})
+
+
+def load_target(path: str | os.PathLike, *, fs: float | None = None, time_col: str | int | None = None,
+                target_col: str | int | None = None, unit: str | None = None) -> Target:
+    """Read a desired trajectory from a CSV/TXT/TSV/DAT or Parquet file.
+
+    Columns are found by name like captures (case-insensitive, unit suffix allowed): the time
+    (``t``, ``time``, ``time_s``, ``time_ms`` …; or ``fs``) and the desired displacement: first
+    the names :data:`TARGET_ALIASES` (``target``, ``reference``, ``setpoint``, ``y_d`` …), then the
+    output names of captures (``displacement_um``, ``y``, ``position`` …). A voltage column, if
+    any, is ignored. ``time_col``/``target_col`` take a name or a 0-based index.
+
+    Parameters
+    ----------
+    path : the file.
+    fs : sample rate (Hz) when the file has no time column.
+    time_col, target_col : explicit columns.
+    unit : displacement unit when the column name has none (default ``um``).
+
+    Returns
+    -------
+    Target
+        One segment whose frequency is the dominant frequency of the trajectory.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, missing/ambiguous column, non-numeric or non-finite cell, non-uniform time.
+    """
+    from . import io as _io
+
+    p = Path(path)
+    label = str(path)
+    table = _io._read_table(p, label, False)
+    names = table.names
+
+    def resolve(spec, flag: str) -> int:
+        if isinstance(spec, str) and spec.strip().isdigit():
+            spec = int(spec.strip())
+        if isinstance(spec, (int, np.integer)) and not isinstance(spec, bool):
+            if not 0 <= spec < table.ncols:
+                raise InputError(f"{label}: {flag} {spec}: no such column; the file has {table.ncols} columns "
+                                 f"(0-based indices 0–{table.ncols - 1})")
+            return int(spec)
+        if names is None:
+            raise InputError(f"{label}: {flag} {spec!r}: the file has no header row, so give a 0-based index")
+        hits = [i for i, nm in enumerate(names) if nm.strip().lower() == str(spec).strip().lower()]
+        if len(hits) != 1:
+            raise InputError(f"{label}: {flag} {spec!r}: " + ("no such column" if not hits else "several columns "
+                             "have this name") + f"; {table.listing()}")
+        return hits[0]
+
+    def candidates(aliases, role_units, taken) -> list[int]:
+        if names is None:
+            return []
+        out = []
+        for i, nm in enumerate(names):
+            if i in taken or table.is_empty(i):
+                continue
+            for base, u in _io._interpretations(nm):
+                if base in aliases and (u is None or u in role_units):
+                    out.append(i)
+                    break
+        return out
+
+    taken: set[int] = set()
+    t_idx = resolve(time_col, "--time-col") if time_col is not None else None
+    if t_idx is None and fs is None:
+        found = candidates(_io._ALIASES["time"], _io._UNITS["time"], taken)
+        if len(found) > 1:
+            raise InputError(f"{label}: several time columns: {', '.join(repr(names[i]) for i in found)}; "
+                             "pass --time-col")
+        t_idx = found[0] if found else None
+        if t_idx is None:
+            raise InputError(f"{label}: no time column found ({table.listing()}); pass --time-col NAME, "
+                             "or --fs HZ if the file has no time column")
+    if t_idx is not None:
+        taken.add(t_idx)
+    if target_col is not None:
+        y_idx = resolve(target_col, "--target-col")
+    else:
+        y_idx = None
+        for aliases in (TARGET_ALIASES, _io._ALIASES["output"]):
+            found = candidates(aliases, _io._UNITS["output"], taken)
+            if len(found) > 1:
+                raise InputError(f"{label}: several target columns: {', '.join(repr(names[i]) for i in found)}; "
+                                 "pass --target-col with the one to use")
+            if found:
+                y_idx = found[0]
+                break
+        if y_idx is None:
+            raise InputError(f"{label}: no target (desired displacement) column found ({table.listing()}); "
+                             "name it e.g. 'target_um' or 'displacement_um', or pass --target-col")
+    if y_idx == t_idx:
+        raise InputError(f"{label}: {table.col_label(y_idx)} is selected both as time and as target")
+    y = _io._numeric(table, y_idx)
+    bad = np.flatnonzero(~np.isfinite(y))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f"{label}: row {table.rows[k]}, {table.col_label(y_idx)}: not a finite number; "
+                         "fix or remove the row")
+    col_unit = None
+    if names is not None:
+        for _, u in _io._interpretations(names[y_idx]):
+            if u is not None and u in _io._UNITS["output"]:
+                col_unit = str(_io._UNITS["output"][u])
+                break
+    y_unit = col_unit or unit or "um"
+    if t_idx is not None:
+        t = _io._numeric(table, t_idx)
+        bad = np.flatnonzero(~np.isfinite(t))
+        if bad.size:
+            k = int(bad[0])
+            raise InputError(f"{label}: row {table.rows[k]}, {table.col_label(t_idx)}: not a finite number; "
+                             "fix or remove the row")
+        tu = _io._unit_of(names[t_idx], "time") if names is not None else None
+        t = t * (float(_io._UNITS["time"][tu]) if tu else 1.0)
+        if t.size < 4:
+            raise InputError(f"{label}: only {t.size} data rows; a target needs at least 4 samples")
+        dt = _io._check_time(table, t_idx, t, table.rows)
+        if fs is not None and abs(1.0 / dt - fs) > 0.01 * fs:
+            raise InputError(f"{label}: the time column gives {1 / dt:.6g} Hz but --fs is {fs:g} Hz; drop --fs")
+    else:
+        dt = 1.0 / _positive("--fs", fs)
+        if y.size < 4:
+            raise InputError(f"{label}: only {y.size} data rows; a target needs at least 4 samples")
+    tgt = target_from_array(y, dt, unit=y_unit, description=f"file {label} ({table.col_label(y_idx)})")
+    return Target(tgt.t_s, tgt.y, tgt.dt, tgt.unit, tgt.description, "file", tgt.segments)
+
+
+# ----------------------------------------------------------------------------------------------
+# Look-up table cells
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CellUse:
+    """A table cell used for a segment, with its bilinear weight."""
+
+    index: int
+    label: str
+    amplitude_V: float
+    frequency_Hz: float
+    weight: float
+
+
+@dataclass(frozen=True)
+class IterationStep:
+    """One pass of the amplitude iteration: the amplitude looked up, the cells, the result."""
+
+    amplitude_V: float
+    cells: tuple[CellUse, ...]
+    result_pp_V: float
+
+
+@dataclass(frozen=True)
+class SegmentChoice:
+    """How the table was used for one segment.
+
+    condition : (amplitude_V, frequency_Hz) finally looked up.
+    query : the point actually interpolated (``condition`` clamped onto the grid).
+    clamped : True when the condition lay outside the table's grid on some axis.
+    cells : cells and weights (Σ weights = 1).
+    iterations : the amplitude iteration (empty when forced or for a single-cell table).
+    converged : the amplitude is self-consistent (or forced / single cell).
+    how : ``"iterated"``, ``"forced"`` or ``"single cell"``.
+    note : remark (e.g. alternating cells), may be empty.
+    """
+
+    segment: Segment
+    condition: tuple[float, float]
+    query: tuple[float, float]
+    clamped: bool
+    cells: tuple[CellUse, ...]
+    iterations: tuple[IterationStep, ...]
+    converged: bool
+    how: str
+    note: str = ""
+
+
+def _usable(pf: ParamsFile) -> list[int]:
+    return [i for i, c in enumerate(pf.cells) if math.isfinite(c.amplitude_V) and math.isfinite(c.frequency_Hz)
+            and c.frequency_Hz > 0]
+
+
+def select_cells(pf: ParamsFile, condition: tuple[float, float], method: str = "interpolate"
+                 ) -> tuple[tuple[CellUse, ...], tuple[float, float], bool]:
+    """Cells and weights for ``condition`` = (amplitude_V peak-to-peak, frequency_Hz).
+
+    ``interpolate``: bilinear in (amplitude, log10 frequency) between the surrounding cells; a
+    condition outside the grid is first clamped onto it (amplitude and frequency separately),
+    so the weights are continuous in the condition. Where a needed corner is missing the
+    nearest cell is used. ``nearest``: the closest cell in (log10 f, A/A_max). A table
+    without usable conditions (a global fit) always gives its first cell.
+
+    Returns
+    -------
+    (cells, query, clamped)
+        The used cells (weights > 0 summing to 1), the point looked up, and whether the
+        condition was clamped.
+    """
+    if method not in ("interpolate", "nearest"):
+        raise ConfigError(f"method {method!r}: choose interpolate or nearest")
+    a, f = float(condition[0]), float(condition[1])
+    if not (math.isfinite(a) and math.isfinite(f) and f > 0):
+        raise ConfigError(f"condition ({a:g} V, {f:g} Hz): needs a finite amplitude and a positive frequency")
+    idx = _usable(pf)
+    if len(pf.cells) == 1 or not idx:
+        c = pf.cells[0]
+        return (CellUse(0, c.label, c.amplitude_V, c.frequency_Hz, 1.0),), (a, f), False
+    keys = [(pf.cells[i].amplitude_V, pf.cells[i].frequency_Hz) for i in idx]
+    table = LookupTable(keys, [np.array([float(i)]) for i in idx])
+    by_key = dict(zip(table.keys, idx))
+    amps = sorted({k[0] for k in table.keys})
+    freqs = sorted({k[1] for k in table.keys})
+    qa = min(max(a, amps[0]), amps[-1])
+    qf = min(max(f, freqs[0]), freqs[-1])
+    clamped = (qa != a) or (qf != f)
+    if method == "interpolate":
+        _, used = table.interpolate((qa, qf))
+    else:
+        key, _ = table.nearest((a, f))
+        used = [(key, 1.0)]
+    cells = []
+    for k, w in used:
+        i = by_key[(float(k[0]), float(k[1]))]
+        c = pf.cells[i]
+        cells.append(CellUse(i, c.label, c.amplitude_V, c.frequency_Hz, float(w)))
+    return tuple(cells), (qa, qf), clamped
+
+
+def table_gain(pf: ParamsFile) -> float:
+    """Median over cells of (output range / input range) of the identification data (unit/V)."""
+    g = [c.scale.gain for c in pf.cells if c.scale.u_range > 0]
+    return float(np.median(g)) if g else 1.0
+
+
+def default_voltage_limits(pf: ParamsFile, margin: float = LIMIT_MARGIN) -> tuple[float, float]:
+    """The table's identification voltage range ± ``margin`` × its width (V).
+
+    The union of all cells' input ranges (``data_scale.u_min/u_max``): the range the stage was
+    driven over while identifying, where the models are trustworthy.
+    """
+    lo = min(c.scale.u_min for c in pf.cells)
+    hi = max(c.scale.u_max for c in pf.cells)
+    span = max(hi - lo, 1e-12)
+    return lo - margin * span, hi + margin * span
+
+
+# ----------------------------------------------------------------------------------------------
+# Inverting one cell
+# ----------------------------------------------------------------------------------------------
+
+_ACCEPTS_RANGE: dict[type, bool] = {}
+
+
+def _accepts_u_range(model) -> bool:
+    cls = type(model)
+    if cls not in _ACCEPTS_RANGE:
+        try:
+            _ACCEPTS_RANGE[cls] = "u_range" in inspect.signature(model.invert).parameters
+        except (TypeError, ValueError):
+            _ACCEPTS_RANGE[cls] = False
+    return _ACCEPTS_RANGE[cls]
+
+
+def _search_range(cell: Cell) -> tuple[float, float]:
+    """Search interval (V) for numerical inverses: the cell's data range ± 100 % of its width.
+
+    Deliberately wider than the voltage limits: clipping is done (and reported) afterwards,
+    never inside the inverse.
+    """
+    s = cell.scale
+    return s.u_min - s.u_range, s.u_max + s.u_range
+
+
+def rest_output(cell: Cell, voltage: float, dt: float) -> float:
+    """Output (unit) of the cell's model at rest at ``voltage`` (V), from the reset state."""
+    return float(cell.model.simulate_one(cell.theta, np.full(PREROLL, float(voltage)), dt)[-1])
+
+
+def invert_cell(cell: Cell, y: np.ndarray, dt: float, initial_voltage: float | None = None) -> np.ndarray:
+    """Voltage (N,) making ``cell``'s model follow ``y`` (N,), memory as described in the module docstring.
+
+    Raises
+    ------
+    ConfigError
+        The model cannot be inverted (e.g. negative weights) or returns non-finite voltages.
+    """
+    model, theta = cell.model, cell.theta
+    if initial_voltage is not None:
+        y_rest = rest_output(cell, initial_voltage, dt)
+        y = np.concatenate([np.full(PREROLL, y_rest), y])
+    kwargs = {"u_range": _search_range(cell)} if _accepts_u_range(model) else {}
+    try:
+        u = np.asarray(model.invert(theta, y, dt, **kwargs), dtype=np.float64)
+    except (ValueError, ZeroDivisionError, FloatingPointError) as exc:
+        if isinstance(exc, ConfigError):
+            raise ConfigError(f"cell {cell.label}: {exc}") from None
+        raise ConfigError(f"cell {cell.label}: the {model.name} model cannot be inverted ({exc})") from None
+    if u.shape != y.shape or not np.all(np.isfinite(u)):
+        raise ConfigError(f"cell {cell.label}: the {model.name} inverse gave non-finite voltages; the identified "
+                          "parameters are not invertible (refit, e.g. with non-negative weights)")
+    return u[PREROLL:] if initial_voltage is not None else u
+
+
+def simulate_cell(cell: Cell, u: np.ndarray, dt: float, initial_voltage: float | None = None) -> np.ndarray:
+    """Forward output (N,) of ``cell`` for voltage ``u`` (N,), with the same rest pre-roll as :func:`invert_cell`."""
+    if initial_voltage is not None:
+        u = np.concatenate([np.full(PREROLL, float(initial_voltage)), u])
+    y = cell.model.simulate_one(cell.theta, u, dt)
+    return y[PREROLL:] if initial_voltage is not None else y
+
+
+class _CellCache:
+    """Inverse voltages per cell, computed once for the whole target."""
+
+    def __init__(self, pf: ParamsFile, target: Target, initial_voltage: float | None, progress: Progress):
+        self.pf, self.target, self.v0, self.progress = pf, target, initial_voltage, progress
+        self.u: dict[int, np.ndarray] = {}
+
+    def get(self, i: int) -> np.ndarray:
+        if i not in self.u:
+            cell = self.pf.cells[i]
+            if self.progress:
+                self.progress("note", {"text": f"inverting cell {cell.label} ({self.target.n} samples)"})
+            self.u[i] = invert_cell(cell, self.target.y, self.target.dt, self.v0)
+        return self.u[i]
+
+    def blend(self, cells: Sequence[CellUse], sl: slice) -> np.ndarray:
+        out = np.zeros(sl.stop - sl.start)
+        for c in cells:
+            out += c.weight * self.get(c.index)[sl]
+        return out
+
+
+def choose_condition(pf: ParamsFile, target: Target, segment: Segment, cache: "_CellCache", *,
+                     method: str = "interpolate", condition: tuple[float, float] | None = None,
+                     max_iterations: int = 25) -> SegmentChoice:
+    """Settle the table cell(s) for one segment (see the module docstring, step 2).
+
+    The iteration starts at A₀ = segment stroke / :func:`table_gain`. It stops when the
+    amplitude is self-consistent to :data:`AMPLITUDE_RTOL` with unchanged cells, or when a
+    cell set recurs (nearest lookup alternating between two cells at a boundary): then the
+    set whose own voltage amplitude lies closest to its cells' amplitude is kept and the
+    alternation is reported.
+    """
+    sl = slice(segment.start, segment.stop)
+    f = segment.frequency_Hz if math.isfinite(segment.frequency_Hz) else _target_frequency(
+        cache.target.y[sl], cache.target.dt)
+    if condition is not None:
+        cells, query, clamped = select_cells(pf, condition, method)
+        return SegmentChoice(segment, (float(condition[0]), float(condition[1])), query, clamped, cells, (), True,
+                             "forced")
+    if len(pf.cells) == 1 or not _usable(pf):
+        cells, query, clamped = select_cells(pf, (1.0, f), method)
+        return SegmentChoice(segment, (float("nan"), f), query, False, cells, (), True, "single cell")
+    y = cache.target.y[sl]
+    stroke = float(y.max() - y.min())
+    a = stroke / table_gain(pf) if stroke > 0 else min(c.amplitude_V for c in pf.cells if math.isfinite(c.amplitude_V))
+    steps: list[IterationStep] = []
+    seen: dict[tuple, int] = {}
+    for _ in range(max_iterations):
+        cells, query, clamped = select_cells(pf, (a, f), method)
+        pp = float(np.ptp(cache.blend(cells, sl)))
+        steps.append(IterationStep(a, cells, pp))
+        key = tuple((c.index, round(c.weight, 9)) for c in cells)
+        if abs(pp - a) <= AMPLITUDE_RTOL * max(pp, 1e-12) or (len(steps) > 1 and key == _key(steps[-2].cells)):
+            # self-consistent, or the same cells again (then the voltage, hence pp, is the same too)
+            return SegmentChoice(segment, (a, f), query, clamped, cells, tuple(steps), True, "iterated")
+        if key in seen:  # a cycle of cell sets (nearest lookup at a boundary): no self-consistent choice
+            cycle = steps[seen[key]:-1]
+            best = min(cycle, key=lambda s: abs(s.result_pp_V - _cells_amplitude(s.cells)))
+            names = sorted({"+".join(c.label for c in s.cells) for s in cycle})
+            note = (f"the amplitude iteration alternated between cells {' / '.join(names)}; kept "
+                    f"{'+'.join(c.label for c in best.cells)} (its voltage amplitude {best.result_pp_V:.4g} V is "
+                    "closest to its cells' amplitude)")
+            _, query, clamped = select_cells(pf, (best.amplitude_V, f), method)
+            return SegmentChoice(segment, (best.amplitude_V, f), query, clamped, best.cells, tuple(steps), False,
+                                 "iterated", note)
+        seen[key] = len(steps) - 1
+        a = pp
+    last = steps[-1]
+    note = f"the amplitude iteration did not settle in {max_iterations} passes (last {last.amplitude_V:.4g} V)"
+    _, query, clamped = select_cells(pf, (last.amplitude_V, f), method)
+    return SegmentChoice(segment, (last.amplitude_V, f), query, clamped, last.cells, tuple(steps), False,
+                         "iterated", note)
+
+
+def _key(cells: Sequence[CellUse]) -> tuple:
+    return tuple((c.index, round(c.weight, 9)) for c in cells)
+
+
+def _cells_amplitude(cells: Sequence[CellUse]) -> float:
+    return float(sum(c.weight * c.amplitude_V for c in cells))
+
+
+# ----------------------------------------------------------------------------------------------
+# Limits
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Span:
+    """A contiguous run of limited samples ``start`` … ``stop − 1``.
+
+    start_s, stop_s : time of the first and last limited sample (s).
+    n : number of samples.
+    worst_V : largest |desired − applied| voltage in the span (V).
+    kind : ``"vmin"``, ``"vmax"`` or ``"slew"``.
+    """
+
+    start: int
+    stop: int
+    start_s: float
+    stop_s: float
+    n: int
+    worst_V: float
+    kind: str
+
+
+def find_spans(mask: np.ndarray, excess: np.ndarray, dt: float, kind: str) -> list[Span]:
+    """Contiguous runs of ``mask`` (N,) as :class:`Span` objects (excess (N,) in V)."""
+    mask = np.asarray(mask, dtype=bool)
+    if not mask.any():
+        return []
+    d = np.diff(mask.astype(np.int8), prepend=0, append=0)
+    starts = np.flatnonzero(d == 1)
+    stops = np.flatnonzero(d == -1)
+    return [Span(int(a), int(b), a * dt, (b - 1) * dt, int(b - a), float(np.max(np.abs(excess[a:b]))), kind)
+            for a, b in zip(starts, stops)]
+
+
+@njit(cache=True)
+def _rate_limit(u, u0, max_step):
+    out = np.empty_like(u)
+    prev = u0
+    for k in range(u.shape[0]):
+        x = u[k]
+        if x > prev + max_step:
+            x = prev + max_step
+        elif x < prev - max_step:
+            x = prev - max_step
+        out[k] = x
+        prev = x
+    return out
+
+
+def apply_limits(u: np.ndarray, dt: float, vmin: float, vmax: float, max_slew: float | None,
+                 u_start: float) -> tuple[np.ndarray, list[Span], list[Span]]:
+    """Clip to [vmin, vmax] (V), then limit the slew rate to ``max_slew`` (V/s) from ``u_start`` (V).
+
+    Returns
+    -------
+    (u_applied, clip_spans, slew_spans)
+        The applied voltage (N,) and the spans where clipping (kind ``vmin``/``vmax``, excess =
+        desired − clipped) and slew limiting (kind ``slew``, excess = clipped − applied) acted.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    uc = np.clip(u, vmin, vmax)
+    clip = find_spans(u < vmin, u - uc, dt, "vmin") + find_spans(u > vmax, u - uc, dt, "vmax")
+    clip.sort(key=lambda s: s.start)
+    if max_slew is None:
+        return uc, clip, []
+    ua = _rate_limit(np.ascontiguousarray(uc), float(u_start), float(max_slew) * dt)
+    diff = uc - ua
+    slew = find_spans(np.abs(diff) > 1e-12 * max(1.0, abs(vmax), abs(vmin)), diff, dt, "slew")
+    return ua, clip, slew
+
+
+# ----------------------------------------------------------------------------------------------
+# The inversion
+# ----------------------------------------------------------------------------------------------
+
+
+def tracking_metrics(y_pred: np.ndarray, y_d: np.ndarray, unit: str, stroke: float | None = None) -> dict:
+    """Paper 002 Table 4 figures of e = y_pred − y_d: max|e|, RMSE, mean, and both in % of the stroke.
+
+    ``stroke`` defaults to max y_d − min y_d (``unit``).
+    """
+    e = np.asarray(y_pred, float) - np.asarray(y_d, float)
+    stroke = float(np.max(y_d) - np.min(y_d)) if stroke is None else float(stroke)
+    finite = bool(np.all(np.isfinite(e)))
+    rmse = float(np.sqrt(np.mean(e * e))) if finite else float("inf")
+    mx = float(np.max(np.abs(e))) if finite else float("inf")
+    pct = (lambda x: 100.0 * x / stroke) if stroke > 0 else (lambda x: float("nan"))
+    return {f"max_error_{unit}": mx, f"rmse_{unit}": rmse, f"mean_error_{unit}": float(np.mean(e)) if finite else
+            float("nan"), "max_error_pct_of_stroke": pct(mx), "rmse_pct_of_stroke": pct(rmse),
+            f"stroke_{unit}": stroke, "n_samples": int(e.size)}
+
+
+@dataclass(frozen=True, eq=False)
+class InversionResult:
+    """Everything :func:`invert_target` computed (arrays (N,) aligned with ``target.t_s``).
+
+    voltage_V : the voltage to apply (after clipping and slew limiting).
+    desired_voltage_V : the blended inverse before any limit.
+    predicted : forward-model output for ``voltage_V`` (``unit``).
+    metrics : :func:`tracking_metrics` of ``predicted`` against the target.
+    metrics_unlimited : the same for ``desired_voltage_V`` (None when no limit acted).
+    segment_metrics : per segment, the same metrics.
+    choices : the table cells per segment (:class:`SegmentChoice`).
+    limits : dict with vmin_V, vmax_V, max_slew_V_per_s and where each came from.
+    initial_voltage_V, initial_voltage_source : the stage's rest voltage before the target and
+        how it was chosen (``"inverse of the first target sample"`` or ``"given"``).
+    clip_spans, slew_spans : where limits acted.
+    extrapolation : voltage ranges outside a used cell's identification range.
+    notes : further remarks, each a sentence.
+    """
+
+    params_path: str
+    model_name: str
+    unit: str
+    target: Target
+    method: str
+    voltage_V: np.ndarray
+    desired_voltage_V: np.ndarray
+    predicted: np.ndarray
+    metrics: dict
+    metrics_unlimited: dict | None
+    segment_metrics: tuple[dict, ...]
+    choices: tuple[SegmentChoice, ...]
+    limits: dict
+    initial_voltage_V: float
+    initial_voltage_source: str
+    clip_spans: tuple[Span, ...]
+    slew_spans: tuple[Span, ...]
+    extrapolation: tuple[dict, ...]
+    notes: tuple[str, ...] = field(default_factory=tuple)
+    runtime_s: float = 0.0
+
+    @property
+    def limited(self) -> bool:
+        return bool(self.clip_spans or self.slew_spans)
+
+    def to_frame(self) -> pd.DataFrame:
+        """``time_s, voltage_V, predicted_displacement_<unit>``: the file for the amplifier."""
+        return pd.DataFrame({"time_s": self.target.t_s, "voltage_V": self.voltage_V,
+                             f"predicted_displacement_{self.unit}": self.predicted})
+
+    def cells_used(self) -> list[tuple[str, float]]:
+        """(label, weight) of every cell used, weights averaged over segments by length."""
+        tot: dict[str, float] = {}
+        n = self.target.n
+        for ch in self.choices:
+            frac = (ch.segment.stop - ch.segment.start) / n
+            for c in ch.cells:
+                tot[c.label] = tot.get(c.label, 0.0) + frac * c.weight
+        return sorted(tot.items(), key=lambda kv: -kv[1])
+
+
+def _crossfade(n_a: int, n_b: int) -> int:
+    """Samples over which weights change at a segment join (2 % of the shorter segment)."""
+    return max(1, int(round(0.02 * min(n_a, n_b))))
+
+
+def _blend_segments(arrays: dict[int, np.ndarray], choices: Sequence[SegmentChoice], n: int) -> np.ndarray:
+    """Σ_c w_c(k)·arrays[c][k] with per-segment weights, cross-faded linearly after each join."""
+    out = np.zeros(n)
+    for ch in choices:
+        s, e = ch.segment.start, ch.segment.stop
+        for c in ch.cells:
+            out[s:e] += c.weight * arrays[c.index][s:e]
+    for prev, nxt in zip(choices, choices[1:]):
+        j = nxt.segment.start
+        m = min(_crossfade(prev.segment.stop - prev.segment.start, nxt.segment.stop - j), nxt.segment.stop - j)
+        if {(c.index, c.weight) for c in prev.cells} == {(c.index, c.weight) for c in nxt.cells}:
+            continue
+        ramp = (np.arange(m) + 1.0) / (m + 1.0)  # weight of the new segment's cells
+        old = np.zeros(m)
+        for c in prev.cells:
+            old += c.weight * arrays[c.index][j:j + m]
+        out[j:j + m] = (1.0 - ramp) * old + ramp * out[j:j + m]
+    return out
+
+
+def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate",
+                  condition: tuple[float, float] | None = None, initial_voltage: float | None = None,
+                  vmin: float | None = None, vmax: float | None = None, max_slew: float | None = None,
+                  progress: Progress = None) -> InversionResult:
+    """Feedforward voltage for ``target`` from the look-up table ``pf`` (module docstring, steps 1–6).
+
+    Parameters
+    ----------
+    pf : parameter file (:func:`hystfit.results.load_params`).
+    target : desired trajectory; its unit must be the parameter file's output unit.
+    method : ``"interpolate"`` (bilinear between cells) or ``"nearest"``.
+    condition : force the table condition (amplitude_V peak-to-peak, frequency_Hz) for every
+        segment instead of iterating.
+    initial_voltage : voltage (V) the stage rests at before the target; default: the inverse
+        of the target's first sample (consistent with the models' reset state).
+    vmin, vmax : voltage limits (V); default :func:`default_voltage_limits`.
+    max_slew : slew-rate limit (V/s); default none.
+    progress : optional callback ``progress(event, info)``.
+
+    Returns
+    -------
+    InversionResult
+
+    Raises
+    ------
+    ConfigError
+        Unit mismatch, vmin ≥ vmax, non-positive slew rate, initial voltage outside the
+        limits, or a model that cannot be inverted.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    if target.unit != pf.unit:
+        raise ConfigError(f"the target is in {target.unit} but {pf.path} is in {pf.unit}; convert the target "
+                          f"(or name its column e.g. target_{pf.unit})")
+    if method not in ("interpolate", "nearest"):
+        raise ConfigError(f"method {method!r}: choose interpolate or nearest")
+    dlo, dhi = default_voltage_limits(pf)
+    lo = dlo if vmin is None else _finite("vmin", vmin)
+    hi = dhi if vmax is None else _finite("vmax", vmax)
+    if not lo < hi:
+        raise ConfigError(f"the voltage limits must satisfy vmin < vmax; got vmin = {lo:g} V, vmax = {hi:g} V")
+    if max_slew is not None:
+        max_slew = _positive("the slew-rate limit (V/s)", max_slew)
+    if initial_voltage is not None:
+        initial_voltage = _finite("initial voltage", initial_voltage)
+        if not lo <= initial_voltage <= hi:
+            raise ConfigError(f"the initial voltage {initial_voltage:g} V lies outside the voltage limits "
+                              f"[{lo:g}, {hi:g}] V; change --initial-voltage or the limits")
+    if condition is not None:
+        condition = (_positive("condition amplitude (V)", condition[0]), _positive("condition frequency (Hz)",
+                                                                                   condition[1]))
+    y_d = target.y
+    cache = _CellCache(pf, target, initial_voltage, progress)
+    if progress:
+        progress("start", {"total": len(target.segments)})
+    choices = []
+    for seg in target.segments:
+        choices.append(choose_condition(pf, target, seg, cache, method=method, condition=condition))
+        if progress:
+            progress("advance", {"label": seg.label})
+    used = sorted({c.index for ch in choices for c in ch.cells})
+    u_des = _blend_segments({i: cache.get(i) for i in used}, choices, target.n)
+    v0_source = "given" if initial_voltage is not None else "inverse of the first target sample"
+    v0 = float(initial_voltage) if initial_voltage is not None else float(u_des[0])
+    notes: list[str] = []
+    if initial_voltage is None and not lo <= v0 <= hi:
+        notes.append(f"the inverse of the first target sample is {v0:.4g} V, outside the limits; the stage is "
+                     f"assumed to rest there before the target starts")
+    u_app, clip_spans, slew_spans = apply_limits(u_des, target.dt, lo, hi, max_slew, v0)
+    # unused cache entries are released before the forward simulations
+    cache.u = {i: cache.u[i] for i in used}
+    y_pred = _blend_segments({i: simulate_cell(pf.cells[i], u_app, target.dt, initial_voltage) for i in used},
+                             choices, target.n)
+    metrics = tracking_metrics(y_pred, y_d, pf.unit)
+    metrics_unlim = None
+    if clip_spans or slew_spans:
+        y_unl = _blend_segments({i: simulate_cell(pf.cells[i], u_des, target.dt, initial_voltage) for i in used},
+                                choices, target.n)
+        metrics_unlim = tracking_metrics(y_unl, y_d, pf.unit)
+        del y_unl
+    seg_metrics = tuple({"segment": ch.segment.label, "start_s": ch.segment.start * target.dt,
+                         "stop_s": (ch.segment.stop - 1) * target.dt,
+                         **tracking_metrics(y_pred[ch.segment.start:ch.segment.stop],
+                                            y_d[ch.segment.start:ch.segment.stop], pf.unit)}
+                        for ch in choices)
+    if initial_voltage is not None:
+        y_rest = sum(c.weight * rest_output(pf.cells[c.index], initial_voltage, target.dt) for c in choices[0].cells)
+        jump = float(y_d[0] - y_rest)
+        if abs(jump) > 1e-3 * max(target.stroke, 1e-12):
+            notes.append(f"at the initial voltage {initial_voltage:g} V the stage rests at {y_rest:.4g} {pf.unit} "
+                         f"(model), the target starts at {y_d[0]:.4g} {pf.unit}: a jump of {jump:+.4g} {pf.unit} "
+                         "at t = 0")
+    for ch in choices:
+        if ch.note:
+            notes.append(f"segment {ch.segment.label}: {ch.note}")
+        if ch.clamped:
+            notes.append(f"segment {ch.segment.label}: condition {ch.condition[0]:.4g} V, {ch.condition[1]:.4g} Hz "
+                         f"lies outside the table's grid; clamped to {ch.query[0]:.4g} V, {ch.query[1]:.4g} Hz")
+    extrap = _extrapolation(pf, choices, u_app)
+    for x in extrap:
+        notes.append(f"cell {x['cell']} (identified on {x['identified_V'][0]:.4g}…{x['identified_V'][1]:.4g} V) is "
+                     f"used on {x['used_V'][0]:.4g}…{x['used_V'][1]:.4g} V: extrapolated")
+    limits = {"vmin_V": lo, "vmax_V": hi, "vmin_source": "default" if vmin is None else "given",
+              "vmax_source": "default" if vmax is None else "given",
+              "default_rule": f"identification voltage range {min(c.scale.u_min for c in pf.cells):g}…"
+                              f"{max(c.scale.u_max for c in pf.cells):g} V ± {LIMIT_MARGIN * 100:g} %",
+              "max_slew_V_per_s": max_slew}
+    return InversionResult(pf.path, pf.model_name, pf.unit, target, method, u_app, u_des, y_pred, metrics,
+                           metrics_unlim, seg_metrics, tuple(choices), limits, v0, v0_source, tuple(clip_spans),
+                           tuple(slew_spans), tuple(extrap), tuple(notes), time.perf_counter() - t0)
+
+
+def _extrapolation(pf: ParamsFile, choices: Sequence[SegmentChoice], u: np.ndarray) -> list[dict]:
+    """Used cells whose segment voltages leave their identification range by more than 2 % of it."""
+    out = []
+    for ch in choices:
+        seg = u[ch.segment.start:ch.segment.stop]
+        ulo, uhi = float(seg.min()), float(seg.max())
+        for c in ch.cells:
+            s = pf.cells[c.index].scale
+            tol = 0.02 * s.u_range
+            if ulo < s.u_min - tol or uhi > s.u_max + tol:
+                out.append({"segment": ch.segment.label, "cell": c.label, "identified_V": [s.u_min, s.u_max],
+                            "used_V": [ulo, uhi]})
+    return out
+
+
+def condition_text(ch: SegmentChoice) -> str:
+    """One-line description of the cells used for a segment, e.g. ``40V_10Hz×0.77 + 20V_10Hz×0.23``."""
+    return " + ".join(f"{c.label}×{c.weight:.2f}" for c in sorted(ch.cells, key=lambda c: -c.weight))
+
+
+def condition_key_label(condition: tuple[float, float]) -> str:
+    a, f = condition
+    if not (math.isfinite(a) and math.isfinite(f)):
+        return "–"
+    return condition_label((round(a, 3), round(f, 3)))
