@@ -9,11 +9,8 @@ is recorded with its error and the comparison goes on.
 
 from __future__ import annotations
 
-import os
 import time
 import traceback
-from contextlib import contextmanager
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Optional, Sequence
 
@@ -25,6 +22,7 @@ from .errors import ConfigError, HystfitError
 from .identify import fit_captures
 from .metrics import compute_metrics_pooled
 from .objective import Objective, Series
+from .parallel import default_jobs, run_jobs
 from .registry import models as model_registry
 from .registry import optimizers as optimizer_registry
 from .setup import make_model, make_optimizer
@@ -132,43 +130,6 @@ def run_cell(spec: CellSpec) -> CellResult:
                       runtime_s=time.perf_counter() - t0)
 
 
-def _init_worker() -> None:
-    """Pool workers run single-threaded kernels: processes already occupy the cores."""
-    try:
-        import numba
-
-        numba.set_num_threads(1)
-    except Exception:  # pragma: no cover
-        pass
-
-
-#: thread-count variables of BLAS/OpenMP/numba, set to 1 for pool workers
-_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
-                "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
-
-
-@contextmanager
-def single_threaded_children():
-    """Spawned workers inherit the environment: one thread each, so processes × threads ≤ cores."""
-    saved = {k: os.environ.get(k) for k in _THREAD_VARS}
-    os.environ.update({k: "1" for k in _THREAD_VARS})
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def default_jobs() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover
-        return max(1, os.cpu_count() or 1)
-
-
 def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_names: Sequence[str], *,
             runs: int = 1, seed: int = 0, jobs: int | None = None, polish: bool = True,
             model_options: Mapping[str, dict] | None = None, optimizer_options: Mapping[str, dict] | None = None,
@@ -210,25 +171,12 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     jobs = default_jobs() if jobs is None else max(1, int(jobs))
     if progress:
         progress("start", {"total": len(specs)})
-    results: dict[int, CellResult] = {}
-    if jobs == 1 or len(specs) == 1:
-        for i, s in enumerate(specs):
-            results[i] = run_cell(s)
-            if progress:
-                progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}"})
-    else:
-        import multiprocessing as mp
 
-        ctx = mp.get_context("spawn")
-        with single_threaded_children(), ProcessPoolExecutor(max_workers=min(jobs, len(specs)), mp_context=ctx,
-                                                             initializer=_init_worker) as ex:
-            futs = {ex.submit(run_cell, s): i for i, s in enumerate(specs)}
-            for fut in as_completed(futs):
-                i = futs[fut]
-                results[i] = fut.result()
-                if progress:
-                    s = specs[i]
-                    progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}"})
-    cells = tuple(results[i] for i in range(len(specs)))
+    def done(i: int, _res) -> None:
+        if progress:
+            s = specs[i]
+            progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}"})
+
+    cells = tuple(run_jobs(run_cell, specs, jobs, done))
     return CompareResult(tuple(model_names), tuple(optimizer_names), conds,
                          {lab: tuple(groups[k]) for k, lab in conds}, cells, runs, seed, units.pop(), jobs, polish)

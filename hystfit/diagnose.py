@@ -923,6 +923,7 @@ def choose_effect(results: Sequence[EffectResult], settings: DiagnoseSettings) -
 
 def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
     """Plain-language evidence of one effect: signature, where-pointer, parameters, held-out numbers."""
+    unit = {"um": "µm"}.get(unit, unit)
     s = where["summary"]
     p = res["params"]
     sig = f"its signature explains {100 * res['signature_share']:.0f} % of the residual above noise"
@@ -943,8 +944,10 @@ def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
         parts.append(f"{sig} (slow low-pass responses of the output)")
         parts.append(f"{100 * s['low_frequency_share']:.0f} % of the residual power above noise is below half the "
                      "excitation frequency")
-        if s["long_capture_ratio"] is not None:
+        if s["long_capture_ratio"] is not None and s["long_capture_ratio"] > 1.2:
             parts.append(f"longest captures miss {s['long_capture_ratio']:.1f}× more")
+        if s.get("heldout_to_fit_ratio") is not None and s["heldout_to_fit_ratio"] > 1.15:
+            parts.append(f"the gap grows {s['heldout_to_fit_ratio']:.2f}× into later time")
         parts.append("fitted gains " + ", ".join(f"{100 * g:.2g} % at τ = {t:g} s" for t, g in zip(p["tau_s"], p["gain"]))
                      + f" (total {100 * p['total_gain']:.2g} %)")
     elif name == "asymmetry":
@@ -955,6 +958,8 @@ def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
                      "stroke)")
     elif name == "drift":
         parts.append(f"{sig} (an offset and a ramp per capture)")
+        if s.get("heldout_to_fit_ratio") is not None and s["heldout_to_fit_ratio"] > 1.15:
+            parts.append(f"the gap grows {s['heldout_to_fit_ratio']:.2f}× into later time")
         parts.append(f"{100 * s['low_frequency_share']:.0f} % of the residual power above noise is below half the "
                      "excitation frequency")
         parts.append(f"fitted rates: median |v| = {p['median_abs_rate_out_per_s']:.3g} {unit}/s")

@@ -776,7 +776,13 @@ class Delay(Effect):
         return fractional_delay(x, float(phi[0]), view.dt)
 
     def signature(self, yhat, view):
-        return _derivative(yhat, view.dt)[:, None], np.zeros((yhat.shape[0], 0))
+        """One sample of delay, ŷ(t − dt) − ŷ(t): first order in T_d for smooth inputs, and the
+        right shape at steps (a derivative would be a spike there)."""
+        x = np.asarray(yhat, float)
+        back = np.empty_like(x)
+        back[0] = 0.0
+        back[1:] = x[:-1] - x[1:]
+        return back[:, None], np.zeros((x.shape[0], 0))
 
     def describe(self, phi, shared, local, views, sources=None):
         d = float(phi[0])

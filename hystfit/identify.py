@@ -21,6 +21,7 @@ from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import OptimizeResult, Optimizer
 from .optimizers.lsq import polisher
+from .parallel import default_jobs, run_jobs
 from .params import DataScale, Param, apply_bound_overrides
 
 #: progress(event, info) — events: "start" (total units), "advance" (one run done), "note" (text).
@@ -122,11 +123,24 @@ def unit_param(p: Param, unit: str) -> str:
     return p.unit.replace("out", unit)
 
 
-def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int, cell: int = 0,
-                 runs: int = 1, polish: bool = True, bounds: Mapping[str, tuple[float, float]] | None = None,
-                 progress: Progress = None, label: str | None = None,
-                 condition: tuple[float, float] | None = None) -> ConditionFit:
-    """Fit one parameter set to the pooled ``captures``: ``runs`` seeded runs, best kept."""
+@dataclass(frozen=True)
+class _Problem:
+    """What every run of one cell shares: the adapted model, its box and the pooled captures."""
+
+    captures: tuple[Capture, ...]
+    model: Model
+    scale: DataScale
+    params: tuple[Param, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+    unit: str
+
+    def objective(self) -> Objective:
+        return Objective(self.model, [Series(c.u, c.y, c.dt) for c in self.captures])
+
+
+def _problem(captures: Sequence[Capture], model: Model,
+             bounds: Mapping[str, tuple[float, float]] | None) -> _Problem:
     for c in captures:
         if c.y is None:
             raise InputError(f"{c.source}: no measured output column; identification needs one (see --output-col)")
@@ -134,42 +148,72 @@ def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer
     scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
     model = model.prepare(captures).adapt(scale)
     params = apply_bound_overrides(model.params(scale), bounds or {})
-    lower = np.array([p.lower for p in params])
-    upper = np.array([p.upper for p in params])
-    objective = Objective(model, [Series(c.u, c.y, c.dt) for c in captures])
-    t0 = time.perf_counter()
-    records = []
-    for r in range(runs):
-        s = run_seed(seed, cell, r)
-        rng = np.random.default_rng(s)
-        t_run = time.perf_counter()
-        x0 = np.array([p.default for p in params]) if not optimizer.population_based else None
-        res = optimizer.minimize(objective, lower, upper, rng=rng, x0=x0)
-        pol = None
-        x, fun = res.x, res.fun
-        if polish and optimizer.name not in ("lsq", "auto") and np.isfinite(fun):
-            pol = polisher().minimize(objective, lower, upper, rng=rng, x0=res.x)
-            if pol.fun <= fun:
-                x, fun = pol.x, pol.fun
-        records.append(RunRecord(r, s, res, pol, np.asarray(x, float), float(fun), float(np.sqrt(fun)),
-                                 time.perf_counter() - t_run))
-        if progress:
-            progress("advance", {"label": label, "run": r, "rmse": float(np.sqrt(fun))})
+    return _Problem(tuple(captures), model, scale, params, np.array([p.lower for p in params]),
+                    np.array([p.upper for p in params]), unit)
+
+
+def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int, polish: bool,
+         objective: Objective | None = None) -> RunRecord:
+    """One seeded optimizer run (plus the least-squares polish) on one cell."""
+    objective = objective if objective is not None else problem.objective()
+    s = run_seed(seed, cell, run)
+    rng = np.random.default_rng(s)
+    t_run = time.perf_counter()
+    x0 = np.array([p.default for p in problem.params]) if not optimizer.population_based else None
+    res = optimizer.minimize(objective, problem.lower, problem.upper, rng=rng, x0=x0)
+    pol = None
+    x, fun = res.x, res.fun
+    if polish and optimizer.name not in ("lsq", "auto") and np.isfinite(fun):
+        pol = polisher().minimize(objective, problem.lower, problem.upper, rng=rng, x0=res.x)
+        if pol.fun <= fun:
+            x, fun = pol.x, pol.fun
+    return RunRecord(run, s, res, pol, np.asarray(x, float), float(fun), float(np.sqrt(fun)),
+                     time.perf_counter() - t_run)
+
+
+def _run_job(job: tuple) -> RunRecord:
+    """Pool entry point: (problem, optimizer, seed, cell, run, polish) → RunRecord."""
+    return _run(*job)
+
+
+def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | None,
+               condition: tuple[float, float] | None) -> ConditionFit:
+    captures = problem.captures
+    objective = problem.objective()
     best = int(np.argmin([rec.fun for rec in records]))
     theta = records[best].x
     preds = objective.predict(theta)
+    unit = problem.unit
     metrics = compute_metrics_pooled([(c.y, p) for c, p in zip(captures, preds)], unit)
     per = tuple({"source": c.source, **compute_metrics(c.y, p, unit)} for c, p in zip(captures, preds))
-    stderr = _stderr(objective, theta, lower, upper)
+    stderr = _stderr(objective, theta, problem.lower, problem.upper)
     if condition is None:
         condition = (captures[0].amplitude_V, captures[0].frequency_Hz)
     return ConditionFit(
         amplitude_V=float(condition[0]), frequency_Hz=float(condition[1]),
-        label=label or condition_label(condition), captures=tuple(captures), model=model, scale=scale,
-        params=params, theta=theta, stderr=stderr, metrics=metrics, per_capture=per,
+        label=label or condition_label(condition), captures=tuple(captures), model=problem.model,
+        scale=problem.scale, params=problem.params, theta=theta, stderr=stderr, metrics=metrics, per_capture=per,
         predictions=tuple(preds), runs=tuple(records), best_run=best,
-        runtime_s=time.perf_counter() - t0, unit=unit,
+        runtime_s=float(sum(r.wall_time_s for r in records)), unit=unit,
     )
+
+
+def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int, cell: int = 0,
+                 runs: int = 1, polish: bool = True, bounds: Mapping[str, tuple[float, float]] | None = None,
+                 progress: Progress = None, label: str | None = None,
+                 condition: tuple[float, float] | None = None) -> ConditionFit:
+    """Fit one parameter set to the pooled ``captures``: ``runs`` seeded runs, best kept.
+
+    Run r uses the seed :func:`run_seed` (seed, cell, r), recorded in the result.
+    """
+    problem = _problem(captures, model, bounds)
+    objective = problem.objective()
+    records = []
+    for r in range(runs):
+        records.append(_run(problem, optimizer, seed, cell, r, polish, objective))
+        if progress:
+            progress("advance", {"label": label, "run": r, "rmse": records[-1].rmse})
+    return _summarize(problem, records, label, condition)
 
 
 def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -200,8 +244,13 @@ def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: n
 def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0, runs: int = 1,
              polish: bool = True, global_fit: bool = False,
              bounds: Mapping[str, tuple[float, float]] | None = None,
-             progress: Progress = None, model_options: Mapping | None = None) -> IdentifyResult:
-    """Identify ``model`` on ``captures``: one fit per condition (look-up table) or one global fit."""
+             progress: Progress = None, model_options: Mapping | None = None,
+             jobs: int | None = 1) -> IdentifyResult:
+    """Identify ``model`` on ``captures``: one fit per condition (look-up table) or one global fit.
+
+    ``jobs`` > 1 spreads the (condition, run) pairs over a process pool (None: all cores); every
+    run's seed depends only on (seed, condition index, run), so the numbers do not depend on ``jobs``.
+    """
     if not captures:
         raise InputError("no captures to identify")
     unit = _output_unit(captures)
@@ -212,7 +261,7 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     if progress:
         progress("start", {"total": len(groups) * runs})
     model = model.prepare(captures)  # structure shared by all conditions (e.g. stage dynamics)
-    fits = []
+    cells = []
     for cell, (key, caps) in enumerate(groups.items()):
         if global_fit:
             amps = sorted({c.amplitude_V for c in caps})
@@ -221,8 +270,22 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
             label = "global"
         else:
             cond, label = key, condition_label(key)
-        fits.append(fit_captures(caps, model, optimizer, seed=seed, cell=cell, runs=runs, polish=polish,
-                                 bounds=bounds, progress=progress, label=label, condition=cond))
+        cells.append((_problem(caps, model, bounds), cond, label))
+    work = [(problem, optimizer, seed, cell, r, polish) for cell, (problem, _, _) in enumerate(cells)
+            for r in range(runs)]
+
+    def done(i: int, rec: RunRecord) -> None:
+        if progress:
+            progress("advance", {"label": cells[work[i][3]][2], "run": rec.run, "rmse": rec.rmse})
+
+    if jobs is None:  # all cores, unless every cell is one exact linear solve (a pool would only add start-up)
+        sep = model.separable() if optimizer.name == "auto" else None
+        jobs = 1 if (sep is not None and not sep.nonlinear) else default_jobs()
+    records = run_jobs(_run_job, work, jobs, done)
+    fits = []
+    for cell, (problem, cond, label) in enumerate(cells):
+        recs = [rec for (job, rec) in zip(work, records) if job[3] == cell]
+        fits.append(_summarize(problem, recs, label, cond))
     return IdentifyResult(
         model_name=model.name, optimizer_name=optimizer.name, optimizer_settings=optimizer.settings(),
         seed=seed, runs=runs, polish=polish, mode="global" if global_fit else "per-condition", unit=unit,

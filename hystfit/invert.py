@@ -102,8 +102,6 @@ MULTI_FREQUENCIES_HZ: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0, 10.0)
 LIMIT_MARGIN = 0.10
 #: Relative amplitude change under which the condition iteration has converged.
 AMPLITUDE_RTOL = 1e-3
-#: Samples of rest at the initial voltage prepended when ``initial_voltage`` is given.
-PREROLL = 4
 #: Progress callback: ``progress(event, info)`` with events "start", "advance", "note".
 Progress = Callable[[str, dict], None] | None
 
@@ -623,23 +621,63 @@ def _accepts_u_range(model) -> bool:
     return _ACCEPTS_RANGE[cls]
 
 
-def _search_range(cell: Cell) -> tuple[float, float]:
-    """Search interval (V) for numerical inverses: the cell's data range ± 100 % of its width.
+def search_range(pf: ParamsFile, vmin: float, vmax: float) -> tuple[float, float]:
+    """Search interval (V) for numerical inverses: [vmin, vmax] and the table's data range, ± their width.
 
     Deliberately wider than the voltage limits: clipping is done (and reported) afterwards,
     never inside the inverse.
     """
-    s = cell.scale
-    return s.u_min - s.u_range, s.u_max + s.u_range
+    lo = min(vmin, min(c.scale.u_min for c in pf.cells))
+    hi = max(vmax, max(c.scale.u_max for c in pf.cells))
+    w = max(hi - lo, 1e-9)
+    return lo - w, hi + w
+
+
+def preroll_voltage(cell: Cell, voltage: float, dt: float) -> np.ndarray:
+    """The assumed history before a target: a ramp 0 V → ``voltage`` then a rest at ``voltage``.
+
+    The stage is taken to start from the models' reset state at 0 V and to be brought
+    monotonically to the initial voltage, which is what a virgin PI state means (paper 003
+    eq. 1–3 initial state) and what identification captures starting at 0 V show. 16 + 4
+    samples for a rate-independent model; 50 ms + 50 ms (at least 16 + 4 samples) for a
+    rate-dependent one, so its dynamics are at rest when the target starts.
+    """
+    if cell.model.rate_dependent:
+        n_ramp, n_hold = max(16, int(round(0.05 / dt))), max(4, int(round(0.05 / dt)))
+    else:
+        n_ramp, n_hold = 16, 4
+    return np.concatenate([np.linspace(0.0, float(voltage), n_ramp), np.full(n_hold, float(voltage))])
 
 
 def rest_output(cell: Cell, voltage: float, dt: float) -> float:
-    """Output (unit) of the cell's model at rest at ``voltage`` (V), from the reset state."""
-    return float(cell.model.simulate_one(cell.theta, np.full(PREROLL, float(voltage)), dt)[-1])
+    """Output (unit) of the cell's model at rest at ``voltage`` (V) after :func:`preroll_voltage`."""
+    return float(cell.model.simulate_one(cell.theta, preroll_voltage(cell, voltage, dt), dt)[-1])
 
 
-def invert_cell(cell: Cell, y: np.ndarray, dt: float, initial_voltage: float | None = None) -> np.ndarray:
-    """Voltage (N,) making ``cell``'s model follow ``y`` (N,), memory as described in the module docstring.
+def rest_voltage(cell: Cell, y0: float, dt: float, bracket: tuple[float, float]) -> float:
+    """Voltage (V) at which the cell's model rests at output ``y0`` after :func:`preroll_voltage`.
+
+    Brent's method on :func:`rest_output` over ``bracket`` (monotone for an invertible model);
+    a level outside the reachable range gives the closest end of the bracket.
+    """
+    from scipy.optimize import brentq
+
+    lo, hi = bracket
+    f = lambda v: rest_output(cell, v, dt) - y0  # noqa: E731
+    flo, fhi = f(lo), f(hi)
+    if not (np.isfinite(flo) and np.isfinite(fhi)) or flo * fhi > 0:
+        return lo if abs(flo) <= abs(fhi) else hi
+    return float(brentq(f, lo, hi, xtol=1e-10 * max(1.0, abs(hi) + abs(lo)), rtol=4 * np.finfo(float).eps))
+
+
+def invert_cell(cell: Cell, y: np.ndarray, dt: float, initial_voltage: float,
+                u_range: tuple[float, float]) -> np.ndarray:
+    """Voltage (N,) making ``cell``'s model follow ``y`` (N,) from rest at ``initial_voltage`` (V).
+
+    The model's own inverse (``model.invert``) is applied to the pre-roll output (the model
+    driven by :func:`preroll_voltage`) followed by ``y``; the pre-roll part is dropped. So the
+    inverse's memory at the first target sample is that of the stage resting at the initial
+    voltage, identical to the memory :func:`simulate_cell` uses for the forward preview.
 
     Raises
     ------
@@ -647,43 +685,53 @@ def invert_cell(cell: Cell, y: np.ndarray, dt: float, initial_voltage: float | N
         The model cannot be inverted (e.g. negative weights) or returns non-finite voltages.
     """
     model, theta = cell.model, cell.theta
-    if initial_voltage is not None:
-        y_rest = rest_output(cell, initial_voltage, dt)
-        y = np.concatenate([np.full(PREROLL, y_rest), y])
-    kwargs = {"u_range": _search_range(cell)} if _accepts_u_range(model) else {}
+    pre = preroll_voltage(cell, initial_voltage, dt)
+    y_ext = np.concatenate([model.simulate_one(theta, pre, dt), np.asarray(y, dtype=np.float64)])
+    kwargs = {"u_range": u_range} if _accepts_u_range(model) else {}
     try:
-        u = np.asarray(model.invert(theta, y, dt, **kwargs), dtype=np.float64)
+        u = np.asarray(model.invert(theta, y_ext, dt, **kwargs), dtype=np.float64)
     except (ValueError, ZeroDivisionError, FloatingPointError) as exc:
         if isinstance(exc, ConfigError):
             raise ConfigError(f"cell {cell.label}: {exc}") from None
         raise ConfigError(f"cell {cell.label}: the {model.name} model cannot be inverted ({exc})") from None
-    if u.shape != y.shape or not np.all(np.isfinite(u)):
+    if u.shape != y_ext.shape or not np.all(np.isfinite(u)):
         raise ConfigError(f"cell {cell.label}: the {model.name} inverse gave non-finite voltages; the identified "
                           "parameters are not invertible (refit, e.g. with non-negative weights)")
-    return u[PREROLL:] if initial_voltage is not None else u
+    return u[pre.size:]
 
 
-def simulate_cell(cell: Cell, u: np.ndarray, dt: float, initial_voltage: float | None = None) -> np.ndarray:
-    """Forward output (N,) of ``cell`` for voltage ``u`` (N,), with the same rest pre-roll as :func:`invert_cell`."""
-    if initial_voltage is not None:
-        u = np.concatenate([np.full(PREROLL, float(initial_voltage)), u])
-    y = cell.model.simulate_one(cell.theta, u, dt)
-    return y[PREROLL:] if initial_voltage is not None else y
+def simulate_cell(cell: Cell, u: np.ndarray, dt: float, initial_voltage: float) -> np.ndarray:
+    """Forward output (N,) of ``cell`` for voltage ``u`` (N,) after :func:`preroll_voltage` to ``initial_voltage``."""
+    pre = preroll_voltage(cell, initial_voltage, dt)
+    return cell.model.simulate_one(cell.theta, np.concatenate([pre, np.asarray(u, dtype=np.float64)]), dt)[pre.size:]
 
 
 class _CellCache:
-    """Inverse voltages per cell, computed once for the whole target."""
+    """Inverse voltages per cell, computed once for the whole target.
 
-    def __init__(self, pf: ParamsFile, target: Target, initial_voltage: float | None, progress: Progress):
-        self.pf, self.target, self.v0, self.progress = pf, target, initial_voltage, progress
+    With ``initial_voltage`` None each cell starts from its own rest voltage for the target's
+    first sample (:func:`rest_voltage`), so every cell's inverse is consistent with its model.
+    """
+
+    def __init__(self, pf: ParamsFile, target: Target, initial_voltage: float | None,
+                 u_range: tuple[float, float], progress: Progress):
+        self.pf, self.target, self.v0, self.u_range, self.progress = pf, target, initial_voltage, u_range, progress
         self.u: dict[int, np.ndarray] = {}
+        self.rest: dict[int, float] = {}
+
+    def initial_voltage(self, i: int) -> float:
+        if self.v0 is not None:
+            return self.v0
+        if i not in self.rest:
+            self.rest[i] = rest_voltage(self.pf.cells[i], float(self.target.y[0]), self.target.dt, self.u_range)
+        return self.rest[i]
 
     def get(self, i: int) -> np.ndarray:
         if i not in self.u:
             cell = self.pf.cells[i]
             if self.progress:
                 self.progress("note", {"text": f"inverting cell {cell.label} ({self.target.n} samples)"})
-            self.u[i] = invert_cell(cell, self.target.y, self.target.dt, self.v0)
+            self.u[i] = invert_cell(cell, self.target.y, self.target.dt, self.initial_voltage(i), self.u_range)
         return self.u[i]
 
     def blend(self, cells: Sequence[CellUse], sl: slice) -> np.ndarray:
@@ -986,7 +1034,7 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
         condition = (_positive("condition amplitude (V)", condition[0]), _positive("condition frequency (Hz)",
                                                                                    condition[1]))
     y_d = target.y
-    cache = _CellCache(pf, target, initial_voltage, progress)
+    cache = _CellCache(pf, target, initial_voltage, search_range(pf, lo, hi), progress)
     if progress:
         progress("start", {"total": len(target.segments)})
     choices = []
@@ -996,28 +1044,27 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
             progress("advance", {"label": seg.label})
     used = sorted({c.index for ch in choices for c in ch.cells})
     u_des = _blend_segments({i: cache.get(i) for i in used}, choices, target.n)
-    v0_source = "given" if initial_voltage is not None else "inverse of the first target sample"
+    cache.u.clear()  # the per-cell voltages are no longer needed
+    v0_source = "given" if initial_voltage is not None else "rest voltage of the first target sample"
     v0 = float(initial_voltage) if initial_voltage is not None else float(u_des[0])
     notes: list[str] = []
     if initial_voltage is None and not lo <= v0 <= hi:
-        notes.append(f"the inverse of the first target sample is {v0:.4g} V, outside the limits; the stage is "
-                     f"assumed to rest there before the target starts")
+        notes.append(f"the stage must rest at {v0:.4g} V for the target's first sample, outside the limits "
+                     f"[{lo:.4g}, {hi:.4g}] V")
     u_app, clip_spans, slew_spans = apply_limits(u_des, target.dt, lo, hi, max_slew, v0)
-    # unused cache entries are released before the forward simulations
-    cache.u = {i: cache.u[i] for i in used}
-    y_pred = _blend_segments({i: simulate_cell(pf.cells[i], u_app, target.dt, initial_voltage) for i in used},
-                             choices, target.n)
+    y_pred = _blend_segments({i: simulate_cell(pf.cells[i], u_app, target.dt, v0) for i in used}, choices, target.n)
     metrics = tracking_metrics(y_pred, y_d, pf.unit)
     metrics_unlim = None
     if clip_spans or slew_spans:
-        y_unl = _blend_segments({i: simulate_cell(pf.cells[i], u_des, target.dt, initial_voltage) for i in used},
-                                choices, target.n)
+        y_unl = _blend_segments({i: simulate_cell(pf.cells[i], u_des, target.dt, v0) for i in used}, choices,
+                                target.n)
         metrics_unlim = tracking_metrics(y_unl, y_d, pf.unit)
         del y_unl
     seg_metrics = tuple({"segment": ch.segment.label, "start_s": ch.segment.start * target.dt,
                          "stop_s": (ch.segment.stop - 1) * target.dt,
                          **tracking_metrics(y_pred[ch.segment.start:ch.segment.stop],
-                                            y_d[ch.segment.start:ch.segment.stop], pf.unit)}
+                                            y_d[ch.segment.start:ch.segment.stop], pf.unit,
+                                            stroke=float(np.ptp(y_d[ch.segment.start:ch.segment.stop])))}
                         for ch in choices)
     if initial_voltage is not None:
         y_rest = sum(c.weight * rest_output(pf.cells[c.index], initial_voltage, target.dt) for c in choices[0].cells)
@@ -1047,17 +1094,22 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
 
 
 def _extrapolation(pf: ParamsFile, choices: Sequence[SegmentChoice], u: np.ndarray) -> list[dict]:
-    """Used cells whose segment voltages leave their identification range by more than 2 % of it."""
-    out = []
+    """Used cells driven outside their identification voltage range by more than 2 % of it.
+
+    One entry per cell with the voltage range it is used on (over all segments using it).
+    """
+    used: dict[int, list[float]] = {}
     for ch in choices:
         seg = u[ch.segment.start:ch.segment.stop]
-        ulo, uhi = float(seg.min()), float(seg.max())
         for c in ch.cells:
-            s = pf.cells[c.index].scale
-            tol = 0.02 * s.u_range
-            if ulo < s.u_min - tol or uhi > s.u_max + tol:
-                out.append({"segment": ch.segment.label, "cell": c.label, "identified_V": [s.u_min, s.u_max],
-                            "used_V": [ulo, uhi]})
+            r = used.setdefault(c.index, [float("inf"), float("-inf")])
+            r[0], r[1] = min(r[0], float(seg.min())), max(r[1], float(seg.max()))
+    out = []
+    for i, (ulo, uhi) in sorted(used.items()):
+        s = pf.cells[i].scale
+        tol = 0.02 * s.u_range
+        if ulo < s.u_min - tol or uhi > s.u_max + tol:
+            out.append({"cell": pf.cells[i].label, "identified_V": [s.u_min, s.u_max], "used_V": [ulo, uhi]})
     return out
 
 

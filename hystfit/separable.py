@@ -103,24 +103,40 @@ class ProjectedObjective:
         self.nfev = 0
 
     def solve(self, theta_nl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Best θ_lin for each candidate and the resulting MSE: ((P, L), (P,))."""
+        """Best θ_lin for each candidate and the resulting MSE: ((P, L), (P,)).
+
+        Candidates are processed in blocks so the basis (block, N, L) stays within
+        :data:`hystfit.objective.BLOCK_ELEMENTS` elements: memory is bounded for long captures.
+        """
+        from .objective import BLOCK_ELEMENTS
+
         theta_nl = np.atleast_2d(np.asarray(theta_nl, dtype=np.float64))
+        P = theta_nl.shape[0] if len(self.nl) else 1
+        L = max(len(self.lin), 1)
+        n_max = max(s.y.shape[0] for s in self.series)
+        block = max(1, BLOCK_ELEMENTS // (n_max * (L + 1) * max(len(self.series), 1)))
+        if P <= block:
+            return self._solve_block(theta_nl)
+        lins, mses = zip(*(self._solve_block(theta_nl[i:i + block]) for i in range(0, P, block)))
+        return np.vstack(lins), np.concatenate(mses)
+
+    def _solve_block(self, theta_nl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         P = theta_nl.shape[0] if len(self.nl) else 1
         L = len(self.lin)
         G = np.zeros((P, L, L))
         c = np.zeros((P, L))
-        Bs, Cs = [], []
+        kept = []
         with np.errstate(all="ignore"):
             for basis, s in zip(self.bases, self.series):
                 B = basis(theta_nl)  # (P, N, L) or ((P, N, L), (P, N))
                 C = None
                 if isinstance(B, tuple):
                     B, C = B
-                Bs.append(B)
-                Cs.append(C)
+                kept.append((B, C))
                 target = s.y[None, :] if C is None else s.y[None, :] - C
+                target = np.broadcast_to(target, (B.shape[0], B.shape[1]))
                 G += np.einsum("pnl,pnk->plk", B, B)
-                c += np.einsum("pnl,pn->pl", B, np.broadcast_to(target, (B.shape[0], B.shape[1])))
+                c += np.einsum("pnl,pn->pl", B, target)
         theta_lin = np.full((P, L), np.nan)
         ok = np.all(np.isfinite(G.reshape(P, -1)), axis=1) & np.all(np.isfinite(c), axis=1)
         for p in np.flatnonzero(ok):
@@ -131,9 +147,10 @@ class ProjectedObjective:
             if not (np.all(np.isfinite(x)) and np.all(x >= self.lo_lin) and np.all(x <= self.hi_lin)):
                 x = _bounded_solve(G[p], c[p], self.lo_lin, self.hi_lin)
             theta_lin[p] = x
+        # residuals recomputed explicitly (not from G, c: that would cancel catastrophically near the floor)
         sse = np.zeros(P)
         with np.errstate(all="ignore"):
-            for B, C, s in zip(Bs, Cs, self.series):
+            for (B, C), s in zip(kept, self.series):
                 e = np.einsum("pnl,pl->pn", B, theta_lin) - s.y[None, :]
                 if C is not None:
                     e += C

@@ -25,6 +25,7 @@ def identify(
     iters: Annotated[Optional[int], typer.Option("--iters", help="Iterations of iterative optimizers.")] = None,
     runs: Annotated[int, typer.Option("--runs", help="Independent seeded runs per condition; the best is kept.", min=1)] = 1,
     polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after the global search.")] = True,
+    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", help="Parallel processes over conditions and runs (default: all cores; the numbers do not depend on it).", min=1)] = None,
     global_fit: Annotated[bool, typer.Option("--global", help="One parameter set for all captures instead of one per condition.")] = False,
     bounds: Annotated[Optional[list[str]], typer.Option("--bounds", help="Override a bound: NAME=LOWER:UPPER (repeatable).")] = None,
     model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE, e.g. n_operators=12 (repeatable).")] = None,
@@ -65,7 +66,7 @@ def identify(
                     stderr.print(f"[dim]{c.name}: {note}[/dim]")
         with progress_bar(not quiet and not json_out, f"identify {model_cls.name} / {opt_cls.name}") as cb:
             res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=global_fit,
-                               bounds=bnds, progress=cb, model_options=mopts)
+                               bounds=bnds, progress=cb, model_options=mopts, jobs=jobs)
         write_identify_outputs(res, stage, make_plots=plots)
     if json_out:
         d = identify_to_dict(res)

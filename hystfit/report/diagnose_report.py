@@ -95,7 +95,7 @@ def _fig_branch_position(path: Path, d: Diagnosis) -> Path:
     ax1.bar(x + 0.2, [0 if not math.isfinite(v) else v for v in mn], 0.4, label="mean (model − measured)")
     ax1.axhline(d.noise["sigma"], color="tab:red", ls="--", lw=1, label="noise floor")
     ax1.axhline(0, color="0.5", lw=0.6)
-    ax1.set_xticks(x, [f"{n}\n({w['by_branch'][n]['n_samples']} samples)" for n in names])
+    ax1.set_xticks(x, [f"{n}\n{w['by_branch'][n]['n_samples']} samples" for n in names], fontsize=8)
     ax1.set_ylabel(f"Residual ({_u(unit)})")
     ax1.set_title("By branch", fontsize=10)
     ax1.legend(fontsize="small")
@@ -116,7 +116,7 @@ def _fig_branch_position(path: Path, d: Diagnosis) -> Path:
     ax3.axhline(0, color="0.5", lw=0.6)
     ax3.set_xlabel("Input level (0 = capture minimum, 1 = maximum)")
     ax3.set_ylabel(f"Mean residual ({_u(unit)})")
-    ax3.set_title("Residual loop: lag = opposite branches, bow = same shape", fontsize=10)
+    ax3.set_title("Residual loop (lag: branches opposite; bow: alike)", fontsize=10)
     ax3.legend(fontsize="small")
     for ax in (ax1, ax2, ax3):
         ax.grid(True, alpha=0.3)

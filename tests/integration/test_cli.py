@@ -64,7 +64,7 @@ def test_real_capture_identifies_with_r2_above_099(tmp_path):
 
 def test_json_summary_and_same_seed_same_numbers(small_data, tmp_path):
     args = ("identify", small_data, "--model", "bw", "--opt", "pso", "--pop", "12", "--iters", "15", "--seed", "7",
-            "--no-plots", "--json")
+            "--no-plots", "--json", "--jobs", "1")
     a = run(*args, "--out", tmp_path / "a")
     b = run(*args, "--out", tmp_path / "b")
     assert a.exit_code == 0 and b.exit_code == 0, a.output
@@ -76,7 +76,7 @@ def test_json_summary_and_same_seed_same_numbers(small_data, tmp_path):
 
 def test_runs_and_global(small_data, tmp_path):
     r = run("identify", small_data, "--model", "pi", "--opt", "pso", "--pop", "10", "--iters", "10", "--runs", "3",
-            "--global", "--no-plots", "--out", tmp_path / "g", "--quiet")
+            "--global", "--no-plots", "--out", tmp_path / "g", "--quiet", "--jobs", "2")
     assert r.exit_code == 0, r.output
     p = json.loads((tmp_path / "g" / "params.json").read_text())
     assert p["mode"] == "global" and len(p["conditions"]) == 1
