@@ -159,7 +159,9 @@ def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int
     s = run_seed(seed, cell, run)
     rng = np.random.default_rng(s)
     t_run = time.perf_counter()
-    x0 = np.array([p.default for p in problem.params]) if not optimizer.population_based else None
+    # local optimizers start from the defaults; `auto` seeds one particle of its swarm with them
+    x0 = (np.array([p.default for p in problem.params])
+          if (not optimizer.population_based or optimizer.name == "auto") else None)
     res = optimizer.minimize(objective, problem.lower, problem.upper, rng=rng, x0=x0)
     pol = None
     x, fun = res.x, res.fun

@@ -24,7 +24,8 @@ class Auto(Optimizer):
        linear part) is solved in one step: the exact optimum.
     2. The remaining nonlinear parameters (often 1–2) are searched by PSO (``pop`` × ``iters``,
        stall stop after ``stall_iter`` iterations without relative improvement ``stall_tol``;
-       with m > 2 nonlinear parameters at least 5m particles, 15m iterations and a 3m stall window).
+       with m > 2 nonlinear parameters at least 5m particles, 15m iterations, a 3m stall window and
+       two independent searches). The first search's swarm includes ``x0`` (the model's defaults).
        ``restarts`` independent searches (own seeds from ``rng``) guard against a local basin.
     3. A bounded least-squares polish of the full θ from the best point (skipped for linear models).
 
@@ -78,11 +79,12 @@ class Auto(Optimizer):
             pop = max(self.pop, 5 * m) if m > 2 else self.pop
             iters = max(self.iters, 15 * m) if m > 2 else self.iters
             stall = max(self.stall_iter, 3 * m) if m > 2 else self.stall_iter
-            for _ in range(max(self.restarts, 1)):
+            restarts = max(self.restarts, 2 if m > 2 else 1)
+            for r in range(restarts):
                 pso = PSO(pop=pop, iters=iters, stall_iter=stall, stall_tol=self.stall_tol,
                           max_evals=self.max_evals, time_limit_s=self.time_limit_s)
                 g = pso.minimize(proj, lower[nl], upper[nl], rng=rng,
-                                 x0=None if x0 is None else np.asarray(x0)[nl], callback=callback)
+                                 x0=None if (x0 is None or r > 0) else np.asarray(x0)[nl], callback=callback)
                 hist_b += list(g.history_best)
                 hist_m += list(g.history_mean)
                 nfev += g.nfev
