@@ -651,9 +651,9 @@ def _pointers(summary: dict, by_branch: dict, by_loop: dict, sigma: float) -> li
     out = []
     for suffix, how in (("", ""), ("_alone", " when every condition is fitted on its own")):
         bf, ba = summary.get("frequency_exponent" + suffix), summary.get("amplitude_exponent" + suffix)
-        if bf is not None and bf > 0.3:
+        if bf is not None and bf > 0.15:
             out.append(f"high frequencies: the gap above noise grows with the excitation frequency{how} (∝ f^{bf:.2f})")
-        elif bf is not None and bf < -0.3:
+        elif bf is not None and bf < -0.15:
             out.append(f"low frequencies: the gap above noise shrinks with the excitation frequency{how} (∝ f^{bf:.2f})")
         if ba is not None and ba >= AMPLITUDE_EXPONENT_LARGE:
             out.append(f"large amplitudes: the gap grows with the square of the amplitude or faster{how} (∝ A^{ba:.2f}; "
@@ -666,7 +666,7 @@ def _pointers(summary: dict, by_branch: dict, by_loop: dict, sigma: float) -> li
                    "below half the excitation frequency (slow trends)")
     if summary["high_frequency_share"] > 0.3:
         out.append(f"high frequencies: {100 * summary['high_frequency_share']:.0f} % of the residual power above noise lies "
-                   "above the fifth harmonic")
+                   "above the fifth harmonic of the excitation (sharp features: turning points, steps, ringing)")
     if summary["long_capture_ratio"] is not None and summary["long_capture_ratio"] > 1.5:
         out.append(f"long captures: the longest captures miss {summary['long_capture_ratio']:.1f}× more (above noise) "
                    "than the others")

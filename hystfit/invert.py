@@ -32,12 +32,15 @@ Pipeline (every step is reported in :class:`InversionResult`, nothing is silent)
    not be monotone if one cell is poorly identified. The consequence is measured, not hidden:
    the predicted error is computed with the *blended forward* model (as ``hystfit simulate
    --method interpolate`` predicts), so it includes this blending residual.
-4. **Model memory.** Models start from their reset (virgin) state, i.e. the stage at rest at
-   the first input after coming monotonically from 0 V. By default the first voltage is the
-   inverse of the target's first sample from that state (consistent by construction). With
-   ``initial_voltage=V`` the stage rests at V: every cell is inverted with a short rest
-   segment at its own output for V prepended (so its memory is that of the stage at V), and the
-   forward preview is simulated the same way; a jump from the rest output to y_d[0] is reported.
+4. **Model memory.** Every model's forward simulation starts from its reset state; the
+   stage's history before the target is taken to be: at rest at 0 V in that state, then brought
+   monotonically to the initial voltage v0 and held (:func:`preroll_voltage`; for PI this is
+   exactly its virgin initial state, paper 003 eq. 1–3). Each cell is inverted with that
+   pre-roll prepended to the target (the model's output for it) and the pre-roll dropped, and
+   the forward preview is simulated with the same pre-roll, so inverse and preview share one
+   memory whatever a model's reset convention. Default v0: the voltage at which the model
+   rests at the target's first sample (:func:`rest_voltage`), so the target starts smoothly;
+   ``initial_voltage=V`` sets it, and a jump from the rest output to y_d[0] is reported.
 5. **Limits.** Voltages outside [vmin, vmax] are clipped (default: the table's identification
    voltage range ± 10 %), then a slew-rate limit |Δu| ≤ S·dt is applied causally, starting
    from the initial voltage. Every clipped or slew-limited span is reported with its time span
@@ -48,7 +51,8 @@ Pipeline (every step is reported in :class:`InversionResult`, nothing is silent)
 
 Memory. A model inverts and simulates whole arrays of N samples with O(N·n) memory (n the
 model's state size, ≈ 10 for PI), never (P, N) populations; per-cell voltages are kept once.
-10⁶ samples need ≈ 0.3 GB (measured in ``tests/unit/test_invert.py``). The generic numerical
+10⁶ samples with two PI cells peak at ≈ 0.2 GB of arrays (traced in
+``tests/unit/test_invert.py``). The generic numerical
 inverse (:mod:`hystfit.models.inverse`, e.g. Bouc–Wen) is a per-sample Python loop: memory is
 small but it takes ≈ 50 µs per sample and cell.
 

@@ -1,0 +1,117 @@
+"""``hystfit track``: closed-loop tracking simulation (ff, pid, ff+pid, smc) with a comparison table."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from ..errors import ConfigError
+from .app import app, guarded
+from .common import Condition, OutputUnit, TimeCol, parse_condition, print_json, progress_bar, stderr, stdout
+from .invert import (InitialVoltage, MaxSlew, Method, Multi, Offset, Sine, Steps, TargetArg, TargetCol, TargetFs,
+                     Triangle, Vmax, Vmin, build_target, command_text)
+
+
+@app.command()
+@guarded
+def track(
+    params: Annotated[Path, typer.Argument(help="params.json of the controller's model (feedforward inverse, "
+                                                "nominal plant).", show_default=False)],
+    target: TargetArg = None,
+    controller: Annotated[str, typer.Option("--controller", "-c", help="ff, pid, ff+pid or smc; a comma list "
+                                                                       "compares them, e.g. pid,ff,ff+pid.")] = "ff+pid",
+    plant: Annotated[Optional[Path], typer.Option("--plant", help="params.json of the plant (default: PARAMS "
+                                                                  "itself); another model tests the inverse "
+                                                                  "realistically.")] = None,
+    noise: Annotated[float, typer.Option("--noise", help="Measurement noise σ in the parameter file's unit "
+                                                         "(Gaussian).")] = 0.0,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the measurement noise.")] = 0,
+    kp: Annotated[Optional[float], typer.Option("--kp", help="Proportional gain (V per unit); with --ki/--kd "
+                                                             "replaces the automatic tuning.")] = None,
+    ki: Annotated[Optional[float], typer.Option("--ki", help="Integral gain (V per unit·s).")] = None,
+    kd: Annotated[Optional[float], typer.Option("--kd", help="Derivative gain (V·s per unit), on the filtered "
+                                                             "measurement.")] = None,
+    bandwidth: Annotated[Optional[float], typer.Option("--bandwidth", help="Closed-loop bandwidth (Hz) of the "
+                                                                           "automatic PID and of the sliding mode "
+                                                                           "(default: automatic, ≤ fs/20).")] = None,
+    anti_windup: Annotated[str, typer.Option("--anti-windup", help="backcalc or clamp.")] = "backcalc",
+    sine: Sine = None, triangle: Triangle = None, steps: Steps = None, multi: Multi = False, offset: Offset = 0.0,
+    fs: TargetFs = None, condition: Condition = None, method: Method = "interpolate",
+    initial_voltage: InitialVoltage = None, vmin: Vmin = None, vmax: Vmax = None, max_slew: MaxSlew = None,
+    time_col: TimeCol = None, target_col: TargetCol = None, output_unit: OutputUnit = None,
+    out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, "
+                                                    "unless --force).")] = Path("hystfit-track"),
+    fmt: Annotated[str, typer.Option("--format", help="Time-series file format: csv or parquet.")] = "csv",
+    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Write figures.")] = True,
+    json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress and no summary table.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+) -> None:
+    """Simulate the closed loop around an identified plant and compare controllers (paper 002 Tables 4–6).
+
+    Writes OUT/<controller>.csv (time, reference, displacement, measured, voltage, command, error),
+    OUT/summary.json, OUT/report.md and OUT/plots/.
+    """
+    from ..io import staged_output_dir
+    from ..report.track_report import comparison_text_rows, write_track_outputs
+    from ..results import load_params
+    from ..track import parse_controllers, track as run_track
+
+    names = parse_controllers(controller)
+    if fmt not in ("csv", "parquet"):
+        raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
+    if anti_windup not in ("backcalc", "clamp"):
+        raise ConfigError(f"--anti-windup {anti_windup!r}: choose backcalc or clamp")
+    if method not in ("interpolate", "nearest"):
+        raise ConfigError(f"--method {method!r}: choose interpolate or nearest")
+    if not noise >= 0:
+        raise ConfigError(f"--noise {noise:g}: the noise σ must be >= 0")
+    if bandwidth is not None and not bandwidth > 0:
+        raise ConfigError(f"--bandwidth {bandwidth:g}: must be > 0 Hz")
+    if any(g is not None for g in (kp, ki, kd)) and not any(n in ("pid", "ff+pid") for n in names):
+        raise ConfigError("--kp/--ki/--kd apply to the pid and ff+pid controllers; add one to --controller")
+    pf = load_params(params)
+    plant_pf = load_params(plant) if plant is not None else None
+    cond = parse_condition(condition)
+    tgt = build_target(pf, target, sine=sine, triangle=triangle, steps=steps, multi=multi, offset=offset, fs=fs,
+                       time_col=time_col, target_col=target_col, output_unit=output_unit)
+    command = command_text("track", params, target, controller=controller, plant=plant, noise=noise or None,
+                           seed=seed or None, kp=kp, ki=ki, kd=kd, bandwidth=bandwidth,
+                           anti_windup=None if anti_windup == "backcalc" else anti_windup, sine=sine,
+                           triangle=triangle, steps=steps, multi=multi, offset=offset, fs=fs, condition=condition,
+                           method=method, initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
+                           time_col=time_col, target_col=target_col, output_unit=output_unit, out=out)
+    with staged_output_dir(out, force) as stage:
+        with progress_bar(not quiet and not json_out and sys.stderr.isatty(), "track") as cb:
+            res = run_track(pf, tgt, names, plant_pf=plant_pf, method=method, condition=cond,
+                            initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
+                            noise_std=noise, seed=seed, kp=kp, ki=ki, kd=kd, bandwidth_Hz=bandwidth,
+                            anti_windup=anti_windup, progress=cb)
+        summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command)
+    for run in res.runs:
+        if run.limit_spans:
+            n = sum(s.n for s in run.limit_spans)
+            stderr.print(f"warning: {run.controller}: the voltage limits acted on {n} sample(s) in "
+                         f"{len(run.limit_spans)} span(s); see the report", markup=False, highlight=False)
+    if json_out:
+        print_json(dict(summary, out=str(out)))
+        return
+    if quiet:
+        return
+    u = res.unit
+    cols = ["controller", f"max_error_{u}", f"rmse_{u}", "max %", "rmse %"]
+    if tgt.steps:
+        cols += ["t90_s", "settle 5% (s)", "settle 2% (s)", "overshoot %"]
+    cols.append("limited %")
+    t = Table(title=f"plant {res.plant_model_name} ({res.plant_path}); outputs in {out}")
+    for c in cols:
+        t.add_column(c, justify="right")
+    for row in comparison_text_rows(res):
+        t.add_row(*row)
+    stdout.print(t)
+    for note in res.notes:
+        stderr.print(f"note: {note}", markup=False, highlight=False, style="dim")

@@ -1,0 +1,280 @@
+"""Reports of ``hystfit invert``: JSON summary, Markdown report and figures.
+
+The figure helper :func:`tracking_figure` (target vs output, error, voltage with its limits and
+the limited spans shaded) is also used by ``hystfit track``. Figures are built with
+:class:`matplotlib.figure.Figure` (no pyplot state) and written atomically with
+:func:`hystfit.io.atomic_write_bytes`, like :mod:`hystfit.report.plots`.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ..invert import InversionResult, Span, condition_text
+from ..io import atomic_write_bytes, atomic_write_text
+from ..results import _clean, dumps
+from .plots import MAX_POINTS, display_unit
+from .tables import fmt
+
+#: Spans listed in the Markdown report (all are in the JSON up to :data:`MAX_SPANS_JSON`).
+MAX_SPANS_MD = 20
+MAX_SPANS_JSON = 1000
+DPI = 110
+
+
+# ----------------------------------------------------------------------------------------------
+# figures
+
+
+def _stride(n: int) -> int:
+    return max(1, math.ceil(n / MAX_POINTS))
+
+
+def _minmax(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Decimate keeping each bucket's min and max (error peaks stay visible)."""
+    n = y.size
+    if n <= MAX_POINTS or not np.all(np.isfinite(y)):
+        k = _stride(n)
+        return t[::k], y[::k]
+    k = max(1, math.ceil(n / (MAX_POINTS // 2)))
+    nb = n // k
+    body = y[: nb * k].reshape(nb, k)
+    base = np.arange(nb) * k
+    idx = np.unique(np.concatenate([base + body.argmin(axis=1), base + body.argmax(axis=1), [n - 1]]))
+    return t[idx], y[idx]
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=DPI)
+    finally:
+        fig.clear()
+    atomic_write_bytes(path, buf.getvalue())
+    return Path(path)
+
+
+def tracking_figure(path, t_s, target, output, voltage_V, *, unit: str = "um", title: str = "",
+                    output_label: str = "predicted", vmin: float | None = None, vmax: float | None = None,
+                    spans: Sequence[Span] = (), extra_outputs: dict | None = None) -> Path:
+    """Three panels: target and output, error (output − target), voltage with limits.
+
+    Parameters
+    ----------
+    path : PNG file to write.
+    t_s : (N,) time (s).
+    target, output : (N,) displacement in ``unit``.
+    voltage_V : (N,) applied voltage (V).
+    unit, title : axis unit and title.
+    output_label : legend of ``output`` (e.g. ``"predicted"`` or ``"plant output"``).
+    vmin, vmax : voltage limits drawn as dashed lines.
+    spans : limited spans, shaded on the voltage panel.
+    extra_outputs : further ``{label: (N,) output}`` drawn on the first two panels.
+    """
+    t = np.asarray(t_s, float)
+    r = np.asarray(target, float)
+    y = np.asarray(output, float)
+    v = np.asarray(voltage_V, float)
+    u = display_unit(unit)
+    k = _stride(t.size)
+    fig = Figure(figsize=(8.5, 7.0), layout="constrained")
+    ax, axe, axv = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [2.0, 1.2, 1.2]})
+    ax.plot(t[::k], r[::k], color="0.15", lw=0.9, label="target")
+    ax.plot(t[::k], y[::k], color="tab:red", lw=0.9, alpha=0.85, label=output_label)
+    for i, (lab, yy) in enumerate((extra_outputs or {}).items()):
+        ax.plot(t[::k], np.asarray(yy, float)[::k], lw=0.8, alpha=0.8, label=lab, color=f"C{i + 2}")
+    ax.set_ylabel(f"Displacement ({u})")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right", fontsize="small")
+    if title:
+        ax.set_title(title)
+    e = y - r
+    te, ee = _minmax(t, e)
+    finite = np.isfinite(e)
+    rmse = float(np.sqrt(np.mean(e[finite] ** 2))) if finite.any() else float("nan")
+    if np.isfinite(rmse):
+        axe.axhspan(-rmse, rmse, color="tab:blue", alpha=0.15, lw=0, label=f"±RMSE = {rmse:.3g} {u}")
+    axe.axhline(0.0, color="0.5", lw=0.6)
+    axe.plot(te, ee, color="tab:blue", lw=0.7, label=f"{output_label} − target")
+    for i, (lab, yy) in enumerate((extra_outputs or {}).items()):
+        tx, ex = _minmax(t, np.asarray(yy, float) - r)
+        axe.plot(tx, ex, lw=0.6, alpha=0.8, label=f"{lab} − target", color=f"C{i + 2}")
+    axe.set_ylabel(f"Error ({u})")
+    axe.grid(True, alpha=0.3)
+    axe.legend(loc="upper right", fontsize="small")
+    axv.plot(t[::k], v[::k], color="tab:green", lw=0.9, label="voltage")
+    for lim, lab in ((vmin, "vmin"), (vmax, "vmax")):
+        if lim is not None:
+            axv.axhline(lim, color="0.4", lw=0.7, ls="--")
+    shown = False
+    for s in spans[:500]:
+        axv.axvspan(s.start_s - 0.5 * (t[1] - t[0] if t.size > 1 else 0), s.stop_s, color="tab:orange", alpha=0.3,
+                    lw=0, label=None if shown else "limited")
+        shown = True
+    axv.set_ylabel("Voltage (V)")
+    axv.set_xlabel("Time (s)")
+    axv.grid(True, alpha=0.3)
+    axv.legend(loc="upper right", fontsize="small")
+    return _save(fig, Path(path))
+
+
+def error_comparison_figure(path, t_s, errors: dict, *, unit: str = "um", title: str = "") -> Path:
+    """Tracking errors of several controllers on one axis (min/max decimated)."""
+    t = np.asarray(t_s, float)
+    fig = Figure(figsize=(8.5, 3.8), layout="constrained")
+    ax = fig.subplots()
+    for i, (lab, e) in enumerate(errors.items()):
+        te, ee = _minmax(t, np.asarray(e, float))
+        ax.plot(te, ee, lw=0.7, label=lab, color=f"C{i}")
+    ax.axhline(0.0, color="0.5", lw=0.6)
+    ax.set_ylabel(f"Error ({display_unit(unit)})")
+    ax.set_xlabel("Time (s)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right", fontsize="small")
+    if title:
+        ax.set_title(title)
+    return _save(fig, Path(path))
+
+
+# ----------------------------------------------------------------------------------------------
+# summaries
+
+
+def span_dicts(spans: Sequence[Span], limit: int = MAX_SPANS_JSON) -> list[dict]:
+    return [{"kind": s.kind, "start_s": s.start_s, "stop_s": s.stop_s, "samples": s.n, "worst_V": s.worst_V}
+            for s in spans[:limit]]
+
+
+def invert_summary(res: InversionResult) -> dict:
+    """JSON-safe summary of an inversion (NaN/inf → null)."""
+    tg = res.target
+    u = res.unit
+    segs = []
+    for ch, m in zip(res.choices, res.segment_metrics):
+        segs.append({"segment": ch.segment.label, "start_s": ch.segment.start * tg.dt,
+                     "stop_s": (ch.segment.stop - 1) * tg.dt, "frequency_Hz": ch.condition[1],
+                     "condition": {"amplitude_V": ch.condition[0], "frequency_Hz": ch.condition[1]},
+                     "lookup": {"amplitude_V": ch.query[0], "frequency_Hz": ch.query[1], "clamped": ch.clamped},
+                     "how": ch.how, "converged": ch.converged, "note": ch.note,
+                     "cells": [{"label": c.label, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
+                                "weight": c.weight} for c in ch.cells],
+                     "iterations": [{"amplitude_V": it.amplitude_V, "cells": [[c.label, c.weight] for c in it.cells],
+                                     "result_pp_V": it.result_pp_V} for it in ch.iterations],
+                     "metrics": m})
+    v = res.voltage_V
+    return _clean({
+        "schema": "hystfit.invert", "schema_version": 1,
+        "params": res.params_path, "model": res.model_name, "units": {"output": u, "input": "V", "time": "s"},
+        "target": {"description": tg.description, "kind": tg.kind, "samples": tg.n, "fs_Hz": tg.fs,
+                   "duration_s": tg.n * tg.dt, f"stroke_{u}": tg.stroke, f"min_{u}": float(tg.y.min()),
+                   f"max_{u}": float(tg.y.max())},
+        "method": res.method,
+        "initial_voltage": {"V": res.initial_voltage_V, "source": res.initial_voltage_source},
+        "voltage": {"min_V": float(v.min()), "max_V": float(v.max()), "pp_V": float(v.max() - v.min()),
+                    "max_slew_V_per_s": float(np.max(np.abs(np.diff(v)))) / tg.dt if v.size > 1 else 0.0},
+        "limits": res.limits,
+        "clipping": {"spans": len(res.clip_spans), "samples": sum(s.n for s in res.clip_spans),
+                     "list": span_dicts(res.clip_spans), "truncated": len(res.clip_spans) > MAX_SPANS_JSON},
+        "slew_limiting": {"spans": len(res.slew_spans), "samples": sum(s.n for s in res.slew_spans),
+                          "list": span_dicts(res.slew_spans), "truncated": len(res.slew_spans) > MAX_SPANS_JSON},
+        "cells_used": [[lab, w] for lab, w in res.cells_used()],
+        "segments": segs,
+        "predicted_tracking": res.metrics,
+        "predicted_tracking_without_limits": res.metrics_unlimited,
+        "extrapolation": list(res.extrapolation),
+        "notes": list(res.notes),
+        "runtime_s": res.runtime_s,
+    })
+
+
+def _metric_lines(m: dict, unit: str) -> list[str]:
+    u = display_unit(unit)
+    return [f"- max |e| = {fmt(m[f'max_error_{unit}'])} {u} ({fmt(m['max_error_pct_of_stroke'], 3)} % of stroke)",
+            f"- RMSE = {fmt(m[f'rmse_{unit}'])} {u} ({fmt(m['rmse_pct_of_stroke'], 3)} % of stroke)",
+            f"- mean error = {fmt(m[f'mean_error_{unit}'])} {u}; stroke = {fmt(m[f'stroke_{unit}'])} {u}; "
+            f"{m['n_samples']} samples"]
+
+
+def span_table(spans: Sequence[Span], limit: int = MAX_SPANS_MD) -> list[str]:
+    if not spans:
+        return ["none"]
+    lines = ["| kind | from (s) | to (s) | samples | worst excess (V) |", "|---|---:|---:|---:|---:|"]
+    for s in spans[:limit]:
+        lines.append(f"| {s.kind} | {s.start_s:.6g} | {s.stop_s:.6g} | {s.n} | {s.worst_V:.4g} |")
+    if len(spans) > limit:
+        lines.append(f"\n… and {len(spans) - limit} more (all in report.json)")
+    return lines
+
+
+def invert_markdown(res: InversionResult, figures: Sequence[str], command: str | None = None,
+                    output_file: str | None = None) -> str:
+    tg, u = res.target, res.unit
+    du = display_unit(u)
+    L = ["# hystfit invert report", ""]
+    if command:
+        L += ["Command:", "", f"```\n{command}\n```", ""]
+    L += [f"- parameters: `{res.params_path}` (model `{res.model_name}`), output unit {du}",
+          f"- target: {tg.description}; {tg.n} samples at {tg.fs:g} Hz ({tg.n * tg.dt:.6g} s), stroke "
+          f"{tg.stroke:.4g} {du}"]
+    if output_file:
+        L.append(f"- voltage file: `{output_file}` (`time_s, voltage_V, predicted_displacement_{u}`)")
+    L += [f"- table lookup: {res.method}; initial voltage {res.initial_voltage_V:.6g} V "
+          f"({res.initial_voltage_source}; history assumed: from the models' reset state at 0 V, brought "
+          "monotonically to it)",
+          f"- voltage limits [{res.limits['vmin_V']:.6g}, {res.limits['vmax_V']:.6g}] V "
+          f"(vmin {res.limits['vmin_source']}, vmax {res.limits['vmax_source']}; default rule: "
+          f"{res.limits['default_rule']}); slew-rate limit: "
+          + (f"{res.limits['max_slew_V_per_s']:g} V/s" if res.limits["max_slew_V_per_s"] else "none"),
+          f"- applied voltage {res.voltage_V.min():.6g} … {res.voltage_V.max():.6g} V", "",
+          "## Predicted tracking error", "",
+          "Forward model (the blend of the cells used) simulated on the applied voltage; e = predicted − target "
+          "(paper 002 Table 4 figures; % of stroke = 100·x / (max target − min target)).", ""]
+    L += _metric_lines(res.metrics, u)
+    if res.metrics_unlimited is not None:
+        L += ["", "Without the voltage limits (what the limits cost):", ""] + _metric_lines(res.metrics_unlimited, u)
+    L += ["", "## Table cells", "",
+          "| segment | condition (V, Hz) | looked up (V, Hz) | cells × weight | how | iterations | converged | "
+          f"RMSE ({du}) | RMSE % |", "|---|---|---|---|---|---:|---|---:|---:|"]
+    for ch, m in zip(res.choices, res.segment_metrics):
+        cond = "–" if not math.isfinite(ch.condition[0]) else f"{ch.condition[0]:.4g}, {ch.condition[1]:.4g}"
+        L.append(f"| {ch.segment.label} | {cond} | {ch.query[0]:.4g}, {ch.query[1]:.4g}{' (clamped)' if ch.clamped else ''}"
+                 f" | {condition_text(ch)} | {ch.how} | {len(ch.iterations)} | {'yes' if ch.converged else 'no'} | "
+                 f"{fmt(m[f'rmse_{u}'])} | {fmt(m['rmse_pct_of_stroke'], 3)} |")
+    L += ["", "The amplitude iteration: guess the drive's peak-to-peak voltage from the stroke and the table's gain, "
+          "invert with the cells for it, measure the voltage's peak-to-peak, repeat until it is self-consistent "
+          "(0.1 %). Bilinear interpolation blends the cells' inverted voltages (see `hystfit/invert.py`).", ""]
+    L += ["## Voltage limits", "", f"Clipped to [vmin, vmax]: {len(res.clip_spans)} span(s), "
+          f"{sum(s.n for s in res.clip_spans)} samples", ""] + span_table(res.clip_spans)
+    L += ["", f"Slew-rate limited: {len(res.slew_spans)} span(s), {sum(s.n for s in res.slew_spans)} samples", ""]
+    L += span_table(res.slew_spans)
+    if res.notes:
+        L += ["", "## Notes", ""] + [f"- {n}" for n in res.notes]
+    if figures:
+        L += ["", "## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in figures]
+    L.append("")
+    return "\n".join(L)
+
+
+def write_invert_report(res: InversionResult, report_dir: Path, *, make_plots: bool = True,
+                        command: str | None = None, output_file: str | None = None) -> dict:
+    """Write ``report.md``, ``report.json`` and ``plots/tracking.png`` into ``report_dir``; return the summary."""
+    report_dir = Path(report_dir)
+    figures = []
+    if make_plots:
+        tracking_figure(report_dir / "plots" / "tracking.png", res.target.t_s, res.target.y, res.predicted,
+                        res.voltage_V, unit=res.unit, title=f"{res.model_name} feedforward – {res.target.description}",
+                        vmin=res.limits["vmin_V"], vmax=res.limits["vmax_V"],
+                        spans=list(res.clip_spans) + list(res.slew_spans))
+        figures.append("plots/tracking.png")
+    summary = invert_summary(res)
+    summary["command"] = command
+    summary["output_file"] = output_file
+    atomic_write_text(report_dir / "report.json", dumps(_clean(summary)))
+    atomic_write_text(report_dir / "report.md", invert_markdown(res, figures, command, output_file))
+    return summary

@@ -1,0 +1,142 @@
+"""Reports of ``hystfit track``: per-controller time series, comparison table, JSON, Markdown, figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from ..invert import condition_text
+from ..io import atomic_write_text, write_table
+from ..results import _clean, dumps
+from ..track import TrackResult
+from .invert_report import error_comparison_figure, invert_summary, span_dicts, span_table, tracking_figure
+from .plots import display_unit
+from .tables import fmt, markdown_table
+
+
+def _file_stem(name: str) -> str:
+    return name.replace("+", "_plus_")
+
+
+def track_summary(res: TrackResult) -> dict:
+    """JSON-safe summary (NaN/inf → null)."""
+    u = res.unit
+    inv = invert_summary(res.inversion)
+    runs = []
+    for run in res.runs:
+        runs.append({"controller": run.controller, "metrics": run.metrics, "steps": list(run.steps),
+                     "limited": {"spans": len(run.limit_spans), "samples": sum(s.n for s in run.limit_spans),
+                                 "list": span_dicts(run.limit_spans)},
+                     "voltage": {"min_V": float(run.voltage_V.min()), "max_V": float(run.voltage_V.max())},
+                     "runtime_s": run.runtime_s, "us_per_sample": 1e6 * run.runtime_s / max(1, res.target.n),
+                     "details": run.details})
+    nom = res.nominal
+    return _clean({
+        "schema": "hystfit.track", "schema_version": 1,
+        "params": res.params_path, "plant": res.plant_path, "model": res.model_name,
+        "plant_model": res.plant_model_name, "units": {"output": u, "input": "V", "time": "s"},
+        "target": inv["target"], "initial_voltage": inv["initial_voltage"], "limits": res.limits,
+        "noise": {f"sigma_{u}": res.noise_std, "seed": res.seed},
+        "controller_cells": inv["segments"],
+        "plant_cells": [{"segment": seg, "cells": [[c.label, c.weight] for c in cells]}
+                        for seg, cells in res.plant_cells],
+        "nominal_plant": {"kind": nom.kind, "description": nom.description, f"gain_{u}_per_V": nom.gain,
+                          "num": nom.num.tolist(), "den": nom.den.tolist(), "dt_s": nom.dt,
+                          "fit_nrmse_pct": nom.fit_nrmse_pct},
+        "comparison": res.table(),
+        "runs": runs,
+        "notes": list(res.notes),
+    })
+
+
+def track_markdown(res: TrackResult, figures: list[str], command: str | None = None) -> str:
+    u = res.unit
+    du = display_unit(u)
+    tg = res.target
+    inv = res.inversion
+    L = ["# hystfit track report", ""]
+    if command:
+        L += ["Command:", "", f"```\n{command}\n```", ""]
+    L += [f"- controller's table: `{res.params_path}` (model `{res.model_name}`)",
+          f"- plant: `{res.plant_path}` (model `{res.plant_model_name}`)"
+          + (" — the same table (the inverse sees its own model)" if res.plant_path == res.params_path else
+             " — another model: the realistic test of the inverse"),
+          f"- target: {tg.description}; {tg.n} samples at {tg.fs:g} Hz; stroke {tg.stroke:.4g} {du}",
+          f"- loop at the sample rate, one sample of computation delay; measurement noise σ = {res.noise_std:g} {du} "
+          f"(seed {res.seed}); voltage limits [{res.limits['vmin_V']:.6g}, {res.limits['vmax_V']:.6g}] V, slew "
+          + (f"{res.limits['max_slew_V_per_s']:g} V/s" if res.limits.get("max_slew_V_per_s") else "unlimited"),
+          f"- initial voltage {inv.initial_voltage_V:.6g} V ({inv.initial_voltage_source})",
+          f"- nominal linear part: {res.nominal.description}"]
+    if res.pid is not None:
+        p = res.pid
+        L.append(f"- PID: Kp = {p.kp:.4g} V/{du}, Ki = {p.ki:.4g} V/({du}·s), Kd = {p.kd:.4g} V·s/{du}, "
+                 f"derivative filter {p.tf_s:.3g} s, anti-windup {p.anti_windup} (Tt = {p.tt_s:.3g} s); {p.rule}; "
+                 f"nominal bandwidth ≈ {p.bandwidth_Hz:.4g} Hz, GM = {p.gain_margin:.3g}, PM = {p.phase_margin_deg:.3g}°")
+    if res.smc is not None:
+        L.append(f"- sliding mode (paper 003 eq. 25–42, on top of the feedforward): {res.smc.describe()}")
+    L += ["", "## Comparison", "",
+          f"Errors e = plant output − reference (true output, without the measurement noise); % of stroke = "
+          f"100·x / (max r − min r). `limited_pct`: share of samples where the voltage limits acted.", ""]
+    rows = res.table()
+    L.append(markdown_table(pd.DataFrame(rows)))
+    if tg.steps:
+        L += ["", "Steps (paper 002 Table 6): `t90_s` = time to 90 % of the step (002's Tr), `rise_time_s` = 10 → 90 %, "
+              "settling = time after which the output stays within ±5 % / ±2 % of the step (– = not settled "
+              "within the hold), overshoot in % of the step (largest over the steps)."]
+    L += ["", "## Table cells", "", "| segment | controller cells | plant cells |", "|---|---|---|"]
+    for ch, (seg, pcells) in zip(inv.choices, res.plant_cells):
+        L.append(f"| {seg} | {condition_text(ch)} | {' + '.join(f'{c.label}×{c.weight:.2f}' for c in pcells)} |")
+    for run in res.runs:
+        if run.limit_spans:
+            L += ["", f"### {run.controller}: voltage limited", ""] + span_table(run.limit_spans)
+    if res.notes:
+        L += ["", "## Notes", ""] + [f"- {n}" for n in res.notes]
+    if figures:
+        L += ["", "## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in figures]
+    L.append("")
+    return "\n".join(L)
+
+
+def write_track_outputs(res: TrackResult, out_dir: Path, *, make_plots: bool = True, fmt_ext: str = "csv",
+                        command: str | None = None) -> dict:
+    """Write ``<controller>.csv`` (or .parquet), ``summary.json``, ``report.md`` and figures into ``out_dir``."""
+    out_dir = Path(out_dir)
+    u = res.unit
+    tg = res.target
+    figures: list[str] = []
+    for run in res.runs:
+        stem = _file_stem(run.controller)
+        write_table(out_dir / f"{stem}.{fmt_ext}", pd.DataFrame({
+            "time_s": tg.t_s, f"reference_{u}": tg.y, f"displacement_{u}": run.output,
+            f"measured_{u}": run.measured, "voltage_V": run.voltage_V, "command_V": run.command_V,
+            f"error_{u}": run.error}))
+        if make_plots:
+            tracking_figure(out_dir / "plots" / f"{stem}.png", tg.t_s, tg.y, run.output, run.voltage_V, unit=u,
+                            title=f"{run.controller} – {tg.description}", output_label="plant output",
+                            vmin=res.limits["vmin_V"], vmax=res.limits["vmax_V"], spans=run.limit_spans)
+            figures.append(f"plots/{stem}.png")
+    if make_plots and len(res.runs) > 1:
+        error_comparison_figure(out_dir / "plots" / "errors.png", tg.t_s, {r.controller: r.error for r in res.runs},
+                                unit=u, title=f"tracking error – {tg.description}")
+        figures.insert(0, "plots/errors.png")
+    summary = track_summary(res)
+    summary["command"] = command
+    atomic_write_text(out_dir / "summary.json", dumps(_clean(summary)))
+    atomic_write_text(out_dir / "report.md", track_markdown(res, figures, command))
+    return summary
+
+
+def comparison_text_rows(res: TrackResult) -> list[list[str]]:
+    """Rows for a console table: controller, max, RMSE, % and step figures as text."""
+    out = []
+    u = res.unit
+    for row in res.table():
+        cells = [row["controller"], fmt(row[f"max_error_{u}"]), fmt(row[f"rmse_{u}"]), fmt(row["max_error_pct"], 3),
+                 fmt(row["rmse_pct"], 3)]
+        if "t90_s" in row:
+            cells += [fmt(row["t90_s"]), fmt(row["settling_time_5pct_s"]), fmt(row["settling_time_2pct_s"]),
+                      fmt(row["overshoot_pct"], 3)]
+        cells.append(fmt(row["limited_pct"], 3))
+        out.append(cells)
+    return out

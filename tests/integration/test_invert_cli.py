@@ -1,0 +1,255 @@
+"""``hystfit invert`` and ``hystfit track`` through typer's CliRunner: every option, outputs, errors."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from hystfit.cli import app
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "sample_data"
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def tables(tmp_path_factory):
+    """A 2 × 2 PI table (20/40 V × 10/20 Hz) and a one-cell Bouc–Wen table from the sample data."""
+    d = tmp_path_factory.mktemp("tables")
+    data = d / "data"
+    data.mkdir()
+    for name in ("a20V_f10Hz.csv", "a40V_f10Hz.csv", "a20V_f20Hz.csv", "a40V_f20Hz.csv"):
+        shutil.copy(SAMPLE / name, data / name)
+    r = run("identify", data, "--out", d / "pi", "--no-plots", "--quiet", "--jobs", "1")
+    assert r.exit_code == 0, r.output
+    r = run("identify", data / "a40V_f10Hz.csv", "--model", "bw", "--out", d / "bw", "--no-plots", "--quiet",
+            "--jobs", "1")
+    assert r.exit_code == 0, r.output
+    return {"pi": d / "pi" / "params.json", "bw": d / "bw" / "params.json"}
+
+
+def assert_error(r, needle, *not_written):
+    assert r.exit_code == 2, r.output
+    assert needle in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("hystfit: error:")
+    assert "Traceback" not in r.output
+    for p in not_written:
+        assert not Path(p).exists(), p
+
+
+# ------------------------------------------------------------------------------------------ invert
+
+
+def test_invert_sine_writes_voltages_report_and_plots(tables, tmp_path):
+    out = tmp_path / "v.csv"
+    r = run("invert", tables["pi"], "--sine", "10,10,3", "--offset", "2", "--out", out)
+    assert r.exit_code == 0, r.output
+    df = pd.read_csv(out)
+    assert list(df.columns) == ["time_s", "voltage_V", "predicted_displacement_um"]
+    assert len(df) == 3001 and df["time_s"].iloc[1] == pytest.approx(1e-4)
+    target = 2 + 5 * (1 - np.cos(2 * np.pi * 10 * df["time_s"]))
+    assert np.max(np.abs(df["predicted_displacement_um"] - target)) < 0.05
+    rep = tmp_path / "v_report"
+    assert {p.name for p in rep.iterdir()} == {"report.md", "report.json", "plots"}
+    assert (rep / "plots" / "tracking.png").stat().st_size > 10_000
+    summary = json.loads((rep / "report.json").read_text())
+    assert summary["schema"] == "hystfit.invert" and summary["model"] == "pi"
+    assert summary["segments"][0]["converged"] and summary["segments"][0]["how"] == "iterated"
+    assert {c["label"] for c in summary["segments"][0]["cells"]} <= {"20V_10Hz", "40V_10Hz"}
+    assert summary["limits"]["vmin_V"] == pytest.approx(-4.0) and summary["limits"]["vmax_V"] == pytest.approx(44.0)
+    md = (rep / "report.md").read_text()
+    assert "hystfit invert" in md and "--sine 10,10,3" in md and "% of stroke" in md and "40V_10Hz" in md
+    assert "segment" in r.stdout  # the summary table
+
+
+def test_invert_json_quiet_parquet_and_report_dir(tables, tmp_path):
+    r = run("invert", tables["pi"], "--triangle", "8,20,2", "--offset", "3", "--out", tmp_path / "v.parquet",
+            "--report-dir", tmp_path / "rep", "--json", "--no-plots")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["out"].endswith("v.parquet") and s["report_dir"].endswith("rep")
+    assert s["target"]["kind"] == "triangle" and s["predicted_tracking"]["rmse_pct_of_stroke"] < 1
+    assert len(pd.read_parquet(tmp_path / "v.parquet")) == s["target"]["samples"]
+    assert not (tmp_path / "rep" / "plots").exists() and (tmp_path / "rep" / "report.md").exists()
+    r = run("invert", tables["pi"], "--steps", "10,4@0.05", "--offset", "2", "--out", tmp_path / "s.csv", "--quiet")
+    assert r.exit_code == 0 and r.stdout == ""
+    r = run("invert", tables["pi"], "--multi", "--offset", "2", "--fs", "2000", "--out", tmp_path / "m.tsv",
+            "--json", "--no-plots")
+    s = json.loads(r.stdout)
+    assert [seg["frequency_Hz"] for seg in s["segments"]] == [0.5, 1, 2, 5, 10] and s["target"]["fs_Hz"] == 2000
+
+
+def test_invert_target_file_columns_and_units(tables, tmp_path):
+    t = np.arange(2000) * 1e-4
+    y = 3 + 4 * (1 - np.cos(2 * np.pi * 10 * t))
+    f = tmp_path / "target.csv"
+    pd.DataFrame({"time_ms": t * 1e3, "voltage_V": 0.0, "target_um": y}).to_csv(f, index=False)
+    r = run("invert", tables["pi"], f, "--out", tmp_path / "v.csv", "--json", "--no-plots")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["target"]["kind"] == "file" and s["target"]["fs_Hz"] == pytest.approx(1e4)
+    g = tmp_path / "plain.txt"
+    g.write_text("\n".join(f"{v:.9g} {v:.9g}" for v in y) + "\n")
+    r = run("invert", tables["pi"], g, "--fs", "10000", "--target-col", "1", "--out", tmp_path / "w.csv", "--quiet")
+    assert r.exit_code == 0, r.output
+    h = tmp_path / "named.csv"
+    pd.DataFrame({"clock": t, "ref": y}).to_csv(h, index=False)
+    r = run("invert", tables["pi"], h, "--time-col", "clock", "--target-col", "ref", "--out", tmp_path / "x.csv",
+            "--quiet")
+    assert r.exit_code == 0, r.output
+    k = tmp_path / "unitless.csv"
+    pd.DataFrame({"t": t, "setpoint": y * 1e3}).to_csv(k, index=False)
+    r = run("invert", tables["pi"], k, "--output-unit", "nm", "--out", tmp_path / "nm.csv")
+    assert_error(r, "nm", tmp_path / "nm.csv", tmp_path / "nm_report")
+
+
+def test_invert_condition_method_initial_voltage_and_limits(tables, tmp_path):
+    base = ("invert", tables["pi"], "--sine", "10,10,2", "--offset", "2", "--json", "--no-plots")
+    s = json.loads(run(*base, "--condition", "40,10", "--out", tmp_path / "a.csv").stdout)
+    seg = s["segments"][0]
+    assert seg["how"] == "forced" and [c["label"] for c in seg["cells"]] == ["40V_10Hz"]
+    s = json.loads(run(*base, "--method", "nearest", "--out", tmp_path / "b.csv").stdout)
+    assert s["method"] == "nearest" and len(s["segments"][0]["cells"]) == 1
+    s = json.loads(run(*base, "--initial-voltage", "0", "--out", tmp_path / "c.csv").stdout)
+    assert s["initial_voltage"] == {"V": 0.0, "source": "given"} and any("jump" in n for n in s["notes"])
+    r = run(*base, "--vmin", "0", "--vmax", "30", "--out", tmp_path / "d.csv")
+    assert r.exit_code == 0
+    s = json.loads(r.stdout)
+    assert s["clipping"]["spans"] >= 2 and s["limits"]["vmax_source"] == "given"
+    assert s["predicted_tracking_without_limits"] is not None
+    assert "clipped to the voltage limits" in r.stderr and "first" in r.stderr
+    v = pd.read_csv(tmp_path / "d.csv")["voltage_V"]
+    assert v.max() <= 30 + 1e-12 and v.min() >= 0
+    r = run(*base, "--max-slew", "500", "--out", tmp_path / "e.csv")
+    s = json.loads(r.stdout)
+    assert s["slew_limiting"]["spans"] >= 1 and "slew-rate limited" in r.stderr
+    assert np.max(np.abs(np.diff(pd.read_csv(tmp_path / "e.csv")["voltage_V"]))) <= 500 * 1e-4 * (1 + 1e-9)
+
+
+def test_invert_refuses_to_overwrite_without_force(tables, tmp_path):
+    out = tmp_path / "v.csv"
+    out.write_text("keep\n")
+    r = run("invert", tables["pi"], "--sine", "10,10", "--offset", "2", "--out", out)
+    assert_error(r, "--force", tmp_path / "v_report")
+    assert out.read_text() == "keep\n"
+    r = run("invert", tables["pi"], "--sine", "10,10", "--offset", "2", "--out", out, "--force", "--quiet")
+    assert r.exit_code == 0 and out.read_text().startswith("time_s,")
+    (tmp_path / "w_report").mkdir()
+    (tmp_path / "w_report" / "x").write_text("x")
+    r = run("invert", tables["pi"], "--sine", "10,10", "--offset", "2", "--out", tmp_path / "w.csv")
+    assert_error(r, "--force", tmp_path / "w.csv")
+
+
+@pytest.mark.parametrize("args,needle", [
+    ((), "exactly one target"),
+    (("--sine", "10,10", "--multi"), "exactly one target"),
+    (("--sine", "10"), "--sine"),
+    (("--sine", "a,b"), "--sine"),
+    (("--sine", "-10,10"), "amplitude"),
+    (("--triangle", "10,0"), "frequency"),
+    (("--steps", "10@x"), "hold"),
+    (("--steps", "10,10"), "differ"),
+    (("--sine", "10,10", "--method", "cubic"), "--method"),
+    (("--sine", "10,10", "--vmin", "5", "--vmax", "5"), "vmin < vmax"),
+    (("--sine", "10,10", "--initial-voltage", "500"), "initial voltage"),
+    (("--sine", "10,10", "--max-slew", "0"), "slew"),
+    (("--sine", "10,10", "--condition", "40"), "--condition"),
+    (("--sine", "10,10", "--fs", "-1"), "--fs"),
+    (("--sine", "10,10", "--time-col", "t"), "TARGET file"),
+    (("--sine", "10,10", "--output-unit", "furlong"), "--output-unit"),
+    (("missing.csv",), "no such file"),
+])
+def test_invert_bad_input_exit_2_one_line_nothing_written(tables, tmp_path, args, needle):
+    out = tmp_path / "v.csv"
+    r = run("invert", tables["pi"], *args, "--out", out)
+    assert_error(r, needle, out, tmp_path / "v_report")
+
+
+def test_invert_bad_params_and_output_names(tables, tmp_path):
+    assert_error(run("invert", tmp_path / "nope.json", "--sine", "10,10", "--out", tmp_path / "v.csv"),
+                 "no such parameter file", tmp_path / "v.csv")
+    assert_error(run("invert", tables["pi"], "--sine", "10,10", "--out", tmp_path / "v.xlsx"), "unsupported",
+                 tmp_path / "v.xlsx")
+    r = run("invert", tables["pi"], "--sine", "10,10")
+    assert r.exit_code == 2 and "--out" in r.output
+
+
+# ------------------------------------------------------------------------------------------ track
+
+
+def test_track_compares_controllers_and_writes_outputs(tables, tmp_path):
+    out = tmp_path / "tr"
+    r = run("track", tables["pi"], "--sine", "10,10,2", "--offset", "2", "--controller", "pid,ff,ff+pid,smc",
+            "--plant", tables["bw"], "--noise", "0.008", "--seed", "3", "--out", out)
+    assert r.exit_code == 0, r.output
+    names = {p.name for p in out.iterdir()}
+    assert {"pid.csv", "ff.csv", "ff_plus_pid.csv", "smc.csv", "summary.json", "report.md", "plots"} <= names
+    assert {"errors.png", "pid.png", "smc.png"} <= {p.name for p in (out / "plots").iterdir()}
+    s = json.loads((out / "summary.json").read_text())
+    assert s["plant_model"] == "bw" and s["noise"] == {"sigma_um": 0.008, "seed": 3}
+    rows = {row["controller"]: row for row in s["comparison"]}
+    assert set(rows) == {"pid", "ff", "ff+pid", "smc"}
+    assert rows["ff+pid"]["rmse_pct"] < rows["ff"]["rmse_pct"]
+    df = pd.read_csv(out / "ff_plus_pid.csv")
+    assert list(df.columns) == ["time_s", "reference_um", "displacement_um", "measured_um", "voltage_V", "command_V",
+                                "error_um"]
+    md = (out / "report.md").read_text()
+    assert "another model" in md and "Kp =" in md and "sliding" in md
+    assert "ff+pid" in r.stdout
+
+
+def test_track_steps_given_gains_json_parquet_and_options(tables, tmp_path):
+    r = run("track", tables["pi"], "--steps", "10@0.05", "--offset", "2", "--controller", "pid,ff+pid", "--kp", "0.5",
+            "--ki", "5000", "--kd", "0.0001", "--anti-windup", "clamp", "--vmax", "38", "--max-slew", "2e5",
+            "--format", "parquet", "--no-plots", "--json", "--out", tmp_path / "t")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    pid = s["runs"][0]["details"]["pid"]
+    assert (pid["kp"], pid["ki"], pid["kd"], pid["anti_windup"], pid["rule"]) == (0.5, 5000, 0.0001, "clamp", "given")
+    assert "t90_s" in s["comparison"][0] and s["runs"][0]["steps"][0]["to"] == pytest.approx(12.0)
+    assert s["limits"]["max_slew_V_per_s"] == 2e5 and s["limits"]["vmax_V"] == 38
+    assert (tmp_path / "t" / "pid.parquet").exists() and not (tmp_path / "t" / "plots").exists()
+    r = run("track", tables["pi"], "--multi", "--fs", "2000", "--offset", "2", "--controller", "smc", "--bandwidth",
+            "50", "--method", "nearest", "--condition", "40,10", "--initial-voltage", "5", "--quiet",
+            "--out", tmp_path / "u")
+    assert r.exit_code == 0 and r.stdout == "", r.output
+    s = json.loads((tmp_path / "u" / "summary.json").read_text())
+    assert s["runs"][0]["details"]["smc"]["bandwidth_Hz"] == 50 and s["initial_voltage"]["V"] == 5
+    t = np.arange(1000) * 1e-4
+    f = tmp_path / "ref.csv"
+    pd.DataFrame({"t": t, "reference_um": 3 + 3 * (1 - np.cos(2 * np.pi * 20 * t))}).to_csv(f, index=False)
+    r = run("track", tables["pi"], f, "--controller", "ff", "--out", tmp_path / "v", "--json", "--no-plots")
+    assert r.exit_code == 0 and json.loads(r.stdout)["target"]["kind"] == "file"
+    r = run("track", tables["pi"], "--sine", "10,10", "--out", tmp_path / "v")
+    assert_error(r, "--force")
+    r = run("track", tables["pi"], "--sine", "10,10", "--offset", "2", "--controller", "ff", "--out", tmp_path / "v",
+            "--force", "--quiet", "--no-plots")
+    assert r.exit_code == 0
+
+
+@pytest.mark.parametrize("args,needle", [
+    (("--controller", "lqr"), "--controller"),
+    (("--controller", "pid,pid"), "twice"),
+    (("--noise", "-1"), "--noise"),
+    (("--anti-windup", "none"), "--anti-windup"),
+    (("--format", "xlsx"), "--format"),
+    (("--bandwidth", "0"), "--bandwidth"),
+    (("--controller", "ff", "--kp", "1"), "--kp"),
+    (("--kp", "-1"), "--kp"),
+    (("--plant", "nope.json"), "no such parameter file"),
+    (("--method", "cubic"), "--method"),
+    (("--vmin", "10", "--vmax", "0"), "vmin < vmax"),
+])
+def test_track_bad_input_exit_2_one_line_nothing_written(tables, tmp_path, args, needle):
+    out = tmp_path / "tr"
+    r = run("track", tables["pi"], "--sine", "10,10,1", "--offset", "2", *args, "--out", out)
+    assert_error(r, needle, out)
+    assert not any(p.name.startswith(".tr.tmp") for p in tmp_path.iterdir())

@@ -1,0 +1,320 @@
+"""Feedforward inversion (hystfit.invert): targets, table cells, round trips, limits, memory."""
+
+import math
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from hystfit.errors import ConfigError, InputError
+from hystfit.invert import (apply_limits, find_spans, invert_target, load_target, multi_target, rest_output,
+                            select_cells, sine_target, steps_target, target_from_array, triangle_target)
+from hystfit.models.bw import BoucWen
+from hystfit.models.pi import PI
+from hystfit.params import DataScale
+from hystfit.registry import models
+from hystfit.results import Cell, ParamsFile
+from hystfit.synth import DEFAULT_THRESHOLDS_V, DEFAULT_WEIGHTS_UM_PER_V
+
+DT = 1e-4
+PI_THETA = np.r_[DEFAULT_WEIGHTS_UM_PER_V, 0.25]  # the virtual actuator's hysteresis (µm/V, µm)
+BW_THETA = np.array([0.2, 0.15, 0.04, 0.01, 0.25])  # Kv, α, β, γ, y0
+
+
+def scale(u_max=60.0, gain=0.31):
+    return DataScale(0.0, u_max, 0.25, 0.25 + gain * u_max, DT, 2 * np.pi * 10 * u_max)
+
+
+def pi_cell(label="60V_10Hz", amp=60.0, freq=10.0, theta=PI_THETA, thresholds=DEFAULT_THRESHOLDS_V):
+    return Cell(label, amp, freq, PI(len(thresholds), thresholds_V=tuple(thresholds)), np.asarray(theta, float),
+                scale(amp))
+
+
+def table(cells, unit="um"):
+    return ParamsFile("test.json", cells[0].model.name, unit, "per-condition", tuple(cells), {})
+
+
+def linear_cell(amp, freq, gain, offset=0.0):
+    """A PI cell with the linear operator only: y = gain·u + offset (exact inverse (y − offset)/gain)."""
+    return Cell(f"{amp:g}V_{freq:g}Hz", amp, freq, PI(1, thresholds_V=(0.0,)), np.array([gain, offset]),
+                scale(amp, gain))
+
+
+# ------------------------------------------------------------------------------------------ targets
+
+
+def test_sine_target_is_eq16_from_offset():
+    t = sine_target(10.0, 2.0, cycles=3, fs=1000.0, offset=2.0)
+    assert t.n == 1501 and t.dt == pytest.approx(1e-3)
+    np.testing.assert_allclose(t.y, 2.0 + 5.0 * np.sin(2 * np.pi * 2.0 * t.t_s - np.pi / 2) + 5.0, atol=1e-12)
+    assert t.y[0] == pytest.approx(2.0) and t.y.max() == pytest.approx(12.0) and t.stroke == pytest.approx(10.0)
+    assert t.y[250] == pytest.approx(12.0)  # peak at half a period
+    assert len(t.segments) == 1 and t.segments[0].frequency_Hz == 2.0
+
+
+def test_triangle_steps_and_multi_targets():
+    tri = triangle_target(4.0, 10.0, cycles=2, fs=1000.0, offset=1.0)
+    assert tri.y[0] == pytest.approx(1.0) and tri.y[50] == pytest.approx(5.0) and tri.y[100] == pytest.approx(1.0)
+    st = steps_target((10.0, 4.0), hold_s=0.1, fs=1000.0, offset=2.0, lead_s=0.02)
+    assert st.n == 20 + 200 and st.y[19] == 2.0 and st.y[20] == 12.0 and st.y[120] == 6.0
+    assert [(s.index, s.from_level, s.to_level) for s in st.steps] == [(20, 2.0, 12.0), (120, 12.0, 6.0)]
+    assert st.segments[0].frequency_Hz == pytest.approx(5.0)  # square wave of period 2·hold
+    mt = multi_target(fs=1000.0)
+    assert [s.frequency_Hz for s in mt.segments] == [0.5, 1.0, 2.0, 5.0, 10.0]
+    assert mt.segments[0].start == 0 and mt.segments[-1].stop == mt.n
+    assert all(a.stop == b.start for a, b in zip(mt.segments, mt.segments[1:]))
+    for seg, amp in zip(mt.segments, (10, 8, 6, 4, 2)):
+        assert np.ptp(mt.y[seg.start:seg.stop]) == pytest.approx(amp, rel=1e-6)
+    for seg in mt.segments[1:]:  # smooth joins: every segment starts and ends at rest at the offset
+        j = seg.start
+        assert mt.y[j - 1] == pytest.approx(0.0, abs=1e-12) and abs(mt.y[j] - mt.y[j - 2]) < 1e-3
+
+
+@pytest.mark.parametrize("call", [
+    lambda: sine_target(-1, 1), lambda: sine_target(1, 0), lambda: sine_target(1, 1, cycles=0),
+    lambda: sine_target(1, 1000, cycles=0.001, fs=1000), lambda: steps_target(()),
+    lambda: steps_target((0.0,)), lambda: steps_target((1.0, 1.0)), lambda: multi_target((1, 2), (1,)),
+    lambda: sine_target(1, 1, offset=float("nan")), lambda: target_from_array(np.array([1.0, np.nan, 2, 3]), DT),
+])
+def test_bad_target_parameters_raise_config_error(call):
+    with pytest.raises(ConfigError):
+        call()
+
+
+def test_load_target_columns_units_and_errors(tmp_path):
+    p = tmp_path / "t.csv"
+    y = 5 + 5 * np.sin(np.linspace(0, 4 * np.pi, 400))
+    p.write_text("time_ms,voltage_V,target_nm\n" + "".join(f"{0.1 * k},{0},{v}\n" for k, v in enumerate(y)))
+    t = load_target(p)
+    assert t.unit == "nm" and t.dt == pytest.approx(1e-4) and t.kind == "file"
+    np.testing.assert_allclose(t.y, y)
+    assert t.segments[0].frequency_Hz == pytest.approx(1 / (400 * 1e-4 / 2), rel=0.05)
+    q = tmp_path / "noheader.csv"
+    q.write_text("".join(f"{v}\n" for v in y))
+    with pytest.raises(InputError, match="--fs"):
+        load_target(q)
+    assert load_target(q, fs=1000.0, target_col=0).dt == pytest.approx(1e-3)
+    amb = tmp_path / "amb.csv"
+    amb.write_text("t,target,reference\n0,1,1\n1,2,2\n2,3,3\n3,4,4\n")
+    with pytest.raises(InputError, match="several target columns"):
+        load_target(amb)
+    assert load_target(amb, target_col="reference").y[-1] == 4.0
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,target\n0,1\n1,x\n2,3\n3,4\n")
+    with pytest.raises(InputError, match="row 3"):
+        load_target(bad)
+    with pytest.raises(InputError, match="no such file"):
+        load_target(tmp_path / "missing.csv")
+
+
+def test_target_unit_must_match_the_parameter_file():
+    with pytest.raises(ConfigError, match="nm"):
+        invert_target(table([pi_cell()]), sine_target(1000, 10, unit="nm"))
+
+
+# ------------------------------------------------------------------------------------------ round trips
+
+
+def test_round_trip_pi_is_exact_and_memory_consistent():
+    pf = table([pi_cell()])
+    tgt = sine_target(10.0, 10.0, cycles=3, offset=2.0)
+    res = invert_target(pf, tgt)
+    # analytic inverse (paper 003 eq. 17-20) → forward(invert(y_d)) = y_d to rounding
+    assert res.metrics["max_error_um"] < 1e-9
+    assert res.initial_voltage_source.startswith("rest voltage")
+    assert rest_output(pf.cells[0], res.initial_voltage_V, DT) == pytest.approx(2.0, abs=1e-9)
+    assert res.voltage_V[0] == pytest.approx(res.initial_voltage_V, abs=1e-9)
+    assert not res.clip_spans and not res.slew_spans and res.metrics_unlimited is None
+    frame = res.to_frame()
+    assert list(frame.columns) == ["time_s", "voltage_V", "predicted_displacement_um"]
+
+
+def test_round_trip_bw_numerical_inverse():
+    cell = Cell("60V_10Hz", 60.0, 10.0, BoucWen(), BW_THETA, scale())
+    res = invert_target(table([cell]), sine_target(10.0, 10.0, cycles=2, offset=2.0))
+    # generic bracketing inverse (17-point grid, 4 refinements, linear interpolation): stated tolerance 1e-5 of stroke
+    assert res.metrics["max_error_um"] < 1e-5 * 10.0
+
+
+def _default_cell(name):
+    """A cell of model ``name`` with its default parameters, set up like the model contract suite."""
+    u = 30.0 * (1 - np.cos(2 * np.pi * 10 * np.arange(2001) * DT))
+    sc = DataScale.from_arrays([u], [0.3 * u + 0.25], [DT])
+    cls = models.get(name)
+    model = cls.example(sc) if hasattr(cls, "example") else cls().adapt(sc)
+    theta = np.array([p.default for p in model.params(sc)])
+    return Cell("60V_10Hz", 60.0, 10.0, model, theta, sc), u
+
+
+@pytest.mark.parametrize("name", models.names())
+def test_round_trip_every_registered_model_through_the_table(name):
+    """forward(invert(y_d)) ≈ y_d within 0.5 % of the stroke for a reachable target starting at rest
+    (the model's own output for a raised cosine from 0 V), pre-roll and rest voltage included."""
+    cell, u = _default_cell(name)
+    y = cell.model.simulate_one(cell.theta, u, DT)
+    if not np.all(np.isfinite(y)) or np.ptp(y) <= 0:
+        pytest.skip(f"{name}: default parameters give no usable output")
+    tgt = target_from_array(y[:1500], DT, description=f"{name} output")
+    try:
+        res = invert_target(table([cell]), tgt, vmin=-1e4, vmax=1e4)
+    except ConfigError as exc:
+        pytest.skip(f"{name}: {exc}")
+    assert res.metrics["max_error_pct_of_stroke"] < 0.5
+
+
+# ------------------------------------------------------------------------------------------ table cells
+
+
+def grid_table():
+    cells = [linear_cell(a, f, g) for a, f, g in ((20, 10, 0.2), (40, 10, 0.3), (20, 100, 0.25), (40, 100, 0.35))]
+    return table(cells)
+
+
+def test_bilinear_weights_between_four_cells():
+    pf = grid_table()
+    cells, query, clamped = select_cells(pf, (30.0, math.sqrt(10 * 100)))
+    assert not clamped and query == (30.0, pytest.approx(math.sqrt(1000)))
+    assert sorted(c.weight for c in cells) == pytest.approx([0.25] * 4)
+    cells, _, _ = select_cells(pf, (25.0, 10.0))
+    assert {c.label: c.weight for c in cells} == pytest.approx({"20V_10Hz": 0.75, "40V_10Hz": 0.25})
+    cells, query, clamped = select_cells(pf, (80.0, 1000.0))
+    assert clamped and query == (40.0, 100.0) and [(c.label, c.weight) for c in cells] == [("40V_100Hz", 1.0)]
+    cells, query, clamped = select_cells(pf, (30.0, 5.0))  # clamped in frequency only: still blends in amplitude
+    assert clamped and {c.label: c.weight for c in cells} == pytest.approx({"20V_10Hz": 0.5, "40V_10Hz": 0.5})
+    cells, _, _ = select_cells(pf, (33.0, 12.0), "nearest")
+    assert [(c.label, c.weight) for c in cells] == [("40V_10Hz", 1.0)]
+    with pytest.raises(ConfigError):
+        select_cells(pf, (30.0, 10.0), "cubic")
+
+
+def test_forced_condition_blends_the_inverted_voltages():
+    pf = grid_table()
+    tgt = sine_target(6.0, 10.0, cycles=1, offset=1.0)
+    res = invert_target(pf, tgt, condition=(25.0, 10.0))
+    (ch,) = res.choices
+    assert ch.how == "forced" and not ch.iterations
+    expected = 0.75 * tgt.y / 0.2 + 0.25 * tgt.y / 0.3  # Σ w_c·H_c⁻¹[y_d] for pure gains
+    np.testing.assert_allclose(res.voltage_V, expected, rtol=1e-9, atol=1e-9)
+    # the predicted output blends the forward models: Σ w_c·g_c·u
+    np.testing.assert_allclose(res.predicted, (0.75 * 0.2 + 0.25 * 0.3) * expected, rtol=1e-9, atol=1e-9)
+
+
+def test_amplitude_iteration_converges_and_picks_the_right_cell():
+    # 10 um needs 20/40/50/200 V on the 20/40/60/80 V cells; the first guess, stroke / median gain
+    # = 10/0.225 = 44 V, is off; only the 40 V cell is self-consistent (its voltage amplitude is 40 V)
+    pf = table([linear_cell(20, 10, 0.5), linear_cell(40, 10, 0.25), linear_cell(60, 10, 0.2),
+                linear_cell(80, 10, 0.05)])
+    tgt = sine_target(10.0, 10.0, cycles=1)
+    res = invert_target(pf, tgt, method="nearest")
+    (ch,) = res.choices
+    assert ch.iterations[0].amplitude_V == pytest.approx(10 / 0.225)
+    assert ch.converged and [c.label for c in ch.cells] == ["40V_10Hz"]
+    assert np.ptp(res.voltage_V) == pytest.approx(40.0)
+    res = invert_target(pf, tgt, method="interpolate")
+    (ch,) = res.choices
+    # between the 40 and 60 V cells A ↦ 50 − (60 − A)/2 contracts (slope 1/2) to its fixed point 40 V
+    assert ch.converged and len(ch.iterations) >= 5
+    assert ch.iterations[-1].result_pp_V == pytest.approx(ch.condition[0], rel=1e-3)
+    assert ch.condition[0] == pytest.approx(40.0, rel=2e-3)
+    assert {c.label for c in ch.cells} <= {"40V_10Hz", "60V_10Hz"}
+    assert max(c.weight for c in ch.cells) > 0.99
+
+
+def test_amplitude_iteration_reports_alternating_cells():
+    # the 20 V cell asks for 35 V (→ 40 V cell), the 40 V cell for 25 V (→ 20 V cell): no fixed point
+    pf = table([linear_cell(20, 10, 10 / 35), linear_cell(40, 10, 10 / 25)])
+    res = invert_target(pf, sine_target(10.0, 10.0, cycles=1), method="nearest")
+    (ch,) = res.choices
+    assert not ch.converged and "alternated" in ch.note
+    assert any("alternated" in n for n in res.notes)
+
+
+def test_multi_target_uses_a_cell_per_segment_with_smooth_joins():
+    pf = table([linear_cell(a, f, g) for a, f, g in ((20, 1, 0.2), (40, 1, 0.3), (20, 10, 0.25), (40, 10, 0.35))])
+    tgt = multi_target(fs=2000.0)
+    res = invert_target(pf, tgt, method="nearest")
+    labels = [[c.label for c in ch.cells] for ch in res.choices]
+    assert labels[0] == ["40V_1Hz"] and labels[-1] == ["20V_10Hz"]
+    # exact linear inverses; the only residual is second order in the cross-fade after each join
+    # (2 % of the shorter segment), where Σw·g_c·Σw·u_c ≠ y
+    fade = np.zeros(tgt.n, bool)
+    for seg in tgt.segments[1:]:
+        fade[seg.start:seg.start + 30] = True
+    err = np.abs(res.predicted - tgt.y)
+    assert err[~fade].max() < 1e-9 and err.max() < 1e-4 * tgt.stroke
+    assert np.max(np.abs(np.diff(res.voltage_V))) < 0.2
+
+
+# ------------------------------------------------------------------------------------------ limits
+
+
+def test_find_spans_and_apply_limits_report_exact_spans():
+    u = np.array([0.0, 1.0, 5.0, 6.0, 2.0, -3.0, -4.0, 0.0, 0.0])
+    out, clip, slew = apply_limits(u, 0.5, -2.0, 4.0, None, 0.0)
+    np.testing.assert_array_equal(out, [0, 1, 4, 4, 2, -2, -2, 0, 0])
+    assert [(s.kind, s.start, s.stop, s.n, s.start_s, s.stop_s, s.worst_V) for s in clip] == [
+        ("vmax", 2, 4, 2, 1.0, 1.5, 2.0), ("vmin", 5, 7, 2, 2.5, 3.0, 2.0)]
+    assert slew == []
+    out, clip, slew = apply_limits(np.array([0.0, 0.0, 10.0, 10.0, 10.0, 0.0]), 0.1, -100, 100, 40.0, 0.0)
+    np.testing.assert_allclose(out, [0, 0, 4, 8, 10, 6])  # |Δu| ≤ 40 V/s · 0.1 s
+    assert clip == [] and [(s.start, s.stop, s.worst_V) for s in slew] == [(2, 4, 6.0), (5, 6, 6.0)]
+    assert find_spans(np.zeros(3, bool), np.zeros(3), 1.0, "x") == []
+
+
+def test_clipping_is_reported_with_time_spans_and_its_cost():
+    pf = table([pi_cell()])
+    tgt = sine_target(10.0, 10.0, cycles=2, offset=2.0)
+    free = invert_target(pf, tgt)
+    vmax = float(free.voltage_V.max()) - 3.0
+    res = invert_target(pf, tgt, vmax=vmax)
+    assert res.voltage_V.max() <= vmax + 1e-12 and res.limits["vmax_source"] == "given"
+    assert len(res.clip_spans) == 2 and all(s.kind == "vmax" for s in res.clip_spans)
+    over = free.voltage_V > vmax
+    for s in res.clip_spans:
+        assert over[s.start:s.stop].all() and not over[s.start - 1] and not over[s.stop]
+        assert s.start_s == pytest.approx(s.start * DT) and s.worst_V == pytest.approx(3.0, abs=0.01)
+    assert res.metrics_unlimited["max_error_um"] < 1e-9 < res.metrics["max_error_um"]
+
+
+def test_slew_limit_starts_from_the_initial_voltage():
+    pf = table([pi_cell()])
+    tgt = sine_target(10.0, 20.0, cycles=1, offset=2.0)
+    res = invert_target(pf, tgt, max_slew=1500.0, initial_voltage=0.0)
+    assert np.max(np.abs(np.diff(np.r_[0.0, res.voltage_V]))) <= 1500.0 * DT * (1 + 1e-9)
+    assert res.slew_spans and res.slew_spans[0].start == 0  # the target starts away from 0 V: slewed from rest
+    assert any("jump" in n for n in res.notes)
+
+
+def test_limit_and_initial_voltage_validation():
+    pf = table([pi_cell()])
+    tgt = sine_target(10.0, 10.0, cycles=1)
+    for kw in ({"vmin": 5.0, "vmax": 5.0}, {"max_slew": 0.0}, {"initial_voltage": 100.0}, {"vmin": float("nan")},
+               {"method": "cubic"}, {"condition": (-1.0, 10.0)}):
+        with pytest.raises(ConfigError):
+            invert_target(pf, tgt, **kw)
+    lo, hi = invert_target(pf, tgt).limits["vmin_V"], invert_target(pf, tgt).limits["vmax_V"]
+    assert (lo, hi) == (pytest.approx(-6.0), pytest.approx(66.0))  # 0…60 V ± 10 %
+
+
+def test_given_initial_voltage_sets_the_memory():
+    pf = table([pi_cell()])
+    tgt = sine_target(6.0, 10.0, cycles=2, offset=8.0)
+    res = invert_target(pf, tgt, initial_voltage=40.0)  # the stage came down from 0→40 V: different memory
+    assert res.initial_voltage_V == 40.0 and res.initial_voltage_source == "given"
+    assert res.metrics["max_error_um"] < 1e-3  # only the first sample's jump from rest differs
+    default = invert_target(pf, tgt)
+    assert abs(default.voltage_V[100] - res.voltage_V[100]) > 0.1  # hysteresis: the history matters
+
+
+@pytest.mark.slow
+def test_a_million_samples_stay_under_1_GB():
+    pf = table([pi_cell(), pi_cell("40V_10Hz", 40.0)])
+    tgt = sine_target(10.0, 10.0, cycles=1000, offset=2.0)
+    assert tgt.n == 1_000_001
+    tracemalloc.start()
+    try:
+        res = invert_target(pf, tgt, max_slew=1e5)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1e9 and res.metrics["n_samples"] == tgt.n

@@ -1,0 +1,260 @@
+"""Closed-loop tracking (hystfit.track): textbook PID on a linear plant, margins, steps, SMC, limits."""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from hystfit.errors import ConfigError
+from hystfit.invert import invert_target, sine_target, steps_target
+from hystfit.models.base import Model
+from hystfit.params import DataScale, Param
+from hystfit.results import Cell, ParamsFile
+from hystfit.track import (NominalPlant, _static, auto_pid, design_smc, given_pid, loop_margins, nominal_plant,
+                           parse_controllers, step_metrics, track)
+from hystfit.models.pi import PI
+from hystfit.synth import DEFAULT_THRESHOLDS_V, DEFAULT_WEIGHTS_UM_PER_V
+
+
+@dataclass(frozen=True)
+class FirstOrderLag(Model):
+    """Test-only linear plant (not registered): y[k] = a·y[k−1] + (1 − a)·K·u[k], a = exp(−Ts/τ).
+
+    θ = (K in um/V, τ in s). At rest at the first sample (y[0] = K·u[0]).
+    """
+
+    name = "test-lag"
+    title = "first-order lag (test)"
+    reference = "tests"
+    equation = "tau dy/dt + y = K u"
+    rate_dependent = True
+
+    def params(self, scale):
+        return (Param("K", "out/V", 0.0, 10.0, 0.3, "gain"), Param("tau", "s", 1e-6, 1.0, 1e-3, "time constant"))
+
+    @staticmethod
+    def _a(theta, dt):
+        return math.exp(-dt / float(theta[1]))
+
+    def simulate(self, theta, u, dt):
+        theta = self.check_theta(theta, 2)
+        u = np.asarray(u, float)
+        out = np.empty((theta.shape[0], u.size))
+        for i, (K, tau) in enumerate(theta):
+            a = math.exp(-dt / tau)
+            out[i] = signal.lfilter([(1 - a) * K], [1.0, -a], u, zi=[a * K * u[0]])[0]
+        return out
+
+    def initial_state(self, theta, u0, dt):
+        return np.array([float(theta[0]) * u0])
+
+    def step(self, theta, state, u_prev, u_new, dt):
+        a = self._a(theta, dt)
+        y = a * float(state[0]) + (1 - a) * float(theta[0]) * np.asarray(u_new, float)
+        return y, y[:, None]
+
+    def invert(self, theta, y_target, dt, u_range=None):
+        a = self._a(theta, dt)
+        y = np.asarray(y_target, float)
+        prev = np.r_[y[0], y[:-1]]
+        return (y - a * prev) / ((1 - a) * float(theta[0]))
+
+
+def lag_table(K=0.3, tau=1e-3, dt=1e-4):
+    sc = DataScale(0.0, 60.0, 0.0, 60 * K, dt, 1e4)
+    cell = Cell("global", float("nan"), float("nan"), FirstOrderLag(), np.array([K, tau]), sc)
+    return ParamsFile("lag.json", "test-lag", "um", "global", (cell,), {})
+
+
+def pi_table(scale_w=1.0, path="pi.json"):
+    w = np.asarray(DEFAULT_WEIGHTS_UM_PER_V) * scale_w
+    sc = DataScale(0.0, 60.0, 0.25, 0.25 + 0.31 * 60, 1e-4, 4000.0)
+    cell = Cell("60V_10Hz", 60.0, 10.0, PI(10, thresholds_V=DEFAULT_THRESHOLDS_V), np.r_[w, 0.25], sc)
+    return ParamsFile(path, "pi", "um", "per-condition", (cell,), {})
+
+
+def closed_loop_tf(K, a, kp, ki, kd, tf, dt):
+    """Exact discrete closed loop r → y of hystfit's loop: y = P·v, v = z⁻¹·(C_e·(r − y) − C_d·y)."""
+    P = np.poly1d
+    Gn, Gd = P([(1 - a) * K]), P([1.0, -a])  # z⁻¹·P(z) = (1 − a)K/(z − a)
+    Cen, Ced = P([kp, -kp]) + P([ki * dt, 0.0]), P([1.0, -1.0])
+    Cdn, Cdd = P([kd, -kd]), P([tf + dt, -tf])
+    num = Gn * Cen * Cdd
+    den = Gd * Ced * Cdd + Gn * (Cen * Cdd + Cdn * Ced)
+    return num.coeffs, den.coeffs
+
+
+@pytest.mark.parametrize("kp,ki,kd", [(2.0, 3000.0, 0.0), (1.0, 2000.0, 2e-4), (0.0, 2500.0, 0.0)])
+def test_pid_step_response_matches_scipy_discrete_closed_loop(kp, ki, kd):
+    K, tau, dt = 0.3, 1e-3, 1e-4
+    pf = lag_table(K, tau, dt)
+    tgt = steps_target((10.0,), hold_s=0.03, fs=1 / dt, offset=3.0, lead_s=0.005)
+    res = track(pf, tgt, ["pid"], kp=kp, ki=ki, kd=kd, vmin=-1e4, vmax=1e4)
+    run = res.runs[0]
+    gains = res.pid
+    assert (gains.kp, gains.ki, gains.kd) == (kp, ki, kd) and gains.rule == "given"
+    num, den = closed_loop_tf(K, math.exp(-dt / tau), kp, ki, kd, gains.tf_s, dt)
+    _, y_dev = signal.dlsim((num, den, dt), tgt.y - tgt.y[0])
+    np.testing.assert_allclose(run.output - tgt.y[0], y_dev[:, 0], atol=1e-9)
+    assert run.metrics["n_samples"] == tgt.n and not run.limit_spans
+
+
+def test_pi_step_response_matches_the_continuous_textbook_response():
+    """First-order plant K/(τs+1) with PI control: T(s) = K(kp s + ki)/(τs² + (1 + K kp)s + K ki)."""
+    K, tau, dt, kp, ki = 0.3, 2e-3, 1e-5, 1.0, 600.0
+    pf = lag_table(K, tau, dt)
+    tgt = steps_target((1.0,), hold_s=0.04, fs=1 / dt, offset=0.0, lead_s=0.001)
+    run = track(pf, tgt, ["pid"], kp=kp, ki=ki, vmin=-1e4, vmax=1e4).runs[0]
+    k0 = tgt.steps[0].index
+    t = (np.arange(tgt.n - k0)) * dt
+    _, y_ct = signal.step(([K * kp, K * ki], [tau, 1 + K * kp, K * ki]), T=t)
+    # sampling adds ≈ 1.5 samples of delay (15 µs against time constants of milliseconds)
+    np.testing.assert_allclose(run.output[k0:], y_ct, atol=0.01)
+    m = step_metrics(tgt, run.output)[0]
+    outside = np.flatnonzero(np.abs(y_ct - 1.0) > 0.02)
+    assert m["settling_time_2pct_s"] == pytest.approx(t[outside[-1] + 1], rel=0.02)
+    assert m["overshoot_pct"] == pytest.approx(100 * max(0.0, y_ct.max() - 1), abs=1.0)
+
+
+def test_loop_margins_of_an_integrator_on_a_delayed_gain():
+    """L(z) = K·ki·T/(z − 1): GM = 2/(K·ki·T) at Nyquist, PM = 90° − θc/2 with 2 sin(θc/2) = K·ki·T."""
+    dt, K = 1e-4, 0.3
+    nominal = _static(K, dt)
+    ki = 0.5 / (K * dt)
+    gm, pm, fc = loop_margins(nominal, 0.0, ki)
+    theta_c = 2 * math.asin(0.25)
+    assert gm == pytest.approx(4.0, rel=1e-3)
+    assert pm == pytest.approx(90 - math.degrees(theta_c) / 2, abs=0.2)
+    assert fc == pytest.approx(theta_c / (2 * math.pi * dt), rel=0.01)
+
+
+def test_auto_pid_rule_on_a_static_plant():
+    dt, K = 1e-4, 0.31
+    g = auto_pid(_static(K, dt))
+    assert g.ki == pytest.approx(2 * math.pi * 500 / K) and g.kp == pytest.approx(0.25 / K) and g.kd == 0
+    assert g.gain_margin >= 2 and g.phase_margin_deg >= 45 and g.bandwidth_Hz == pytest.approx(500)
+    g2 = auto_pid(_static(K, dt), bandwidth_Hz=100.0)
+    assert g2.ki == pytest.approx(2 * math.pi * 100 / K) and "given bandwidth" in g2.rule
+    with pytest.raises(ConfigError):
+        auto_pid(_static(K, dt), bandwidth_Hz=6000.0)
+
+
+def test_auto_pid_backs_off_on_a_resonant_nominal_plant():
+    dt = 1e-4
+    wn, zeta = 2 * math.pi * 1200, 0.05
+    b, a = signal.bilinear([wn * wn], [1, 2 * zeta * wn, wn * wn], fs=1 / dt)
+    num, den = 0.3 * b, np.r_[a, 0.0]
+    A, B, C, _ = signal.tf2ss(num, den)
+    nominal = NominalPlant(num, den, A, B[:, 0], C[0], dt, 0.3, "second-order", 0.0, "resonant")
+    g = auto_pid(nominal)
+    assert g.bandwidth_Hz < 500 and g.gain_margin >= 2 * 0.999 and g.phase_margin_deg >= 45 - 0.1
+
+
+def test_nominal_plant_of_a_rate_dependent_model_recovers_its_dynamics():
+    pf = lag_table(0.3, 1e-3, 1e-4)
+    inv = invert_target(pf, sine_target(5.0, 10.0, cycles=1))
+    nom = nominal_plant(pf, inv.choices, 1e-4)
+    assert nom.kind == "second-order" and nom.fit_nrmse_pct < 1e-6
+    a = math.exp(-0.1)
+    w = np.array([1.0, 300.0, 3000.0])
+    expected = (1 - a) * 0.3 / (np.exp(1j * w * 1e-4) - a)  # z⁻¹·P(z)
+    gain = pf.cells[0].scale.gain
+    np.testing.assert_allclose(nom.frequency_response(w), expected * gain / 0.3, rtol=1e-6)
+    assert nominal_plant(pi_table(), invert_target(pi_table(), sine_target(5, 10, 1)).choices, 1e-4).kind == "static"
+
+
+def test_step_metrics_of_a_first_order_response():
+    fs, tau = 10_000.0, 2e-3
+    tgt = steps_target((2.0,), hold_s=0.05, fs=fs, offset=1.0, lead_s=0.01)
+    k0 = tgt.steps[0].index
+    t = np.arange(tgt.n - k0) / fs
+    y = np.r_[np.full(k0, 1.0), 1.0 + 2.0 * (1 - np.exp(-t / tau))]
+    (m,) = step_metrics(tgt, y)
+    T = 1 / fs
+    assert m["t90_s"] == pytest.approx(tau * math.log(10), abs=T)
+    assert m["rise_time_s"] == pytest.approx(tau * math.log(9), abs=T)
+    assert m["settling_time_5pct_s"] == pytest.approx(tau * math.log(20), abs=T)
+    assert m["settling_time_2pct_s"] == pytest.approx(tau * math.log(50), abs=T)
+    assert m["overshoot_pct"] == 0.0 and abs(m["steady_state_error_um"]) < 1e-6
+    y2 = y.copy()
+    y2[-1] = 0.0  # leaves the band at the very end: not settled
+    assert math.isnan(step_metrics(tgt, y2)[0]["settling_time_2pct_s"])
+
+
+def test_feedforward_loop_reproduces_the_invert_preview():
+    pf = pi_table()
+    tgt = sine_target(10.0, 20.0, cycles=2, offset=2.0)
+    res = track(pf, tgt, ["ff"])
+    run = res.runs[0]
+    np.testing.assert_allclose(run.output, res.inversion.predicted, atol=1e-9)
+    np.testing.assert_allclose(run.voltage_V, res.inversion.voltage_V, atol=1e-12)
+    assert run.metrics["max_error_um"] < 1e-9 and res.pid is None and res.smc is None
+
+
+def test_feedback_corrects_a_plant_that_differs_from_the_model():
+    pf, plant = pi_table(), pi_table(1.15, "plant.json")  # the real stage is 15 % stiffer in gain
+    tgt = sine_target(10.0, 10.0, cycles=2, offset=2.0)
+    res = track(pf, tgt, ["ff", "pid", "ff+pid", "smc"], plant_pf=plant)
+    rmse = {r.controller: r.metrics["rmse_pct_of_stroke"] for r in res.runs}
+    assert rmse["ff"] > 5  # open loop: the gain error shows fully
+    assert rmse["ff+pid"] < rmse["pid"] < rmse["ff"] and rmse["smc"] < rmse["pid"]
+    assert rmse["ff+pid"] < 0.2 and rmse["smc"] < 0.2
+    assert res.plant_path == "plant.json" and [r["controller"] for r in res.table()] == ["ff", "pid", "ff+pid", "smc"]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sliding_mode_stays_bounded_with_noise(seed):
+    pf, plant = pi_table(), pi_table(0.9, "plant.json")
+    tgt = sine_target(10.0, 10.0, cycles=3, offset=2.0)
+    sigma = 0.05
+    res = track(pf, tgt, ["smc"], plant_pf=plant, noise_std=sigma, seed=seed)
+    run = res.runs[0]
+    lo, hi = res.limits["vmin_V"], res.limits["vmax_V"]
+    assert np.all(np.isfinite(run.output)) and lo <= run.voltage_V.min() and run.voltage_V.max() <= hi
+    assert run.metrics["max_error_um"] < 10 * sigma and run.metrics["rmse_um"] < 2 * sigma
+    # the noise passes to the voltage only through the integral and the tanh boundary layer: no chattering
+    assert np.std(np.diff(run.voltage_V - res.inversion.desired_voltage_V)) < 0.5
+    assert np.std(run.measured - run.output) == pytest.approx(sigma, rel=0.1)
+
+
+def test_sliding_mode_design_places_the_integral_pole():
+    dt = 1e-4
+    smc = design_smc(_static(0.3, dt), 500.0, 72.0)
+    zs = math.exp(-2 * math.pi * 500 * dt)
+    assert smc.Mx @ smc.B == pytest.approx(1.0)  # M·B_d = 1 (003 eq. 36)
+    # on S = 0 the state (the last correction) is x = −Mp·p/Mx, so p[k+1] = p + Ts·C·x = (1 − Ts·C·Mp/Mx)·p:
+    # the integral mode has the placed pole z_s
+    assert 1 - dt * float(smc.C[0]) * smc.Mp / smc.Mx[0] == pytest.approx(zs)
+    assert smc.alpha * smc.eps * dt + smc.q * dt < 1.0
+
+
+def test_anti_windup_recovers_after_saturation():
+    pf = pi_table()
+    tgt = steps_target((14.0, 4.0), hold_s=0.03, fs=10_000.0, offset=2.0, lead_s=0.005)
+    inv = invert_target(pf, tgt)
+    vmax = float(inv.desired_voltage_V.max()) - 6.0  # the 16 um level is out of reach
+    for aw in ("backcalc", "clamp"):
+        res = track(pf, tgt, ["pid"], vmax=vmax, anti_windup=aw)
+        run = res.runs[0]
+        assert run.limit_spans and run.voltage_V.max() <= vmax + 1e-12
+        k1 = tgt.steps[1].index
+        late = np.abs(run.error[k1 + 30:tgt.steps[1].stop])  # 3 ms after stepping back into reach
+        assert late.max() < 0.05 * tgt.stroke, aw
+
+
+def test_option_validation():
+    pf = pi_table()
+    tgt = sine_target(10.0, 10.0, cycles=1)
+    for kw in ({"noise_std": -1.0}, {"anti_windup": "none"}, {"max_slew": -5.0}, {"kp": -1.0},
+               {"kp": 0.0, "ki": 0.0, "kd": 0.0}):
+        with pytest.raises(ConfigError):
+            track(pf, tgt, ["pid"], **kw)
+    for bad in ("", "pid,pid", "lqr", "ff,"):
+        with pytest.raises(ConfigError):
+            parse_controllers(bad)
+    assert parse_controllers("PID, ff+pid") == ["pid", "ff+pid"]
+    g = given_pid(_static(0.3, 1e-4), 1.0, 100.0, 1e-2)  # Ti = Kp/Ki = 10 ms, Td = Kd/Kp = 10 ms
+    assert g.tf_s == pytest.approx(1e-3) and g.tt_s == pytest.approx(0.01)  # Tf = Td/10, Tt = √(Ti·Td)
+    assert given_pid(_static(0.3, 1e-4), 0.0, 100.0, 0.0).tt_s == pytest.approx(1e-4)  # pure I: Tt = Ts
