@@ -84,8 +84,10 @@ class DiagnoseSettings:
     min_excess_ratio : the held-out gap must exceed the noise floor by a meaningful amount before
         anything is named: sqrt(before² − floor²) ≥ 0.25·floor (a model error a quarter of the
         noise: below that the model is as good as the sensor allows).
-    placebo_draws : random placebo augmentations per parameter layout, 5; an effect must beat the
-        best of them on held-out data.
+    placebo_draws : random placebo augmentations per parameter layout, 5 (random mixtures of
+        phase-randomized surrogates of the effects' signatures, :class:`hystfit.effects.Placebo`);
+        an effect must improve the held-out RMSE more than the best of them — what that many
+        parameters gain by chance.
     max_effects : how many effects the greedy forward selection may name, 3.
     iterations : Gauss–Newton iterations of the joint base + effect refit, 2 (the second is skipped
         when the linearization was exact, e.g. PI).

@@ -48,6 +48,7 @@ __all__ = [
     "Drift",
     "Delay",
     "Placebo",
+    "phase_surrogate",
     "EFFECTS",
     "make_effect",
     "prepare_design",
@@ -249,6 +250,19 @@ def fractional_delay(x: np.ndarray, delay_s: float, dt: float) -> np.ndarray:
     if f == 0.0:
         return x[i0]
     return (1.0 - f) * x[i0] + f * x[i1]
+
+
+def phase_surrogate(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Phase-randomized surrogate of every column of ``x`` (N, m): the same amplitude spectrum
+    (hence the same RMS and smoothness), uniformly random phases (DC and Nyquist kept)."""
+    x = _as_cols(np.asarray(x, dtype=np.float64))
+    n = x.shape[0]
+    X = np.fft.rfft(x, axis=0)
+    ph = np.exp(2j * np.pi * rng.random(X.shape))
+    ph[0] = 1.0
+    if n % 2 == 0:
+        ph[-1] = 1.0
+    return np.fft.irfft(X * ph, n=n, axis=0)
 
 
 def _derivative(x: np.ndarray, dt: float) -> np.ndarray:
@@ -965,23 +979,29 @@ class Drift(Effect):
 class Placebo(Effect):
     r"""A random augmentation of a given size: the yardstick an effect must beat.
 
-    Its regressors are random linear combinations of a library (the first-order signatures of
-    every candidate effect, each scaled to unit RMS over the fit samples), with ``n_shared``
-    coefficients common to all captures and ``n_local`` per capture — the same number of
-    parameters as the effect it is compared with. It knows nothing of which effect is present:
-    whatever a named effect removes beyond what a random mixture of the same size removes on
-    held-out data is evidence for that effect specifically.
+    Its regressors are random linear combinations of *phase-randomized surrogates* (Theiler et
+    al. 1992) of a library — the first-order signatures of every candidate effect, each scaled
+    to unit RMS over the fit samples — with ``n_shared`` coefficients common to all captures and
+    ``n_local`` per capture: the same number of parameters as the effect it is compared with.
+    A surrogate keeps a column's amplitude spectrum (so it is as smooth or as sharp as a real
+    augmentation, and fits the fit samples by chance as well as one) but randomizes its phases,
+    so it has no causal relation to the input. Its held-out improvement is what that many
+    parameters gain by chance; a named effect must gain more.
+
+    (Mixing the signatures themselves, without surrogates, is not a placebo: with two real
+    effects in the data a random mixture captures part of both and can beat the correct single
+    effect.)
 
     Parameters
     ----------
-    library : per capture (in the order of ``CaptureView.index``), (N_c, q) library columns
+    library : per capture (in the order of ``CaptureView.index``), (N_c, q) surrogate columns
         over the whole capture (fit and held-out samples).
     weights : (q, n_shared + n_local) random mixing matrix.
     """
 
     name: ClassVar[str] = "placebo"
     title: ClassVar[str] = "placebo (random augmentation of the same size)"
-    equation: ClassVar[str] = "y = ŷ + L·W·a (random mixtures of the effect library)"
+    equation: ClassVar[str] = "y = ŷ + S·W·a (random mixtures of phase-randomized effect signatures S)"
 
     library: tuple = field(default=(), compare=False, repr=False)
     weights: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), compare=False, repr=False)
@@ -991,8 +1011,8 @@ class Placebo(Effect):
     @classmethod
     def build(cls, library: Sequence[np.ndarray], n_shared: int, n_local: int,
               rng: np.random.Generator) -> "Placebo":
-        """A placebo with ``n_shared`` + ``n_local`` random mixtures of the ``library`` columns."""
-        lib = tuple(np.asarray(L, float) for L in library)
+        """A placebo with ``n_shared`` + ``n_local`` random mixtures of surrogates of ``library``."""
+        lib = tuple(phase_surrogate(np.asarray(L, float), rng) for L in library)
         q = lib[0].shape[1]
         W = rng.standard_normal((q, n_shared + n_local)) / math.sqrt(max(q, 1))
         return cls(library=lib, weights=W, n_shared=int(n_shared), n_local=int(n_local))

@@ -49,12 +49,16 @@ Pipeline (every step is reported in :class:`InversionResult`, nothing is silent)
    e = y_pred − y_d gives max|e|, RMSE and both in % of the stroke (max y_d − min y_d),
    overall and per segment.
 
-Memory. A model inverts and simulates whole arrays of N samples with O(N·n) memory (n the
-model's state size, ≈ 10 for PI), never (P, N) populations; per-cell voltages are kept once.
-10⁶ samples with two PI cells peak at ≈ 0.2 GB of arrays (traced in
-``tests/unit/test_invert.py``). The generic numerical
-inverse (:mod:`hystfit.models.inverse`, e.g. Bouc–Wen) is a per-sample Python loop: memory is
-small but it takes ≈ 50 µs per sample and cell.
+Memory. Every step works on whole arrays with O(N·n) memory (n = a model's state size, ≈ 10
+play operators for PI), never on (P, N) populations; each used cell's inverse is kept once and
+released before the forward preview. 10⁶ samples with two PI cells peak at ≈ 0.2 GB of arrays
+(traced in ``tests/unit/test_invert.py``; ≈ 0.55 GB resident for the whole ``hystfit invert``
+command with its CSV and figure). We do not cut the target into chunks: ``Model.invert`` starts
+from the model's reset state and cannot resume another chunk's memory, and the linear memory
+already meets the 1 GB budget. The generic numerical inverse (:mod:`hystfit.models.inverse`,
+e.g. Bouc–Wen) is a per-sample Python loop: small memory, ≈ 40 µs per sample and cell.
+Segment joins: cell weights change linearly over 2 % of the shorter segment after a join, so
+the voltage has no jump where neighbouring segments use different cells.
 
 Units: time s, voltage V, displacement in the parameter file's output unit (``um`` below).
 """
@@ -82,6 +86,8 @@ __all__ = [
     "Span",
     "CellUse",
     "SegmentChoice",
+    "IterationStep",
+    "Step",
     "InversionResult",
     "sine_target",
     "triangle_target",
@@ -95,6 +101,16 @@ __all__ = [
     "apply_limits",
     "find_spans",
     "invert_target",
+    "invert_cell",
+    "simulate_cell",
+    "preroll_voltage",
+    "rest_output",
+    "rest_voltage",
+    "search_range",
+    "blend_segments",
+    "tracking_metrics",
+    "table_gain",
+    "condition_text",
     "MULTI_AMPLITUDES_UM",
     "MULTI_FREQUENCIES_HZ",
 ]
@@ -667,7 +683,11 @@ def rest_voltage(cell: Cell, y0: float, dt: float, bracket: tuple[float, float])
     from scipy.optimize import brentq
 
     lo, hi = bracket
-    f = lambda v: rest_output(cell, v, dt) - y0  # noqa: E731
+
+    def f(v: float) -> float:
+        with np.errstate(all="ignore"):  # far ends of the bracket may overflow a model: handled below
+            return rest_output(cell, v, dt) - y0
+
     flo, fhi = f(lo), f(hi)
     if not (np.isfinite(flo) and np.isfinite(fhi)) or flo * fhi > 0:
         return lo if abs(flo) <= abs(fhi) else hi
@@ -693,7 +713,8 @@ def invert_cell(cell: Cell, y: np.ndarray, dt: float, initial_voltage: float,
     y_ext = np.concatenate([model.simulate_one(theta, pre, dt), np.asarray(y, dtype=np.float64)])
     kwargs = {"u_range": u_range} if _accepts_u_range(model) else {}
     try:
-        u = np.asarray(model.invert(theta, y_ext, dt, **kwargs), dtype=np.float64)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # non-finite results are caught below
+            u = np.asarray(model.invert(theta, y_ext, dt, **kwargs), dtype=np.float64)
     except (ValueError, ZeroDivisionError, FloatingPointError) as exc:
         if isinstance(exc, ConfigError):
             raise ConfigError(f"cell {cell.label}: {exc}") from None
@@ -965,7 +986,7 @@ def _crossfade(n_a: int, n_b: int) -> int:
     return max(1, int(round(0.02 * min(n_a, n_b))))
 
 
-def _blend_segments(arrays: dict[int, np.ndarray], choices: Sequence[SegmentChoice], n: int) -> np.ndarray:
+def blend_segments(arrays: dict[int, np.ndarray], choices: Sequence[SegmentChoice], n: int) -> np.ndarray:
     """Σ_c w_c(k)·arrays[c][k] with per-segment weights, cross-faded linearly after each join."""
     out = np.zeros(n)
     for ch in choices:
@@ -1047,7 +1068,7 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
         if progress:
             progress("advance", {"label": seg.label})
     used = sorted({c.index for ch in choices for c in ch.cells})
-    u_des = _blend_segments({i: cache.get(i) for i in used}, choices, target.n)
+    u_des = blend_segments({i: cache.get(i) for i in used}, choices, target.n)
     cache.u.clear()  # the per-cell voltages are no longer needed
     v0_source = "given" if initial_voltage is not None else "rest voltage of the first target sample"
     v0 = float(initial_voltage) if initial_voltage is not None else float(u_des[0])
@@ -1056,11 +1077,11 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
         notes.append(f"the stage must rest at {v0:.4g} V for the target's first sample, outside the limits "
                      f"[{lo:.4g}, {hi:.4g}] V")
     u_app, clip_spans, slew_spans = apply_limits(u_des, target.dt, lo, hi, max_slew, v0)
-    y_pred = _blend_segments({i: simulate_cell(pf.cells[i], u_app, target.dt, v0) for i in used}, choices, target.n)
+    y_pred = blend_segments({i: simulate_cell(pf.cells[i], u_app, target.dt, v0) for i in used}, choices, target.n)
     metrics = tracking_metrics(y_pred, y_d, pf.unit)
     metrics_unlim = None
     if clip_spans or slew_spans:
-        y_unl = _blend_segments({i: simulate_cell(pf.cells[i], u_des, target.dt, v0) for i in used}, choices,
+        y_unl = blend_segments({i: simulate_cell(pf.cells[i], u_des, target.dt, v0) for i in used}, choices,
                                 target.n)
         metrics_unlim = tracking_metrics(y_unl, y_d, pf.unit)
         del y_unl

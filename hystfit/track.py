@@ -89,7 +89,7 @@ import numpy as np
 from scipy import signal
 
 from .errors import ConfigError
-from .invert import (CellUse, InversionResult, SegmentChoice, Span, Target, _blend_segments, find_spans,
+from .invert import (CellUse, InversionResult, SegmentChoice, Span, Target, blend_segments, find_spans,
                      invert_target, preroll_voltage, select_cells, tracking_metrics)
 from .models.pi import PI
 from .results import Cell, ParamsFile
@@ -199,7 +199,7 @@ class _Plant:
         else:
             ones = np.ones(n)
             zeros = np.zeros(n)
-            self.weights = np.vstack([_blend_segments({j: (ones if j == i else zeros) for j in self.cells},
+            self.weights = np.vstack([blend_segments({j: (ones if j == i else zeros) for j in self.cells},
                                                       choices, n) for i in self.cells])
         self.labels = [pf.cells[i].label for i in self.cells]
 
@@ -851,16 +851,24 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
         raise ConfigError(f"anti-windup {anti_windup!r}: choose backcalc or clamp")
     if not (math.isfinite(noise_std) and noise_std >= 0):
         raise ConfigError(f"--noise {noise_std!r}: the noise σ must be a finite number >= 0")
+    if max_slew is not None and not (math.isfinite(float(max_slew)) and float(max_slew) > 0):
+        raise ConfigError(f"--max-slew {max_slew!r}: the slew-rate limit must be a finite number > 0 (V/s)")
+    for flag, g in (("--kp", kp), ("--ki", ki), ("--kd", kd)):
+        if g is not None and not (math.isfinite(g) and g >= 0):
+            raise ConfigError(f"{flag} {g:g}: PID gains must be finite and >= 0")
+    need_pid = any(c in ("pid", "ff+pid") for c in controllers)
+    gains_given = any(g is not None for g in (kp, ki, kd))
+    if gains_given and not need_pid:
+        raise ConfigError("--kp/--ki/--kd apply to the pid and ff+pid controllers; add one to the controllers")
+    if gains_given and bandwidth_Hz is not None and "smc" not in controllers:
+        raise ConfigError("--bandwidth sets automatic gains (and the sliding mode); drop it or drop --kp/--ki/--kd")
     plant_pf = pf if plant_pf is None else plant_pf
     if plant_pf.unit != pf.unit:
         raise ConfigError(f"the plant {plant_pf.path} is in {plant_pf.unit} but {pf.path} is in {pf.unit}")
     inv = invert_target(pf, target, method=method, condition=condition, initial_voltage=initial_voltage,
                         vmin=vmin, vmax=vmax, max_slew=None, progress=progress)
     lo, hi = inv.limits["vmin_V"], inv.limits["vmax_V"]
-    if max_slew is not None:
-        max_slew = float(max_slew)
-        if not (math.isfinite(max_slew) and max_slew > 0):
-            raise ConfigError(f"--max-slew {max_slew!r}: the slew-rate limit must be a finite number > 0 (V/s)")
+    max_slew = None if max_slew is None else float(max_slew)
     dt = target.dt
     if plant_pf is pf:
         plant_choices = list(inv.choices)
@@ -871,15 +879,10 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
                                                  else (1.0, ch.condition[1]), method)
             plant_choices.append(SegmentChoice(ch.segment, ch.condition, query, clamped, cells, (), True, "plant"))
     nominal = nominal_plant(pf, inv.choices, dt)
-    need_pid = any(c in ("pid", "ff+pid") for c in controllers)
     pid = None
-    if need_pid or "smc" in controllers:
-        if any(g is not None for g in (kp, ki, kd)):
-            pid = given_pid(nominal, kp or 0.0, ki or 0.0, kd or 0.0, anti_windup=anti_windup)
-            if bandwidth_Hz is not None and "smc" not in controllers:
-                raise ConfigError("--bandwidth applies to automatic gains; drop it or drop --kp/--ki/--kd")
-        else:
-            pid = auto_pid(nominal, bandwidth_Hz, anti_windup)
+    if need_pid:
+        pid = (given_pid(nominal, kp or 0.0, ki or 0.0, kd or 0.0, anti_windup=anti_windup) if gains_given
+               else auto_pid(nominal, bandwidth_Hz, anti_windup))
     smc = None
     notes = list(inv.notes)
     if "smc" in controllers:
@@ -894,9 +897,10 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
     for name in controllers:
         plant = _Plant(plant_pf, plant_choices, target.n, dt)
         t0 = time.perf_counter()
-        y, ym, volt, cmd, limited = simulate_loop(
-            plant, target.y, inv.initial_voltage_V, name, ff=ff, pid=pid if name in ("pid", "ff+pid") else None,
-            smc=smc if name == "smc" else None, vmin=lo, vmax=hi, max_slew=max_slew, noise=noise, dt=dt)
+        with np.errstate(all="ignore"):  # a diverging plant model is reported below, not warned about
+            y, ym, volt, cmd, limited = simulate_loop(
+                plant, target.y, inv.initial_voltage_V, name, ff=ff, pid=pid if name in ("pid", "ff+pid") else None,
+                smc=smc if name == "smc" else None, vmin=lo, vmax=hi, max_slew=max_slew, noise=noise, dt=dt)
         wall = time.perf_counter() - t0
         if not np.all(np.isfinite(y)):
             notes.append(f"{name}: the closed loop diverged (non-finite output)")
@@ -917,5 +921,5 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
             progress("advance", {"label": name})
     plant_cells = tuple((ch.segment.label, ch.cells) for ch in plant_choices)
     return TrackResult(pf.path, plant_pf.path, pf.model_name, plant_pf.model_name, pf.unit, target, inv, plant_cells,
-                       nominal, pid if need_pid else None, smc, tuple(runs), float(noise_std), int(seed),
+                       nominal, pid, smc, tuple(runs), float(noise_std), int(seed),
                        dict(inv.limits, max_slew_V_per_s=max_slew), tuple(notes))

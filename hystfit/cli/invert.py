@@ -28,8 +28,8 @@ Sine = Annotated[Optional[str], typer.Option(
 Triangle = Annotated[Optional[str], typer.Option(
     "--triangle", help="Triangle OFFSET → OFFSET+AMP → OFFSET: 'AMP,FREQ_HZ[,CYCLES]'.")]
 Steps = Annotated[Optional[str], typer.Option(
-    "--steps", help="Step-and-hold levels relative to OFFSET: 'L1[,L2,...][@HOLD_S]' (default hold 0.2 s), e.g. "
-                    "'10' (paper 002 Table 6) or '10,4,8@0.1'.")]
+    "--steps", help="Step-and-hold levels relative to OFFSET, 'L1,L2,...', optionally followed by '@HOLD_S' (hold "
+                    "of each level, default 0.2 s), e.g. '10' (paper 002 Table 6) or '10,4,8@0.1'.")]
 Multi = Annotated[bool, typer.Option(
     "--multi", help="Paper 002's sequence: 10/8/6/4/2 at 0.5/1/2/5/10 Hz, one cycle each.")]
 Offset = Annotated[float, typer.Option(

@@ -191,7 +191,7 @@ def _fig_effects(path: Path, d: Diagnosis) -> Path:
     """Held-out RMSE before and after each candidate (step 1), with the noise floor and placebo."""
     rs = list(d.effects)
     unit = d.unit
-    fig = _new_figure(8.0, 0.55 * max(len(rs), 1) + 1.8)
+    fig = _new_figure(10.5, 0.55 * max(len(rs), 1) + 1.8)
     ax = fig.add_subplot()
     y = np.arange(len(rs))[::-1]
     before = rs[0].heldout_rmse_before if rs else float("nan")
@@ -205,7 +205,7 @@ def _fig_effects(path: Path, d: Diagnosis) -> Path:
     ax.set_xlabel(f"Held-out RMSE ({_u(unit)})")
     ax.set_title("Which effect: held-out RMSE with each candidate added (green = passes the rule)", fontsize=10)
     ax.grid(True, axis="x", alpha=0.3)
-    ax.legend(fontsize="small", loc="lower right")
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return _save(fig, path, plots.DPI)
 
 
@@ -411,7 +411,8 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
           "the share of the gap above the noise that it removes on data it never saw, between 0 and 1.",
           f"6. **Verdict rule.** An effect is named when its reduction is at least {s.threshold:g}, it improves the "
           f"held-out RMSE more than the best of {s.placebo_draws} *placebos* (random augmentations with the same "
-          "number of parameters), and the gap exceeds the noise floor meaningfully "
+          "number of parameters, built from phase-randomized copies of the effects' signatures: what that many "
+          "parameters gain by chance), and the gap exceeds the noise floor meaningfully "
           f"(√(before² − floor²) ≥ {s.min_excess_ratio:g}·floor). Among the effects that pass, the largest reduction "
           f"wins, unless one with fewer parameters comes within {s.occam_tolerance:g} of it (the simpler "
           "explanation). The winner is added to the model and the others are tested again on top of it, up to "

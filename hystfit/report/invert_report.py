@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import math
+import textwrap
 from pathlib import Path
 from typing import Sequence
 
@@ -48,6 +49,10 @@ def _minmax(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     base = np.arange(nb) * k
     idx = np.unique(np.concatenate([base + body.argmin(axis=1), base + body.argmax(axis=1), [n - 1]]))
     return t[idx], y[idx]
+
+
+def _wrap(title: str, width: int = 95) -> str:
+    return "\n".join(textwrap.wrap(title, width))
 
 
 def _save(fig: Figure, path: Path) -> Path:
@@ -93,7 +98,7 @@ def tracking_figure(path, t_s, target, output, voltage_V, *, unit: str = "um", t
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right", fontsize="small")
     if title:
-        ax.set_title(title)
+        ax.set_title(_wrap(title))
     e = y - r
     te, ee = _minmax(t, e)
     finite = np.isfinite(e)
@@ -138,7 +143,7 @@ def error_comparison_figure(path, t_s, errors: dict, *, unit: str = "um", title:
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right", fontsize="small")
     if title:
-        ax.set_title(title)
+        ax.set_title(_wrap(title))
     return _save(fig, Path(path))
 
 

@@ -228,6 +228,16 @@ def test_track_steps_given_gains_json_parquet_and_options(tables, tmp_path):
     pd.DataFrame({"t": t, "reference_um": 3 + 3 * (1 - np.cos(2 * np.pi * 20 * t))}).to_csv(f, index=False)
     r = run("track", tables["pi"], f, "--controller", "ff", "--out", tmp_path / "v", "--json", "--no-plots")
     assert r.exit_code == 0 and json.loads(r.stdout)["target"]["kind"] == "file"
+    g = tmp_path / "ref2.csv"
+    pd.DataFrame({"clock_ms": t * 1e3, "wanted": 3 + 3 * (1 - np.cos(2 * np.pi * 20 * t))}).to_csv(g, index=False)
+    r = run("track", tables["pi"], g, "--time-col", "clock_ms", "--target-col", "wanted", "--output-unit", "um",
+            "--controller", "ff", "--out", tmp_path / "w", "--json", "--no-plots")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["target"]["fs_Hz"] == pytest.approx(1e4)
+    r = run("track", tables["pi"], "--triangle", "8,20,2", "--offset", "2", "--vmin", "-2", "--controller", "pid",
+            "--out", tmp_path / "x", "--json", "--no-plots")
+    s = json.loads(r.stdout)
+    assert s["target"]["kind"] == "triangle" and s["limits"]["vmin_V"] == -2
     r = run("track", tables["pi"], "--sine", "10,10", "--out", tmp_path / "v")
     assert_error(r, "--force")
     r = run("track", tables["pi"], "--sine", "10,10", "--offset", "2", "--controller", "ff", "--out", tmp_path / "v",
