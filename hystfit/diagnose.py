@@ -682,7 +682,7 @@ def _pointers(summary: dict, by_branch: dict, by_loop: dict, sigma: float) -> li
                        f"({bo:.3g} vs {lv:.3g} common): the loop is too narrow or too wide, a lag or lead")
     a, d = by_branch["ascending"], by_branch["descending"]
     if a["n_samples"] and d["n_samples"] and math.isfinite(a["mean_out"]) and math.isfinite(d["mean_out"]):
-        if a["mean_out"] * d["mean_out"] < 0 and \
+        if not any(p.startswith("branches:") for p in out) and a["mean_out"] * d["mean_out"] < 0 and \
                 abs(a["mean_out"] - d["mean_out"]) > max(2.0 * sigma, 0.25 * max(a["rmse_out"], d["rmse_out"])):
             out.append(f"branches: the model sits {a['mean_out']:+.3g} on the ascending and {d['mean_out']:+.3g} on the "
                        "descending branch on average (opposite biases: lag or branch asymmetry)")
@@ -964,7 +964,7 @@ def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
             parts.append(f"the gap grows {s['heldout_to_fit_ratio']:.2f}× into later time")
         parts.append(f"{100 * s['low_frequency_share']:.0f} % of the residual power above noise is below half the "
                      "excitation frequency")
-        parts.append(f"fitted rates: median |v| = {p['median_abs_rate_out_per_s']:.3g} {unit}/s")
+        parts.append(f"fitted rates: median absolute rate {p['median_abs_rate_out_per_s']:.3g} {unit}/s")
     parts.append(f"held out: RMSE {res['before']:.4g} → {res['after']:.4g} {unit} (reduction {res['reduction']:.2f}; "
                  f"best placebo of the same size improves by {res['placebo']:.3g} {unit})")
     return "; ".join(parts)

@@ -82,3 +82,54 @@ def _default_range(model, theta, y_target, dt) -> tuple[float, float]:
     if scale is not None:
         return scale(theta, y_target)
     return (-1e3, 1e3)
+
+
+def refine_inverse(model, theta: np.ndarray, y_target: np.ndarray, dt: float, u_start: np.ndarray, *,
+                   gain: float, iterations: int = 60, tol: float = 1e-4,
+                   u_range: tuple[float, float] | None = None) -> np.ndarray:
+    """Improve an inverse over the whole trajectory by iterative learning on the model itself.
+
+    u ← u + λ·F[e]/gain, e = y_target − simulate(u), with F a zero-phase low-pass filter
+    (cut-off at a tenth of the sample rate) and the step λ halved whenever the error grows; the
+    best iterate is returned. Used as a safeguard where the per-sample inverse is unstable (a
+    rate term whose sign makes the causal recursion diverge, e.g. LuGre with σ2 < 0): the
+    trajectory-level iteration needs no causal recursion, only forward simulations. Stops when
+    the RMSE falls below ``tol`` × the target's range.
+
+    Parameters
+    ----------
+    gain : the model's static gain dy/du (output unit per V), sign included.
+    """
+    from scipy.signal import butter, sosfiltfilt
+
+    y_target = np.asarray(y_target, float)
+    u = np.asarray(u_start, float).copy()
+    if not np.all(np.isfinite(u)):
+        u = (y_target - y_target[0]) / gain
+    span = max(float(np.ptp(y_target)), 1e-300)
+    sos = butter(2, 0.2, output="sos") if y_target.size > 15 else None
+
+    def err(v):
+        with np.errstate(all="ignore"):
+            e = y_target - model.simulate_one(theta, v, dt)
+        return e, (float(np.sqrt(np.mean(e ** 2))) if np.all(np.isfinite(e)) else np.inf)
+
+    e, best_rmse = err(u)
+    best = u.copy()
+    lam = 1.0
+    for _ in range(iterations):
+        if best_rmse <= tol * span:
+            break
+        step = sosfiltfilt(sos, e) if sos is not None else e
+        cand = best + lam * step / gain
+        if u_range is not None:
+            cand = np.clip(cand, min(u_range), max(u_range))
+        e_c, r_c = err(cand)
+        if r_c < best_rmse:
+            best, best_rmse, e = cand, r_c, e_c
+            lam = min(1.0, lam * 1.5)
+        else:
+            lam *= 0.5
+            if lam < 1e-4:
+                break
+    return best

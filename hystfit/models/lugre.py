@@ -143,7 +143,11 @@ class LuGre(Model):
 
     def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
                u_range: tuple[float, float] | None = None) -> np.ndarray:
-        """Generic per-sample numerical inverse, started where :meth:`simulate` starts.
+        """Generic per-sample numerical inverse, started where :meth:`simulate` starts, checked by simulation.
+
+        When the per-sample recursion is unstable (a rate term of the "wrong" sign: σ2 < 0 makes
+        the one-step map decrease in u_k) the result is refined over the whole trajectory by
+        :func:`hystfit.models.inverse.refine_inverse` (iterative learning on the model itself).
 
         :meth:`simulate` puts the stage at rest at the first input (zero state, no rate), so the
         first sample is the static inverse u_0 = (y_0 − y0)/k and the per-sample search
@@ -158,7 +162,20 @@ class LuGre(Model):
         u0 = (float(y[0]) - (th[7] if self.offset else 0.0)) / th[0] if th[0] != 0 else 0.0
         if u_range is not None:
             u0 = min(max(u0, min(u_range)), max(u_range))
-        return invert_by_stepping(self, th, y, dt, u_range=u_range, u0=u0)
+        u = invert_by_stepping(self, th, y, dt, u_range=u_range, u0=u0)
+        # safeguard: with σ2 < 0 (or σ1 ż acting like it) the per-sample recursion can be unstable;
+        # check by simulation and, if it misses, refine over the whole trajectory
+        with np.errstate(all="ignore"):
+            miss = y - self.simulate_one(th, u, dt)
+        if not np.all(np.isfinite(miss)) or np.sqrt(np.mean(miss ** 2)) > 1e-3 * max(float(np.ptp(y)), 1e-300):
+            from .inverse import refine_inverse
+
+            start = np.where(np.isfinite(u), u, (y - (th[7] if self.offset else 0.0)) / th[0])
+            static = (y - (th[7] if self.offset else 0.0)) / th[0]
+            cand = [refine_inverse(self, th, y, dt, s0, gain=th[0], u_range=u_range) for s0 in (start, static)]
+            errs = [np.sqrt(np.mean((y - self.simulate_one(th, c, dt)) ** 2)) for c in cand]
+            u = cand[int(np.nanargmin(errs))]
+        return u
 
     def _inverse_range(self, theta: np.ndarray, y_target: np.ndarray) -> tuple[float, float]:
         """Search window of the numerical inverse: the static inverse ± the loop, widened."""

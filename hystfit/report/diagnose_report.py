@@ -314,7 +314,7 @@ def _params_text(r: EffectResult, unit: str) -> str:
     if r.effect == "asymmetry":
         return f"bow {p['mid_stroke_bow_out']:+.3g} {u} mid-stroke, skew {p['a3_out']:+.3g} {u}"
     if r.effect == "drift":
-        return f"median |rate| {p['median_abs_rate_out_per_s']:.3g} {u}/s"
+        return f"median abs. rate {p['median_abs_rate_out_per_s']:.3g} {u}/s"
     return ""
 
 
