@@ -74,7 +74,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
-from numba import njit
+from ._jit import njit
 
 from .conditions import LookupTable, condition_label, detect_condition
 from .errors import ConfigError, InputError

@@ -10,7 +10,7 @@ not on the ``parallel=`` flag.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from .._jit import njit, prange
 
 
 @njit(cache=True)

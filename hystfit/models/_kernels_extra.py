@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 #: Bouc–Wen free exponent: largest |Jacobian|·(sub-step length) of one RK4 sub-step.
 BWN_STEP_RATIO = 0.05

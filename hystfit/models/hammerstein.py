@@ -8,7 +8,7 @@ from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 from scipy import linalg, optimize, signal
 
 from ..errors import ConfigError, InputError

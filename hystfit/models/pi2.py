@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ..errors import ConfigError
 from ..params import DataScale, Param
