@@ -7,9 +7,11 @@ Run:  python benchmarks/feedforward_acceptance.py [--models pi,bw,pi2,hammerstei
    each model M that is registered (`pi` always; `bw`, and the dynamic models `pi2` and
    `hammerstein`, when registered); with `--global-pi` also `pi --global` as a reference row.
 2. For 10 µm peak-to-peak sines (paper 002 eq. 16, 5 cycles) at 1, 2, 5, 10 Hz and 50, 60, 70,
-   80 Hz: `hystfit invert PARAMS --sine 10,F,5 --offset O --out v.csv` (defaults otherwise:
-   bilinear table interpolation, iterated amplitude, default voltage limits), for two offsets,
-   both inside the stroke the identification covered (0–60 V ≈ 0.25–19 µm):
+   80 Hz: `hystfit invert PARAMS --sine 10,F,5 [--offset O] --out v.csv` (defaults otherwise:
+   bilinear table interpolation, iterated amplitude, default voltage limits), for three offsets:
+   0. no --offset (the command's default, O = 0): the sine 0 → 10 µm of the issue ("starts at
+      0"); the stage rests at 0.25 µm at 0 V, so the voltage starts at ≈ −1.2 V, inside the
+      default limits (identification range 0…60 V ± 10 %);
    A. O = the stage's rest position at 0 V (the median first displacement sample of the
       captures, 0.25 µm): the sine 0.25 → 10.25 µm starts where the stage rests at 0 V, as paper
       002's eq. 16 starts at its actuator's zero;
@@ -74,8 +76,8 @@ def rms_pct(e: np.ndarray) -> float:
 def measure(params: Path, freq: float, offset: float, work: Path, seed: int, plant: Plant,
             plant_nocreep: Plant) -> dict:
     out = work / f"v_{params.parent.name}_{freq:g}Hz_{offset:g}.csv"
-    cli("invert", params, "--sine", f"{AMP_UM:g},{freq:g},{CYCLES}", "--offset", f"{offset:g}", "--out", out,
-        "--quiet", "--no-plots", "--force")
+    cli("invert", params, "--sine", f"{AMP_UM:g},{freq:g},{CYCLES}", *(["--offset", f"{offset:g}"] if offset else []),
+        "--out", out, "--quiet", "--no-plots", "--force")
     df = pd.read_csv(out)
     rep = json.loads((work / f"{out.stem}_report" / "report.json").read_text())
     t, u, y_pred = df["time_s"].to_numpy(), df["voltage_V"].to_numpy(), df.iloc[:, 2].to_numpy()
@@ -142,7 +144,7 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     rows, notes = [], []
     offset_a = rest_position()
-    offsets = (offset_a, OFFSET_B_UM)
+    offsets = (0.0, offset_a, OFFSET_B_UM)
     runs = [(m, False) for m in names] + ([("pi", True)] if args.global_pi else [])
     for model, global_fit in runs:
         label = f"{model} (global fit)" if global_fit else model
@@ -171,8 +173,10 @@ def main() -> None:
 
     print(f"Command: `{command.strip()}`\n")
     print(f"Per model M: `hystfit identify sample_data --model M --out M`; per frequency F and offset O: "
-          f"`hystfit invert M/params.json --sine {AMP_UM:g},F,{CYCLES} --offset O --out v.csv`; the voltages "
+          f"`hystfit invert M/params.json --sine {AMP_UM:g},F,{CYCLES} [--offset O] --out v.csv`; the voltages "
           f"go into `simulate_plant(Plant.default(), t, u, seed={args.seed})`. Errors in % of the 10 µm stroke.")
+    table([r for r in rows if r["offset"] == 0.0],
+          f"0. The command's default (no --offset): 0 → {AMP_UM:g} µm")
     table([r for r in rows if r["offset"] == offset_a],
           f"A. Sine from the stage's rest position at 0 V: {offset_a:g} → {offset_a + AMP_UM:g} µm")
     table([r for r in rows if r["offset"] == OFFSET_B_UM],
@@ -181,6 +185,7 @@ def main() -> None:
         print(f"- note: {n}")
     if skipped:
         print(f"- not registered, skipped: {', '.join(skipped)}")
+
 
 if __name__ == "__main__":
     main()

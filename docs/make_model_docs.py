@@ -53,12 +53,13 @@ def main(argv: list[str] | None = None) -> list[Path]:
     written = []
     for name in models.names():
         cls = models.get(name)
-        model = cls().adapt(scale)
+        # models whose structure is identified from data (hammerstein's linear part) show an example
+        model = cls.example(scale) if hasattr(cls, "example") else cls().adapt(scale)
         params = model.params(scale)
         theta = np.array([p.default for p in params])
         y = model.simulate_one(theta, u, 1 / FS)
         fig = loop_figure(out / "figures" / f"model_{name}.png", u, y, None, unit="um",
-                          title=f"{name}: {cls.title} (default parameters)", labels=("model", ""))
+                          title=f"{name} (default parameters)", labels=("model", ""))
         written.append(fig)
         lines += [f"## `{name}` — {cls.title}", "", f"Reference: {cls.reference}.", "",
                   f"Equation: `{cls.equation}`", "", docstring_summary(cls), "",
@@ -67,8 +68,11 @@ def main(argv: list[str] | None = None) -> list[Path]:
             lines.append(f"| `{p.name}` | {p.unit.replace('out', 'µm')} | {p.lower:.4g} | {p.upper:.4g} | "
                          f"{p.default:.4g} | {p.description} |")
         lines += ["", f"Inverse: {'model-specific' if 'invert' in cls.__dict__ else 'per-sample numerical (generic)'}; "
-                  f"rate dependent: {'yes' if cls.rate_dependent else 'no'}.", "",
-                  f"![{name} loop](figures/model_{name}.png)", ""]
+                  f"rate dependent: {'yes' if cls.rate_dependent else 'no'}.", ""]
+        if hasattr(cls, "example"):
+            lines += [f"The figure uses the example structure `{cls.__name__}.example(scale)`; in use the "
+                      "structure is identified from the captures.", ""]
+        lines += [f"![{name} loop](figures/model_{name}.png)", ""]
     md = out / "models.md"
     atomic_write_text(md, "\n".join(lines))
     written.append(md)

@@ -51,7 +51,9 @@ __all__ = [
     "where_analysis",
     "fit_masks",
     "is_periodic",
+    "check_seed",
     "withheld_effect_captures",
+    "one_effect",
 ]
 
 Progress = Optional[Callable[[str, dict], None]]
@@ -215,6 +217,13 @@ class Diagnosis:
         })
 
 
+def check_seed(seed) -> int:
+    """``seed`` as an int; :class:`ConfigError` unless it is an integer in [0, 2**32)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2 ** 32:
+        raise ConfigError(f"diagnose: seed must be an integer in [0, 4294967295]. Got {seed!r} instead.")
+    return int(seed)
+
+
 def _num(x):
     x = float(x)
     return x if math.isfinite(x) else None
@@ -341,8 +350,9 @@ def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
     Returns
     -------
     dict
-        ``sigma``, ``method``, ``per_capture`` (list of per-capture σ), ``repeatability`` (or None),
-        ``quantization_step`` (the smallest nonzero step between output samples, for reference).
+        ``sigma``, ``method``, ``per_capture_out`` (list of per-capture σ), ``repeatability_out`` (or
+        None), ``quantization_step_out`` (the smallest nonzero step between output samples, for
+        reference); all in the output unit (``_out`` becomes the unit in the JSON).
     """
     per = []
     for r in residuals:
@@ -375,7 +385,7 @@ def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
     q = float(steps.min()) if steps.size else 0.0
     return {"sigma": sigma, "method": "1.4826·MAD of the third difference (−1,3,−3,1)/√20 of the base residual, "
                                       "median over the captures",
-            "per_capture": per, "repeatability": repeat, "quantization_step": q}
+            "per_capture_out": per, "repeatability_out": repeat, "quantization_step_out": q}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -594,7 +604,7 @@ def where_analysis(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
     if by_condition_alone is not None:
         where["by_condition_alone"] = by_condition_alone
     where["summary"] = summary
-    where["pointers"] = _pointers(summary, by_branch, by_loop, sigma)
+    where["pointers"] = _pointers(summary, by_branch, by_loop, sigma, caps[0].y_unit if caps else "um")
     data = {"spectra": spectra}
     return where, data
 
@@ -648,8 +658,14 @@ def _summary(by_condition, by_capture, by_band, by_time, sigma) -> dict:
 AMPLITUDE_EXPONENT_LARGE = 2.0
 
 
-def _pointers(summary: dict, by_branch: dict, by_loop: dict, sigma: float) -> list[str]:
+def _display(unit: str) -> str:
+    """The unit as written in sentences (µm rather than um)."""
+    return {"um": "µm"}.get(unit, unit)
+
+
+def _pointers(summary: dict, by_branch: dict, by_loop: dict, sigma: float, unit: str) -> list[str]:
     """Plain sentences for the strong findings of :func:`where_analysis` (thresholds in the text)."""
+    u = _display(unit)
     out = []
     for suffix, how in (("", ""), ("_alone", " when every condition is fitted on its own")):
         bf, ba = summary.get("frequency_exponent" + suffix), summary.get("amplitude_exponent" + suffix)
@@ -676,16 +692,18 @@ def _pointers(summary: dict, by_branch: dict, by_loop: dict, sigma: float) -> li
     if lv is not None and bo is not None and max(lv, bo) > 2.0 * sigma:
         if lv > 1.5 * bo:
             out.append(f"displacement level: the error follows the input level the same way on both branches "
-                       f"({lv:.3g} vs {bo:.3g} opposite between branches): a static output nonlinearity")
+                       f"({lv:.3g} {u} RMS, against {bo:.3g} {u} with opposite signs on the two branches): a static "
+                       "output nonlinearity")
         elif bo > 1.5 * lv:
             out.append(f"branches: at the same input level the error has opposite signs on the two branches "
-                       f"({bo:.3g} vs {lv:.3g} common): the loop is too narrow or too wide, a lag or lead")
+                       f"({bo:.3g} {u} RMS, against {lv:.3g} {u} common to both): the loop is too narrow or too wide, "
+                       "a lag or lead")
     a, d = by_branch["ascending"], by_branch["descending"]
     if a["n_samples"] and d["n_samples"] and math.isfinite(a["mean_out"]) and math.isfinite(d["mean_out"]):
         if not any(p.startswith("branches:") for p in out) and a["mean_out"] * d["mean_out"] < 0 and \
                 abs(a["mean_out"] - d["mean_out"]) > max(2.0 * sigma, 0.25 * max(a["rmse_out"], d["rmse_out"])):
-            out.append(f"branches: the model sits {a['mean_out']:+.3g} on the ascending and {d['mean_out']:+.3g} on the "
-                       "descending branch on average (opposite biases: lag or branch asymmetry)")
+            out.append(f"branches: the model sits {a['mean_out']:+.3g} {u} on the ascending and {d['mean_out']:+.3g} {u} "
+                       "on the descending branch on average (opposite biases: lag or branch asymmetry)")
     n, m = by_loop["near_turning_points"]["rmse_out"], by_loop["mid_stroke"]["rmse_out"]
     if math.isfinite(n) and math.isfinite(m) and m > 0:
         if n > 1.3 * m:
@@ -925,7 +943,7 @@ def choose_effect(results: Sequence[EffectResult], settings: DiagnoseSettings) -
 
 def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
     """Plain-language evidence of one effect: signature, where-pointer, parameters, held-out numbers."""
-    unit = {"um": "µm"}.get(unit, unit)
+    unit = _display(unit)
     s = where["summary"]
     p = res["params"]
     sig = f"its signature explains {100 * res['signature_share']:.0f} % of the residual above noise"
@@ -956,8 +974,9 @@ def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
         parts.append(f"{sig} (residual ∝ ŷ², ŷ³)")
         if s["amplitude_exponent"] is not None:
             parts.append(f"the gap grows with amplitude as A^{s['amplitude_exponent']:.2f}")
-        parts.append(f"fitted bow {p['mid_stroke_bow_out']:+.3g} {unit} at mid-stroke ({p['bow_pct_of_stroke']:.2g} % of the "
-                     "stroke)")
+        bow = p["mid_stroke_bow_out"]
+        parts.append(f"fitted bow: mid-stroke {abs(bow):.3g} {unit} {'above' if bow > 0 else 'below'} the straight line "
+                     f"through the stroke ends ({p['bow_pct_of_stroke']:.2g} % of the stroke)")
     elif name == "drift":
         parts.append(f"{sig} (an offset and a ramp per capture)")
         if s.get("heldout_to_fit_ratio") is not None and s["heldout_to_fit_ratio"] > 1.15:
@@ -1014,6 +1033,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     Diagnosis
     """
     t_start = time.perf_counter()
+    check_seed(seed)
     caps = list(captures)
     if not caps:
         raise InputError("diagnose: no captures")
@@ -1082,6 +1102,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                 residuals_alone[order[id(c)]] = np.asarray(p, float) - c.y
     where, fig_where = where_analysis(caps, residuals, sigma, periodic, residuals_alone)
     advance("where")
+    first_run = True
 
     # 2. base fitted on the fit part only
     groups = []
@@ -1095,80 +1116,112 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     pred0 = _predictions(state0, caps, views)
     before0 = _rmse(pred0, views, "test")
     fit_before0 = _rmse(pred0, views, "fit")
-    ex_fit = _excess(fit_before0, sigma)
-    where["summary"]["heldout_to_fit_ratio"] = _excess(before0, sigma) / ex_fit if ex_fit > 0 else None
-    where["pointers"] = _pointers(where["summary"], where["by_branch"], where["by_loop_position"], sigma)
+
+    def complete_where(where: dict, sigma: float) -> None:
+        ex_fit = _excess(fit_before0, sigma)
+        where["summary"]["heldout_to_fit_ratio"] = _excess(before0, sigma) / ex_fit if ex_fit > 0 else None
+        where["pointers"] = _pointers(where["summary"], where["by_branch"], where["by_loop_position"], sigma, unit)
+
+    complete_where(where, sigma)
 
     # configure the candidates on the fit data
     heads0 = [p[: v.fit_end] for p, v in zip(pred0, views)]
     cands = [make_effect(n).configure(views, heads0) for n in names]
     all_effects = [make_effect(n).configure(views, heads0) for n in EFFECTS]
 
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
-    steps: list[tuple[EffectResult, ...]] = []
-    chosen: list[str] = []
-    alternatives: list[tuple[str, ...]] = []
-    state = state0
-    preds_state = pred0
-    best_preds = {}
-    remaining = list(cands)
-    for step in range(settings.max_effects):
-        if not remaining:
-            break
-        before = _rmse(preds_state, views, "test")
-        fit_before = _rmse(preds_state, views, "fit")
-        lin_cache = _linearize(state, caps, views)
-        xs_full = _predictions(state, caps, views)
-        library = _library(all_effects, xs_full, views)
-        placebo_cache: dict = {}
-        results = []
-        states = {}
-        for eff in remaining:
-            ks, kl = eff.layout()
-            m = eff.searched_bounds()[0].size
-            key = (ks + m, kl)
-            if key not in placebo_cache:
-                imps = []
-                for _ in range(settings.placebo_draws):
-                    pl = Placebo.build(library, key[0], key[1], rng)
-                    st_p, _ = _augment(state, pl, caps, views, lin_cache, 1)
-                    imps.append(before - _rmse(_predictions(st_p, caps, views), views, "test"))
-                placebo_cache[key] = (max(imps), float(np.mean(imps)))
-            pl_best, pl_mean = placebo_cache[key]
-            st_e, efit = _augment(state, eff, caps, views, lin_cache, settings.iterations)
-            preds_e = _predictions(st_e, caps, views)
-            after = _rmse(preds_e, views, "test")
-            fit_after = _rmse(preds_e, views, "fit")
-            denom = before - sigma
-            red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
-            pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
-            xs_fit = [p[: v.fit_end] for p, v in zip(preds_state, views)]
-            share, r2 = signature_share(eff, xs_fit, [v.head(v.fit_end) for v in views], sigma * sigma)
-            params = efit.params(views, [c.source for c in caps])
-            excess = _excess(before, sigma)
-            passes = {"reduction_at_least_threshold": red >= settings.threshold,
-                      "beats_placebo": (before - after) > pl_best,
-                      "gap_above_noise": excess >= settings.min_excess_ratio * sigma}
-            ev = _evidence(eff.name, {"signature_share": share, "params": params, "before": before, "after": after,
-                                      "reduction": red, "placebo": pl_best}, where, unit)
-            results.append(EffectResult(eff.name, eff.title, step + 1, before, after, fit_before, fit_after, red,
-                                        pl_best, pl_mean, pl_red, efit.n_parameters, share, r2, params, ev, passes,
-                                        efit))
-            states[eff.name] = (st_e, preds_e)
-            if step == 0:
-                advance(f"effect {eff.name}")
-        results.sort(key=lambda r: (-r.reduction, r.n_parameters))
-        steps.append(tuple(results))
-        pick = choose_effect(results, settings)
-        if pick is None:
-            break
-        top = max(r.reduction for r in results if r.eligible)
-        alternatives.append(tuple(r.effect for r in results if r.eligible and r is not pick
-                                  and r.reduction >= top - settings.occam_tolerance))
-        chosen.append(pick.effect)
-        state, preds_state = states[pick.effect]
-        best_preds[pick.effect] = preds_state
-        remaining = [e for e in remaining if e.name != pick.effect]
+    def select(sigma: float, where: dict):
+        """The greedy selection of effects for one noise floor (the fits do not depend on it, the
+        reductions and the verdict do)."""
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+        steps: list[tuple[EffectResult, ...]] = []
+        chosen: list[str] = []
+        alternatives: list[tuple[str, ...]] = []
+        state = state0
+        preds_state = pred0
+        remaining = list(cands)
+        for step in range(settings.max_effects):
+            if not remaining:
+                break
+            before = _rmse(preds_state, views, "test")
+            fit_before = _rmse(preds_state, views, "fit")
+            lin_cache = _linearize(state, caps, views)
+            xs_full = _predictions(state, caps, views)
+            library = _library(all_effects, xs_full, views)
+            placebo_cache: dict = {}
+            results = []
+            states = {}
+            for eff in remaining:
+                ks, kl = eff.layout()
+                m = eff.searched_bounds()[0].size
+                key = (ks + m, kl)
+                if key not in placebo_cache:
+                    imps = []
+                    for _ in range(settings.placebo_draws):
+                        pl = Placebo.build(library, key[0], key[1], rng)
+                        st_p, _ = _augment(state, pl, caps, views, lin_cache, 1)
+                        imps.append(before - _rmse(_predictions(st_p, caps, views), views, "test"))
+                    placebo_cache[key] = (max(imps), float(np.mean(imps)))
+                pl_best, pl_mean = placebo_cache[key]
+                st_e, efit = _augment(state, eff, caps, views, lin_cache, settings.iterations)
+                preds_e = _predictions(st_e, caps, views)
+                after = _rmse(preds_e, views, "test")
+                fit_after = _rmse(preds_e, views, "fit")
+                denom = before - sigma
+                red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
+                pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
+                xs_fit = [p[: v.fit_end] for p, v in zip(preds_state, views)]
+                share, r2 = signature_share(eff, xs_fit, [v.head(v.fit_end) for v in views], sigma * sigma)
+                params = efit.params(views, [c.source for c in caps])
+                excess = _excess(before, sigma)
+                passes = {"reduction_at_least_threshold": red >= settings.threshold,
+                          "beats_placebo": (before - after) > pl_best,
+                          "gap_above_noise": excess >= settings.min_excess_ratio * sigma}
+                ev = _evidence(eff.name, {"signature_share": share, "params": params, "before": before, "after": after,
+                                          "reduction": red, "placebo": pl_best}, where, unit)
+                results.append(EffectResult(eff.name, eff.title, step + 1, before, after, fit_before, fit_after, red,
+                                            pl_best, pl_mean, pl_red, efit.n_parameters, share, r2, params, ev, passes,
+                                            efit))
+                states[eff.name] = (st_e, preds_e)
+                if step == 0 and first_run:
+                    advance(f"effect {eff.name}")
+            results.sort(key=lambda r: (-r.reduction, r.n_parameters))
+            steps.append(tuple(results))
+            pick = choose_effect(results, settings)
+            if pick is None:
+                break
+            top = max(r.reduction for r in results if r.eligible)
+            alternatives.append(tuple(r.effect for r in results if r.eligible and r is not pick
+                                      and r.reduction >= top - settings.occam_tolerance))
+            chosen.append(pick.effect)
+            state, preds_state = states[pick.effect]
+            remaining = [e for e in remaining if e.name != pick.effect]
+        return steps, chosen, alternatives, preds_state
+
+    steps, chosen, alternatives, preds_state = select(sigma, where)
+    # The floor was estimated from the base model's residual. Where that residual holds fast model
+    # error (a ringing stage the base cannot draw), the scatter estimate of those captures is
+    # inflated; the model with the named effects removes it. Re-estimate from the better of the
+    # two residuals per capture and, when the floor drops by more than 5 %, redo the where-analysis
+    # and the selection with it (the fits are the same; reductions and the verdict depend on it).
+    if chosen:
+        final_res = [p - c.y for p, c in zip(preds_state, caps)]
+        per_final = estimate_noise(caps, final_res, periodic)["per_capture_out"]
+        per = [min(a, b) if math.isfinite(b) else a for a, b in zip(noise["per_capture_out"], per_final)]
+        finite = [v for v in per if math.isfinite(v)]
+        refined = float(np.median(finite)) if finite else sigma
+        noise["sigma_base_model_out"] = sigma
+        noise["sigma_final_model_out"] = refined
+        if refined < 0.95 * sigma:
+            first_run = False
+            noise.update(sigma=refined, per_capture_out=per, refined=True,
+                         method=noise["method"] + "; per capture the smaller of the estimates from the base model's "
+                         "and from the final model's residual (the base residual held fast model error)")
+            sigma = refined
+            where, fig_where = where_analysis(caps, residuals, sigma, periodic, residuals_alone)
+            complete_where(where, sigma)
+            steps, chosen, alternatives, preds_state = select(sigma, where)
+    noise.setdefault("refined", False)
+
     advance("verdict")
 
     verdict = chosen[0] if chosen else "none"
@@ -1207,40 +1260,73 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
 # ----------------------------------------------------------------------------------------------
 
 
+def one_effect(effect: str, strength: float = 1.0, defaults=None):
+    """:class:`hystfit.synth.Effects` with exactly ``effect`` on (``"none"``: nothing), its strength
+    parameters taken from ``defaults`` (an ``Effects`` whose flags are ignored; default: the virtual
+    actuator's realistic values) and scaled by ``strength`` with the rule of
+    :meth:`hystfit.synth.Effects.from_names`: ``strength`` multiplies a₂, the creep gains, the delay
+    and the drift rate and amplitude, and divides the stage's natural frequency. With the default
+    ``defaults`` this equals ``Effects.only(effect, strength)``.
+    """
+    from .synth import Effects
+
+    base = Effects() if defaults is None else defaults
+    flags = {n: False for n in ("asymmetry", "creep", "dynamics", "delay", "drift", "noise", "quantization")}
+    if effect == "none":
+        return replace(base, **flags)
+    if effect not in EFFECTS:
+        raise ConfigError(f"unknown effect {effect!r}: choose from {', '.join(EFFECTS)} or none")
+    if not (math.isfinite(strength) and strength > 0):
+        raise ConfigError(f"strength must be a positive number. Got {strength!r} instead.")
+    s = float(strength)
+    scaled = {"asymmetry": {"asymmetry_a2": base.asymmetry_a2 * s},
+              "creep": {"creep_gain": tuple(g * s for g in base.creep_gain)},
+              "dynamics": {"dynamics_fn_Hz": base.dynamics_fn_Hz / s},
+              "delay": {"delay_s": base.delay_s * s},
+              "drift": {"drift_rate_um_per_s": base.drift_rate_um_per_s * s,
+                        "drift_amplitude_um": base.drift_amplitude_um * s}}[effect]
+    return replace(base, **{**flags, effect: True, **scaled})
+
+
 def withheld_effect_captures(effect: str, strength: float = 1.0, seed: int = 0, *,
                              amplitudes_V: Sequence[float] = (30.0, 60.0),
                              frequencies_Hz: Sequence[float] = (10.0, 40.0, 80.0),
                              cycles: int = 5, fs_Hz: float = 10_000.0, steps_s: float = 3.0,
-                             noise_um: float = 0.008) -> list[Capture]:
+                             noise_um: float = 0.008, plant=None) -> list[Capture]:
     """Captures of the virtual actuator with exactly one effect on (or none), for the proof.
 
     ``effect`` is one of :data:`hystfit.effects.EFFECTS` or ``"none"``; ``strength`` scales its
-    default (:meth:`hystfit.synth.Effects.only`). The plant is :meth:`hystfit.synth.Plant.default`'s
-    hysteresis with that one effect plus white sensor noise σ = ``noise_um`` µm. Captures: raised
-    cosines 0→A→0 for every amplitude × frequency (``cycles`` periods) and one step-and-hold
-    capture of ``steps_s`` seconds at the largest amplitude (slow effects need long data).
+    default (:func:`one_effect`). The plant is ``plant`` (a :class:`hystfit.synth.Plant`: its
+    hysteresis, offset and output unit, and in its ``effects`` the strength parameters of every
+    effect, whose flags are ignored), by default :meth:`hystfit.synth.Plant.default`'s hysteresis
+    and realistic effect strengths, with that one effect on plus white sensor noise
+    σ = ``noise_um`` µm. Captures: raised cosines 0→A→0 for every amplitude × frequency
+    (``cycles`` periods) and one step-and-hold capture of ``steps_s`` seconds at the largest
+    amplitude (slow effects need long data), in the plant's output unit.
     Each capture draws its noise from its own seed derived from ``seed``.
     """
     from .conditions import detect_condition
-    from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
+    from .synth import Plant, raised_cosine, simulate_plant, step_pattern
 
-    e = Effects.none() if effect == "none" else Effects.only(effect, strength)
+    plant = Plant() if plant is None else plant
+    e = one_effect(effect, strength, plant.effects)
     if noise_um > 0:
         e = e.with_noise(noise_um)
-    plant = Plant().with_effects(e)
+    plant = plant.with_effects(e)
+    unit = plant.output_unit
     out = []
     k = 0
     for a in amplitudes_V:
         for f in frequencies_Hz:
             t, u = raised_cosine(a, f, cycles, fs_Hz)
             y = simulate_plant(plant, t, u, seed=int(seed) * 1000 + k)
-            out.append(Capture(source=f"synth_{effect}_{a:g}V_{f:g}Hz", t=t, u=u, y=y, dt=1.0 / fs_Hz,
+            out.append(Capture(source=f"synth_{effect}_{a:g}V_{f:g}Hz", t=t, u=u, y=y, dt=1.0 / fs_Hz, y_unit=unit,
                                amplitude_V=float(a), frequency_Hz=float(f), condition_source="option"))
             k += 1
     if steps_s > 0:
         t, u = step_pattern(max(amplitudes_V), steps_s, fs_Hz)
         y = simulate_plant(plant, t, u, seed=int(seed) * 1000 + k)
         a, f = detect_condition(u, 1.0 / fs_Hz)
-        out.append(Capture(source=f"synth_{effect}_steps", t=t, u=u, y=y, dt=1.0 / fs_Hz, amplitude_V=a,
+        out.append(Capture(source=f"synth_{effect}_steps", t=t, u=u, y=y, dt=1.0 / fs_Hz, y_unit=unit, amplitude_V=a,
                            frequency_Hz=f, condition_source="detected"))
     return out

@@ -32,9 +32,13 @@ from dataclasses import dataclass, field, replace
 from typing import ClassVar, Sequence
 
 import numpy as np
-from scipy import optimize, signal
 
+from ._lazy import lazy_module
 from .errors import ConfigError
+
+# scipy submodules are imported on first use: keeps start-up fast
+signal = lazy_module("scipy.signal")
+optimize = lazy_module("scipy.optimize")
 
 __all__ = [
     "CaptureView",

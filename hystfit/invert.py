@@ -17,7 +17,8 @@ Pipeline (every step is reported in :class:`InversionResult`, nothing is silent)
    (:func:`choose_condition`): guess A₀ = target stroke / table gain, pick the cell(s) for
    (A₀, f), invert, measure the peak-to-peak of the resulting voltage A₁, re-pick, … until the
    amplitude is self-consistent (|A_{i+1} − A_i| ≤ 0.1 % of A) and the cells no longer change.
-   ``condition=`` forces the condition instead.
+   ``condition=`` forces the condition instead. Segments are settled in time order: a later
+   segment's cells continue from the voltage already chosen for the earlier ones (step 4).
 3. **Bilinear interpolation** between the (up to four) surrounding cells, linear in amplitude
    and log-frequency (:class:`hystfit.conditions.LookupTable`; a query outside the grid is
    clamped onto its edge, so weights stay continuous and the iteration converges). We blend
@@ -41,6 +42,14 @@ Pipeline (every step is reported in :class:`InversionResult`, nothing is silent)
    memory whatever a model's reset convention. Default v0: the voltage at which the model
    rests at the target's first sample (:func:`rest_voltage`), so the target starts smoothly;
    ``initial_voltage=V`` sets it, and a jump from the rest output to y_d[0] is reported.
+   At a segment join (``multi`` targets) the new segment's cells are inverted with the voltage
+   history of all earlier segments prepended (the cell's own output for it, then the target;
+   :func:`invert_cell` with ``history``), so each cell enters the segment with the memory the
+   applied voltage gives it, not the memory its own inverse would have built (which differs
+   wherever another cell drove the stage before); after the cross-fade at the join (below) they are
+   inverted once more from the faded voltage. This costs re-inversions of the history per
+   segment and cell (``Model.invert`` cannot resume from a saved state): O(N·S) for S
+   segments, nothing for single-segment targets.
 5. **Limits.** Voltages outside [vmin, vmax] are clipped (default: the table's identification
    voltage range ± 10 %), then a slew-rate limit |Δu| ≤ S·dt is applied causally, starting
    from the initial voltage. Every clipped or slew-limited span is reported with its time span
@@ -51,12 +60,15 @@ Pipeline (every step is reported in :class:`InversionResult`, nothing is silent)
 
 Memory. Every step works on whole arrays with O(N·n) memory (n = a model's state size, ≈ 10
 play operators for PI), never on (P, N) populations; each used cell's inverse is kept once and
-released before the forward preview. 10⁶ samples with two PI cells peak at ≈ 0.2 GB of arrays
-(traced in ``tests/unit/test_invert.py``; ≈ 0.55 GB resident for the whole ``hystfit invert``
-command with its CSV and figure). We do not cut the target into chunks: ``Model.invert`` starts
+released before the forward preview. The whole ``hystfit invert`` command (load, inversion of
+two PI cells, preview, CSV, report, figures) peaks at ≈ 0.52 GB resident for a 10⁶-sample
+target, of which ≈ 0.3 GB is the imported libraries (``/usr/bin/time -v``; checked in
+``tests/integration/test_invert_cli.py``); the dynamic models ``pi2``/``hammerstein`` and
+Bouc–Wen stay under 0.55 GB too. We do not cut the target into chunks: ``Model.invert`` starts
 from the model's reset state and cannot resume another chunk's memory, and the linear memory
 already meets the 1 GB budget. The generic numerical inverse (:mod:`hystfit.models.inverse`,
-e.g. Bouc–Wen) is a per-sample Python loop: small memory, ≈ 40 µs per sample and cell.
+e.g. Bouc–Wen) is a per-sample Python loop: small memory, but ≈ 100–300 µs per sample and
+cell (10⁶ samples with Bouc–Wen: ≈ 10 min).
 Segment joins: cell weights change linearly over 2 % of the shorter segment after a join, so
 the voltage has no jump where neighbouring segments use different cells.
 
@@ -211,7 +223,15 @@ def _finite(name: str, value: float) -> float:
     return value
 
 
+#: Fewest samples per cycle of a built-in periodic trajectory (below it the samples are not the shape).
+MIN_SAMPLES_PER_CYCLE = 4
+
+
 def _periodic_n(freq_Hz: float, cycles: float, fs: float) -> int:
+    if freq_Hz * MIN_SAMPLES_PER_CYCLE > fs:
+        raise ConfigError(f"{freq_Hz:g} Hz sampled at {fs:g} Hz gives fewer than {MIN_SAMPLES_PER_CYCLE} samples per "
+                          f"cycle; raise the sample rate (--fs) to at least {MIN_SAMPLES_PER_CYCLE * freq_Hz:g} Hz or "
+                          "lower the frequency")
     n = int(math.floor(cycles * fs / freq_Hz + 1e-9)) + 1
     if n < 3:
         raise ConfigError(f"{cycles:g} cycles at {freq_Hz:g} Hz give fewer than 3 samples at {fs:g} Hz; "
@@ -695,13 +715,20 @@ def rest_voltage(cell: Cell, y0: float, dt: float, bracket: tuple[float, float])
 
 
 def invert_cell(cell: Cell, y: np.ndarray, dt: float, initial_voltage: float,
-                u_range: tuple[float, float]) -> np.ndarray:
+                u_range: tuple[float, float], history: np.ndarray | None = None) -> np.ndarray:
     """Voltage (N,) making ``cell``'s model follow ``y`` (N,) from rest at ``initial_voltage`` (V).
 
     The model's own inverse (``model.invert``) is applied to the pre-roll output (the model
     driven by :func:`preroll_voltage`) followed by ``y``; the pre-roll part is dropped. So the
     inverse's memory at the first target sample is that of the stage resting at the initial
     voltage, identical to the memory :func:`simulate_cell` uses for the forward preview.
+
+    ``history`` (M,) continues an earlier part instead: the voltage already chosen before ``y``
+    (after the same pre-roll). The model's output for pre-roll + history is prepended to ``y``
+    and inverted with it, so the inverse enters ``y`` with the memory that voltage history
+    gives this model (exactly for analytic inverses, which return the history itself; to the
+    inverse's accuracy otherwise). ``Model.invert`` cannot resume from a saved state, hence
+    the re-inversion of the history.
 
     Raises
     ------
@@ -710,6 +737,8 @@ def invert_cell(cell: Cell, y: np.ndarray, dt: float, initial_voltage: float,
     """
     model, theta = cell.model, cell.theta
     pre = preroll_voltage(cell, initial_voltage, dt)
+    if history is not None and len(history):
+        pre = np.concatenate([pre, np.asarray(history, dtype=np.float64)])
     y_ext = np.concatenate([model.simulate_one(theta, pre, dt), np.asarray(y, dtype=np.float64)])
     kwargs = {"u_range": u_range} if _accepts_u_range(model) else {}
     try:
@@ -732,15 +761,21 @@ def simulate_cell(cell: Cell, u: np.ndarray, dt: float, initial_voltage: float) 
 
 
 class _CellCache:
-    """Inverse voltages per cell, computed once for the whole target.
+    """Inverse voltages per cell for one segment (samples 0 … ``stop`` − 1, absolute indices).
 
-    With ``initial_voltage`` None each cell starts from its own rest voltage for the target's
-    first sample (:func:`rest_voltage`), so every cell's inverse is consistent with its model.
+    First segment (``history`` None): each cell inverts the target from rest; with
+    ``initial_voltage`` None each cell starts from its own rest voltage for the target's first
+    sample (:func:`rest_voltage`), so every cell's inverse is consistent with its model. Later
+    segments: ``history`` is the voltage already chosen for samples 0 … start − 1 and every
+    cell continues from it (:func:`invert_cell`), after the pre-roll to ``initial_voltage``.
     """
 
     def __init__(self, pf: ParamsFile, target: Target, initial_voltage: float | None,
-                 u_range: tuple[float, float], progress: Progress):
+                 u_range: tuple[float, float], progress: Progress, *, stop: int | None = None,
+                 history: np.ndarray | None = None):
         self.pf, self.target, self.v0, self.u_range, self.progress = pf, target, initial_voltage, u_range, progress
+        self.stop = target.n if stop is None else int(stop)
+        self.history = history
         self.u: dict[int, np.ndarray] = {}
         self.rest: dict[int, float] = {}
 
@@ -752,11 +787,15 @@ class _CellCache:
         return self.rest[i]
 
     def get(self, i: int) -> np.ndarray:
+        """Voltage (stop,) of cell i: the history (if any), then the cell's inverse."""
         if i not in self.u:
-            cell = self.pf.cells[i]
+            cell, tg = self.pf.cells[i], self.target
+            a = 0 if self.history is None else self.history.size
             if self.progress:
-                self.progress("note", {"text": f"inverting cell {cell.label} ({self.target.n} samples)"})
-            self.u[i] = invert_cell(cell, self.target.y, self.target.dt, self.initial_voltage(i), self.u_range)
+                self.progress("note", {"text": f"inverting cell {cell.label} ({self.stop - a} samples"
+                                               + (f" after {a} of history)" if a else ")")})
+            tail = invert_cell(cell, tg.y[a:self.stop], tg.dt, self.initial_voltage(i), self.u_range, self.history)
+            self.u[i] = tail if self.history is None else np.concatenate([self.history, tail])
         return self.u[i]
 
     def blend(self, cells: Sequence[CellUse], sl: slice) -> np.ndarray:
@@ -1006,6 +1045,31 @@ def blend_segments(arrays: dict[int, np.ndarray], choices: Sequence[SegmentChoic
     return out
 
 
+def _blend_into(out: np.ndarray, cells: Sequence[CellUse], arrays: dict[int, np.ndarray], a: int, b: int) -> None:
+    """out[a:b] = Σ_c w_c·arrays[c][a:b]."""
+    out[a:b] = 0.0
+    for c in cells:
+        out[a:b] += c.weight * arrays[c.index][a:b]
+
+
+def _crossfade_into(out: np.ndarray, prev: SegmentChoice, prev_arrays: dict[int, np.ndarray],
+                    nxt: SegmentChoice) -> int:
+    """Cross-fade ``out`` from ``prev``'s cells to ``nxt``'s after their join, as :func:`blend_segments` does.
+
+    Returns the number of faded samples (0 when both segments use the same cells and weights).
+    """
+    if {(c.index, c.weight) for c in prev.cells} == {(c.index, c.weight) for c in nxt.cells}:
+        return 0
+    j = nxt.segment.start
+    m = min(_crossfade(prev.segment.stop - prev.segment.start, nxt.segment.stop - j), nxt.segment.stop - j)
+    ramp = (np.arange(m) + 1.0) / (m + 1.0)  # weight of the new segment's cells
+    old = np.zeros(m)
+    for c in prev.cells:
+        old += c.weight * prev_arrays[c.index][j:j + m]
+    out[j:j + m] = (1.0 - ramp) * old + ramp * out[j:j + m]
+    return m
+
+
 def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate",
                   condition: tuple[float, float] | None = None, initial_voltage: float | None = None,
                   vmin: float | None = None, vmax: float | None = None, max_slew: float | None = None,
@@ -1059,19 +1123,42 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
         condition = (_positive("condition amplitude (V)", condition[0]), _positive("condition frequency (Hz)",
                                                                                    condition[1]))
     y_d = target.y
-    cache = _CellCache(pf, target, initial_voltage, search_range(pf, lo, hi), progress)
+    u_range = search_range(pf, lo, hi)
     if progress:
         progress("start", {"total": len(target.segments)})
-    choices = []
-    for seg in target.segments:
-        choices.append(choose_condition(pf, target, seg, cache, method=method, condition=condition))
+    choices: list[SegmentChoice] = []
+    u_des = np.empty(target.n)
+    v0 = float(initial_voltage) if initial_voltage is not None else float("nan")
+    prev: tuple[SegmentChoice, dict[int, np.ndarray]] | None = None
+    segs = target.segments
+    for k, seg in enumerate(segs):
+        a, b = seg.start, seg.stop
+        nxt = segs[k + 1] if k + 1 < len(segs) else None
+        # the cells of this segment are also needed for the cross-fade into the next one
+        stop = b if nxt is None else min(target.n, b + _crossfade(b - a, nxt.stop - nxt.start))
+        cache = _CellCache(pf, target, initial_voltage if k == 0 else v0, u_range, progress, stop=stop,
+                           history=None if k == 0 else u_des[:a])
+        ch = choose_condition(pf, target, seg, cache, method=method, condition=condition)
+        arrays = {c.index: cache.get(c.index) for c in ch.cells}
+        _blend_into(u_des, ch.cells, arrays, a, b)
+        m = _crossfade_into(u_des, prev[0], prev[1], ch) if prev is not None else 0
+        if m:
+            # the cells entered the segment with the faded voltage, not their own: continue from it
+            hist = u_des[:a + m]
+            for c in ch.cells:
+                arrays[c.index] = np.concatenate([hist, invert_cell(pf.cells[c.index], y_d[a + m:stop], target.dt,
+                                                                    v0, u_range, hist)])
+            _blend_into(u_des, ch.cells, arrays, a + m, b)
+        if k == 0 and initial_voltage is None:
+            v0 = float(u_des[0])
+        del cache
+        prev = (ch, arrays)
+        choices.append(ch)
         if progress:
             progress("advance", {"label": seg.label})
+    del prev, arrays  # the per-cell voltages are no longer needed
     used = sorted({c.index for ch in choices for c in ch.cells})
-    u_des = blend_segments({i: cache.get(i) for i in used}, choices, target.n)
-    cache.u.clear()  # the per-cell voltages are no longer needed
     v0_source = "given" if initial_voltage is not None else "rest voltage of the first target sample"
-    v0 = float(initial_voltage) if initial_voltage is not None else float(u_des[0])
     notes: list[str] = []
     if initial_voltage is None and not lo <= v0 <= hi:
         notes.append(f"the stage must rest at {v0:.4g} V for the target's first sample, outside the limits "

@@ -38,12 +38,18 @@ class Objective:
         self.model = model
         self.series = list(series)
         self._sims = [model.simulator(s.u, s.dt) for s in self.series]
+        # fused sums of squared errors where the model offers them (no (P, N) outputs in memory)
+        self._sse_fns = [model.sse_evaluator(s.u, s.dt, s.y) for s in self.series]
         self.n_total = int(sum(s.y.shape[0] for s in self.series))
         self.nfev = 0
 
     def _sse(self, theta: np.ndarray) -> np.ndarray:
         total = np.zeros(theta.shape[0])
-        for sim, s in zip(self._sims, self.series):
+        for sim, sse_fn, s in zip(self._sims, self._sse_fns, self.series):
+            if sse_fn is not None:
+                with np.errstate(all="ignore"):
+                    total += sse_fn(theta)
+                continue
             block = max(1, BLOCK_ELEMENTS // max(s.y.shape[0], 1))
             for i in range(0, theta.shape[0], block):
                 with np.errstate(all="ignore"):
@@ -67,14 +73,21 @@ class Objective:
         theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
         return [sim(theta)[0] for sim in self._sims]
 
-    def jacobian(self, theta: np.ndarray, rel_step: float = 1e-6) -> np.ndarray:
-        """Forward-difference Jacobian of the residuals (M, d), all d+1 candidates in one population call."""
+    def jacobian(self, theta: np.ndarray, rel_step: float = 1e-6, upper: np.ndarray | None = None) -> np.ndarray:
+        """Forward-difference Jacobian of the residuals (M, d), all d+1 candidates in one population call.
+
+        Step h_j = rel_step·max(|θ_j|, 1e-3·max|θ|); with ``upper`` given, a step that would leave
+        the box is taken backwards instead (a model need not be defined outside its bounds).
+        """
         theta = np.asarray(theta, dtype=np.float64).ravel()
         d = theta.size
         h = rel_step * np.maximum(np.abs(theta), 1e-3 * (np.max(np.abs(theta)) + 1e-12))
+        if upper is not None:
+            h = np.where(theta + h > np.asarray(upper, dtype=np.float64), -h, h)
         pop = np.repeat(theta[None, :], d + 1, axis=0)
         pop[1:] += np.diag(h)
         with np.errstate(all="ignore"):
             ys = [sim(pop) for sim in self._sims]
         y = np.concatenate(ys, axis=1)  # (d+1, M)
+        self.nfev += d + 1
         return ((y[1:] - y[0]) / h[:, None]).T

@@ -31,11 +31,12 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
-from scipy import signal
-
+from ._lazy import lazy_module
 from .errors import ConfigError
 from .io import atomic_write_bytes
 from .models._kernels import play_matrix
+
+signal = lazy_module("scipy.signal")  # imported on first use: keeps start-up fast
 
 __all__ = [
     "EFFECT_NAMES",

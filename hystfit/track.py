@@ -86,13 +86,14 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy import signal
-
+from ._lazy import lazy_module
 from .errors import ConfigError
 from .invert import (CellUse, InversionResult, SegmentChoice, Span, Target, blend_segments, find_spans,
                      invert_target, preroll_voltage, select_cells, tracking_metrics)
 from .models.pi import PI
 from .results import Cell, ParamsFile
+
+signal = lazy_module("scipy.signal")  # imported on first use: keeps start-up fast
 
 __all__ = [
     "CONTROLLERS",

@@ -1,7 +1,19 @@
 """Command-line interface: parsing and printing only (no numerics).
 
 Every command lives in its own module and registers itself on :data:`app` when imported.
+
+One BLAS thread. hystfit's heavy work is its numba kernels (threaded over candidates) and its
+process pools; its linear algebra is small (Jacobians of a few columns, 3×3 normal equations),
+where a multithreaded BLAS only adds synchronisation: measured on a 2-core machine with other
+work running, one 5000 × 12 SVD inside the least-squares polish took 3 ms with one OpenBLAS
+thread and 220 ms with two. So the command line sets ``OPENBLAS_NUM_THREADS``/``MKL_NUM_THREADS``
+/``VECLIB_MAXIMUM_THREADS`` to 1 unless the user set them (it must happen before numpy loads).
 """
+
+import os as _os
+
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS"):
+    _os.environ.setdefault(_var, "1")
 
 from .app import app, main
 

@@ -33,10 +33,10 @@ def diagnose(
     out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-diagnose"),
     per_condition: Annotated[bool, typer.Option("--per-condition", help="One base parameter set per condition (look-up table) instead of one for all captures.")] = False,
     effects: Annotated[Optional[str], typer.Option("--effects", help="Candidate effects, comma-separated (default: dynamics,creep,asymmetry,drift,delay).")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the base fits and of the placebo draws.")] = 0,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the base fits and of the placebo draws (>= 0).")] = 0,
     fit_fraction: Annotated[float, typer.Option("--fit-fraction", help="Share of every capture used to fit; the rest is held out.")] = 0.6,
     threshold: Annotated[float, typer.Option("--threshold", help="Minimum held-out reduction for naming an effect.")] = 0.3,
-    max_effects: Annotated[int, typer.Option("--max-effects", help="How many effects may be named, in order.", min=1)] = 3,
+    max_effects: Annotated[int, typer.Option("--max-effects", help="How many effects may be named, in order (>= 1).")] = 3,
     model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE (repeatable).")] = None,
     opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE (repeatable).")] = None,
     figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write the figures.")] = True,
@@ -53,7 +53,7 @@ def diagnose(
 
     Writes OUT/diagnosis.json, OUT/diagnosis.md and OUT/figures/.
     """
-    from ..diagnose import DiagnoseSettings
+    from ..diagnose import DiagnoseSettings, check_seed
     from ..diagnose import diagnose as run_diagnose
     from ..io import load_captures, staged_output_dir
     from ..registry import models, optimizers
@@ -66,6 +66,7 @@ def diagnose(
     o = make_optimizer(opt_cls, parse_key_values(opt_option or [], "--opt-option"))
     names = _parse_effects(effects)
     settings = DiagnoseSettings(fit_fraction=fit_fraction, threshold=threshold, max_effects=max_effects)
+    check_seed(seed)
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
     with staged_output_dir(out, force) as stage:
         captures = load_captures(data, options, recursive=recursive)

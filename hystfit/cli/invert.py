@@ -145,15 +145,16 @@ def invert(
     report_dir: Annotated[Optional[Path], typer.Option("--report-dir", help="Report directory (default: "
                                                        "<out stem>_report next to the output).")] = None,
     time_col: TimeCol = None, target_col: TargetCol = None, output_unit: OutputUnit = None,
-    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Write the tracking figure.")] = True,
+    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Write the figures.")] = True,
     json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress and no summary table (warnings stay).")] = False,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing output file and report directory.")] = False,
 ) -> None:
     """Voltages that make the identified model follow TARGET, and the tracking error they predict.
 
-    Writes OUT and a report directory (report.md, report.json, plots/tracking.png). Clipping to
-    the voltage limits and slew-rate limiting are reported with their time spans.
+    Writes OUT and a report directory (report.md, report.json, plots/tracking.png, and
+    plots/tracking_detail.png for a long target). Clipping to the voltage limits and slew-rate
+    limiting are reported with their time spans. Method and options: docs/invert.md.
     """
     from ..invert import invert_target
     from ..io import staged_output_dir, write_table
@@ -200,19 +201,21 @@ def invert(
         return
     if quiet:
         return
-    u = res.unit
-    m = res.metrics
-    t = Table(title=f"{res.model_name} feedforward → {out} (report: {rdir})")
-    for col in ("segment", "cells", f"rmse_{u}", "rmse %", f"max_error_{u}", "max %"):
-        t.add_column(col, justify="right")
     from ..invert import condition_text
+    from ..report.plots import display_unit
+    from ..report.tables import fmt
 
-    for ch, sm in zip(res.choices, res.segment_metrics):
-        t.add_row(ch.segment.label, condition_text(ch), f"{sm[f'rmse_{u}']:.4g}", f"{sm['rmse_pct_of_stroke']:.3g}",
-                  f"{sm[f'max_error_{u}']:.4g}", f"{sm['max_error_pct_of_stroke']:.3g}")
+    u, du = res.unit, display_unit(res.unit)
+    t = Table(title=f"{res.model_name} feedforward → {out} (report: {rdir}); predicted error")
+    for i, col in enumerate(("segment", "cells × weight", f"RMSE ({du})", "RMSE %", f"max ({du})", "max %")):
+        t.add_column(col, justify="left" if i < 2 else "right")
+    rows = list(zip((ch.segment.label for ch in res.choices), (condition_text(ch) for ch in res.choices),
+                    res.segment_metrics))
     if len(res.choices) > 1:
-        t.add_row("all", "", f"{m[f'rmse_{u}']:.4g}", f"{m['rmse_pct_of_stroke']:.3g}", f"{m[f'max_error_{u}']:.4g}",
-                  f"{m['max_error_pct_of_stroke']:.3g}")
+        rows.append(("all", "", res.metrics))
+    for label, cells, m in rows:
+        t.add_row(label, cells, fmt(m[f"rmse_{u}"], 3), fmt(m["rmse_pct_of_stroke"], 3), fmt(m[f"max_error_{u}"], 3),
+                  fmt(m["max_error_pct_of_stroke"], 3))
     stdout.print(t)
     stdout.print(f"voltage {res.voltage_V.min():.4g} … {res.voltage_V.max():.4g} V, initial {res.initial_voltage_V:.4g} V; "
                  "predicted error from the identified model (not a measurement)", markup=False, highlight=False)

@@ -33,19 +33,65 @@ def list_models(json_out: Annotated[bool, typer.Option("--json", help="Machine-r
                      f"Structure options: {m['structure'] or 'none'}\n")
 
 
+#: stop-rule settings shared by the optimizers (hystfit.optimizers.base.StopRules) and what they mean
+_STOP_SETTINGS = (("iters", "iterations"), ("max_evals", "evaluations"), ("stall_iter", "stall"),
+                  ("target", "target value"), ("time_limit_s", "time limit"))
+
+
+def _plain(text: str) -> str:
+    """Docstring markup as plain text: ``x`` → x, :class:`~a.b.C` → C, *x* → x."""
+    import re
+
+    text = re.sub(r":\w+:`~?(?:[\w.]*\.)?([\w]+)`", r"\1", text)
+    text = text.replace("``", "")
+    return re.sub(r"(?<![\w*])\*([^*\s][^*]*?)\*(?![\w*])", r"\1", text)
+
+
+def _doc_paragraph(doc: str, label: str) -> str:
+    """The paragraph of ``doc`` that starts with ``label`` (e.g. "Bounds:"), as one plain line."""
+    lines = [ln.strip() for ln in doc.splitlines()]
+    for i, ln in enumerate(lines):
+        if ln.startswith(label):
+            para = [ln[len(label):].strip()]
+            for nxt in lines[i + 1:]:
+                if not nxt:
+                    break
+                para.append(nxt)
+            return _plain(" ".join(para))
+    return ""
+
+
+def optimizer_rules(cls) -> dict[str, str]:
+    """Stop rules and bounds handling of an optimizer class, from its docstring's "Stop rules:"
+    and "Bounds:" paragraphs; the stop rules fall back to the stop settings it has."""
+    import dataclasses
+
+    doc = cls.__doc__ or ""
+    fields = {f.name for f in dataclasses.fields(cls)}
+    stop = _doc_paragraph(doc, "Stop rules:") or "; ".join(
+        f"{what} ({name})" for name, what in _STOP_SETTINGS if name in fields)
+    return {"stop_rules": stop, "bounds_handling": _doc_paragraph(doc, "Bounds:")}
+
+
 @app.command("optimizers")
 @guarded
 def list_optimizers(json_out: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False) -> None:
-    """List the registered optimizers with their settings, defaults and references."""
+    """List the registered optimizers: settings and defaults, stop rules, bounds handling, references."""
     from ..catalog import optimizer_catalog
+    from ..registry import optimizers
 
-    cat = optimizer_catalog()
+    cat = [{**o, **optimizer_rules(optimizers.get(o["name"]))} for o in optimizer_catalog()]
     if json_out:
         print_json({"optimizers": cat})
         return
-    t = Table(title="optimizers")
-    for col in ("name", "title", "reference", "settings (defaults)"):
-        t.add_column(col)
     for o in cat:
-        t.add_row(o["name"], o["title"], o["reference"], ", ".join(f"{k}={v}" for k, v in o["settings"].items()))
-    stdout.print(t)
+        t = Table(title=f"[bold]{o['name']}[/bold] — {o['title']}  ({o['reference']})", title_justify="left",
+                  show_header=False)
+        t.add_column("", style="bold")
+        t.add_column("")
+        t.add_row("settings", ", ".join(f"{k}={v}" for k, v in o["settings"].items()) or "none")
+        t.add_row("stop rules", o["stop_rules"])
+        t.add_row("bounds", o["bounds_handling"] or "–")
+        stdout.print(t)
+    stdout.print("Settings are changed with --pop, --iters and --opt-option KEY=VALUE; the docstrings "
+                 "(python -m pydoc hystfit.optimizers.<name>) give the equations.")

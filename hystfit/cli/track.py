@@ -54,10 +54,10 @@ def track(
     """Simulate the closed loop around an identified plant and compare controllers (paper 002 Tables 4–6).
 
     Writes OUT/<controller>.csv (time, reference, displacement, measured, voltage, command, error),
-    OUT/summary.json, OUT/report.md and OUT/plots/.
+    OUT/summary.json, OUT/report.md and OUT/plots/. Method and options: docs/invert.md.
     """
     from ..io import staged_output_dir
-    from ..report.track_report import comparison_text_rows, write_track_outputs
+    from ..report.track_report import comparison_headers, comparison_text_rows, write_track_outputs
     from ..results import load_params
     from ..track import parse_controllers, track as run_track
 
@@ -102,16 +102,16 @@ def track(
         return
     if quiet:
         return
-    u = res.unit
-    cols = ["controller", f"max_error_{u}", f"rmse_{u}", "max %", "rmse %"]
-    if tgt.steps:
-        cols += ["t90_s", "settle 5% (s)", "settle 2% (s)", "overshoot %"]
-    cols.append("limited %")
-    t = Table(title=f"plant {res.plant_model_name} ({res.plant_path}); outputs in {out}")
-    for c in cols:
-        t.add_column(c, justify="right")
-    for row in comparison_text_rows(res):
-        t.add_row(*row)
-    stdout.print(t)
+    titles = (f"tracking error, plant {res.plant_model_name} ({res.plant_path}); outputs in {out}",
+              "step response (paper 002 Table 6; – = not settled)")
+    for title, cols, rows in zip(titles, comparison_headers(res), comparison_text_rows(res)):
+        if not cols:
+            continue
+        t = Table(title=title)
+        for i, c in enumerate(cols):
+            t.add_column(c, justify="left" if i == 0 else "right", no_wrap=i == 0)
+        for row in rows:
+            t.add_row(*row)
+        stdout.print(t)
     for note in res.notes:
         stderr.print(f"note: {note}", markup=False, highlight=False, style="dim")

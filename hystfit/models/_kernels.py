@@ -9,6 +9,8 @@ not on the ``parallel=`` flag.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from .._jit import njit, prange
 
@@ -98,66 +100,196 @@ def _bw_advance(h, du, a, beta, gamma):
     return s * g1
 
 
-#: |c·Δv| below which the exact Bouc–Wen update uses its (exact to 1e-13) series form
+#: |c·Δv| up to which the series form of the exact Bouc–Wen update is used directly (larger
+#: arguments are halved until they fit and the result is squared back, see :func:`_bw_sample`)
 _BW_SERIES_MAX = 0.1
 
-
-@njit(cache=True, inline="always", fastmath={"contract", "arcp", "nsz", "reassoc"})
-def _bw_series_update(g, dv, a, c):
-    """g·e^{−x} + a·dv·φ(x), x = c·dv, φ(x) = (1 − e^{−x})/x, by Horner (|x| ≤ 0.1: error < 3e-13)."""
-    x = c * dv
-    # e^{-x} = Σ (−x)^k / k!,  φ(x) = Σ (−x)^k / (k+1)!   (k = 0..8)
-    e = 1.0 + (-x) * (1.0 + (-x) * (0.5 + (-x) * (1.0 / 6 + (-x) * (1.0 / 24 + (-x) * (1.0 / 120 + (-x) * (
-        1.0 / 720 + (-x) * (1.0 / 5040 + (-x) * (1.0 / 40320))))))))
-    phi = 1.0 + (-x) * (0.5 + (-x) * (1.0 / 6 + (-x) * (1.0 / 24 + (-x) * (1.0 / 120 + (-x) * (1.0 / 720 + (-x) * (
-        1.0 / 5040 + (-x) * (1.0 / 40320 + (-x) * (1.0 / 362880))))))))
-    return g * e + a * dv * phi
+#: fastmath flags of the Bouc–Wen kernels: no ``nnan``/``ninf`` (a diverging candidate must stay inf/NaN)
+_BW_FASTMATH = {"contract", "arcp", "nsz", "reassoc"}
 
 
-@njit(cache=True, fastmath={"contract", "arcp", "nsz", "reassoc"})
-def _bw_block(u, alpha, beta, gamma, out, p0, p1):
-    """Bouc–Wen over candidates p0:p1 (see :func:`bouc_wen_population`).
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_phi(x):
+    """φ(x) = (1 − e^{−x})/x for |x| ≤ 0.1 by its series to x⁷ (error < 3e-14; branch- and call-free)."""
+    mx = -x
+    return 1.0 + mx * (0.5 + mx * (1.0 / 6 + mx * (1.0 / 24 + mx * (1.0 / 120 + mx * (
+        1.0 / 720 + mx * (1.0 / 5040 + mx * (1.0 / 40320)))))))
 
-    Per sample, pass 1 is branch-free and call-free on contiguous 1-D state arrays (LLVM
-    vectorizes it across candidates): the exact update in series form, assuming no sign change
-    of h and |c·Δv| ≤ 0.1. Pass 2 redoes exactly, with exp/log, the few candidates where that
-    assumption failed.
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_sample(h, hold, X, F, a, be, ga, du, cabs_max):
+    """Advance the Bouc–Wen states ``h`` (m,) of a block of candidates exactly over one input
+    segment ``du``, in place (``hold`` receives the previous states).
+
+    In the driven direction s = sgn(Δu) and with g = s·h, v = |Δu|, the equation is
+    dg/dv = a − c·g with c = β + γ·sgn(g) (n = 1), solved exactly:
+    g₁ = g·e^{−cv} + a·v·φ(cv) = g + (a − c·g)·v·φ(cv),  φ(x) = (1 − e^{−x})/x.
+    φ is evaluated branch-free for every candidate at once (contiguous arrays, so LLVM vectorizes
+    the loops): by its series when |c·v| ≤ 0.1, otherwise by scaling and squaring — the argument
+    is halved ``nsq`` times (one count for the whole block, from ``cabs_max`` = max |c|) and
+    φ(2x) = φ(x)·(1 + e^{−x})/2 with e^{−x} = 1 − x·φ(x) is applied ``nsq`` times
+    (relative error ≲ 2^nsq · 3e-14). The few candidates whose state changes sign inside the
+    segment, or starts exactly at 0 (where the regime is set by the sign of a), are redone by
+    :func:`_bw_advance`, which locates the zero crossing exactly. ``X``, ``F`` are scratch (m,).
+    """
+    m = h.shape[0]
+    dv = abs(du)
+    s = 1.0 if du > 0.0 else -1.0
+    nsq = 0
+    v = cabs_max * dv
+    while v > _BW_SERIES_MAX and nsq < 64:
+        v *= 0.5
+        nsq += 1
+    nbad = 0
+    if nsq == 0:  # the common case near a fit: one pass
+        for i in range(m):
+            hi = h[i]
+            g = s * hi
+            c = be[i] + ga[i] * math.copysign(1.0, g)
+            g1 = g + (a[i] - c * g) * dv * _bw_phi(c * dv)
+            nbad += (g * g1 < 0.0) | (g == 0.0)
+            hold[i] = hi
+            h[i] = s * g1
+    else:
+        dvs = dv * 0.5 ** nsq
+        for i in range(m):
+            g = s * h[i]
+            x = (be[i] + ga[i] * math.copysign(1.0, g)) * dvs
+            X[i] = x
+            F[i] = _bw_phi(x)
+        for _ in range(nsq):
+            for i in range(m):
+                e = 1.0 - X[i] * F[i]
+                F[i] = F[i] * (1.0 + e) * 0.5
+                X[i] = 2.0 * X[i]
+        for i in range(m):
+            hi = h[i]
+            g = s * hi
+            c = be[i] + ga[i] * math.copysign(1.0, g)
+            g1 = g + (a[i] - c * g) * dv * F[i]
+            nbad += (g * g1 < 0.0) | (g == 0.0)
+            hold[i] = hi
+            h[i] = s * g1
+    if nbad:
+        for i in range(m):
+            if (hold[i] * h[i] < 0.0) | (hold[i] == 0.0):
+                h[i] = _bw_advance(hold[i], du, a[i], be[i], ga[i])
+
+
+#: what a Bouc–Wen block kernel produces
+_BW_STATES, _BW_SSE, _BW_MOMENTS = 0, 1, 2
+
+
+@njit(cache=True, fastmath=_BW_FASTMATH)
+def _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1):
+    """Bouc–Wen (n = 1, h(0) = 0) over the candidates p0:p1, time loop outside, candidates inside.
+
+    ``mode`` selects the output (one kernel, so the three uses cannot drift apart):
+
+    - ``_BW_STATES``: ``out`` (N, P) receives Kv·u + h + y0 (h alone when ``kv``, ``y0`` are zeros);
+    - ``_BW_SSE``: ``out`` (P, 1) receives Σ_k (Kv·u_k + h_k + y0 − y_k)², without storing h;
+    - ``_BW_MOMENTS``: ``out`` (P, 4) receives Σh², Σh·u, Σh, Σh·y (for the exact solve of the
+      parameters that enter linearly, see :meth:`hystfit.models.bw.BoucWen.separable`).
     """
     N = u.shape[0]
     m = p1 - p0
     h = np.zeros(m)
-    hn = np.empty(m)
-    bad = np.empty(m, dtype=np.uint8)
+    hn = np.zeros(m)  # previous states, for the few candidates redone exactly
+    X = np.empty(m)
+    F = np.empty(m)
     a = alpha[p0:p1].copy()
-    cp = beta[p0:p1] + gamma[p0:p1]
-    cn = beta[p0:p1] - gamma[p0:p1]
+    be = beta[p0:p1].copy()
+    ga = gamma[p0:p1].copy()
+    cp = be + ga
+    cn = be - ga
+    cabs_max = 0.0
     for i in range(m):
-        out[0, p0 + i] = 0.0
-    for k in range(1, N):
-        du = u[k] - u[k - 1]
-        if du != 0.0:
-            dv = abs(du)
-            s = 1.0 if du > 0.0 else -1.0
-            nbad = 0
+        cabs_max = max(cabs_max, abs(cp[i]), abs(cn[i]))
+    if not np.isfinite(cabs_max):
+        cabs_max = 1e300  # a NaN/inf candidate: the squaring count saturates, its own output is NaN/inf
+    acc0 = np.zeros(m)
+    acc1 = np.zeros(m)
+    acc2 = np.zeros(m)
+    acc3 = np.zeros(m)
+    if mode != _BW_MOMENTS:
+        k_v = kv[p0:p1].copy()
+        off = y0[p0:p1].copy()
+    else:
+        k_v = np.zeros(m)
+        off = np.zeros(m)
+    for k in range(N):
+        if k > 0:
+            du = u[k] - u[k - 1]
+            if du != 0.0:
+                _bw_sample(h, hn, X, F, a, be, ga, du, cabs_max)
+        if mode == _BW_STATES:
+            uk = u[k]
             for i in range(m):
-                g = s * h[i]
-                c = cp[i] if (g > 0.0) | ((g == 0.0) & (a[i] >= 0.0)) else cn[i]
-                g1 = _bw_series_update(g, dv, a[i], c)
-                b = (abs(c * dv) > _BW_SERIES_MAX) | ((g != 0.0) & ((g > 0.0) != (g1 > 0.0)))
-                bad[i] = b
-                nbad += b
-                hn[i] = s * g1
-            if nbad:
-                for i in range(m):
-                    if bad[i]:
-                        hn[i] = _bw_advance(h[i], du, a[i], beta[p0 + i], gamma[p0 + i])
+                out[k, p0 + i] = k_v[i] * uk + h[i] + off[i]
+        elif mode == _BW_SSE:
+            uk = u[k]
+            yk = y[k]
             for i in range(m):
-                h[i] = hn[i]
+                e = k_v[i] * uk + h[i] + off[i] - yk
+                acc0[i] += e * e
+        else:
+            uk = u[k]
+            yk = y[k]
+            for i in range(m):
+                hi = h[i]
+                acc0[i] += hi * hi
+                acc1[i] += hi * uk
+                acc2[i] += hi
+                acc3[i] += hi * yk
+    if mode == _BW_SSE:
         for i in range(m):
-            out[k, p0 + i] = h[i]
+            out[p0 + i, 0] = acc0[i]
+    elif mode == _BW_MOMENTS:
+        for i in range(m):
+            out[p0 + i, 0] = acc0[i]
+            out[p0 + i, 1] = acc1[i]
+            out[p0 + i, 2] = acc2[i]
+            out[p0 + i, 3] = acc3[i]
 
 
 @njit(cache=True)
+def _bw_serial(u, y, kv, alpha, beta, gamma, y0, mode, out):
+    _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, 0, alpha.shape[0])
+
+
+@njit(cache=True, parallel=True)
+def _bw_parallel(u, y, kv, alpha, beta, gamma, y0, mode, out, n_blocks):
+    """:func:`_bw_serial` with ``n_blocks`` candidate blocks spread over threads."""
+    P = alpha.shape[0]
+    size = (P + n_blocks - 1) // n_blocks
+    for b in prange(n_blocks):
+        p0 = b * size
+        p1 = min(P, p0 + size)
+        if p0 < p1:
+            _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1)
+
+
+#: populations at least this large are spread over threads
+PARALLEL_MIN_POP = 64
+
+
+def _bw_run(u, y, kv, alpha, beta, gamma, y0, mode, out):
+    """Run a Bouc–Wen block kernel over the population: threaded for large populations."""
+    import numba
+
+    P = alpha.shape[0]
+    threads = numba.get_num_threads()
+    if P >= PARALLEL_MIN_POP and threads > 1:
+        _bw_parallel(u, y, kv, alpha, beta, gamma, y0, mode, out, min(threads, P // 32))
+    else:
+        _bw_serial(u, y, kv, alpha, beta, gamma, y0, mode, out)
+    return out
+
+
+def _f64(x):
+    return np.ascontiguousarray(x, dtype=np.float64)
+
+
 def bouc_wen_population(u, alpha, beta, gamma):
     """Bouc–Wen hysteretic state h for a population, exponent n = 1, exact per sample.
 
@@ -177,24 +309,39 @@ def bouc_wen_population(u, alpha, beta, gamma):
     -------
     (N, P) array of h (output units); the caller transposes.
     """
-    P = alpha.shape[0]
-    out = np.empty((u.shape[0], P))
-    _bw_block(u, alpha, beta, gamma, out, 0, P)
-    return out
+    u = _f64(u)
+    alpha, beta, gamma = _f64(alpha), _f64(beta), _f64(gamma)
+    out = np.empty((u.shape[0], alpha.shape[0]))
+    zero = np.zeros(alpha.shape[0])
+    return _bw_run(u, np.empty(0), zero, alpha, beta, gamma, zero, _BW_STATES, out)
 
 
-@njit(cache=True, parallel=True)
-def bouc_wen_population_parallel(u, alpha, beta, gamma, n_blocks):
-    """:func:`bouc_wen_population` with ``n_blocks`` candidate blocks spread over threads."""
-    P = alpha.shape[0]
-    out = np.empty((u.shape[0], P))
-    size = (P + n_blocks - 1) // n_blocks
-    for b in prange(n_blocks):
-        p0 = b * size
-        p1 = min(P, p0 + size)
-        if p0 < p1:
-            _bw_block(u, alpha, beta, gamma, out, p0, p1)
-    return out
+def bouc_wen_output(u, kv, alpha, beta, gamma, y0):
+    """Bouc–Wen output Kv·u + h + y0 of a population → (N, P) (the caller transposes)."""
+    u = _f64(u)
+    out = np.empty((u.shape[0], _f64(alpha).shape[0]))
+    return _bw_run(u, np.empty(0), _f64(kv), _f64(alpha), _f64(beta), _f64(gamma), _f64(y0), _BW_STATES, out)
+
+
+#: kept for callers of the former name: same as :func:`bouc_wen_population`
+bouc_wen_h = bouc_wen_population
+
+
+def bouc_wen_sse(u, y, kv, alpha, beta, gamma, y0):
+    """Σ_k (Kv·u_k + h_k + y0 − y_k)² per candidate (P,), h from :func:`bouc_wen_population`,
+    computed in the time loop without storing the (N, P) outputs."""
+    u, y = _f64(u), _f64(y)
+    out = np.empty((_f64(alpha).shape[0], 1))
+    return _bw_run(u, y, _f64(kv), _f64(alpha), _f64(beta), _f64(gamma), _f64(y0), _BW_SSE, out)[:, 0]
+
+
+def bouc_wen_moments(u, y, beta, gamma):
+    """Per candidate (P, 4): Σg², Σg·u, Σg, Σg·y of the unit-gain state g (α = 1), without storing g."""
+    u, y = _f64(u), _f64(y)
+    beta, gamma = _f64(beta), _f64(gamma)
+    out = np.empty((beta.shape[0], 4))
+    z = np.empty(0)
+    return _bw_run(u, y, z, np.ones(beta.shape[0]), beta, gamma, z, _BW_MOMENTS, out)
 
 
 @njit(cache=True)
@@ -205,18 +352,3 @@ def bouc_wen_step(h0, u_prev, u_new, alpha, beta, gamma):
     for i in range(C):
         out[i] = _bw_advance(h0, u_new[i] - u_prev, alpha, beta, gamma)
     return out
-
-
-#: populations at least this large are spread over threads
-PARALLEL_MIN_POP = 64
-
-
-def bouc_wen_h(u, alpha, beta, gamma):
-    """Dispatch: the threaded kernel for large populations, the serial one otherwise → (N, P)."""
-    import numba
-
-    P = alpha.shape[0]
-    threads = numba.get_num_threads()
-    if P >= PARALLEL_MIN_POP and threads > 1:
-        return bouc_wen_population_parallel(u, alpha, beta, gamma, min(threads, P // 32))
-    return bouc_wen_population(u, alpha, beta, gamma)

@@ -91,6 +91,17 @@ class Model(ABC):
         u = np.ascontiguousarray(u, dtype=np.float64)
         return lambda theta: self.simulate(theta, u, dt)
 
+    def sse_evaluator(self, u: np.ndarray, dt: float, y: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+        """A closure ``theta (P, d) → (P,)`` giving Σ_k (ŷ_k(θ) − y_k)² for one capture, or None.
+
+        The identification objective (:class:`hystfit.objective.Objective`) uses it instead of
+        simulating when a model can compute the sum of squared errors without materialising the
+        (P, N) outputs: a fused kernel (Bouc–Wen), or an exact quadratic form when the output is
+        linear in θ (see :func:`linear_sse_evaluator`). It must equal the simulated sum to
+        rounding (the contract tests check it). The default, None, means: simulate.
+        """
+        return linear_sse_evaluator(self, u, dt, y)
+
     def simulate_one(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         """Simulate a single parameter vector θ (d,) → y (N,)."""
         return self.simulate(np.atleast_2d(np.asarray(theta, float)), np.asarray(u, float), dt)[0]
@@ -142,6 +153,42 @@ class Model(ABC):
         if theta.ndim != 2 or theta.shape[1] != d:
             raise ValueError(f"theta must have shape (P, {d}), got {theta.shape}")
         return theta
+
+
+def linear_sse_evaluator(model: Model, u: np.ndarray, dt: float, y: np.ndarray):
+    """Σ(ŷ − y)² as an exact quadratic form when the model's output is linear in all of θ.
+
+    Applies when ``model.separable()`` declares every parameter linear (PI with fixed thresholds,
+    Hammerstein with a fixed linear part): ŷ = C + B·θ with a basis B (N, d) that does not
+    depend on θ. With θ* a least-squares solution and r* = y − C − Bθ* its residual,
+    Σ(ŷ − y)² = ‖r*‖² + (θ − θ*)ᵀ BᵀB (θ − θ*) exactly (Bᵀr* = 0), so a population costs
+    O(P·d²) instead of O(P·N·d) — and the form is centred on θ*, so there is no cancellation
+    between large terms near the optimum. Returns None for any other model.
+    """
+    sep = model.separable()
+    if sep is None or len(sep.nonlinear) != 0:
+        return None
+    d = len(sep.linear)
+    B = sep.basis_factory(np.ascontiguousarray(u, dtype=np.float64), dt)(np.empty((1, 0)))
+    C = None
+    if isinstance(B, tuple):
+        B, C = B
+    B = np.asarray(B, dtype=np.float64)[0]  # (N, d)
+    target = np.asarray(y, dtype=np.float64) - (0.0 if C is None else np.asarray(C, dtype=np.float64)[0])
+    if B.ndim != 2 or B.shape[1] != d or not (np.all(np.isfinite(B)) and np.all(np.isfinite(target))):
+        return None
+    theta_star = np.linalg.lstsq(B, target, rcond=None)[0]
+    r = target - B @ theta_star
+    sse_min = float(r @ r)
+    G = B.T @ B
+    order = np.asarray(sep.linear, dtype=int)
+
+    def sse(theta: np.ndarray) -> np.ndarray:
+        delta = np.atleast_2d(theta)[:, order] - theta_star
+        with np.errstate(all="ignore"):
+            return sse_min + np.einsum("pi,ij,pj->p", delta, G, delta)
+
+    return sse
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels import bouc_wen_h, bouc_wen_step
+from ._kernels import bouc_wen_moments, bouc_wen_output, bouc_wen_population, bouc_wen_sse, bouc_wen_step
 from ._kernels_extra import bouc_wen_n_population, bouc_wen_n_step
 from .base import Model
 
@@ -107,26 +107,66 @@ class BoucWen(Model):
         u = np.ascontiguousarray(u, dtype=np.float64)
         kv, a, b, g, y0, n = self._physical(theta)
         if n is None:
-            h = bouc_wen_h(u, a, b, g).T  # (P, N), exact for n = 1
-        else:
-            h = bouc_wen_n_population(u, a, b, g, n).T
-        y = kv[:, None] * u[None, :] + h + y0[:, None]
-        return y
+            return bouc_wen_output(u, kv, a, b, g, y0).T  # (P, N) view of the kernel's (N, P); exact for n = 1
+        h = bouc_wen_n_population(u, a, b, g, n).T
+        return kv[:, None] * u[None, :] + h + y0[:, None]
+
+    def sse_evaluator(self, u, dt, y):
+        """Σ(ŷ − y)² from the fused kernel :func:`~hystfit.models._kernels.bouc_wen_sse` (n = 1):
+        the (P, N) outputs are never stored. With a free exponent: None (simulate)."""
+        if self.free_exponent:
+            return None
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        y = np.ascontiguousarray(y, dtype=np.float64)
+
+        def sse(theta):
+            theta = self.check_theta(theta, self.d)
+            kv, a, b, g, y0, _ = self._physical(theta)
+            return bouc_wen_sse(u, y, kv, a, b, g, y0)
+
+        return sse
 
     def separable(self):
         """Kv, α and y0 enter linearly (n = 1): with h = α·g, g solves the same equation with α = 1
-        (ġ = u̇ − β|u̇|g − γu̇|g|), so y = Kv·u + α·g(β, γ) + y0. Only β and γ are searched."""
+        (ġ = u̇ − β|u̇|g − γu̇|g|), so y = Kv·u + α·g(β, γ) + y0. Only β and γ are searched.
+
+        The normal equations of (Kv, α, y0) come straight from the fused kernel
+        :func:`~hystfit.models._kernels.bouc_wen_moments` (Σg², Σg·u, Σg, Σg·y per candidate),
+        so a search never stores g."""
         from ..separable import Separable
 
         if self.free_exponent:
             return None  # with a free n, α no longer scales h: no exact split
+
+        def gram_factory(u, dt, y):
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            y = np.ascontiguousarray(y, dtype=np.float64)
+            su, suu, suy, sy, yy, n = u.sum(), u @ u, u @ y, y.sum(), float(y @ y), float(u.shape[0])
+
+            def gram(theta_nl):
+                M = bouc_wen_moments(u, y, theta_nl[:, 0], theta_nl[:, 1])  # Σg², Σgu, Σg, Σgy
+                P = M.shape[0]
+                G = np.empty((P, 3, 3))
+                G[:, 0, 0] = suu
+                G[:, 0, 1] = G[:, 1, 0] = M[:, 1]
+                G[:, 0, 2] = G[:, 2, 0] = su
+                G[:, 1, 1] = M[:, 0]
+                G[:, 1, 2] = G[:, 2, 1] = M[:, 2]
+                G[:, 2, 2] = n
+                c = np.empty((P, 3))
+                c[:, 0] = suy
+                c[:, 1] = M[:, 3]
+                c[:, 2] = sy
+                return G, c, yy
+
+            return gram
 
         def factory(u, dt):
             u = np.ascontiguousarray(u, dtype=np.float64)
 
             def basis(theta_nl):
                 P = theta_nl.shape[0]
-                g = bouc_wen_h(u, np.ones(P), np.ascontiguousarray(theta_nl[:, 0]),
+                g = bouc_wen_population(u, np.ones(P), np.ascontiguousarray(theta_nl[:, 0]),
                                         np.ascontiguousarray(theta_nl[:, 1])).T
                 B = np.empty((P, u.shape[0], 3))
                 B[:, :, 0] = u[None, :]
@@ -136,7 +176,7 @@ class BoucWen(Model):
 
             return basis
 
-        return Separable((0, 1, 4), (2, 3), factory)
+        return Separable((0, 1, 4), (2, 3), factory, gram_factory, gram_fused=True)
 
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
         return np.zeros(1)

@@ -6,13 +6,14 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-import scipy.fft as sfft
-
+from .._lazy import lazy_module
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
 from ._kernels_extra import gl_filter_population, gl_weights
 from .base import Model
+
+sfft = lazy_module("scipy.fft")  # imported on first use: keeps start-up fast
 
 #: Memory windows up to this many past samples use the direct recurrence; longer ones the FFT.
 RECURRENCE_MAX_TERMS = 200

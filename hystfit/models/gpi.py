@@ -227,7 +227,30 @@ class GPI(Model):
 
             return basis
 
-        return Separable(lin, nl, factory)
+        def gram_factory(u, dt, y):
+            """Normal equations of (ρ, y0) from z (N, P) directly: Σz², Σz, Σz·y per candidate."""
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            y = np.ascontiguousarray(y, dtype=np.float64)
+            n, sy, yy = float(u.shape[0]), float(y.sum()), float(y @ y)
+
+            def gram(theta_nl):
+                theta_nl = np.atleast_2d(theta_nl)
+                P = theta_nl.shape[0]
+                full = np.zeros((P, 12))
+                full[:, nl] = theta_nl
+                z = self._z(full, u)  # (N, P)
+                G = np.empty((P, 2, 2))
+                G[:, 0, 0] = np.einsum("np,np->p", z, z)
+                G[:, 0, 1] = G[:, 1, 0] = z.sum(axis=0)
+                G[:, 1, 1] = n
+                c = np.empty((P, 2))
+                c[:, 0] = y @ z
+                c[:, 1] = sy
+                return G, c, yy
+
+            return gram
+
+        return Separable(lin, nl, factory, gram_factory)
 
     # ------------------------------------------------------------------ stepping
     def _unpack(self, theta: np.ndarray):

@@ -9,14 +9,19 @@ from typing import Callable, Sequence
 
 import numpy as np
 from .._jit import njit
-from scipy import linalg, optimize, signal
 
+from .._lazy import lazy_module
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
 from ..registry import models
 from ._kernels import play_matrix
 from .base import Model
 from .pi import PI
+
+# scipy submodules are imported on first use: keeps start-up fast
+signal = lazy_module("scipy.signal")
+linalg = lazy_module("scipy.linalg")
+optimize = lazy_module("scipy.optimize")
 
 #: relative tolerance on the sample period when a linear part identified at one rate is used at another
 _DT_RTOL = 1e-6
@@ -701,6 +706,36 @@ class Hammerstein(Model):
                        B=tuple(float(x) for x in lin.B), C=tuple(float(x) for x in lin.C), D=float(lin.D),
                        dt_s=float(lin.dt) if lin.order else None, linear_method=lin.method,
                        singular_values=tuple(float(x) for x in lin.singular_values))
+
+    def structure_summary(self) -> str:
+        """One sentence for reports: how the linear part was obtained and its modes (f_n, ζ from the
+        discrete poles, p = e^{s·Ts})."""
+        if self.order == 0:
+            return "Linear part: none (static PI; identify it from captures at ≥ 2 frequencies or a broadband one)."
+        how = {"era": "by correlation → impulse response → Hankel SVD (paper 003 eq. 4–12) from a broadband capture",
+               "sine-gain-phase": "as a second-order model fitted to the gain and phase measured per frequency "
+                                  "(sine-only data: paper 003's Hankel route needs a broadband capture)",
+               }.get(self.linear_method, f"({self.linear_method})")
+        s = np.log(self.linear.poles().astype(complex)) / self.dt_s
+        modes = sorted({(round(abs(p) / (2 * np.pi), 6), round(-p.real / abs(p), 6)) for p in s if abs(p) > 0})
+        text = ", ".join(f"f_n {fn:.4g} Hz ζ {z:.3g}" for fn, z in modes)
+        note = ""
+        if self.linear_method == "sine-gain-phase" and any(fn >= 0.449 / self.dt_s or z <= 0.0101 for fn, z in modes):
+            note = (" The mode lies at a limit of the fit (f_n ≤ 0.45·f_s, ζ ≥ 0.01): the captures' frequencies "
+                    "are too far below the resonance to determine it; a broadband capture would.")
+        return f"Linear part: order {self.order}, identified {how}; modes: {text or 'none'}.{note}"
+
+    @classmethod
+    def example(cls, scale: DataScale, fn_Hz: float = 1200.0, zeta: float = 0.15) -> "Hammerstein":
+        """A representative structure for documentation and the model contract suite: thresholds
+        from ``scale`` and a unit-gain second-order linear part (``fn_Hz``, ``zeta``: a P-721-like
+        stage, capped at a tenth of the sample rate), discretized at ``scale.dt`` with a zero-order
+        hold. The default ``Hammerstein()`` has no linear part until :meth:`prepare` identifies one.
+        """
+        fn = min(float(fn_Hz), 0.1 / scale.dt)
+        b, a = _zoh_second_order(1.0, fn, float(zeta), scale.dt)
+        lin = LinearSS.from_tf(b, a, scale.dt).normalized()
+        return cls().adapt(scale).with_linear(lin)
 
     def prepare(self, captures) -> "Hammerstein":
         """Identify the linear part once from all captures (:meth:`from_data`), unless already set.

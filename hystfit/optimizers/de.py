@@ -7,14 +7,16 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import differential_evolution
 
 from ..errors import ConfigError
 from ..registry import optimizers
 from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
 
-#: scipy ≥ 1.15 takes the generator as ``rng``; older releases as ``seed`` (which accepts a Generator too).
-_RNG_KEYWORD = "rng" if "rng" in inspect.signature(differential_evolution).parameters else "seed"
+
+
+def _rng_keyword(differential_evolution) -> str:
+    """scipy ≥ 1.15 takes the generator as ``rng``; older releases as ``seed`` (which accepts a Generator too)."""
+    return "rng" if "rng" in inspect.signature(differential_evolution).parameters else "seed"
 
 _STRATEGIES = ("best1bin", "best1exp", "rand1bin", "rand1exp", "rand2bin", "rand2exp", "randtobest1bin",
                "randtobest1exp", "currenttobest1bin", "currenttobest1exp", "best2exp", "best2bin")
@@ -144,7 +146,9 @@ class DE(Optimizer):
 
         mutation = (self.mutation_min if self.mutation_min == self.mutation_max
                     else (self.mutation_min, self.mutation_max))
-        kwargs = {_RNG_KEYWORD: rng}
+        from scipy.optimize import differential_evolution  # deferred: keeps start-up fast
+
+        kwargs = {_rng_keyword(differential_evolution): rng}
         if x0 is not None:
             kwargs["x0"] = np.clip(np.asarray(x0, float).ravel(), lower, upper)
         try:

@@ -1,8 +1,10 @@
 """Writes the outputs of ``hystfit compare``: compare.csv, compare.md and the figures.
 
-Tables follow the papers: 002 Table 3 (per-model worst cases), 002 Table 2 (runtime per model and
-condition), 004 Table 2 (optimizer statistics over repeated runs), plus a ranking that says where
-differences are within the run-to-run spread.
+Tables follow the papers' layouts: 002 Table 3 (a column per model, a row per performance figure,
+each worst case with the condition where it occurred), 002 Table 2 (runtime: a row per model and
+voltage level, a column per frequency), 004 Table 2 (J over repeated runs, per optimizer; also for
+the search alone when a polish follows it), plus a ranking that says where differences are within
+the run-to-run spread, or, with single runs, whether they hold condition by condition.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ def compare_frame(res: CompareResult) -> pd.DataFrame:
             continue
         for r in c.runs:
             row = {**base, "run": r.run, "seed": r.seed, "best_run": r.run == c.best_run, "objective_mse": r.fun,
-                   "j": r.j}
+                   "j": r.j, "objective_mse_search": r.search_fun, "j_search": r.search_j}
             for k in mcols:
                 row[k] = r.metrics.get(k, np.nan)
             row.update({"runtime_s": r.wall_time_s, "evaluations": r.nfev, "error": ""})
@@ -45,94 +47,184 @@ def _best_cells(res: CompareResult, optimizer: str) -> list[CellResult]:
     return [c for c in res.cells if c.optimizer == optimizer and c.ok]
 
 
+def _worst(values: list[float], worst) -> int | None:
+    """Index of the worst finite value (``worst`` is max or min), None when none is finite."""
+    finite = [i for i, v in enumerate(values) if np.isfinite(v)]
+    return worst(finite, key=lambda i: values[i]) if finite else None
+
+
 def model_summary(res: CompareResult, optimizer: str) -> pd.DataFrame:
-    """002 Table 3: per model, the worst RMSE/MAPE/SMAPE/R² over conditions (and where), max error per voltage."""
+    """002 Table 3 data: per model, the worst RMSE/MAPE/SMAPE/R² over conditions and where each
+    occurred, and per voltage level the maximum error and the condition where it occurred."""
     u = res.unit
     amps = sorted({k[0] for k, _ in res.conditions})
     rows = []
     for m in res.models:
         cells = [c for c in _best_cells(res, optimizer) if c.model == m]
-        if not cells:
-            rows.append({"model": m, "parameters": "–", "note": "failed on every condition"})
-            continue
-        mets = [c.best.metrics for c in cells]
-        row = {"model": m, "parameters": cells[0].n_params}
-        for key, worst in ((f"rmse_{u}", max), ("mape", max), ("smape", max), ("r2", min)):
-            vals = [mm.get(key, np.nan) for mm in mets]
-            finite = [v for v in vals if np.isfinite(v)]
-            if finite:
-                w = worst(finite)
-                row[f"worst {key}"] = w
-                row[f"worst {key} at"] = cells[vals.index(w)].label
-        for a in amps:
-            errs = [c.best.metrics.get(f"max_error_{u}", np.nan) for c in cells if c.amplitude_V == a]
-            row[f"max error {fmt(a)} V ({u})"] = max(errs) if errs else np.nan
         failed = [c.label for c in res.cells if c.model == m and c.optimizer == optimizer and not c.ok]
-        if failed:
-            row["note"] = f"failed at {', '.join(failed)}"
+        row = {"model": m, "optimizer": optimizer, "parameters": cells[0].n_params if cells else np.nan}
+        for key, worst in ((f"rmse_{u}", max), ("mape", max), ("smape", max), ("r2", min)):
+            vals = [c.best.metrics.get(key, np.nan) for c in cells]
+            i = _worst(vals, worst)
+            row[f"worst {key}"] = vals[i] if i is not None else np.nan
+            row[f"worst {key} at"] = cells[i].label if i is not None else ""
+        for a in amps:
+            at_a = [c for c in cells if c.amplitude_V == a]
+            errs = [c.best.metrics.get(f"max_error_{u}", np.nan) for c in at_a]
+            i = _worst(errs, max)
+            row[f"max error {fmt(a)} V ({u})"] = errs[i] if i is not None else np.nan
+            row[f"max error {fmt(a)} V at"] = at_a[i].label if i is not None else ""
+        row["failed at"] = ", ".join(failed)
         rows.append(row)
     return pd.DataFrame(rows)
 
 
-def runtime_table(res: CompareResult, optimizer: str) -> pd.DataFrame:
-    """002 Table 2: identification time (s, median over runs) per model × condition."""
+def _column_name(model: str, optimizer: str, res: CompareResult) -> str:
+    return model if len(res.optimizers) == 1 else f"{model} / {optimizer}"
+
+
+def _frequency_text(f: float) -> str:
+    return f"{fmt(f)} Hz" if np.isfinite(f) else "n/a"
+
+
+def table3(res: CompareResult) -> pd.DataFrame:
+    """002 Table 3 as printed in the paper: one row per performance figure, one column per model
+    (per model / optimizer when several optimizers are compared); each worst value carries the
+    condition where it occurred, each per-voltage maximum error the frequency."""
+    u = res.unit
+    amps = sorted({k[0] for k, _ in res.conditions})
+    shown = plots.display_unit(u)
+    labels = ["parameters", f"maximum RMSE ({shown})", "maximum MAPE", "maximum SMAPE", "minimum R²"]
+    labels += [f"maximum error ({shown}) at {fmt(a)} V" for a in amps] + ["failed conditions"]
+    table = {"performance": labels}
+    for o in res.optimizers:
+        summary = model_summary(res, o)
+        for _, r in summary.iterrows():
+            col = [fmt(r["parameters"]) if np.isfinite(r["parameters"]) else "–"]
+            for key in (f"rmse_{u}", "mape", "smape", "r2"):
+                v, at = r[f"worst {key}"], r[f"worst {key} at"]
+                col.append(f"{fmt(v)} ({at})" if at else "–")
+            for a in amps:
+                v, at = r[f"max error {fmt(a)} V ({u})"], r[f"max error {fmt(a)} V at"]
+                freq = next((c.frequency_Hz for c in res.cells if c.label == at), np.nan)
+                col.append(f"{fmt(v)} ({_frequency_text(freq)})" if at else "–")
+            col.append(r["failed at"] or "none")
+            table[_column_name(r["model"], o, res)] = col
+    return pd.DataFrame(table)
+
+
+def runtime_table(res: CompareResult) -> pd.DataFrame:
+    """002 Table 2: identification time (s, median over runs) — one row per model (× optimizer)
+    and voltage level, one column per frequency, as the paper prints it."""
+    amps = sorted({k[0] for k, _ in res.conditions})
+    freqs = sorted({k[1] for k, _ in res.conditions}, key=lambda f: (not np.isfinite(f), f))
+    by_key = {(c.model, c.optimizer, c.amplitude_V, c.frequency_Hz): c for c in res.cells}
     rows = []
     for m in res.models:
-        row = {"model": m}
-        for _, lab in res.conditions:
-            c = res.cell(m, optimizer, lab)
-            row[lab] = float(np.median([r.wall_time_s for r in c.runs])) if c and c.ok else np.nan
-        rows.append(row)
+        for o in res.optimizers:
+            for a in amps:
+                row = {"model": m} if len(res.optimizers) == 1 else {"model": m, "optimizer": o}
+                row["voltage"] = f"0–{fmt(a)} V"
+                for f in freqs:
+                    c = by_key.get((m, o, a, f))
+                    row[_frequency_text(f)] = (float(np.median([r.wall_time_s for r in c.runs]))
+                                               if c is not None and c.ok else np.nan)
+                rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _stats(values: list[float], prefix: str, suffix: str = "") -> dict[str, float]:
+    a = np.asarray(values, float)
+    return {f"{prefix} min{suffix}": float(a.min()), f"{prefix} max{suffix}": float(a.max()),
+            f"{prefix} mean{suffix}": float(a.mean()),
+            f"{prefix} std{suffix}": float(a.std(ddof=1)) if a.size > 1 else 0.0}
 
 
 def optimizer_table(res: CompareResult) -> pd.DataFrame:
-    """004 Table 2: per model, optimizer and condition, J over runs (min / max / mean / std) and time."""
+    """004 Table 2: per model, optimizer and condition, the final J and RMSE over runs
+    (min / max / mean / std, after the polish if any), the median time and mean evaluations."""
     u = res.unit
     rows = []
     for c in res.cells:
         if not c.ok:
             continue
-        js = np.array([r.j for r in c.runs])
-        rm = np.array([r.metrics.get(f"rmse_{u}", np.nan) for r in c.runs])
-        rows.append({"model": c.model, "optimizer": c.optimizer, "condition": c.label, "runs": len(c.runs),
-                     "J min": js.min(), "J max": js.max(), "J mean": js.mean(),
-                     "J std": js.std(ddof=1) if js.size > 1 else 0.0,
-                     f"RMSE mean ({u})": rm.mean(), "time median (s)": float(np.median([r.wall_time_s for r in c.runs])),
-                     "evaluations mean": float(np.mean([r.nfev for r in c.runs]))})
+        row = {"model": c.model, "optimizer": c.optimizer, "condition": c.label, "runs": len(c.runs)}
+        row.update(_stats([r.j for r in c.runs], "J"))
+        row.update(_stats([r.metrics.get(f"rmse_{u}", np.nan) for r in c.runs], "RMSE", f" ({u})"))
+        row["time median (s)"] = float(np.median([r.wall_time_s for r in c.runs]))
+        row["evaluations mean"] = float(np.mean([r.nfev for r in c.runs]))
+        rows.append(row)
     return pd.DataFrame(rows)
 
 
-def _rank_text(names: list[str], means: list[float], samples: list[np.ndarray], what: str, unit: str) -> list[str]:
-    """Rank by mean; between neighbours, say whether the difference is beyond run-to-run variation.
+def search_table(res: CompareResult) -> pd.DataFrame:
+    """The global search alone (before the least-squares polish): J over runs per model, optimizer
+    and condition. Equal to :func:`optimizer_table`'s J without a polish, and for ``auto`` and
+    ``lsq`` (which are not polished again)."""
+    rows = []
+    for c in res.cells:
+        if not c.ok:
+            continue
+        row = {"model": c.model, "optimizer": c.optimizer, "condition": c.label, "runs": len(c.runs)}
+        row.update(_stats([r.search_j for r in c.runs], "J"))
+        row["runs the polish improved by > 0.1 %"] = int(sum(r.j < r.search_j * (1 - 1e-3) for r in c.runs))
+        rows.append(row)
+    return pd.DataFrame(rows)
 
-    With at least 3 values per group the two-sided Mann–Whitney U test decides (p < 0.05);
-    with fewer, the gap is compared with twice the larger standard deviation; a single run per
-    group has no spread to compare with, and the text says so.
+
+def _compare_note(a: np.ndarray, b: np.ndarray, paired: bool, name_b: str, what: str) -> str:
+    """How group ``a`` (the better mean) compares with the next one, ``b``.
+
+    Unpaired samples (values over runs): the two-sided Mann–Whitney U test with at least 3 values
+    per group; with 2, the gap against twice the larger standard deviation; with 1, the spread
+    is unknown and the note says so. Paired samples (one value per condition, single runs): the
+    Wilcoxon signed-rank test over conditions with at least 6 conditions, else a count of the
+    conditions where ``a`` is lower.
     """
-    from scipy.stats import mannwhitneyu
+    from scipy.stats import mannwhitneyu, wilcoxon
 
-    order = np.argsort(means)
+    gap = float(np.mean(b) - np.mean(a))
+    if gap <= 1e-6 * max(abs(float(np.mean(a))), 1e-300):
+        return f" — tied with `{name_b}`"
+    if paired:
+        d = b - a
+        lower = int(np.sum(d > 0))
+        if d.size >= 6 and np.any(d != 0):
+            p = float(wilcoxon(a, b).pvalue)
+            verdict = "consistently below" if p < 0.05 else "not consistently below"
+            return (f" — {verdict} `{name_b}` (lower at {lower} of {d.size} conditions, "
+                    f"Wilcoxon signed-rank over conditions p = {p:.2g})")
+        return f" — lower than `{name_b}` at {lower} of {d.size} conditions"
+    if min(a.size, b.size) >= 3:
+        p = float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
+        verdict = "better than" if p < 0.05 else "not distinguishable from"
+        return f" — {verdict} `{name_b}` (Mann–Whitney U over runs, p = {p:.2g})"
+    if min(a.size, b.size) == 2:
+        spread = max(np.std(a, ddof=1), np.std(b, ddof=1))
+        if gap <= 2 * spread:
+            return f" — within run-to-run spread of `{name_b}` (gap {fmt(gap)} ≤ 2σ = {fmt(2 * spread)})"
+        return f" — below `{name_b}` by more than twice the run-to-run spread ({fmt(gap)} > {fmt(2 * spread)})"
+    return ""
+
+
+def _rank_text(names: list[str], samples: list[np.ndarray], what: str, unit: str, *, paired: bool = False,
+               medians: list[float] | None = None) -> list[str]:
+    """Rank by the mean of each group's samples; between neighbours say whether the difference is
+    beyond the spread (:func:`_compare_note`)."""
+    means = [float(np.mean(s)) for s in samples]
+    order = np.argsort(means, kind="stable")
     lines = []
     for pos, i in enumerate(order):
         note = ""
         if pos + 1 < len(order):
             j = order[pos + 1]
-            a, b = np.asarray(samples[i], float), np.asarray(samples[j], float)
-            gap = means[j] - means[i]
-            if gap <= 1e-6 * max(abs(means[i]), 1e-300):
-                note = f" — tied with `{names[j]}`"
-            elif min(a.size, b.size) >= 3:
-                p = float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
-                verdict = "better than" if p < 0.05 else "not distinguishable from"
-                note = f" — {verdict} `{names[j]}` (Mann–Whitney U over runs, p = {p:.2g})"
-            elif min(a.size, b.size) >= 2:
-                spread = max(np.std(a, ddof=1), np.std(b, ddof=1))
-                if gap <= 2 * spread:
-                    note = f" — within run-to-run spread of `{names[j]}` (gap {fmt(gap)} ≤ 2σ = {fmt(2 * spread)})"
-            else:
-                note = " (single run: run-to-run spread unknown)"
-        lines.append(f"{pos + 1}. `{names[i]}`: mean {what} {fmt(means[i])} {unit}{note}")
+            note = _compare_note(np.asarray(samples[i], float), np.asarray(samples[j], float), paired, names[j], what)
+        med = ""
+        if medians is not None:
+            med = f", median {fmt(medians[i])}"
+            if means[i] > 2 * medians[i]:
+                med += " (the mean is dominated by a few conditions; see the worst cases below)"
+        lines.append(f"{pos + 1}. `{names[i]}`: mean {what} {fmt(means[i])}{(' ' + unit) if unit else ''}{med}{note}")
     return lines
 
 
@@ -141,35 +233,58 @@ def ranking(res: CompareResult) -> list[str]:
     out = []
     if len(res.models) > 1:
         for o in res.optimizers:
-            names, means, samples = [], [], []
+            names, samples, medians = [], [], []
             for m in res.models:
                 cells = [c for c in res.cells if c.model == m and c.optimizer == o and c.ok]
                 if len(cells) != len(res.conditions):
                     continue
                 names.append(m)
-                means.append(float(np.mean([c.best.metrics[f"rmse_{u}"] for c in cells])))
-                # per run: the RMSE averaged over conditions
-                nr = min(len(c.runs) for c in cells)
-                samples.append(np.array([np.mean([c.runs[r].metrics[f"rmse_{u}"] for c in cells]) for r in range(nr)]))
+                best = np.array([c.best.metrics[f"rmse_{u}"] for c in cells])
+                medians.append(float(np.median(best)))
+                if res.runs > 1:  # per run: the RMSE averaged over conditions
+                    nr = min(len(c.runs) for c in cells)
+                    samples.append(np.array([np.mean([c.runs[r].metrics[f"rmse_{u}"] for c in cells])
+                                             for r in range(nr)]))
+                else:  # one value per condition, paired across models by condition
+                    samples.append(best)
+            skipped = [m for m in res.models if m not in names]
             if names:
-                out += [f"Models with `{o}`, by mean RMSE (best run per condition) over the "
-                        f"{len(res.conditions)} condition(s):", ""]
-                out += _rank_text(names, means, samples, "RMSE", u) + [""]
+                out += [f"Models with `{o}`, by mean RMSE over the {len(res.conditions)} condition(s):", ""]
+                if res.runs == 1:
+                    out += ["One run per cell: the run-to-run spread is unknown (rerun with `--runs 3` or more to "
+                            "test it). Neighbours are compared condition by condition instead, which shows whether "
+                            "one model is consistently better, not whether a rerun would change the order.", ""]
+                else:
+                    out += [f"Each model's mean is over runs of the RMSE averaged over conditions "
+                            f"({res.runs} runs).", ""]
+                out += _rank_text(names, samples, "RMSE", u, paired=res.runs == 1, medians=medians)
+                if skipped:
+                    out += [f"- not ranked (failed on some condition): {', '.join(f'`{m}`' for m in skipped)}"]
+                out += [""]
     if len(res.optimizers) > 1:
+        polished = res.polish and any(o not in ("auto", "lsq") for o in res.optimizers)
         for m in res.models:
-            names, means, samples = [], [], []
+            names, samples = [], []
             for o in res.optimizers:
                 cells = [c for c in res.cells if c.model == m and c.optimizer == o and c.ok]
                 if len(cells) != len(res.conditions):
                     continue
                 names.append(o)
                 nr = min(len(c.runs) for c in cells)
-                per_run = np.array([np.mean([c.runs[r].j for c in cells]) for r in range(nr)])
-                means.append(float(per_run.mean()))
-                samples.append(per_run)
+                samples.append(np.array([np.mean([c.runs[r].search_j for c in cells]) for r in range(nr)]))
             if names:
-                out += [f"Optimizers on `{m}`, by mean final J over runs (averaged over conditions):", ""]
-                out += _rank_text(names, means, samples, "J", "") + [""]
+                what = "J of the search (before the polish)" if polished else "final J"
+                out += [f"Optimizers on `{m}`, by mean {what} over runs (averaged over conditions):", ""]
+                out += _rank_text(names, samples, "J", "") + [""]
+                if polished:
+                    fin = [np.mean([c.runs[r].j for c in res.cells if c.model == m and c.optimizer == o and c.ok
+                                    for r in range(len(c.runs))]) for o in names]
+                    spread = 100 * (max(fin) - min(fin)) / min(fin) if min(fin) > 0 else np.nan
+                    verdict = ("the polish, not the search, sets the final accuracy here; the search decides the "
+                               "basin and the time" if spread < 1 else "the search still matters after the polish")
+                    by = f"{fmt(spread)} %" if spread >= 0.01 else "less than 0.01 %"
+                    out += [f"After the least-squares polish the mean final J of these optimizers differ by "
+                            f"{by} (004 Table 2 style table below): {verdict}.", ""]
     if not out:
         out = ["One model and one optimizer: nothing to rank.", ""]
     return out
@@ -219,35 +334,58 @@ def _figures(res: CompareResult, fig_dir: Path) -> list[str]:
                                                          title=f"{m} at {focus}: convergence of each optimizer"))
         if res.runs > 1:
             for lab in labels:
-                groups = {o: [r.j for r in res.cell(m, o, lab).runs] for o in res.optimizers
+                groups = {o: [r.search_j for r in res.cell(m, o, lab).runs] for o in res.optimizers
                           if res.cell(m, o, lab) and res.cell(m, o, lab).ok}
+                what = "J of the search (before the polish)" if res.polish else "final J"
                 made.append(plots.boxplot_figure(fig_dir / f"fitness_box_{m}_{lab}.png", groups, log=True,
-                                                 title=f"final J over {res.runs} runs: {m} at {lab}", ylabel="J"))
+                                                 title=f"{what} over {res.runs} runs: {m} at {lab}", ylabel="J"))
     return [str(Path("figures") / Path(p).name) for p in made]
+
+
+def _optimizer_layout(df: pd.DataFrame) -> pd.DataFrame:
+    """One model on one condition: transpose to 004 Table 2's layout (a column per optimizer)."""
+    if df.empty or df["model"].nunique() != 1 or df["condition"].nunique() != 1:
+        return df
+    t = df.drop(columns=["model", "condition"]).set_index("optimizer").T
+    t.insert(0, "statistic over runs", t.index)
+    return t.reset_index(drop=True).rename_axis(None, axis=1)
 
 
 def markdown(res: CompareResult, figures: list[str]) -> str:
     u = res.unit
+    polished = res.polish and any(o not in ("auto", "lsq") for o in res.optimizers)
     lines = ["# hystfit comparison", "",
              f"- models: {', '.join(f'`{m}`' for m in res.models)}; optimizers: "
              f"{', '.join(f'`{o}`' for o in res.optimizers)}; conditions: {len(res.conditions)}; runs per cell: {res.runs}",
-             f"- seed {res.seed}; parallel jobs {res.jobs}; hystfit {__version__}; output unit {u}",
-             f"- least-squares polish after global optimizers: {'yes (differences between optimizers then show mostly in time; use --no-polish to compare the searches themselves)' if res.polish else 'no'}",
+             f"- seed {res.seed} (every run's own seed is in `compare.csv`); parallel jobs {res.jobs}; "
+             f"hystfit {__version__}; output unit {u}",
+             f"- least-squares polish after global optimizers: "
+             f"{'yes (the optimizers are also compared on their search alone, before the polish)' if polished else 'no' if not res.polish else 'not applicable (auto and lsq end with their own local solve)'}",
              ""]
+    if res.notes:
+        lines += ["## Structure identified once from all captures", ""] + [f"- {n}" for n in res.notes] + [""]
     failed = [c for c in res.cells if not c.ok]
     if failed:
         lines += ["## Failed cells", ""] + [f"- `{c.model}` / `{c.optimizer}` / {c.label}: {c.error}" for c in failed] + [""]
     lines += ["## Ranking", ""] + ranking(res)
-    for o in res.optimizers:
-        lines += [f"## Worst cases per model (002 Table 3 style), optimizer `{o}`", "",
-                  "Worst value of each metric over all conditions, and the condition where it occurred; maximum "
-                  "absolute error per voltage level.", "", markdown_table(model_summary(res, o)), ""]
-        lines += [f"## Identification time per model and condition in s (002 Table 2 style), optimizer `{o}`", "",
-                  markdown_table(runtime_table(res, o), digits=3), ""]
+    lines += ["## Performance comparison of the models (002 Table 3 style)", "",
+              "Worst value of each metric over the conditions (best run per cell) and the condition where it "
+              "occurred; maximum absolute error per voltage level and the frequency where it occurred.", "",
+              markdown_table(table3(res)), ""]
+    lines += ["## Identification time in s (002 Table 2 style)", "",
+              ("Median over runs of one run's wall time (search + polish) per voltage level and frequency, after one "
+               "warm-up fit per process (loading compiled kernels is not counted)."), "",
+              markdown_table(runtime_table(res), digits=3), ""]
     ot = optimizer_table(res)
     if not ot.empty and (res.runs > 1 or len(res.optimizers) > 1):
         lines += ["## Optimizers over repeated runs (004 Table 2 style)", "",
-                  "J = Σe²/Σy² (004 eq. 16) of each run's final parameters.", "", markdown_table(ot), ""]
+                  f"J = Σe²/Σy² (004 eq. 16) and RMSE ({u}) of each run's final parameters"
+                  f"{' (after the polish)' if polished else ''}; time = median wall time of a run; "
+                  "evaluations = mean objective evaluations per run.", "", markdown_table(_optimizer_layout(ot)), ""]
+        if polished:
+            lines += ["### The searches alone, before the polish", "",
+                      "J of each run's global search result; this is where the optimizers differ.", "",
+                      markdown_table(_optimizer_layout(search_table(res))), ""]
     lines += ["## Metrics", "", "Every run's metrics are in `compare.csv`. Formulas (e = model − measured):", "",
               metric_legend(u), "", "## Figures", ""]
     lines += [f"![{Path(f).stem}]({f})" for f in figures]

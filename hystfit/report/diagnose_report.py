@@ -19,7 +19,7 @@ from ..effects import EFFECTS
 from ..io import atomic_write_text
 from ..results import dumps
 from . import plots
-from .plots import _decimate_minmax, _new_figure, _save, _stride, display_unit
+from .plots import _decimate, _decimate_minmax, _new_figure, _save, _stride, display_unit
 from .tables import fmt
 
 #: What each candidate effect means, in one plain sentence.
@@ -63,7 +63,7 @@ def _fig_conditions(path: Path, d: Diagnosis) -> Path:
         for i, a in enumerate(amps):
             pts = sorted((r["frequency_Hz"], r["rmse_out"]) for r in per if r["amplitude_V"] == a)
             f, e = zip(*pts)
-            ax.plot(f, e, "o-", color=f"C{i % 10}", label=f"{a:g} V")
+            ax.plot(f, e, "o-", color=f"C{i % 10}", label=f"{a:g} V peak-to-peak")
         other = [r for r in rows if not r["periodic"]]
         for r in other:
             ax.plot([r["frequency_Hz"]], [r["rmse_out"]], "s", color="0.3", ms=6)
@@ -88,35 +88,39 @@ def _fig_branch_position(path: Path, d: Diagnosis) -> Path:
     fig = _new_figure(13.0, 4.2)
     ax1, ax2, ax3 = fig.subplots(1, 3)
     names = ["ascending", "descending", "hold"]
+    total = sum(w["by_branch"][n]["n_samples"] for n in names)
+    if w["by_branch"]["hold"]["n_samples"] < 0.01 * total:
+        names = names[:2]  # a few samples at the turning points of a sine, not a hold: not worth a bar
     rm = [w["by_branch"][n]["rmse_out"] for n in names]
     mn = [w["by_branch"][n]["mean_out"] for n in names]
-    x = np.arange(3)
+    x = np.arange(len(names))
     ax1.bar(x - 0.2, [0 if not math.isfinite(v) else v for v in rm], 0.4, label="RMSE")
     ax1.bar(x + 0.2, [0 if not math.isfinite(v) else v for v in mn], 0.4, label="mean (model − measured)")
     ax1.axhline(d.noise["sigma"], color="tab:red", ls="--", lw=1, label="noise floor")
     ax1.axhline(0, color="0.5", lw=0.6)
-    ax1.set_xticks(x, [f"{n}\n{w['by_branch'][n]['n_samples']} samples" for n in names], fontsize=8)
-    ax1.set_ylabel(f"Residual ({_u(unit)})")
-    ax1.set_title("By branch", fontsize=10)
+    ax1.set_xticks(x, [f"{'input constant' if n == 'hold' else 'input ' + ('rising' if n == 'ascending' else 'falling')}"
+                       f"\n{w['by_branch'][n]['n_samples']} samples" for n in names], fontsize=8)
+    ax1.set_ylabel(f"Model − measured ({_u(unit)})")
+    ax1.set_title("By branch\n(opposite means: the model lags or leads)", fontsize=10)
     ax1.legend(fontsize="small")
     pos = np.linspace(0.05, 0.95, 10)
     for name, col in (("ascending", "C0"), ("descending", "C1")):
         v = [np.nan if q is None else q for q in w["by_loop_position"]["rmse_by_position_out"][name]]
-        ax2.plot(pos, v, "o-", color=col, label=name)
+        ax2.plot(pos, v, "o-", color=col, label=f"{name} (input {'rising' if name == 'ascending' else 'falling'})")
     ax2.axvspan(0, 0.1, color="0.85")
     ax2.axvspan(0.9, 1.0, color="0.85")
     ax2.axhline(d.noise["sigma"], color="tab:red", ls="--", lw=1)
     ax2.set_xlabel("Position in the half-cycle (0 = last turning point, 1 = next)")
     ax2.set_ylabel(f"RMSE ({_u(unit)})")
-    ax2.set_title("By loop position (grey: near turning points)", fontsize=10)
+    ax2.set_title("By position in the stroke\n(grey: near the turning points)", fontsize=10)
     ax2.legend(fontsize="small")
     for name, col in (("ascending", "C0"), ("descending", "C1")):
         v = [np.nan if q is None else q for q in w["by_level"]["mean_by_level_out"][name]]
-        ax3.plot(pos, v, "o-", color=col, label=name)
+        ax3.plot(pos, v, "o-", color=col, label=f"{name} (input {'rising' if name == 'ascending' else 'falling'})")
     ax3.axhline(0, color="0.5", lw=0.6)
     ax3.set_xlabel("Input level (0 = capture minimum, 1 = maximum)")
-    ax3.set_ylabel(f"Mean residual ({_u(unit)})")
-    ax3.set_title("Residual loop (lag: branches opposite; bow: alike)", fontsize=10)
+    ax3.set_ylabel(f"Mean of model − measured ({_u(unit)})")
+    ax3.set_title("Mean error vs input level\n(lag: branches opposite; bent output: alike)", fontsize=10)
     ax3.legend(fontsize="small")
     for ax in (ax1, ax2, ax3):
         ax.grid(True, alpha=0.3)
@@ -138,9 +142,10 @@ def _fig_time(path: Path, d: Diagnosis) -> Path:
     ax1.axhline(0, color="0.5", lw=0.6)
     ax1.axvline(d.settings.fit_fraction, color="0.4", ls=":", lw=1, label="≈ fit / held-out split")
     ax1.set_xlabel("Time in the capture (fraction of its duration)")
-    ax1.set_ylabel(f"Residual ({_u(unit)})")
+    ax1.set_ylabel(f"Model − measured ({_u(unit)})")
     ax1.legend(fontsize="small")
-    ax1.set_title("By time in the capture (all captures pooled)", fontsize=10)
+    n = len(d.captures)
+    ax1.set_title(f"By time in the capture ({n} capture{'s' if n != 1 else ''} pooled)", fontsize=10)
     ax2.bar([0, 1], [w["first_cycle"]["rmse_out"], w["later"]["rmse_out"]], color=["C2", "C0"])
     ax2.set_xticks([0, 1], ["first cycle", "later"])
     ax2.axhline(d.noise["sigma"], color="tab:red", ls="--", lw=1)
@@ -151,37 +156,85 @@ def _fig_time(path: Path, d: Diagnosis) -> Path:
     return _save(fig, path, plots.DPI)
 
 
+#: Band names as shown to a reader (keys of ``where.by_band``).
+BAND_LABELS = {"drift": "slow (below f0/2)", "low_harmonics": "fundamental and harmonics 2–5",
+               "high_harmonics": "harmonics 6–50", "broadband": "fast (above 50·f0)"}
+
+
+def _harmonic_summary(spectra, max_order: int = 200):
+    """From per-capture residual amplitude spectra (harmonic order h = f/f0, amplitude), the median
+    over captures of the amplitude at each integer harmonic 1…H, and the median of everything else
+    (between the harmonics: what does not repeat every cycle) in log-spaced bins of h."""
+    at = {}
+    rest_h, rest_a = [], []
+    for h, amp, _ in spectra:
+        if h.size < 3:
+            continue
+        dh = h[1] - h[0]
+        used = np.zeros(h.size, bool)
+        for m in range(1, min(int(h[-1]), max_order) + 1):
+            j = int(np.argmin(np.abs(h - m)))
+            if abs(h[j] - m) <= 0.5 * dh:
+                at.setdefault(m, []).append(amp[j])
+                used[j] = True
+        sel = ~used & (h > 0)
+        rest_h.append(h[sel])
+        rest_a.append(amp[sel])
+    orders = np.array(sorted(at))
+    harm = np.array([np.median(at[m]) for m in orders]) if orders.size else np.empty(0)
+    centers, level = np.empty(0), np.empty(0)
+    if rest_h:
+        rh, ra = np.concatenate(rest_h), np.concatenate(rest_a)
+        if rh.size:
+            edges = np.geomspace(rh.min(), rh.max() * 1.0001, 41)
+            idx = np.digitize(rh, edges) - 1
+            ok = [k for k in range(40) if np.any(idx == k)]
+            centers = np.array([np.sqrt(edges[k] * edges[k + 1]) for k in ok])
+            level = np.array([np.median(ra[idx == k]) for k in ok])
+    return orders, harm, centers, level
+
+
 def _fig_bands(path: Path, d: Diagnosis) -> Path:
-    """Residual RMS per band (with the white-noise expectation) and residual spectra vs harmonic order."""
+    """Residual RMS per band (with the white-noise expectation) and the typical residual spectrum
+    of the periodic captures against harmonic order."""
     b = d.where["by_band"]
     unit = d.unit
     names = ["drift", "low_harmonics", "high_harmonics", "broadband"]
-    labels = ["drift\n< f0/2", "fundamental\n+ harmonics ≤ 5", "harmonics\n6…50", "broadband\n> 50·f0"]
-    fig = _new_figure(11.0, 4.2)
+    labels = [BAND_LABELS[n].replace(" (", "\n(").replace(" and ", "\nand ").replace("harmonics 6", "harmonics\n6")
+              for n in names]
+    fig = _new_figure(11.5, 4.4)
     ax1, ax2 = fig.subplots(1, 2)
     x = np.arange(4)
-    ax1.bar(x - 0.2, [b[n]["rms_out"] for n in names], 0.4, label="residual")
-    ax1.bar(x + 0.2, [b[n]["expected_noise_rms_out"] for n in names], 0.4, label="white noise alone")
+    ax1.bar(x - 0.2, [b[n]["rms_out"] for n in names], 0.4, label="model − measured")
+    ax1.bar(x + 0.2, [b[n]["expected_noise_rms_out"] for n in names], 0.4, label="sensor noise alone (expected)")
     for i, n in enumerate(names):
         ax1.annotate(f"{100 * b[n]['share_above_noise']:.0f} %", (i - 0.2, b[n]["rms_out"]), ha="center",
                      va="bottom", fontsize=8)
     ax1.set_xticks(x, labels, fontsize=8)
     ax1.set_ylabel(f"RMS ({_u(unit)})")
-    ax1.set_title("By frequency band (labels: share of the gap above noise)", fontsize=10)
+    ax1.set_title("By frequency band, f0 = drive frequency\n(labels: share of the error above noise)", fontsize=10)
     ax1.legend(fontsize="small")
     spectra = d.figures_data.get("spectra", [])
-    for i, (h, amp, src) in enumerate(spectra[:12]):
-        sel = h > 0
-        ax2.loglog(h[sel], np.maximum(amp[sel], 1e-12), lw=0.7, alpha=0.7, color=f"C{i % 10}",
-                   label=Path(src).name if i < 6 else None)
-    ax2.axvline(0.5, color="0.4", ls=":", lw=1)
-    ax2.axvline(5.5, color="0.4", ls=":", lw=1)
-    ax2.axvline(50.5, color="0.4", ls=":", lw=1)
-    ax2.set_xlabel("Frequency / excitation frequency (harmonic order)")
-    ax2.set_ylabel(f"Residual amplitude ({_u(unit)})")
-    ax2.set_title("Residual spectra of the periodic captures", fontsize=10)
     if spectra:
-        ax2.legend(fontsize="x-small")
+        orders, harm, centers, level = _harmonic_summary(spectra)
+        if centers.size:
+            ax2.loglog(centers, np.maximum(level, 1e-300), "-", color="0.45", lw=1.2,
+                       label="between harmonics (does not repeat every cycle)")
+        if orders.size:
+            ax2.loglog(orders, np.maximum(harm, 1e-300), "o", ms=3.5, color="C3",
+                       label="at harmonics of the drive (repeats every cycle)")
+        n_med = float(np.median([h.size * 2 for h, _, _ in spectra]))
+        noise = 2.0 * d.noise["sigma"] / math.sqrt(max(n_med, 1.0)) * math.sqrt(math.log(2.0))
+        ax2.axhline(noise, color="tab:red", ls="--", lw=1, label="sensor noise (typical level)")
+        for edge in (0.5, 5.5, 50.5):
+            ax2.axvline(edge, color="0.4", ls=":", lw=1)
+        ax2.legend(fontsize="x-small", loc="lower left")
+    else:
+        ax2.text(0.5, 0.5, "no periodic capture", ha="center", va="center", transform=ax2.transAxes)
+    ax2.set_xlabel("Frequency / drive frequency (harmonic order; dotted: band edges)")
+    ax2.set_ylabel(f"Error amplitude ({_u(unit)}), median over captures")
+    ax2.set_title(f"Spectrum of the error, {len(spectra)} periodic capture{'s' if len(spectra) != 1 else ''}",
+                  fontsize=10)
     for ax in (ax1, ax2):
         ax.grid(True, which="both", alpha=0.3)
     return _save(fig, path, plots.DPI)
@@ -250,9 +303,44 @@ def _fig_explained(path: Path, d: Diagnosis, i: int) -> Path:
         tr, rr = _decimate_minmax(c.t, expl - c.y)
         axr.plot(tr, rr, color="tab:green", lw=0.6, label="with the effects − measured")
     axr.axhline(0, color="0.5", lw=0.6)
-    axr.set_ylabel(f"Residual ({_u(unit)})")
+    axr.set_ylabel(f"Model − measured ({_u(unit)})")
     axr.set_xlabel("Time (s)")
     axr.legend(fontsize="small", loc="upper right")
+    return _save(fig, path, plots.DPI)
+
+
+def _fig_loop(path: Path, d: Diagnosis, i: int) -> Path:
+    """One periodic capture: the measured and modelled loops, and the error against the input
+    (the loops themselves differ by too little to see at full scale)."""
+    c = d.figures_data["captures"][i]
+    base = d.figures_data["base_predictions"][i]
+    expl = d.figures_data["explained_predictions"][i]
+    chosen = d.figures_data["chosen"]
+    unit = d.unit
+    sigma = d.noise["sigma"]
+    fig = _new_figure(12.0, 4.8)
+    ax1, ax2 = fig.subplots(1, 2)
+    u = _decimate(c.u)
+    ax1.plot(u, _decimate(c.y), color="0.15", lw=0.9, label="measured")
+    ax1.plot(u, _decimate(base), color="tab:red", lw=0.9, alpha=0.85, label=d.base_model)
+    if chosen:
+        ax1.plot(u, _decimate(expl), color="tab:green", lw=0.9, alpha=0.85, label=f"{d.base_model} + {' + '.join(chosen)}")
+    ax1.set_xlabel("Voltage (V)")
+    ax1.set_ylabel(f"Displacement ({_u(unit)})")
+    ax1.set_title("Loops (they overlap at this scale)", fontsize=10)
+    ax1.legend(fontsize="small", loc="upper left")
+    ax2.plot(u, _decimate(base - c.y), color="tab:red", lw=0.7, label=f"{d.base_model} − measured")
+    if chosen:
+        ax2.plot(u, _decimate(expl - c.y), color="tab:green", lw=0.7, label=f"with {' + '.join(chosen)} − measured")
+    ax2.axhspan(-sigma, sigma, color="tab:red", alpha=0.12, label=f"± noise floor ({sigma:.3g} {_u(unit)})")
+    ax2.axhline(0, color="0.5", lw=0.6)
+    ax2.set_xlabel("Voltage (V)")
+    ax2.set_ylabel(f"Model − measured ({_u(unit)})")
+    ax2.set_title("Error along the loop (what is left to explain)", fontsize=10)
+    ax2.legend(fontsize="small", loc="best")
+    for ax in (ax1, ax2):
+        ax.grid(True, alpha=0.3)
+    fig.suptitle(f"{Path(c.source).name}: the capture the {d.base_model} model misses most", fontsize=11)
     return _save(fig, path, plots.DPI)
 
 
@@ -277,12 +365,7 @@ def write_figures(d: Diagnosis, fig_dir: Path) -> dict[str, str]:
             continue
         out[key] = rel(_fig_explained(fig_dir / f"explained_{_safe(Path(caps[i].source).stem)}.png", d, i))
         if periodic:
-            models = {d.base_model: d.figures_data["base_predictions"][i]}
-            if d.explained_by:
-                models[f"{d.base_model} + {' + '.join(d.explained_by)}"] = d.figures_data["explained_predictions"][i]
-            out["loop"] = rel(plots.loop_overlay_figure(
-                fig_dir / f"loop_{_safe(Path(caps[i].source).stem)}.png", caps[i].u, caps[i].y, models, unit=d.unit,
-                title=f"{Path(caps[i].source).name}: measured and modelled loops"))
+            out["loop"] = rel(_fig_loop(fig_dir / f"loop_{_safe(Path(caps[i].source).stem)}.png", d, i))
     return out
 
 
@@ -312,7 +395,9 @@ def _params_text(r: EffectResult, unit: str) -> str:
     if r.effect == "creep":
         return ", ".join(f"{100 * g:.2g} % @ {t:g} s" for t, g in zip(p["tau_s"], p["gain"]))
     if r.effect == "asymmetry":
-        return f"bow {p['mid_stroke_bow_out']:+.3g} {u} mid-stroke, skew {p['a3_out']:+.3g} {u}"
+        bow = p["mid_stroke_bow_out"]
+        return (f"mid-stroke {abs(bow):.3g} {u} {'above' if bow > 0 else 'below'} the straight line through the "
+                f"stroke ends, skew {p['a3_out']:+.3g} {u}")
     if r.effect == "drift":
         return f"median abs. rate {p['median_abs_rate_out_per_s']:.3g} {u}/s"
     return ""
@@ -325,6 +410,25 @@ SEPARATE = {
                                       "only a stage has",
     frozenset({"creep", "drift"}): "both are slow; creep follows the input (it reverses after a step down and "
                                    "scales with the step), drift does not: a step-and-hold capture separates them",
+    frozenset({"creep", "delay"}): "at a single drive frequency every lag looks alike; captures at several frequencies "
+                                   "separate them (a delay's lag grows in proportion to the frequency, creep's shrinks) "
+                                   "and so does a step-and-hold capture (creep keeps moving for seconds after the step)",
+    frozenset({"creep", "dynamics"}): "at a single drive frequency every lag looks alike; captures at several "
+                                      "frequencies separate them (a stage's lag grows with the frequency, creep's "
+                                      "shrinks) and so does a step-and-hold capture (ringing vs a slow creep)",
+}
+
+#: What an engineer can do about each effect once it is named.
+NEXT = {
+    "dynamics": "use a model with the stage dynamics (`pi2`: hysteresis followed by a second-order stage, or "
+                "`hammerstein`), or keep the drive well below the resonance",
+    "creep": "add a creep model (the fitted time constants and gains above are a starting point) or identify "
+             "with captures of the same duration as the application",
+    "asymmetry": "use a hysteresis model with asymmetric branches (e.g. `gpi`, the generalized PI)",
+    "drift": "re-zero the sensor before each capture, let the set-up reach thermal equilibrium, or remove a "
+             "per-capture offset and trend before identification",
+    "delay": "shift the feedforward command earlier by the fitted delay, or find the delay in the amplifier, "
+             "DAQ or sensor filter",
 }
 
 
@@ -337,8 +441,12 @@ def _ambiguity(d: Diagnosis, step: int, indent: str = "") -> list[str]:
     for alt in d.alternatives[step]:
         r = next(x for x in d.steps[step] if x.effect == alt)
         why = SEPARATE.get(frozenset({named, alt}), "these captures do not separate them")
-        out += ["", f"{indent}*Equally good:* `{alt}` ({_params_text(r, d.unit)}) removes {100 * r.reduction:.0f} % too; "
-                    f"`{named}` is named because it needs fewer parameters. The data cannot tell them apart: {why}."]
+        r_named = next(x for x in d.steps[step] if x.effect == named)
+        because = ("it needs fewer parameters" if r_named.n_parameters < r.n_parameters
+                   else "it removes slightly more")
+        out += ["", f"{indent}*Equally good:* `{alt}` ({_params_text(r, d.unit)}) removes {100 * r.reduction:.0f} % "
+                    f"(within {d.settings.occam_tolerance:g} of `{named}`); `{named}` is named because {because}. "
+                    f"The data cannot tell them apart: {why}."]
     return out
 
 
@@ -359,10 +467,18 @@ def _verdict_paragraph(d: Diagnosis) -> list[str]:
                          "worth explaining.")
         else:
             best = d.effects[0] if d.effects else None
-            lines.append("**Verdict: none.** No candidate effect removes a meaningful share of the gap on held-out "
-                         "data" + (f" (the best, `{best.effect}`, removes {100 * best.reduction:.0f} %)" if best else "")
+            lines.append("**Verdict: none.** No candidate effect removes a meaningful share (at least "
+                         f"{100 * d.settings.threshold:.0f} %) of the gap on held-out data"
+                         + (f" (the best, `{best.effect}`, removes {100 * best.reduction:.0f} %)" if best else "")
                          + ". The remaining gap lies in the base model's own loop shape (or in an effect not in "
                            "the library): try a more flexible hysteresis model or the per-condition look-up table.")
+            fc = d.where["summary"].get("first_cycle_ratio")
+            if fc is not None and fc > 1.5:
+                lines += ["", f"Note: the first cycle of the captures misses {fc:.1f}× more than the later ones "
+                              "(section 2, *By time*). A model started from rest cannot know the state the actuator "
+                              "was in before the capture began (an earlier move, a jump onto the running drive); "
+                              "that start-up error is not one of the candidate effects. Captures that start from a "
+                              "known state (e.g. after a slow ramp from 0 V) avoid it."]
         return lines
     first = next(r for r in d.effects if r.effect == d.verdict)
     lines.append(f"**Verdict: `{d.verdict}`** — {PLAIN.get(d.verdict, d.verdict)}. Adding it to the model "
@@ -384,6 +500,7 @@ def _verdict_paragraph(d: Diagnosis) -> list[str]:
     lines.append(f"With {', '.join(f'`{e}`' for e in d.explained_by)} added, the held-out RMSE is "
                  f"{g['heldout_rmse_after_explained_out']:.4g} {u} against a noise floor of {sigma:.3g} {u} "
                  f"({100 * g['heldout_reduction_explained']:.0f} % of the gap above noise explained).")
+    lines += ["", "*What to do:*", ""] + [f"- `{e}`: {NEXT[e]}." for e in d.explained_by if e in NEXT]
     return lines
 
 
@@ -393,28 +510,35 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
     s = d.settings
     w = d.where
     sigma = d.noise["sigma"]
+    n_caps = len(d.captures)
     L = [f"# Why the `{d.base_model}` model misses the measurement", ""]
     L += _verdict_paragraph(d)
     L += ["", "## What was done", "",
-          f"1. **Fit.** The hysteresis model `{d.base_model}` was identified on the {len(d.captures)} capture(s) "
-          f"({'one parameter set per operating condition' if d.mode == 'per-condition' else 'one parameter set for all captures'}; "
-          f"optimizer `{d.optimizer}`, seed {d.seed}). The *gap* is what it still misses: e = model − measured.",
-          "2. **Noise floor.** The part of the gap no model can remove: the sensor noise, estimated from the data "
-          f"themselves ({d.noise['method']}), never from how well a model fits.",
-          "3. **Where.** The residual was broken down by operating condition, by branch (input rising or falling), "
+          f"1. **Fit.** The hysteresis model `{d.base_model}` was identified on the {n_caps} "
+          f"capture{'s' if n_caps != 1 else ''} "
+          f"({'one parameter set per operating condition' if d.mode == 'per-condition' else 'one parameter set for all captures' if n_caps > 1 else 'one parameter set'}; "
+          f"optimizer `{d.optimizer}`, seed {d.seed}). The *gap* (or *error*) is what it still misses: "
+          "e = model − measured, summarized as the RMSE (root mean square).",
+          "2. **Noise floor.** The part of the gap no model can remove: the sensor noise, estimated from the "
+          "sample-to-sample scatter of the error itself (a smooth model error does not scatter from one sample to "
+          "the next; see *Definitions*), never from how well a model fits.",
+          "3. **Where.** The error was broken down by operating condition, by branch (input rising or falling), "
           "by position in the loop, by time within the capture and by frequency.",
           "4. **Which.** Each candidate effect was added to the model and the model refitted *together with it* "
-          "(the base parameters may move too). Effects in the library: "
+          "(the hysteresis parameters may move too). Effects in the library: "
           + "; ".join(f"`{n}` — {PLAIN[n]}" for n in EFFECTS) + ".",
-          f"5. **How far, honestly.** Every fit used only the first part of each capture ({d.split['description']}). "
-          "The score of an effect is its *reduction*: (held-out RMSE before − after) / (before − noise floor), "
-          "the share of the gap above the noise that it removes on data it never saw, between 0 and 1.",
-          f"6. **Verdict rule.** An effect is named when its reduction is at least {s.threshold:g}, it improves the "
-          f"held-out RMSE more than the best of {s.placebo_draws} *placebos* (random augmentations with the same "
-          "number of parameters, built from phase-randomized copies of the effects' signatures: what that many "
-          "parameters gain by chance), and the gap exceeds the noise floor meaningfully "
-          f"(√(before² − floor²) ≥ {s.min_excess_ratio:g}·floor). Among the effects that pass, the largest reduction "
-          f"wins, unless one with fewer parameters comes within {s.occam_tolerance:g} of it (the simpler "
+          "5. **How far, honestly.** Every fit used only the first part of each capture: the first "
+          f"round({s.fit_fraction:g} × number of cycles) whole cycles of a periodic capture, the first "
+          f"{100 * s.fit_fraction:.0f} % of the samples of any other. The rest (*held-out* data) was never used to "
+          "fit anything and is where every effect is scored. The score is the *reduction*: "
+          "(held-out RMSE before − after) / (before − noise floor), the share of the gap above the noise that the "
+          "effect removes on data it never saw, between 0 (nothing) and 1 (everything down to the noise).",
+          f"6. **Verdict rule.** An effect is named when (a) its reduction is at least {s.threshold:g}; (b) it "
+          f"improves the held-out RMSE more than the best of {s.placebo_draws} *placebos* — corrections with the "
+          "same number of adjustable parameters but random shapes that have nothing to do with the input, which "
+          "shows what that many extra parameters gain by chance; and (c) the gap is meaningfully above the noise "
+          f"(√(before² − floor²) ≥ {s.min_excess_ratio:g} × floor). Among the effects that pass, the largest "
+          f"reduction wins, unless one with fewer parameters comes within {s.occam_tolerance:g} of it (the simpler "
           "explanation). The winner is added to the model and the others are tested again on top of it, up to "
           f"{s.max_effects} effects: that is the order in which the effects are named.", ""]
 
@@ -424,25 +548,26 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
             ["RMSE on held-out data (model fitted to the first part)", f"{g['heldout_rmse_out']:.4g} {u}"],
             ["Noise floor σ (white sensor noise)", f"{sigma:.3g} {u}"],
             ["Cycle-to-cycle repeatability (cross-check, includes slow noise)",
-             "–" if d.noise["repeatability"] is None else f"{d.noise['repeatability']:.3g} {u}"],
-            ["Smallest output step (quantization, for reference)", f"{d.noise['quantization_step']:.3g} {u}"],
+             "–" if d.noise["repeatability_out"] is None else f"{d.noise['repeatability_out']:.3g} {u}"],
+            ["Smallest output step (quantization, for reference)", f"{d.noise['quantization_step_out']:.3g} {u}"],
             ["Gap above noise √(RMSE² − σ²), all data", f"{g['excess_rmse_out']:.4g} {u}"],
             ["Share of the squared gap that is noise", "–" if g["noise_share_of_gap"] is None
              else f"{100 * g['noise_share_of_gap']:.1f} %"]]
     L += _table(["quantity", "value"], rows) + [""]
-    if d.noise["repeatability"] is not None and d.noise["repeatability"] > 1.5 * sigma:
-        L += [f"The repeatability ({d.noise['repeatability']:.3g} {u}) is well above the white-noise floor: the "
+    if d.noise["repeatability_out"] is not None and d.noise["repeatability_out"] > 1.5 * sigma:
+        L += [f"The repeatability ({d.noise['repeatability_out']:.3g} {u}) is well above the white-noise floor: the "
               "noise has slow components, or the process does not repeat from cycle to cycle (creep, drift). "
               "The floor used here is the white part only, so slow noise would count as model gap.", ""]
 
     L += ["## 2. Where the model misses", "", "Main findings:", ""]
     L += [f"- {p}" for p in w["pointers"]] + [""]
     L += ["### By operating condition", ""]
-    rows = [[r["label"], r["rmse_out"], r["excess_rmse_out"], "yes" if r["periodic"] else "no"] for r in w["by_condition"]]
-    hdr = ["condition", f"RMSE ({u})", f"above noise ({u})", "periodic"]
+    rows = [[f"{r['amplitude_V']:g} V, {r['frequency_Hz']:g} Hz", r["rmse_out"], r["excess_rmse_out"],
+             "yes" if r["periodic"] else "no"] for r in w["by_condition"]]
+    hdr = ["input peak-to-peak, drive frequency", f"RMSE ({u})", f"above noise ({u})", "periodic input"]
     if "by_condition_alone" in w:
         alone = {r["label"]: r for r in w["by_condition_alone"]}
-        rows = [r + [alone[r[0]]["rmse_out"]] for r in rows]
+        rows = [r + [alone[c["label"]]["rmse_out"]] for r, c in zip(rows, w["by_condition"])]
         hdr.append(f"RMSE, condition fitted alone ({u})")
     L += _table(hdr, rows) + [""]
     sm = w["summary"]
@@ -453,14 +578,18 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
         if sm.get(key) is not None:
             exps.append(f"{what}: {sm[key]:.2f}")
     if exps:
-        L += ["Exponents of the gap above noise, RMSE ∝ f^b · A^c over the periodic conditions — " + "; ".join(exps)
-              + ". A model that is wrong in a scale-invariant way misses ∝ A; lag-type effects make b > 0.", ""]
+        L += ["How the gap above noise grows with the drive frequency f and amplitude A (exponents b, c of "
+              "RMSE ∝ f^b · A^c over the periodic conditions) — " + "; ".join(exps)
+              + ". A model whose loop shape is wrong in the same way at every amplitude misses ∝ A (c ≈ 1); a "
+                "static bend of the output grows faster (c ≥ 2); lags (stage dynamics, delay) make b > 0.", ""]
     if "conditions" in figs:
         L += [f"![gap per condition]({figs['conditions']})", ""]
     L += ["### By branch, loop position and level", ""]
     br = w["by_branch"]
-    L += _table(["branch", f"RMSE ({u})", f"mean ({u})", "samples"],
-                [[n, br[n]["rmse_out"], br[n]["mean_out"], str(br[n]["n_samples"])] for n in ("ascending", "descending", "hold")])
+    L += _table(["branch", f"RMSE ({u})", f"mean of model − measured ({u})", "samples"],
+                [[{"ascending": "ascending (input rising)", "descending": "descending (input falling)",
+                   "hold": "hold (input constant)"}[n], br[n]["rmse_out"], br[n]["mean_out"], str(br[n]["n_samples"])]
+                 for n in ("ascending", "descending", "hold")])
     lp = w["by_loop_position"]
     L += ["", f"Near turning points (within 10 % of the half-cycle stroke): RMSE {lp['near_turning_points']['rmse_out']:.4g} {u}; "
               f"mid-stroke: {lp['mid_stroke']['rmse_out']:.4g} {u}."]
@@ -474,19 +603,27 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
         L += [f"![branch, position and level]({figs['branch']})", ""]
     L += ["### By time within the capture", ""]
     bt = w["by_time"]
-    L += [f"First cycle: RMSE {bt['first_cycle']['rmse_out']:.4g} {u} (mean {bt['first_cycle']['mean_out']:+.3g}); "
-          f"later: {bt['later']['rmse_out']:.4g} {u} (mean {bt['later']['mean_out']:+.3g}). "
-          + (f"Fitted on the first part and tested on the rest, the base model's gap above noise grows by "
-             f"{sm['heldout_to_fit_ratio']:.2f}× (above 1: the error builds up with time)."
+    L += [f"First cycle: RMSE {bt['first_cycle']['rmse_out']:.4g} {u} (mean {bt['first_cycle']['mean_out']:+.3g} {u}); "
+          f"later: {bt['later']['rmse_out']:.4g} {u} (mean {bt['later']['mean_out']:+.3g} {u}). "
+          + (f"Fitted on the first part and tested on the rest, the base model's gap above noise on the held-out part "
+             f"is {sm['heldout_to_fit_ratio']:.2f}× that on the fitted part "
+             + ("(above 1: the error builds up with time, as creep or drift would make it)."
+                if sm["heldout_to_fit_ratio"] > 1.0 else
+                "(below 1: the later part is predicted better than the fitted part is matched, so nothing builds up "
+                "with time; a large start-up error in the fitted part does this).")
              if sm.get("heldout_to_fit_ratio") is not None else ""), ""]
     if "time" in figs:
         L += [f"![time]({figs['time']})", ""]
     L += ["### By frequency band", ""]
     bb = w["by_band"]
-    L += _table(["band", f"residual RMS ({u})", f"white noise alone ({u})", "share of the gap above noise"],
-                [[n.replace("_", " "), bb[n]["rms_out"], bb[n]["expected_noise_rms_out"],
+    L += _table(["band (f0 = drive frequency)", f"error RMS ({u})", f"sensor noise alone ({u})",
+                 "share of the gap above noise"],
+                [[BAND_LABELS[n], bb[n]["rms_out"], bb[n]["expected_noise_rms_out"],
                   f"{100 * bb[n]['share_above_noise']:.0f} %"] for n in ("drift", "low_harmonics", "high_harmonics", "broadband")])
-    L += ["", bb["definition"] + ".", ""]
+    L += ["", "Slow error (below half the drive frequency) comes from trends: creep, drift. Error at the fundamental "
+              "and the first harmonics is a loop of the wrong width or shape. Sharp features — turning points, "
+              "steps, ringing of a stage — put it into the higher harmonics. Error at the harmonics repeats every "
+              "cycle; error between them does not.", ""]
     if "bands" in figs:
         L += [f"![bands]({figs['bands']})", ""]
 
@@ -507,7 +644,10 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
             for r in step:
                 failed = [k.replace("_", " ") for k, ok in r.passes.items() if not ok]
                 L += [f"- **{r.effect}** ({PLAIN.get(r.effect, '')}): {r.evidence}."
-                      + (f" Fails: {', '.join(failed)}." if failed else "")]
+                      + (f" Not named: fails {', '.join(failed)}." if failed else "")]
+            L += ["", "(*Signature*: the shape this effect would add to the error to first order — e.g. a lag adds "
+                      "a copy of the velocity; its share is how much of the error above the noise that shape alone "
+                      "matches, before any refit.)"]
             L += [""]
     if "effects" in figs:
         L += [f"![held-out RMSE per effect]({figs['effects']})", ""]
@@ -519,11 +659,17 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
         if key in figs:
             L += [f"{text}:", "", f"![{key}]({figs[key]})", ""]
     L += ["## Definitions", "",
-          "- RMSE = √mean(e²), e = model − measured; held-out RMSE counts only samples after the split.",
-          "- Noise floor σ: 1.4826 × median absolute deviation of the third difference (−1, 3, −3, 1)/√20 of the "
-          "residual (white noise passes with unit gain, smooth model errors vanish).",
+          "- RMSE = √mean(e²), e = model − measured; held-out RMSE counts only the samples after the split.",
+          "- Noise floor σ: the scatter of e from one sample to the next. Technically 1.4826 × the median absolute "
+          "deviation of the third difference (−1, 3, −3, 1)/√20 of e: white sensor noise passes it unchanged, a "
+          "smooth model error (and creep or drift) cancels out, and the median ignores the few kinks at turning "
+          "points. Cross-check: the cycle-to-cycle repeatability of the measurement.",
+          "- Gap above noise = √(RMSE² − σ²): the part of the RMSE that is not sensor noise.",
           "- reduction = (before − after)/(before − σ), clipped to [0, 1]; placebo gain = the largest held-out "
-          "improvement among random augmentations with the same parameter count.",
+          "improvement among random corrections with the same number of parameters (random mixtures of the "
+          "effects' shapes with their timing scrambled: same smoothness, no relation to the input).",
+          "- Parameters: the number of numbers fitted for the effect (a per-capture effect such as drift has two per "
+          "capture).",
           f"- Runtime {d.runtime_s:.1f} s. Machine-readable results: `diagnosis.json`.", ""]
     return "\n".join(L)
 

@@ -65,10 +65,53 @@ def _save(fig: Figure, path: Path) -> Path:
     return Path(path)
 
 
+def _draw_tracking(axes, t, r, y, v, *, unit: str, output_label: str, vmin: float | None, vmax: float | None,
+                   spans: Sequence[Span], legends: bool = True, rmse_note: str = "") -> None:
+    """Fill three axes (displacement, error, voltage) with the samples given (already windowed).
+
+    Long series are decimated keeping each bucket's min and max (:func:`_minmax`), never by plain
+    striding, so no peak is lost and no periodic signal is aliased.
+    """
+    ax, axe, axv = axes
+    u = display_unit(unit)
+    ax.plot(*_minmax(t, r), color="0.15", lw=0.9, label="target")
+    ax.plot(*_minmax(t, y), color="tab:red", lw=0.9, alpha=0.85, label=output_label)
+    ax.set_ylabel(f"Displacement ({u})")
+    ax.grid(True, alpha=0.3)
+    e = y - r
+    finite = np.isfinite(e)
+    rmse = float(np.sqrt(np.mean(e[finite] ** 2))) if finite.any() else float("nan")
+    if np.isfinite(rmse):
+        axe.axhspan(-rmse, rmse, color="tab:blue", alpha=0.15, lw=0, label=f"±RMSE{rmse_note} = {rmse:.3g} {u}")
+    axe.axhline(0.0, color="0.5", lw=0.6)
+    axe.plot(*_minmax(t, e), color="tab:blue", lw=0.7, label=f"{output_label} − target")
+    axe.set_ylabel(f"Error ({u})")
+    axe.grid(True, alpha=0.3)
+    axv.plot(*_minmax(t, v), color="tab:green", lw=0.9, label="voltage")
+    label = "voltage limits"
+    for lim in (vmin, vmax):
+        if lim is not None:
+            axv.axhline(lim, color="0.4", lw=0.7, ls="--", label=label)
+            label = None
+    shown = False
+    half = 0.5 * (t[1] - t[0]) if t.size > 1 else 0.0
+    for s in spans[:500]:
+        if s.stop_s < t[0] or s.start_s > t[-1]:
+            continue
+        axv.axvspan(s.start_s - half, s.stop_s + half, color="tab:orange", alpha=0.3, lw=0,
+                    label=None if shown else "limited")
+        shown = True
+    axv.set_ylabel("Voltage (V)")
+    axv.set_xlabel("Time (s)")
+    axv.grid(True, alpha=0.3)
+    for a in (axes if legends else (axe,)):  # the error legend carries this panel's RMSE: always shown
+        a.legend(loc="upper right", fontsize="small")
+
+
 def tracking_figure(path, t_s, target, output, voltage_V, *, unit: str = "um", title: str = "",
                     output_label: str = "predicted", vmin: float | None = None, vmax: float | None = None,
-                    spans: Sequence[Span] = (), extra_outputs: dict | None = None) -> Path:
-    """Three panels: target and output, error (output − target), voltage with limits.
+                    spans: Sequence[Span] = ()) -> Path:
+    """Three panels: target and output, error (output − target) with its ±RMSE band, voltage with limits.
 
     Parameters
     ----------
@@ -80,52 +123,58 @@ def tracking_figure(path, t_s, target, output, voltage_V, *, unit: str = "um", t
     output_label : legend of ``output`` (e.g. ``"predicted"`` or ``"plant output"``).
     vmin, vmax : voltage limits drawn as dashed lines.
     spans : limited spans, shaded on the voltage panel.
-    extra_outputs : further ``{label: (N,) output}`` drawn on the first two panels.
     """
-    t = np.asarray(t_s, float)
-    r = np.asarray(target, float)
-    y = np.asarray(output, float)
-    v = np.asarray(voltage_V, float)
-    u = display_unit(unit)
-    k = _stride(t.size)
     fig = Figure(figsize=(8.5, 7.0), layout="constrained")
-    ax, axe, axv = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [2.0, 1.2, 1.2]})
-    ax.plot(t[::k], r[::k], color="0.15", lw=0.9, label="target")
-    ax.plot(t[::k], y[::k], color="tab:red", lw=0.9, alpha=0.85, label=output_label)
-    for i, (lab, yy) in enumerate((extra_outputs or {}).items()):
-        ax.plot(t[::k], np.asarray(yy, float)[::k], lw=0.8, alpha=0.8, label=lab, color=f"C{i + 2}")
-    ax.set_ylabel(f"Displacement ({u})")
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right", fontsize="small")
+    axes = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [2.0, 1.2, 1.2]})
+    _draw_tracking(axes, np.asarray(t_s, float), np.asarray(target, float), np.asarray(output, float),
+                   np.asarray(voltage_V, float), unit=unit, output_label=output_label, vmin=vmin, vmax=vmax,
+                   spans=spans)
     if title:
-        ax.set_title(_wrap(title))
-    e = y - r
-    te, ee = _minmax(t, e)
-    finite = np.isfinite(e)
-    rmse = float(np.sqrt(np.mean(e[finite] ** 2))) if finite.any() else float("nan")
-    if np.isfinite(rmse):
-        axe.axhspan(-rmse, rmse, color="tab:blue", alpha=0.15, lw=0, label=f"±RMSE = {rmse:.3g} {u}")
-    axe.axhline(0.0, color="0.5", lw=0.6)
-    axe.plot(te, ee, color="tab:blue", lw=0.7, label=f"{output_label} − target")
-    for i, (lab, yy) in enumerate((extra_outputs or {}).items()):
-        tx, ex = _minmax(t, np.asarray(yy, float) - r)
-        axe.plot(tx, ex, lw=0.6, alpha=0.8, label=f"{lab} − target", color=f"C{i + 2}")
-    axe.set_ylabel(f"Error ({u})")
-    axe.grid(True, alpha=0.3)
-    axe.legend(loc="upper right", fontsize="small")
-    axv.plot(t[::k], v[::k], color="tab:green", lw=0.9, label="voltage")
-    for lim, lab in ((vmin, "vmin"), (vmax, "vmax")):
-        if lim is not None:
-            axv.axhline(lim, color="0.4", lw=0.7, ls="--")
-    shown = False
-    for s in spans[:500]:
-        axv.axvspan(s.start_s - 0.5 * (t[1] - t[0] if t.size > 1 else 0), s.stop_s, color="tab:orange", alpha=0.3,
-                    lw=0, label=None if shown else "limited")
-        shown = True
-    axv.set_ylabel("Voltage (V)")
-    axv.set_xlabel("Time (s)")
-    axv.grid(True, alpha=0.3)
-    axv.legend(loc="upper right", fontsize="small")
+        axes[0].set_title(_wrap(title))
+    return _save(fig, Path(path))
+
+
+#: A detail figure is drawn when the target is longer than this many detail windows.
+DETAIL_MIN_WINDOWS = 6
+#: Periods of the segment's frequency shown in a detail window.
+DETAIL_PERIODS = 3.0
+
+
+def detail_windows(target) -> list[tuple[int, int, str]]:
+    """Sample windows ``(start, stop, label)`` of ≈ 3 periods at the start and at the end of a long target.
+
+    The period is that of the first (last) segment's nominal frequency; a window holds at most
+    half of :data:`MAX_POINTS` samples and never more than its segment. Empty when the target is
+    shorter than :data:`DETAIL_MIN_WINDOWS` windows: its main figure is readable as it is.
+    """
+    def length(seg) -> int:
+        f = seg.frequency_Hz
+        n = int(round(DETAIL_PERIODS / (f * target.dt))) + 1 if math.isfinite(f) and f > 0 else seg.stop - seg.start
+        return max(16, min(n, MAX_POINTS // 2, seg.stop - seg.start))
+
+    n0, n1 = length(target.segments[0]), length(target.segments[-1])
+    if target.n <= DETAIL_MIN_WINDOWS * max(n0, n1):
+        return []
+    dt = target.dt
+    return [(0, n0, f"start: {0:.4g}–{(n0 - 1) * dt:.4g} s"),
+            (target.n - n1, target.n, f"end: {(target.n - n1) * dt:.4g}–{(target.n - 1) * dt:.4g} s")]
+
+
+def tracking_detail_figure(path, t_s, target, output, voltage_V, windows: Sequence[tuple[int, int, str]], *,
+                           unit: str = "um", title: str = "", output_label: str = "predicted",
+                           vmin: float | None = None, vmax: float | None = None, spans: Sequence[Span] = ()) -> Path:
+    """The panels of :func:`tracking_figure` at full resolution, one column per window (see :func:`detail_windows`)."""
+    t, r, y, v = (np.asarray(a, float) for a in (t_s, target, output, voltage_V))
+    fig = Figure(figsize=(4.6 * len(windows) + 1.0, 7.0), layout="constrained")
+    grid = fig.subplots(3, len(windows), squeeze=False, sharex="col",
+                        gridspec_kw={"height_ratios": [2.0, 1.2, 1.2]})
+    for j, (a, b, label) in enumerate(windows):
+        col = grid[:, j]
+        _draw_tracking(col, t[a:b], r[a:b], y[a:b], v[a:b], unit=unit, output_label=output_label, vmin=vmin,
+                       vmax=vmax, spans=spans, legends=j == len(windows) - 1, rmse_note=" (window)")
+        col[0].set_title(label, fontsize="medium")
+    if title:
+        fig.suptitle(_wrap(title, 110))
     return _save(fig, Path(path))
 
 
@@ -141,7 +190,7 @@ def error_comparison_figure(path, t_s, errors: dict, *, unit: str = "um", title:
     ax.set_ylabel(f"Error ({display_unit(unit)})")
     ax.set_xlabel("Time (s)")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right", fontsize="small")
+    ax.legend(loc="best", fontsize="small")
     if title:
         ax.set_title(_wrap(title))
     return _save(fig, Path(path))
@@ -272,11 +321,16 @@ def write_invert_report(res: InversionResult, report_dir: Path, *, make_plots: b
     report_dir = Path(report_dir)
     figures = []
     if make_plots:
-        tracking_figure(report_dir / "plots" / "tracking.png", res.target.t_s, res.target.y, res.predicted,
-                        res.voltage_V, unit=res.unit, title=f"{res.model_name} feedforward – {res.target.description}",
-                        vmin=res.limits["vmin_V"], vmax=res.limits["vmax_V"],
-                        spans=list(res.clip_spans) + list(res.slew_spans))
+        kw = dict(unit=res.unit, title=f"{res.model_name} feedforward – {res.target.description}",
+                  vmin=res.limits["vmin_V"], vmax=res.limits["vmax_V"], spans=list(res.clip_spans) + list(res.slew_spans))
+        tg = res.target
+        tracking_figure(report_dir / "plots" / "tracking.png", tg.t_s, tg.y, res.predicted, res.voltage_V, **kw)
         figures.append("plots/tracking.png")
+        windows = detail_windows(tg)
+        if windows:
+            tracking_detail_figure(report_dir / "plots" / "tracking_detail.png", tg.t_s, tg.y, res.predicted,
+                                   res.voltage_V, windows, **kw)
+            figures.append("plots/tracking_detail.png")
     summary = invert_summary(res)
     summary["command"] = command
     summary["output_file"] = output_file

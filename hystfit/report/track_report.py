@@ -10,9 +10,10 @@ from ..invert import condition_text
 from ..io import atomic_write_text, write_table
 from ..results import _clean, dumps
 from ..track import TrackResult
-from .invert_report import error_comparison_figure, invert_summary, span_dicts, span_table, tracking_figure
+from .invert_report import (detail_windows, error_comparison_figure, invert_summary, span_dicts, span_table,
+                            tracking_detail_figure, tracking_figure)
 from .plots import display_unit
-from .tables import fmt, markdown_table
+from .tables import fmt
 
 
 def _file_stem(name: str) -> str:
@@ -50,6 +51,11 @@ def track_summary(res: TrackResult) -> dict:
     })
 
 
+def _md_table(cols: list[str], rows: list[list[str]]) -> list[str]:
+    return (["| " + " | ".join(cols) + " |", "|" + "|".join(["---"] + ["---:"] * (len(cols) - 1)) + "|"]
+            + ["| " + " | ".join(r) + " |" for r in rows])
+
+
 def track_markdown(res: TrackResult, figures: list[str], command: str | None = None) -> str:
     u = res.unit
     du = display_unit(u)
@@ -77,13 +83,16 @@ def track_markdown(res: TrackResult, figures: list[str], command: str | None = N
         L.append(f"- sliding mode (paper 003 eq. 25–42, on top of the feedforward): {res.smc.describe()}")
     L += ["", "## Comparison", "",
           f"Errors e = plant output − reference (true output, without the measurement noise); % of stroke = "
-          f"100·x / (max r − min r). `limited_pct`: share of samples where the voltage limits acted.", ""]
-    rows = res.table()
-    L.append(markdown_table(pd.DataFrame(rows)))
+          f"100·x / (max r − min r). limited %: share of samples where the voltage limits acted.", ""]
+    (track_cols, step_cols), (track_rows, step_rows) = comparison_headers(res), comparison_text_rows(res)
+    L += _md_table(track_cols, track_rows)
     if tg.steps:
-        L += ["", "Steps (paper 002 Table 6): `t90_s` = time to 90 % of the step (002's Tr), `rise_time_s` = 10 → 90 %, "
-              "settling = time after which the output stays within ±5 % / ±2 % of the step (– = not settled "
-              "within the hold), overshoot in % of the step (largest over the steps)."]
+        L += ["", "### Steps (paper 002 Table 6)", "",
+              "t90 = time from the step to 90 % of it (002's Tr); settling = time after which the output stays "
+              "within ±5 % / ±2 % of the step (– = not settled within the hold); overshoot in % of the step "
+              "(largest over the steps); times are means over the steps. Per step, also the 10 → 90 % rise time "
+              "and the steady-state error: `summary.json`, `runs[].steps`.", ""]
+        L += _md_table(step_cols, step_rows)
     L += ["", "## Table cells", "", "| segment | controller cells | plant cells |", "|---|---|---|"]
     for ch, (seg, pcells) in zip(inv.choices, res.plant_cells):
         L.append(f"| {seg} | {condition_text(ch)} | {' + '.join(f'{c.label}×{c.weight:.2f}' for c in pcells)} |")
@@ -105,6 +114,7 @@ def write_track_outputs(res: TrackResult, out_dir: Path, *, make_plots: bool = T
     u = res.unit
     tg = res.target
     figures: list[str] = []
+    windows = detail_windows(tg) if make_plots else []
     for run in res.runs:
         stem = _file_stem(run.controller)
         write_table(out_dir / f"{stem}.{fmt_ext}", pd.DataFrame({
@@ -112,10 +122,14 @@ def write_track_outputs(res: TrackResult, out_dir: Path, *, make_plots: bool = T
             f"measured_{u}": run.measured, "voltage_V": run.voltage_V, "command_V": run.command_V,
             f"error_{u}": run.error}))
         if make_plots:
-            tracking_figure(out_dir / "plots" / f"{stem}.png", tg.t_s, tg.y, run.output, run.voltage_V, unit=u,
-                            title=f"{run.controller} – {tg.description}", output_label="plant output",
-                            vmin=res.limits["vmin_V"], vmax=res.limits["vmax_V"], spans=run.limit_spans)
+            kw = dict(unit=u, title=f"{run.controller} – {tg.description}", output_label="plant output",
+                      vmin=res.limits["vmin_V"], vmax=res.limits["vmax_V"], spans=run.limit_spans)
+            tracking_figure(out_dir / "plots" / f"{stem}.png", tg.t_s, tg.y, run.output, run.voltage_V, **kw)
             figures.append(f"plots/{stem}.png")
+            if windows:
+                tracking_detail_figure(out_dir / "plots" / f"{stem}_detail.png", tg.t_s, tg.y, run.output,
+                                       run.voltage_V, windows, **kw)
+                figures.append(f"plots/{stem}_detail.png")
     if make_plots and len(res.runs) > 1:
         error_comparison_figure(out_dir / "plots" / "errors.png", tg.t_s, {r.controller: r.error for r in res.runs},
                                 unit=u, title=f"tracking error – {tg.description}")
@@ -127,16 +141,27 @@ def write_track_outputs(res: TrackResult, out_dir: Path, *, make_plots: bool = T
     return summary
 
 
-def comparison_text_rows(res: TrackResult) -> list[list[str]]:
-    """Rows for a console table: controller, max, RMSE, % and step figures as text."""
-    out = []
+def comparison_headers(res: TrackResult) -> tuple[list[str], list[str]]:
+    """Column headers of :func:`comparison_text_rows`: (tracking table, step table — empty without steps)."""
+    du = display_unit(res.unit)
+    track_cols = ["controller", f"max ({du})", f"RMSE ({du})", "max %", "RMSE %", "limited %"]
+    step_cols = ["controller", "t90 (ms)", "settle ±5 % (ms)", "settle ±2 % (ms)", "overshoot %"] \
+        if res.target.steps else []
+    return track_cols, step_cols
+
+
+def comparison_text_rows(res: TrackResult) -> tuple[list[list[str]], list[list[str]]]:
+    """Rows for the console: (tracking figures, step figures) as short text (3 digits, step times in ms)."""
     u = res.unit
+
+    def ms(x):
+        return fmt(None if x is None else 1e3 * x, 3)
+
+    track_rows, step_rows = [], []
     for row in res.table():
-        cells = [row["controller"], fmt(row[f"max_error_{u}"]), fmt(row[f"rmse_{u}"]), fmt(row["max_error_pct"], 3),
-                 fmt(row["rmse_pct"], 3)]
+        track_rows.append([row["controller"], fmt(row[f"max_error_{u}"], 3), fmt(row[f"rmse_{u}"], 3),
+                           fmt(row["max_error_pct"], 3), fmt(row["rmse_pct"], 3), fmt(row["limited_pct"], 3)])
         if "t90_s" in row:
-            cells += [fmt(row["t90_s"]), fmt(row["settling_time_5pct_s"]), fmt(row["settling_time_2pct_s"]),
-                      fmt(row["overshoot_pct"], 3)]
-        cells.append(fmt(row["limited_pct"], 3))
-        out.append(cells)
-    return out
+            step_rows.append([row["controller"], ms(row["t90_s"]), ms(row["settling_time_5pct_s"]),
+                              ms(row["settling_time_2pct_s"]), fmt(row["overshoot_pct"], 3)])
+    return track_rows, step_rows

@@ -133,3 +133,112 @@ def test_declared_separable_structure_is_exact(name):
         y = model.simulate(theta, u, DT)
     ok = np.isfinite(y).all(axis=1)
     np.testing.assert_allclose(y_sep[ok], y[ok], rtol=1e-8, atol=1e-9 * np.nanmax(np.abs(y[ok])))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_sse_evaluator_equals_simulated_sum(name):
+    """A model's fused sum of squared errors (if it has one) equals Σ(simulate − y)² to rounding,
+    for random candidates inside the bounds; a diverging candidate scores non-finite in both."""
+    model, params, u, _ = prepared(name)
+    rng = np.random.default_rng(3)
+    y_meas = 0.3 * u + 0.05 * rng.standard_normal(u.size)
+    fn = model.sse_evaluator(u, DT, y_meas)
+    if fn is None:
+        pytest.skip(f"{name} has no fused sum of squares (the objective simulates)")
+    lo, hi = np.array([p.lower for p in params]), np.array([p.upper for p in params])
+    theta = lo + rng.random((80, len(params))) * (hi - lo)  # ≥ 64: the threaded kernel path too
+    theta[0] = [p.default for p in params]
+    with np.errstate(all="ignore"):
+        ref = np.sum((model.simulate(theta, u, DT) - y_meas) ** 2, axis=1)
+        got = fn(theta)
+    ok = np.isfinite(ref)
+    np.testing.assert_array_equal(np.isfinite(got), ok)
+    np.testing.assert_allclose(got[ok], ref[ok], rtol=1e-9, atol=1e-9 * np.sum(y_meas ** 2))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_fused_normal_equations_equal_the_basis(name):
+    """Where a separable model computes its normal equations directly (gram_factory), they equal
+    BᵀB, Bᵀ(y − C) and the target's square sum computed from the stored basis."""
+    model, params, u, _ = prepared(name)
+    sep = model.separable()
+    if sep is None or sep.gram_factory is None:
+        pytest.skip(f"{name} has no fused normal equations")
+    rng = np.random.default_rng(4)
+    y_meas = 0.3 * u + 0.05 * rng.standard_normal(u.size)
+    lo, hi = np.array([p.lower for p in params]), np.array([p.upper for p in params])
+    theta = lo + rng.random((70, len(params))) * (hi - lo)
+    nl = np.asarray(sep.nonlinear, dtype=int)
+    G, c, yy = sep.gram_factory(u, DT, y_meas)(theta[:, nl])
+    basis = sep.basis_factory(u, DT)(theta[:, nl])
+    B, C = basis if isinstance(basis, tuple) else (basis, np.zeros((1, u.size)))
+    target = y_meas[None, :] - C
+    with np.errstate(all="ignore"):
+        G_ref = np.einsum("pnl,pnk->plk", B, B)
+        c_ref = np.einsum("pnl,pn->pl", B, np.broadcast_to(target, B.shape[:2]))
+    ok = np.isfinite(G_ref.reshape(len(theta), -1)).all(axis=1)
+    np.testing.assert_allclose(G[ok], G_ref[ok], rtol=1e-9, atol=1e-12 * np.abs(G_ref[ok]).max())
+    np.testing.assert_allclose(c[ok], c_ref[ok], rtol=1e-9, atol=1e-12 * np.abs(c_ref[ok]).max())
+    tt = np.sum(np.broadcast_to(target, B.shape[:2]) ** 2, axis=1)
+    np.testing.assert_allclose(np.broadcast_to(yy, tt.shape)[ok], tt[ok], rtol=1e-12)
+
+
+def _unit_exponents(unit: str) -> dict[str, int]:
+    """Exponents of a parameter unit written as products and one quotient: "out*s/V" → {out: 1, s: 1, V: −1}."""
+    num, _, den = unit.partition("/")
+    exps: dict[str, int] = {}
+    for part, sign in ((num, 1), (den, -1)):
+        for tok in filter(None, (t.strip() for t in part.split("*"))):
+            if tok != "1":
+                exps[tok] = exps.get(tok, 0) + sign
+    return exps
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_default_bounds_and_output_follow_the_data_units(name):
+    """The same command works on µm/V stages and on nm/mV ones: with the input scaled by k_u and the
+    output by k_y, every default bound scales as its unit says (out^a·V^b → k_y^a·k_u^b) and the model
+    maps the scaled parameters to exactly the scaled output."""
+    k_u, k_y = 1e-2, 1e3  # e.g. a stage driven at 0…0.4 V, measured in nm instead of µm
+    model, params, u, scale = prepared(name)
+    y_like = 0.3 * u + 0.02 * np.sin(2 * np.pi * 10 * np.arange(u.size) / FS)
+    scale2 = DataScale.from_arrays([k_u * u], [k_y * y_like], [DT])
+    cls = models.get(name)
+    model2 = cls.example(scale2) if hasattr(cls, "example") else cls().adapt(scale2)
+    params2 = model2.params(scale2)
+    factors = []
+    for p, q in zip(params, params2):
+        e = _unit_exponents(p.unit)
+        assert set(e) <= {"out", "V", "s", "Hz"}, f"{name}.{p.name}: unexpected unit {p.unit!r}"
+        f = k_y ** e.get("out", 0) * k_u ** e.get("V", 0)
+        factors.append(f)
+        for a, b in ((p.lower, q.lower), (p.upper, q.upper), (p.default, q.default)):
+            assert b == pytest.approx(f * a, rel=1e-9, abs=1e-12 * f), f"{name}.{p.name} [{p.unit}]"
+    lo, hi = np.array([p.lower for p in params]), np.array([p.upper for p in params])
+    theta = lo + np.random.default_rng(3).random((4, len(params))) * (hi - lo)
+    theta[0] = [p.default for p in params]
+    with np.errstate(all="ignore"):
+        y1 = model.simulate(theta, u, DT)
+        y2 = model2.simulate(theta * np.array(factors), k_u * u, DT)
+    ok = np.isfinite(y1).all(axis=1)
+    assert ok[0]
+    np.testing.assert_allclose(y2[ok], k_y * y1[ok], rtol=1e-9, atol=1e-9 * k_y * np.abs(y1[ok]).max())
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_diverging_parameters_score_infinite_not_crash(name):
+    """Issue 3: a parameter vector that makes the model diverge or produce NaN gets an infinite
+    objective, never an exception (nor a RuntimeWarning: hystfit's warnings are errors here)."""
+    from hystfit.objective import Objective, Series
+
+    model, params, u, _ = prepared(name)
+    lo, hi = np.array([p.lower for p in params]), np.array([p.upper for p in params])
+    width = hi - lo
+    y = model.simulate_one(np.array([p.default for p in params]), u, DT)
+    extreme = np.vstack([lo - 1e6 * width, hi + 1e6 * width, np.where(np.arange(lo.size) % 2, lo, hi) * 1e12,
+                         np.full(lo.size, np.nan), np.full(lo.size, np.inf),
+                         [p.default for p in params]])
+    f = Objective(model, [Series(u, y, DT)])(extreme)
+    assert f.shape == (extreme.shape[0],)
+    assert not np.any(np.isnan(f)) and np.all(f >= 0)
+    assert f[-1] == pytest.approx(0.0, abs=1e-20)  # the defaults reproduce their own output

@@ -83,7 +83,18 @@ def test_runs_and_global(small_data, tmp_path):
     c = p["conditions"][0]
     assert len(c["sources"]) == 3 and len(c["runs"]) == 3
     assert len({run_["seed"] for run_ in c["runs"]}) == 3
-    assert c["run_spread"]["runs"] == 3
+    from hystfit.identify import run_seed
+
+    assert [run_["seed"] for run_ in c["runs"]] == [run_seed(0, 0, r) for r in range(3)]  # derived, recorded
+    # 004 Table 2 statistics over the runs: min / max / mean / std of objective and RMSE, median time
+    sp, funs = c["run_spread"], np.array([run_["fun"] for run_ in c["runs"]])
+    rmses = np.array([run_["rmse_um"] for run_ in c["runs"]])
+    assert sp["runs"] == 3
+    assert (sp["fun_min"], sp["fun_max"]) == (funs.min(), funs.max())
+    assert sp["fun_mean"] == pytest.approx(funs.mean()) and sp["fun_std"] == pytest.approx(funs.std(ddof=1))
+    assert (sp["rmse_min_um"], sp["rmse_max_um"]) == (rmses.min(), rmses.max())
+    assert sp["rmse_mean_um"] == pytest.approx(rmses.mean()) and sp["rmse_std_um"] == pytest.approx(rmses.std(ddof=1))
+    assert sp["time_median_s"] == pytest.approx(np.median([run_["wall_time_s"] for run_ in c["runs"]]))
 
 
 def test_existing_output_refused_without_force(small_data, tmp_path):
@@ -165,8 +176,55 @@ def test_models_and_optimizers_listing():
     assert {"pi", "bw"} <= set(models)
     assert models["pi"]["reference"].startswith("paper 003")
     assert any(p["unit"] == "um/V" for p in models["bw"]["parameters"])
+    from hystfit.registry import models as model_registry
+    from hystfit.registry import optimizers as optimizer_registry
+
+    assert set(models) == set(model_registry.names()) and len(models) == 10
+    for name, m in models.items():  # parameters with units and bounds, and the paper
+        assert m["reference"] and m["equation"] and m["parameters"], name
+        assert all(p["unit"] and p["lower"] < p["upper"] for p in m["parameters"]), name
     r = run("optimizers", "--json")
-    names = {o["name"] for o in json.loads(r.stdout)["optimizers"]}
-    assert {"pso", "lsq", "auto"} <= names
+    opts = {o["name"]: o for o in json.loads(r.stdout)["optimizers"]}
+    assert set(opts) == set(optimizer_registry.names())
+    for name, o in opts.items():  # settings with defaults, stop rules, bounds handling
+        assert o["settings"] and o["stop_rules"] and o["bounds_handling"], name
+    assert "no preset iteration count" in opts["ipso"]["stop_rules"]
+    assert "reflected" in opts["pso"]["bounds_handling"] and "clipped" in opts["gwo"]["bounds_handling"]
     r = run("models")
     assert r.exit_code == 0 and "Prandtl" in r.stdout
+    assert all(f"{name} — " in r.stdout for name in model_registry.names())
+    r = run("optimizers")
+    assert r.exit_code == 0 and r.stdout.count("stop rules") == len(opts) and "bounds" in r.stdout
+
+
+def test_nm_and_mV_capture_gives_the_same_fit_and_bounds_override_applies(tmp_path):
+    """Issue 3: default bounds come from the data, so a capture in mV and nm fits exactly as the
+    same capture in V and µm (RMSE × 1000, gains × 1000 per V); --bounds NAME=LO:HI narrows a box."""
+    import pandas as pd
+
+    src = pd.read_csv(SAMPLE / "a60V_f80Hz.csv")
+    nm = tmp_path / "a60V_f80Hz_nm.csv"
+    pd.DataFrame({"time_s": src["time_s"], "voltage_mV": 1e3 * src["voltage_V"],
+                  "displacement_nm": 1e3 * src["displacement_um"]}).to_csv(nm, index=False)
+    common = ("--model", "bw", "--no-plots", "--json", "--jobs", "1")
+    a = run("identify", SAMPLE / "a60V_f80Hz.csv", "--out", tmp_path / "um", *common)
+    b = run("identify", nm, "--out", tmp_path / "nm", *common)
+    assert a.exit_code == 0 and b.exit_code == 0, a.output + b.output
+    ca, cb = json.loads(a.stdout)["conditions"][0], json.loads(b.stdout)["conditions"][0]
+    assert (ca["amplitude_V"], ca["frequency_Hz"]) == (cb["amplitude_V"], cb["frequency_Hz"]) == (60.0, 80.0)
+    assert cb["metrics"]["rmse_nm"] == pytest.approx(1e3 * ca["metrics"]["rmse_um"], rel=1e-6)
+    pa = json.loads((tmp_path / "um" / "params.json").read_text())["conditions"][0]["parameters"]
+    pb = json.loads((tmp_path / "nm" / "params.json").read_text())["conditions"][0]["parameters"]
+    for p, q in zip(pa, pb):
+        k = 1e3 if p["unit"].startswith("um") else 1.0  # um/V and um scale with the output; 1/V does not
+        assert q["unit"] == p["unit"].replace("um", "nm")
+        assert (q["lower"], q["upper"]) == pytest.approx((k * p["lower"], k * p["upper"]), rel=1e-9)
+        assert q["value"] == pytest.approx(k * p["value"], rel=1e-4, abs=1e-9 * k)
+    kv = next(p["value"] for p in pa if p["name"] == "Kv")
+    lo, hi = sorted((0.5 * kv, 0.9 * kv))  # a box that excludes the unconstrained optimum
+    r = run("identify", SAMPLE / "a60V_f80Hz.csv", "--out", tmp_path / "b", *common, "--bounds", f"Kv={lo}:{hi}")
+    assert r.exit_code == 0, r.output
+    out = json.loads((tmp_path / "b" / "params.json").read_text())
+    p = next(p for p in out["conditions"][0]["parameters"] if p["name"] == "Kv")
+    assert (p["lower"], p["upper"]) == pytest.approx((lo, hi))
+    assert lo <= p["value"] <= hi and out["bounds_overrides"] == {"Kv": [lo, hi]}

@@ -33,9 +33,23 @@ def test_cli_compare_writes_every_table_and_figure(tmp_path):
     assert len(df) == 2 * 2 * 2 * 2  # models × optimizers × conditions × runs
     assert {"model", "optimizer", "condition", "run", "seed", "rmse_um", "mape", "smape", "r2", "j", "runtime_s",
             "evaluations"} <= set(df.columns)
+    assert {"j_search", "objective_mse_search"} <= set(df.columns)
+    assert (df["j"] <= df["j_search"] * (1 + 1e-9)).all()  # the polish never makes a run worse
+    auto = df[df["optimizer"] == "auto"]
+    np.testing.assert_allclose(auto["j"], auto["j_search"], rtol=1e-9)  # auto is not polished again
+    assert df.groupby(["model", "optimizer", "condition"])["seed"].nunique().eq(2).all()  # a seed per run
     md = (out / "compare.md").read_text()
-    for heading in ("## Ranking", "002 Table 3 style", "002 Table 2 style", "004 Table 2 style"):
+    for heading in ("## Ranking", "002 Table 3 style", "002 Table 2 style", "004 Table 2 style",
+                    "The searches alone, before the polish"):
         assert heading in md
+    # 002 Table 3 as printed: a row per performance figure, a column per model / optimizer, and
+    # every worst case names where it occurred
+    assert "| performance | pi / pso | bw / pso | pi / auto | bw / auto |" in md
+    assert "| maximum error (µm) at 60 V | " in md and "(80 Hz)" in md
+    # 002 Table 2 as printed: a row per model and voltage level, a column per frequency
+    assert "| model | optimizer | voltage | 80 Hz |" in md and "| pi | pso | 0–20 V |" in md
+    # 004 Table 2: min / max / mean / std of J and RMSE over runs, median time
+    assert "| model | optimizer | condition | runs | J min | J max | J mean | J std | RMSE min (um) |" in md
     figs = {p.name for p in (out / "figures").iterdir()}
     for key in ("rmse", "mape", "smape", "r2"):
         assert f"heatmap_{key}_pso.png" in figs
@@ -66,3 +80,74 @@ def test_unknown_names_are_config_errors(tmp_path):
     assert r.exit_code == 2 and "unknown model 'nosuch'" in r.stderr
     r = CliRunner().invoke(app, ["compare", str(FILES[0]), "--opts", "pso,pso", "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and "repeated" in r.stderr
+
+
+def test_report_tables_and_ranking_from_known_cells():
+    """The tables and the ranking are computed from the cells, so build cells with known numbers."""
+    from hystfit.compare import CellResult, CompareResult, RunMetrics
+    from hystfit.report.compare_report import optimizer_table, ranking, runtime_table, table3
+
+    def cell(model, opt, a, f, rmses, js, times, search=None, r2=0.99):
+        runs = tuple(RunMetrics(i, 100 + i, j, j, {"rmse_um": r, "r2": r2, "mape": r, "smape": r,
+                                                   "max_error_um": 3 * r}, t, 10, np.empty(0),
+                                search[i] if search else j, search[i] if search else j)
+                     for i, (r, j, t) in enumerate(zip(rmses, js, times)))
+        best = int(np.argmin(js))
+        return CellResult(model, opt, a, f, f"{a:g}V_{f:g}Hz", 5, runs, best)
+
+    conds = [((20.0, 10.0), "20V_10Hz"), ((20.0, 80.0), "20V_80Hz"), ((60.0, 10.0), "60V_10Hz"),
+             ((60.0, 80.0), "60V_80Hz")]
+    cells = []
+    for (a, f), _ in conds:
+        worse = 1.5 if (a, f) == (60.0, 80.0) else 1.0
+        cells.append(cell("m1", "o1", a, f, [0.1 * worse], [1.0], [0.5]))
+        cells.append(cell("m2", "o1", a, f, [0.2], [2.0], [1.0 if f == 10 else 2.0]))
+    res = CompareResult(("m1", "m2"), ("o1",), tuple(conds), {}, tuple(cells), runs=1)
+    t3 = table3(res)
+    assert list(t3.columns) == ["performance", "m1", "m2"]
+    row = dict(zip(t3["performance"], t3["m1"]))
+    assert row["maximum RMSE (µm)"] == "0.15 (60V_80Hz)"
+    assert row["maximum error (µm) at 20 V"] == "0.3 (10 Hz)"  # first of the tied conditions
+    assert row["maximum error (µm) at 60 V"] == "0.45 (80 Hz)"
+    rt = runtime_table(res)
+    assert list(rt.columns) == ["model", "voltage", "10 Hz", "80 Hz"]
+    assert rt.loc[(rt.model == "m2") & (rt.voltage == "0–60 V"), "80 Hz"].item() == 2.0
+    text = "\n".join(ranking(res))
+    assert "run-to-run spread is unknown" in text
+    assert "1. `m1`" in text and "lower than `m2` at 4 of 4 conditions" in text
+
+    # with ≥ 6 conditions the paired comparison is a Wilcoxon signed-rank test over conditions
+    conds8 = [((a, f), f"{a:g}V_{f:g}Hz") for a in (20.0, 60.0) for f in (10.0, 20.0, 40.0, 80.0)]
+    cells = [cell(m, "o1", a, f, [r + 0.01 * f / 80], [1.0], [1.0]) for (a, f), _ in conds8
+             for m, r in (("m1", 0.1), ("m2", 0.105 if f < 80 else 0.09), ("m3", 0.3))]
+    text = "\n".join(ranking(CompareResult(("m1", "m2", "m3"), ("o1",), tuple(conds8), {}, tuple(cells), runs=1)))
+    assert "not consistently below `m2` (lower at 6 of 8 conditions, Wilcoxon signed-rank" in text
+    assert "consistently below `m3` (lower at 8 of 8 conditions" in text
+
+    # repeated runs: the optimizer table's statistics, and a ranking by the search's J
+    js = {"o1": [1.0, 2.0, 3.0], "o2": [1.1, 2.1, 3.1]}
+    cells = [cell("m1", o, 60.0, 80.0, [0.1, 0.2, 0.3], [1.0] * 3, [1.0, 2.0, 9.0], search=js[o]) for o in js]
+    res = CompareResult(("m1",), ("o1", "o2"), (((60.0, 80.0), "60V_80Hz"),), {}, tuple(cells), runs=3)
+    ot = optimizer_table(res)
+    first = ot.iloc[0]
+    assert (first["RMSE min (um)"], first["RMSE max (um)"]) == (0.1, 0.3)
+    assert first["RMSE mean (um)"] == pytest.approx(0.2) and first["RMSE std (um)"] == pytest.approx(0.1)
+    assert first["time median (s)"] == 2.0
+    text = "\n".join(ranking(res))
+    assert "J of the search (before the polish)" in text
+    assert "not distinguishable from `o2` (Mann–Whitney U over runs" in text
+    assert "differ by less than 0.01 %" in text
+
+
+def test_shared_structure_is_identified_once_and_reported(tmp_path):
+    """hammerstein's linear part comes from all captures (sine-only here: the gain/phase route), is
+    handed to every cell, and compare.md says how it was found."""
+    from hystfit.report.compare_report import write_compare_outputs
+
+    caps = load_captures([SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a20V_f80Hz.csv"])
+    res = compare(caps, ["hammerstein"], ["auto"], jobs=1)
+    assert all(c.ok for c in res.cells) and len(res.notes) == 1
+    assert "gain and phase measured per frequency" in res.notes[0]
+    write_compare_outputs(res, tmp_path, make_figures=False)
+    md = (tmp_path / "compare.md").read_text()
+    assert "## Structure identified once from all captures" in md and res.notes[0] in md

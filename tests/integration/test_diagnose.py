@@ -16,12 +16,13 @@ from typer.testing import CliRunner
 from hystfit.capture import Capture
 from hystfit.cli import app
 from hystfit.diagnose import (DiagnoseSettings, choose_effect, diagnose, estimate_noise, fit_masks, is_periodic,
-                              withheld_effect_captures)
+                              one_effect, withheld_effect_captures)
 from hystfit.errors import ConfigError, InputError
 from hystfit.models.bw import BoucWen
 from hystfit.models.pi import PI
 from hystfit.optimizers.auto import Auto
-from hystfit.synth import raised_cosine, write_capture
+from hystfit.report.diagnose_report import write_diagnose_outputs
+from hystfit.synth import Effects, Plant, raised_cosine, write_capture
 
 SETTINGS = DiagnoseSettings(max_effects=2)
 
@@ -78,6 +79,84 @@ def test_clean_plant_gives_none(seed):
     assert d.noise["sigma"] == pytest.approx(0.008, rel=0.05)
 
 
+#: A plant none of the diagnosis' settings were chosen on (the generality check, kept apart from the
+#: default plant and from the benchmark's "other" plant): other PI thresholds and weights, output in nm,
+#: 20 kHz sampling, other drive amplitudes and frequencies, other effect parameters.
+OTHER_PLANT = Plant(thresholds_V=(0.0, 3.0, 8.0, 15.0, 24.0, 35.0, 50.0),
+                    weights_um_per_V=(0.15, 0.04, 0.03, 0.02, 0.012, 0.008, 0.004), offset_um=0.8, output_unit="nm",
+                    effects=Effects(dynamics_fn_Hz=800.0, dynamics_zeta=0.1,
+                                    creep_tau_s=(0.02, 0.2, 2.0), creep_gain=(0.02, 0.02, 0.02)))
+OTHER_CAPTURES = {"amplitudes_V": (40.0, 80.0), "frequencies_Hz": (8.0, 50.0), "cycles": 4, "fs_Hz": 20_000.0,
+                  "steps_s": 2.5, "noise_um": 0.004, "plant": OTHER_PLANT}
+
+
+def _keys(x):
+    """Every dict key of a JSON document, at any depth."""
+    if isinstance(x, dict):
+        for k, v in x.items():
+            yield k
+            yield from _keys(v)
+    elif isinstance(x, list):
+        for v in x:
+            yield from _keys(v)
+
+
+@pytest.mark.parametrize("effect", ["dynamics", "creep"])
+def test_other_plant_in_nm(effect, tmp_path):
+    """Generality: another actuator sampled at 20 kHz with its output in nm. The verdict holds, the
+    fitted stage is that plant's, and every unit-bearing JSON name says nm (none says um)."""
+    caps = withheld_effect_captures(effect, 1.0, 0, **OTHER_CAPTURES)
+    assert all(c.y_unit == "nm" for c in caps)
+    d = diagnose(caps, PI(), Auto(), seed=0, settings=DiagnoseSettings(max_effects=1))
+    assert d.verdict == effect, [(r.effect, round(r.reduction, 3), r.passes) for r in d.effects]
+    top = d.effects[0]
+    assert top.effect == effect and top.reduction >= 0.5
+    if effect == "dynamics":
+        assert top.params["fn_Hz"] == pytest.approx(800.0, rel=0.02)
+    doc = d.to_dict()
+    keys = set(_keys(doc))
+    assert {"noise_floor_nm", "rmse_nm", "heldout_rmse_nm", "heldout_rmse_before_nm", "heldout_rmse_after_nm",
+            "sigma_nm", "repeatability_nm", "quantization_step_nm"} <= keys
+    assert not [k for k in keys if "_um" in k or k.endswith("_out") or "_out_" in k]
+    assert doc["noise_floor_nm"] == pytest.approx(4.0, rel=0.05)  # σ = 4 nm, found in nm
+    assert all("rmse_nm" in r for r in doc["where"]["by_condition"])
+    write_diagnose_outputs(d, tmp_path, make_figures=False)
+    md = (tmp_path / "diagnosis.md").read_text()
+    assert " nm" in md and "µm" not in md
+
+
+def test_noise_floor_survives_a_ringing_capture():
+    """Two broadband captures of a ringing stage: the PI base cannot draw the ringing, so the scatter of
+    the base residual of the PRBS capture is not noise. The floor is re-estimated once the stage is
+    found, and ends at the sensor's σ, not at the median of an inflated and a clean estimate."""
+    from hystfit.conditions import detect_condition
+    from hystfit.synth import prbs, simulate_plant, step_pattern
+
+    plant = Plant().with_effects(Effects.only("dynamics").with_noise(0.008))
+    caps = []
+    for k, (t, u) in enumerate([prbs(60.0, duration_s=0.8, seed=3), step_pattern(60.0, 1.5)]):
+        a, f = detect_condition(u, 1e-4)
+        caps.append(Capture(f"bb{k}", t, u, simulate_plant(plant, t, u, seed=k), 1e-4, amplitude_V=a, frequency_Hz=f))
+    d = diagnose(caps, PI(), Auto(), seed=0, settings=DiagnoseSettings(max_effects=1))
+    assert d.verdict == "dynamics"
+    assert d.noise["sigma_base_model_out"] > 10 * 0.008  # the base residual's scatter is mostly ringing
+    assert d.noise["refined"] and d.noise["sigma"] == pytest.approx(0.008, rel=0.1)
+    assert d.effects[0].reduction == pytest.approx(
+        (d.effects[0].heldout_rmse_before - d.effects[0].heldout_rmse_after)
+        / (d.effects[0].heldout_rmse_before - d.noise["sigma"]))
+
+
+def test_one_effect_matches_the_virtual_actuator():
+    for name in ("dynamics", "creep", "asymmetry", "drift", "delay"):
+        for strength in (0.5, 1.0, 3.0):
+            assert one_effect(name, strength) == Effects.only(name, strength)
+    assert one_effect("none") == Effects.none()
+    e = one_effect("dynamics", 2.0, OTHER_PLANT.effects)
+    assert e.enabled == ("dynamics",) and e.dynamics_fn_Hz == 400.0
+    with pytest.raises(ConfigError):
+        one_effect("thermal")
+
+
 def test_recovered_parameters_are_physical():
     """The fitted effect says what the stage is: f_n and ζ of the withheld dynamics, creep gains."""
     d = diagnose(withheld_effect_captures("dynamics", 1.0, 0), PI(), Auto(), settings=DiagnoseSettings(max_effects=1))
@@ -126,7 +205,7 @@ def test_noise_floor_from_the_data(rng):
         caps.append(Capture("x", t, u, u * 0.3 + e, 1e-4, amplitude_V=40.0, frequency_Hz=20.0))
     n = estimate_noise(caps, res, [True])
     assert n["sigma"] == pytest.approx(0.01, rel=0.06)
-    assert n["repeatability"] == pytest.approx(0.01, rel=0.1)  # the smooth error repeats every cycle
+    assert n["repeatability_out"] == pytest.approx(0.01, rel=0.1)  # the smooth error repeats every cycle
 
 
 def test_split_is_whole_cycles_and_periodicity():
@@ -195,9 +274,14 @@ def test_cli_writes_the_json_contract(small_dataset, tmp_path):
                                                                                   "drift", "delay"}
     reds = [e["reduction"] for e in effects]
     assert reds == sorted(reds, reverse=True)  # best first
+    floor = d["noise_floor_um"]
     for e in effects:
         assert {"heldout_rmse_before_um", "heldout_rmse_after_um", "reduction", "evidence", "params"} <= set(e)
         assert 0.0 <= e["reduction"] <= 1.0 and e["evidence"]
+        # reduction = (before − after) / (before − noise floor), clipped to [0, 1]
+        b, a = e["heldout_rmse_before_um"], e["heldout_rmse_after_um"]
+        assert e["reduction"] == pytest.approx(min(max((b - a) / (b - floor), 0.0), 1.0), abs=1e-12)
+        assert b == pytest.approx(d["gap"]["heldout_rmse_um"], rel=1e-12)  # step 1 starts from the base's gap
     assert d["verdict"] in {"dynamics", "creep", "asymmetry", "drift", "delay", "none"}
     assert d["verdict"] == "delay" and effects[0]["params"]["delay_ms"] == pytest.approx(0.3, abs=0.01)
     md = (out / "diagnosis.md").read_text()
@@ -206,10 +290,28 @@ def test_cli_writes_the_json_contract(small_dataset, tmp_path):
     assert "effects_heldout.png" in figs and "where_conditions.png" in figs and "where_bands.png" in figs
 
 
-def test_cli_refuses_bad_options(small_dataset, tmp_path):
-    r = CliRunner().invoke(app, ["diagnose", str(small_dataset), "--effects", "thermal", "--out", str(tmp_path / "x")])
-    assert r.exit_code == 2 and "unknown effect 'thermal'" in r.stderr
-    assert not (tmp_path / "x").exists()
+@pytest.mark.parametrize("args,message", [
+    (["--effects", "thermal"], "unknown effect 'thermal'"),
+    (["--effects", ","], "give at least one effect name"),
+    (["--effects", "creep,creep"], "listed twice"),
+    (["--fit-fraction", "0.95"], "fit_fraction must be in [0.1, 0.9]"),
+    (["--threshold", "1"], "threshold must be in (0, 1)"),
+    (["--max-effects", "0"], "max_effects must be >= 1"),
+    (["--seed", "-1"], "seed must be an integer"),
+    (["--model", "nosuchmodel"], "unknown model 'nosuchmodel'"),
+    (["--opt", "nosuchopt"], "unknown optimizer 'nosuchopt'"),
+])
+def test_cli_bad_input_is_one_line_and_writes_nothing(small_dataset, tmp_path, args, message):
+    out = tmp_path / "x"
+    r = CliRunner().invoke(app, ["diagnose", str(small_dataset), "--out", str(out), "--quiet"] + args)
+    assert r.exit_code == 2, r.output
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("hystfit: error: ") and message in lines[0], r.stderr
+    assert "Traceback" not in r.output
+    assert not out.exists() and not list(tmp_path.glob(".x.tmp-*"))
+
+
+def test_cli_refuses_a_non_empty_output_dir(small_dataset, tmp_path):
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "f").write_text("x")
     r = CliRunner().invoke(app, ["diagnose", str(small_dataset), "--out", str(tmp_path / "full"), "--quiet"])

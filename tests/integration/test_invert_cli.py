@@ -2,6 +2,8 @@
 
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -154,6 +156,7 @@ def test_invert_refuses_to_overwrite_without_force(tables, tmp_path):
     (("--sine", "10"), "--sine"),
     (("--sine", "a,b"), "--sine"),
     (("--sine", "-10,10"), "amplitude"),
+    (("--sine", "10,5000"), "samples per cycle"),
     (("--triangle", "10,0"), "frequency"),
     (("--steps", "10@x"), "hold"),
     (("--steps", "10,10"), "differ"),
@@ -180,6 +183,26 @@ def test_invert_bad_params_and_output_names(tables, tmp_path):
                  tmp_path / "v.xlsx")
     r = run("invert", tables["pi"], "--sine", "10,10")
     assert r.exit_code == 2 and "--out" in r.output
+
+
+@pytest.mark.slow
+def test_invert_a_million_samples_peaks_under_1_GB_resident(tables, tmp_path):
+    """The whole command (load, invert two cells, preview, CSV, report, figure) on a 10⁶-sample target,
+    in a fresh process whose peak resident set size (what /usr/bin/time -v reports) is read at exit."""
+    out = tmp_path / "v.csv"
+    code = ("import resource, sys\n"
+            "from hystfit.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit as exc:\n    assert exc.code in (0, None), exc.code\n"
+            "print('peak_kB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+    r = subprocess.run([sys.executable, "-c", code, "invert", str(tables["pi"]), "--sine", "10,10,1000", "--offset", "2",
+                        "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    peak_kB = int(r.stderr.split("peak_kB")[1].split()[0])  # Linux: kilobytes
+    assert peak_kB < 1_000_000, f"peak RSS {peak_kB / 1e3:.0f} MB"
+    df = pd.read_csv(out)
+    assert len(df) == 1_000_001 and list(df.columns) == ["time_s", "voltage_V", "predicted_displacement_um"]
+    summary = json.loads((tmp_path / "v_report" / "report.json").read_text())
+    assert summary["target"]["samples"] == 1_000_001 and summary["predicted_tracking"]["rmse_pct_of_stroke"] < 1
 
 
 # ------------------------------------------------------------------------------------------ track

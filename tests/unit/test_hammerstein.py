@@ -2,6 +2,7 @@
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -269,3 +270,17 @@ def test_inverse_round_trip_non_minimum_phase_eq16():
     e = np.abs(m.simulate_one(THETA, u, DT) - y_d)
     assert e.max() < 1e-4 * stroke
     assert e[200:-200].max() < 5e-6 * stroke
+
+
+def test_structure_summary_says_how_the_linear_part_was_found():
+    """Reports say which route identified the linear part (issue 3: 'with sine-only data ... say so')."""
+    assert "none" in Hammerstein().structure_summary()
+    m = model_with(second_order_zoh(800.0, 0.3).normalized())
+    assert "f_n 800 Hz ζ 0.3" in m.structure_summary()
+    us = [30 * (1 - np.cos(2 * np.pi * f * np.arange(3000) * DT)) for f in (20.0, 100.0, 300.0)]
+    ys = [second_order_zoh(800.0, 0.3).normalized().filter(pi_output(u)) for u in us]
+    text = Hammerstein.from_data(us, ys, DT).structure_summary()
+    assert "gain and phase measured per frequency" in text and "limit" not in text
+    era = Hammerstein(10, thresholds_V=THRESHOLDS).with_linear(
+        replace(second_order_zoh(800.0, 0.3).normalized(), method="era"))
+    assert "Hankel SVD" in era.structure_summary()
