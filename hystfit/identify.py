@@ -225,20 +225,18 @@ def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: n
     Jacobian gives large errors — an honest sign that a parameter is poorly determined.
     """
     try:
-        J = objective.jacobian(theta)
-        r = objective.residuals(theta)
+        JtJ, rr, m = objective.normal_matrix(theta)
     except Exception:  # pragma: no cover - defensive: a model that cannot be differentiated
         return np.full(theta.shape, np.nan)
-    m, d = J.shape
-    if m <= d or not np.all(np.isfinite(J)):
+    d = JtJ.shape[0]
+    if m <= d or not (np.all(np.isfinite(JtJ)) and np.isfinite(rr)):
         return np.full(theta.shape, np.nan)
-    sigma2 = float(r @ r) / (m - d)
+    sigma2 = rr / (m - d)
     width = upper - lower
     free = (theta - lower > 1e-6 * width) & (upper - theta > 1e-6 * width)
     out = np.full(theta.shape, np.nan)
     if free.any():
-        Jf = J[:, free]
-        cov = np.linalg.pinv(Jf.T @ Jf) * sigma2
+        cov = np.linalg.pinv(JtJ[np.ix_(free, free)]) * sigma2
         out[free] = np.sqrt(np.maximum(np.diag(cov), 0.0))
     return out
 

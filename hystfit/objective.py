@@ -73,8 +73,9 @@ class Objective:
         theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
         return [sim(theta)[0] for sim in self._sims]
 
-    def jacobian(self, theta: np.ndarray, rel_step: float = 1e-6, upper: np.ndarray | None = None) -> np.ndarray:
-        """Forward-difference Jacobian of the residuals (M, d), all d+1 candidates in one population call.
+    @staticmethod
+    def _fd_population(theta: np.ndarray, rel_step: float, upper: np.ndarray | None):
+        """θ (d,) → (steps h (d,), population (d+1, d): θ and θ + h_j e_j).
 
         Step h_j = rel_step·max(|θ_j|, 1e-3·max|θ|); with ``upper`` given, a step that would leave
         the box is taken backwards instead (a model need not be defined outside its bounds).
@@ -86,8 +87,36 @@ class Objective:
             h = np.where(theta + h > np.asarray(upper, dtype=np.float64), -h, h)
         pop = np.repeat(theta[None, :], d + 1, axis=0)
         pop[1:] += np.diag(h)
+        return h, pop
+
+    def jacobian(self, theta: np.ndarray, rel_step: float = 1e-6, upper: np.ndarray | None = None) -> np.ndarray:
+        """Forward-difference Jacobian of the residuals (M, d), all d+1 candidates in one population
+        call per capture (steps as :meth:`_fd_population`)."""
+        h, pop = self._fd_population(theta, rel_step, upper)
         with np.errstate(all="ignore"):
             ys = [sim(pop) for sim in self._sims]
         y = np.concatenate(ys, axis=1)  # (d+1, M)
-        self.nfev += d + 1
+        self.nfev += h.size + 1
         return ((y[1:] - y[0]) / h[:, None]).T
+
+    def normal_matrix(self, theta: np.ndarray, rel_step: float = 1e-6,
+                      upper: np.ndarray | None = None) -> tuple[np.ndarray, float, int]:
+        """(JᵀJ (d, d), rᵀr, M) at θ without forming the (M, d) Jacobian: one capture at a time,
+        differences taken in place, so the working memory is one capture's (d+1, N) simulation
+        (what parameter standard errors need on a 10⁶-sample capture)."""
+        h, pop = self._fd_population(theta, rel_step, upper)
+        d = h.size
+        JtJ = np.zeros((d, d))
+        rr = 0.0
+        chunk = 1 << 16
+        for sim, s in zip(self._sims, self.series):
+            with np.errstate(all="ignore"):
+                Y = np.asarray(sim(pop), dtype=np.float64)  # (d+1, N)
+                for a in range(0, Y.shape[1], chunk):  # differences over time chunks: O(d·chunk) extra memory
+                    r = Y[0, a:a + chunk] - s.y[a:a + chunk]
+                    rr += float(r @ r)
+                    D = (Y[1:, a:a + chunk] - Y[0, a:a + chunk]) / h[:, None]
+                    JtJ += D @ D.T
+            del Y
+        self.nfev += d + 1
+        return JtJ, rr, self.n_total

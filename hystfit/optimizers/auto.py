@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +31,20 @@ class Auto(Optimizer):
     3. A bounded least-squares polish of the full θ from the best point (skipped for linear models).
 
     Without separable structure it falls back to PSO over all parameters plus the polish.
-    Bounds: as PSO (reflection) and the linear solve (exact box constraints).
+
+    Settings: ``pop`` (24) particles and ``iters`` (60) iterations per search, ``stall_iter`` (12)
+    and ``stall_tol`` (1e-7) for the stall stop of each search, ``restarts`` (1) searches (2 when
+    m > 2), ``max_evals`` (None) and ``time_limit_s`` (None) for the whole run.
+
+    Stop rules: each search stops after ``iters`` iterations or when the best value has not
+    improved by more than ``stall_tol`` (relative) for ``stall_iter`` iterations; ``max_evals``
+    and ``time_limit_s`` bound all searches together (what the first search used is taken off
+    the budget of the next; a search is skipped when nothing is left). The polish has its own
+    bounded budget (:func:`hystfit.optimizers.lsq.polisher`).
+
+    Bounds: as PSO (reflection at the bounds) for the nonlinear parameters; the linear solve
+    honours the box exactly (bounded least squares); the polish is bounded (trust region
+    reflective).
     """
 
     name = "auto"
@@ -80,9 +94,16 @@ class Auto(Optimizer):
             iters = max(self.iters, 15 * m) if m > 2 else self.iters
             stall = max(self.stall_iter, 3 * m) if m > 2 else self.stall_iter
             restarts = max(self.restarts, 2 if m > 2 else 1)
+            t_start = time.perf_counter()
             for r in range(restarts):
+                evals_left = None if self.max_evals is None else self.max_evals - nfev
+                time_left = None if self.time_limit_s is None else self.time_limit_s - (time.perf_counter() - t_start)
+                if best_nl is not None and ((evals_left is not None and evals_left < pop)
+                                            or (time_left is not None and time_left <= 0)):
+                    break  # the budget is spent: keep the best search so far
                 pso = PSO(pop=pop, iters=iters, stall_iter=stall, stall_tol=self.stall_tol,
-                          max_evals=self.max_evals, time_limit_s=self.time_limit_s)
+                          max_evals=None if evals_left is None else max(evals_left, pop),
+                          time_limit_s=None if time_left is None else max(time_left, 0.0))
                 g = pso.minimize(proj, lower[nl], upper[nl], rng=rng,
                                  x0=None if (x0 is None or r > 0) else np.asarray(x0)[nl], callback=callback)
                 hist_b += list(g.history_best)

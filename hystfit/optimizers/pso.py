@@ -23,6 +23,9 @@ class PSO(Optimizer):
     Bounds: a particle that leaves the box is *reflected* back inside and the offending velocity
     component reversed (periodic wrapping, pyswarms' default, is known to ruin PI fits).
 
+    Settings: ``pop`` (40) particles, ``iters`` (200) iterations, ``w_start``/``w_end`` (0.9/0.4),
+    ``phi1``/``phi2`` (2.0/2.0) cognitive and social acceleration, ``vmax_frac`` (0.2).
+
     Stop rules: ``iters`` iterations, or ``max_evals`` evaluations, or no relative improvement
     above ``stall_tol`` for ``stall_iter`` iterations, or ``target`` reached, or ``time_limit_s``.
 

@@ -70,3 +70,26 @@ def test_lsq_uses_residuals_and_converges():
     r = LSQ().minimize(Obj(), np.array([0.0, -5.0]), np.array([5.0, 5.0]), rng=np.random.default_rng(0))
     np.testing.assert_allclose(r.x, [2.0, -1.0], atol=1e-8)
     assert r.status == 5
+
+
+def test_auto_budget_bounds_all_searches_together():
+    """``auto``'s max_evals is a budget for all its searches together, not per search."""
+    from hystfit.models.bw import BoucWen
+    from hystfit.objective import Objective, Series
+    from hystfit.optimizers.auto import Auto
+    from hystfit.params import DataScale
+
+    fs = 2000.0
+    t = np.arange(2000) / fs
+    u = 30.0 * (1 - np.cos(2 * np.pi * 2 * t))
+    model = BoucWen()
+    scale = DataScale.from_arrays([u], [0.3 * u], [1 / fs])
+    ps = model.params(scale)
+    lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
+    y = model.simulate_one(np.array([0.25, 0.08, 0.05, 0.01, 0.1]), u, 1 / fs)
+    free = Auto(restarts=3).minimize(Objective(model, [Series(u, y, 1 / fs)]), lo, hi, rng=np.random.default_rng(0))
+    capped = Auto(restarts=3, max_evals=60).minimize(Objective(model, [Series(u, y, 1 / fs)]), lo, hi,
+                                                     rng=np.random.default_rng(0))
+    search_evals = len(capped.history_best) - 1  # iterations of the searches (the last entry is the polish)
+    assert capped.nfev < free.nfev
+    assert search_evals * Auto().pop <= 60 + Auto().pop
