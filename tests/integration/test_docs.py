@@ -37,3 +37,45 @@ def test_committed_docs_list_every_model():
     for name in models.names():
         assert f"## `{name}`" in md, f"docs/models.md lacks {name}: run python docs/make_model_docs.py"
         assert (ROOT / "docs" / "figures" / f"model_{name}.png").exists()
+
+
+def _documented_commands():
+    """Every `hystfit ...` line of the README and the docs (code blocks and synopses)."""
+    import re
+
+    for page in (ROOT / "README.md", ROOT / "docs" / "invert.md", ROOT / "docs" / "diagnose.md"):
+        lines = page.read_text().splitlines()
+        for i, line in enumerate(lines):
+            if not line.startswith("hystfit "):
+                continue
+            text = line.split("#")[0]
+            j = i + 1  # synopses continue on indented lines
+            while j < len(lines) and lines[j].startswith(" " * 8) and lines[j].strip().startswith(("[", "--")):
+                text += " " + lines[j].split("#")[0]
+                j += 1
+            words = text.split()
+            sub = words[1]
+            flags = sorted({m.group(1) for m in re.finditer(r"(--[a-z][a-z0-9-]*)", text)})
+            yield f"{page.name}:{i + 1}", sub, flags
+
+
+def test_every_documented_command_uses_existing_options():
+    """A flag the README or docs show for a command is one that command accepts (`--help` lists it)."""
+    from typer.testing import CliRunner
+
+    from hystfit.cli import app
+
+    runner = CliRunner()
+    helps: dict[str, str] = {}
+    checked = 0
+    for where, sub, flags in _documented_commands():
+        if sub not in helps:
+            r = runner.invoke(app, [sub, "--help"], env={"COLUMNS": "250", "TERM": "dumb"})
+            assert r.exit_code == 0, f"{where}: `hystfit {sub}` is not a command"
+            helps[sub] = r.output
+        for flag in flags:
+            if flag in ("--help",):
+                continue
+            assert flag in helps[sub], f"{where}: `hystfit {sub}` has no option {flag}"
+            checked += 1
+    assert checked > 40
