@@ -55,9 +55,11 @@ _ALIASES: dict[str, frozenset[str]] = {
                        "secs", "sec"}),
     "input": frozenset({"u", "v", "voltage", "volt", "volts", "input", "vin", "v_in", "u_in", "uin", "drive",
                         "command", "cmd", "excitation", "input_voltage", "voltage_in", "drive_voltage",
-                        "applied_voltage", "v_drive", "u_drive", "voltage_input"}),
+                        "applied_voltage", "v_drive", "u_drive", "voltage_input", "piezo_voltage", "v_piezo",
+                        "u_piezo", "voltage_piezo", "control_voltage", "actuator_voltage"}),
     "output": frozenset({"y", "x", "d", "displacement", "disp", "position", "pos", "output", "out", "y_out",
-                         "yout", "stroke", "deflection", "extension", "elongation", "measured_displacement"}),
+                         "yout", "stroke", "deflection", "extension", "elongation", "measured_displacement",
+                         "sensor", "sensor_output", "measured_position", "actual_position", "distance", "z"}),
     "amplitude": frozenset({"amplitude", "amp", "amplitude_pp", "amp_pp", "vpp"}),
     "frequency": frozenset({"frequency", "freq"}),
 }
@@ -75,6 +77,7 @@ _FLAGS = {"time": "--time-col", "input": "--input-col", "output": "--output-col"
 _WHAT = {"time": "time", "input": "input (voltage)", "output": "output (displacement)"}
 _MISSING_CELLS = frozenset({"", "nan", "-nan", "+nan", "na", "n/a", "#n/a", "null", "none"})
 
+_DECIMAL_COMMA_RE = r"[-+]?\d*,\d+(?:[eE][-+]?\d+)?"
 _BRACKET_RE = re.compile(r"^(.*?)\s*[\[\(\{]\s*([^\]\)\}]*?)\s*[\]\)\}]\s*$")
 _SUFFIX_RE = re.compile(r"^(.*?)[_\s]+([A-Za-zµμ]+)$")
 
@@ -312,6 +315,8 @@ class _Table:
     cols: list[pd.Series]
     rows: np.ndarray
     header_auto: bool = False
+    #: the delimiter is not a comma, so "1,5" may be a decimal comma (European locale exports)
+    comma_decimal_ok: bool = False
 
     @property
     def ncols(self) -> int:
@@ -397,8 +402,15 @@ def _read_text(path: Path, label: str, no_header: bool) -> _Table:
         df, rows = df.iloc[1:], rows[1:]
         if df.empty:
             raise InputError(f"{label}: the file has a header row but no data rows; pass a capture with data")
+    # rows with every cell empty at the end of the file (a trailing ",,," line) are not data
+    empty = (df.apply(lambda col: col.str.strip()) == "").all(axis=1).to_numpy()
+    n_keep = len(empty)
+    while n_keep > 1 and empty[n_keep - 1]:
+        n_keep -= 1
+    if n_keep < len(empty):
+        df, rows = df.iloc[:n_keep], rows[:n_keep]
     cols = [df[c].reset_index(drop=True) for c in df.columns]
-    return _Table(label, names, cols, rows, header_auto)
+    return _Table(label, names, cols, rows, header_auto, comma_decimal_ok=delim != ",")
 
 
 def _parser_error(label: str, exc: Exception, numbered: list[tuple[int, str]]) -> InputError:
@@ -455,10 +467,16 @@ def _numeric(table: _Table, col: int) -> np.ndarray:
     text = s.astype(str).str.strip()
     num = pd.to_numeric(text, errors="coerce")
     bad = np.flatnonzero((num.isna() & ~text.str.lower().isin(_MISSING_CELLS) & s.notna()).to_numpy())
+    if bad.size and table.comma_decimal_ok and text.str.fullmatch(_DECIMAL_COMMA_RE).iloc[bad].all():
+        # a ';'/tab/space-separated export with decimal commas (e.g. "0,25"): read ',' as the decimal mark
+        text = text.str.replace(",", ".", regex=False)
+        num = pd.to_numeric(text, errors="coerce")
+        bad = np.flatnonzero((num.isna() & ~text.str.lower().isin(_MISSING_CELLS) & s.notna()).to_numpy())
     if bad.size:
         k = int(bad[0])
         cell = str(text.iloc[k])
-        hint = " (decimal commas are not supported: use '.')" if re.fullmatch(r"[-+]?\d+,\d+", cell) else ""
+        hint = (" (decimal commas are read only when the delimiter is not a comma: use '.' or ';')"
+                if re.fullmatch(r"[-+]?\d+,\d+", cell) else "")
         if k == 0 and table.names is None and not table.header_auto:
             hint += " (is the first row a header? then do not pass --no-header)"
         raise InputError(f"{table.label}: row {table.rows[k]}, {table.col_label(col)}: {_cell_text(table, col, k)} "

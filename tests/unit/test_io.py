@@ -623,3 +623,42 @@ def test_staged_output_dir_refuses_to_replace_working_directory(tmp_path, monkey
         with staged_output_dir(Path("."), force=True):
             pass
     assert (work / "data.csv").exists()
+
+
+# ------------------------------------------------------------------ locale exports and trailing rows
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_decimal_commas_are_read_when_the_delimiter_is_not_a_comma(tmp_path, sep):
+    """European-locale DAQ exports: ';' or tab separated, ',' as the decimal mark, units in brackets."""
+    t, u, y = sine()
+    path = tmp_path / "euro.csv"
+    header = ("Time [ms]", "Voltage [mV]", "Position [nm]")
+    lines = [sep.join(header)] + [sep.join(f"{v:.9f}".replace(".", ",") for v in row)
+                                  for row in zip(t * 1e3, u * 1e3, y * 1e3)]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    cap = load_capture(path)
+    np.testing.assert_allclose(cap.u, u, atol=1e-6)
+    np.testing.assert_allclose(cap.y, y * 1e3, atol=1e-6)
+    assert cap.y_unit == "nm" and cap.dt == pytest.approx(1 / FS)
+
+
+def test_decimal_commas_in_a_comma_separated_file_stay_an_error(tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_text('time_s,voltage_V,displacement_um\n0,0,"0,5"\n', encoding="utf-8")
+    msg = error_of(path)
+    assert "row 2" in msg and "decimal commas" in msg
+
+
+def test_trailing_empty_rows_are_not_data(tmp_path):
+    path, (t, u, y) = std_file(tmp_path)
+    path.write_text(path.read_text() + ",,\n , ,\n", encoding="utf-8")
+    cap = load_capture(path)
+    assert cap.u.size == u.size
+
+
+@pytest.mark.parametrize("names", [("t", "Vin", "sensor_um"), ("time", "piezo_voltage", "z"),
+                                   ("time_s", "control_voltage (V)", "distance [um]")])
+def test_more_column_aliases(tmp_path, names):
+    path, (t, u, y) = std_file(tmp_path, header=names)
+    cap = load_capture(path)
+    np.testing.assert_allclose(cap.u, u)
+    np.testing.assert_allclose(cap.y, y)
