@@ -59,6 +59,10 @@ class DataScale:
     y_max: float
     dt: float
     rate_max: float  # max |du/dt| in V/s
+    #: +1 when the output rises with the input (the usual stage), −1 when it falls (an inverted
+    #: sensor or a contracting mount): the sign of the pooled input–output covariance. Models
+    #: whose gains are constrained to one sign (PI weights, gpi's ρ, fp's E0/E∞) take it from here.
+    sign: float = 1.0
 
     @property
     def u_range(self) -> float:
@@ -86,8 +90,13 @@ class DataScale:
         u_all = np.concatenate([np.asarray(u, float) for u in us])
         y_all = np.concatenate([np.asarray(y, float) for y in ys])
         rate = max(float(np.max(np.abs(np.diff(u)))) / dt if len(u) > 1 else 0.0 for u, dt in zip(us, dts))
+        cov = 0.0
+        for u, y in zip(us, ys):
+            u, y = np.asarray(u, float), np.asarray(y, float)
+            if u.size and u.size == y.size:
+                cov += float(np.dot(u - u.mean(), y - y.mean()))
         return cls(float(u_all.min()), float(u_all.max()), float(y_all.min()), float(y_all.max()),
-                   float(min(dts)), max(rate, 1e-12))
+                   float(min(dts)), max(rate, 1e-12), -1.0 if cov < 0 else 1.0)
 
 
 def parse_bound_overrides(items: Sequence[str]) -> dict[str, tuple[float, float]]:

@@ -301,10 +301,12 @@ def nominal_plant(pf: ParamsFile, choices: Sequence[SegmentChoice], dt: float) -
     dt : loop sample period (s).
     """
     cells = _weighted_cells(pf, choices)
-    gain = float(sum(w * c.scale.gain for c, w in cells))
-    if not (math.isfinite(gain) and gain > 0):
-        raise ConfigError(f"{pf.path}: the identification data give a non-positive gain ({gain:g}); the feedback "
-                          "needs a stage whose displacement increases with voltage")
+    # signed: a stage whose displacement falls with the voltage (inverted sensor) has K < 0, and the
+    # feedback gains, which divide by K, change sign with it
+    gain = float(sum(w * c.scale.gain * (-1.0 if c.scale.sign < 0 else 1.0) for c, w in cells))
+    if not (math.isfinite(gain) and gain != 0):
+        raise ConfigError(f"{pf.path}: the identification data give no usable gain ({gain:g}); the feedback "
+                          "needs a stage whose displacement follows the voltage")
     cell = cells[0][0]
     if not cell.model.rate_dependent:
         return _static(gain, dt)
@@ -448,7 +450,7 @@ def auto_pid(nominal: NominalPlant, bandwidth_Hz: float | None = None, anti_wind
                 f"s = {s:.3g} (largest ≤ 1 with nominal GM ≥ {MIN_GAIN_MARGIN:g} and PM ≥ {MIN_PHASE_MARGIN_DEG:g}°)")
     kp, ki = gains(s)
     gm, pm, _ = loop_margins(nominal, kp, ki)
-    tt = max(kp / ki, dt) if kp > 0 else dt
+    tt = max(kp / ki, dt) if kp != 0 else dt  # K < 0 makes both gains negative; their ratio stays positive
     return PIDGains(kp, ki, 0.0, 4 * dt, tt, anti_windup, rule, s * f_max, gm, pm)
 
 
@@ -472,8 +474,12 @@ def given_pid(nominal: NominalPlant, kp: float, ki: float, kd: float, tf_s: floa
         tt = math.sqrt(ti * kd / kp) if kd > 0 else ti
     else:
         tt = dt
+    rule = "given"
+    if nominal.gain < 0:  # a stage whose displacement falls with the voltage: the loop needs gains of K's sign
+        kp, ki, kd = -kp, -ki, -kd
+        rule = "given (applied with the sign of K < 0: the displacement falls with the voltage)"
     gm, pm, fc = loop_margins(nominal, kp, ki, kd, tf_s)
-    return PIDGains(kp, ki, kd, tf_s, max(tt, dt), anti_windup, "given", fc, gm, pm)
+    return PIDGains(kp, ki, kd, tf_s, max(tt, dt), anti_windup, rule, fc, gm, pm)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -109,10 +109,12 @@ class FractionalZener(Model):
 
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         g, yr = scale.gain, scale.y_range
+        sg = -1.0 if scale.sign < 0 else 1.0
         tc = scale.u_range / scale.rate_max
         ps = [
-            Param("E0", "out/V", 0.0, 3 * g, g, "static gain E0"),
-            Param("Einf", "out/V", 0.0, 3 * g, 0.8 * g, "instantaneous gain E∞"),
+            # gains of the data's sign (an output that falls with the input: E0, E∞ ≤ 0)
+            Param("E0", "out/V", *sorted((0.0, 3 * sg * g)), sg * g, "static gain E0"),
+            Param("Einf", "out/V", *sorted((0.0, 3 * sg * g)), 0.8 * sg * g, "instantaneous gain E∞"),
             Param("tau", "s", 0.0, 20.0 * tc, tc, "relaxation time τ"),
             Param("a", "1", 0.01, 0.99, 0.5, "fractional order a"),
         ]
@@ -222,13 +224,14 @@ class FractionalZener(Model):
 
         u_0 = (y_target[0] − y0)/E0 puts the stage at rest at the first target sample, as
         :meth:`simulate` assumes. ``u_range``, if given, clips the result (saturation).
-        Needs E0 > 0, E∞ ≥ 0, τ ≥ 0 and 0 < a < 1 (then the inverse filter is stable).
+        Needs E0 ≠ 0, E∞ of E0's sign or 0, τ ≥ 0 and 0 < a < 1 (then the inverse filter is stable:
+        with both gains negative it is the positive case applied to −ỹ).
         """
         th = np.asarray(theta, float).ravel()
         E0, Ei, tau, a = (float(v) for v in th[:4])
         y0 = float(th[4]) if self.offset else 0.0
-        if not (E0 > 0 and Ei >= 0 and tau >= 0 and 0 < a < 1):
-            raise ConfigError(f"fp: the inverse needs E0 > 0, Einf ≥ 0, tau ≥ 0 and 0 < a < 1 "
+        if not (E0 != 0 and E0 * Ei >= 0 and tau >= 0 and 0 < a < 1):
+            raise ConfigError(f"fp: the inverse needs E0 ≠ 0, Einf of E0's sign (or 0), tau ≥ 0 and 0 < a < 1 "
                               f"(got E0={E0:g}, Einf={Ei:g}, tau={tau:g}, a={a:g})")
         y = np.asarray(y_target, dtype=np.float64)
         N = y.shape[0]

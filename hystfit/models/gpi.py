@@ -179,7 +179,9 @@ class GPI(Model):
                 Param(f"{side}4", "V", scale.u_min - U, scale.u_max + U, uc, f"offset of {what}"),
             ]
         ps += [
-            Param("rho", "out/V", 0.0, 3.0 * g, 0.5 * g, "density scale ρ = p(0), weight of the r = 0 operator"),
+            (Param("rho", "out/V", 0.0, 3.0 * g, 0.5 * g, "density scale ρ = p(0), weight of the r = 0 operator")
+             if scale.sign > 0 else  # an output that falls with the input (inverted sensor): ρ ≤ 0
+             Param("rho", "out/V", -3.0 * g, 0.0, -0.5 * g, "density scale ρ = p(0), weight of the r = 0 operator")),
             Param("tau", "1/V", 0.0, 10.0 * n / U, 0.6 * n / U, "density decay τ: p(r) = ρ·exp(−τ r)"),
             Param("alpha_r", "V", 0.01 * U / n, 2.0 * U / n, 0.5 * U / n, "threshold step α_r: r_j = α_r·j"),
             Param("y0", "out", scale.y_min - span, scale.y_max + span,
@@ -314,8 +316,8 @@ class GPI(Model):
         from the virgin operator state like :meth:`simulate`.
         """
         t = self._unpack(theta)
-        if not (t[0] * t[1] > 0 and t[4] * t[5] > 0 and t[8] > 0):
-            raise ConfigError("gpi: the inverse needs increasing envelopes (a1·a2 > 0, b1·b2 > 0) and rho > 0")
+        if not (t[0] * t[1] > 0 and t[4] * t[5] > 0 and t[8] != 0):
+            raise ConfigError("gpi: the inverse needs increasing envelopes (a1·a2 > 0, b1·b2 > 0) and rho ≠ 0")
         y_target = np.asarray(y_target, dtype=np.float64)
         if self.envelopes_equal(t):
             return self._invert_equal(t, y_target)

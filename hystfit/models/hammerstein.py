@@ -808,7 +808,10 @@ class Hammerstein(Model):
         y = np.concatenate(_as_list(ys))
         n = self.n_operators
         lo = np.r_[np.full(n, 0.0 if self.nonnegative else -np.inf), -np.inf]
-        return optimize.lsq_linear(Phi, y, bounds=(lo, np.full(n + 1, np.inf)), method="bvls", tol=1e-12).x
+        hi = np.full(n + 1, np.inf)
+        if self.nonnegative and DataScale.from_arrays(_as_list(us), _as_list(ys), [dt] * len(_as_list(us))).sign < 0:
+            lo, hi = np.r_[np.full(n, -np.inf), -np.inf], np.r_[np.zeros(n), np.inf]  # falling output: w ≤ 0
+        return optimize.lsq_linear(Phi, y, bounds=(lo, hi), method="bvls", tol=1e-12).x
 
     # ------------------------------------------------------------------ stepping
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:

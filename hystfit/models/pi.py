@@ -38,7 +38,9 @@ class PI(Model):
         r_j = (j/n)²·max|u| (denser at small thresholds, where loops of small amplitude live).
     thresholds_V : the thresholds r_j in V; filled from the identification data by
         :meth:`adapt` and saved with the fit so predictions use the same operators.
-    nonnegative : constrain the weights to w_j ≥ 0 (the physically sensible, invertible case).
+    nonnegative : constrain the weights to one sign (the physically sensible, invertible case):
+        w_j ≥ 0 when the output rises with the input, w_j ≤ 0 when it falls (an inverted sensor;
+        the sign is that of the data's input–output covariance, :attr:`DataScale.sign`).
 
     Parameters (θ)
     --------------
@@ -95,8 +97,11 @@ class PI(Model):
 
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         g = scale.gain
-        lo = 0.0 if self.nonnegative else -3.0 * g
-        ps = [Param(f"w{j}", "out/V", lo, 3.0 * g, g / self.n_operators if j else g / 2,
+        s = -1.0 if scale.sign < 0 else 1.0  # an output that falls with the input: all weights ≤ 0
+        lo, hi = (0.0, 3.0 * g) if self.nonnegative else (-3.0 * g, 3.0 * g)
+        if s < 0 and self.nonnegative:
+            lo, hi = -hi, -lo
+        ps = [Param(f"w{j}", "out/V", lo, hi, s * (g / self.n_operators if j else g / 2),
                     f"weight of the play operator with threshold r{j}") for j in range(self.n_operators)]
         span = scale.y_range
         ps.append(Param("y0", "out", scale.y_min - span, scale.y_max + span, 0.5 * (scale.y_min + scale.y_max) if scale.y_min > 0 or scale.y_max < 0 else 0.0,
@@ -134,14 +139,21 @@ class PI(Model):
         return Separable(tuple(range(d)), (), factory)
 
     # ------------------------------------------------------------------ inverse
+    @staticmethod
+    def output_sign(theta: np.ndarray) -> float:
+        """+1 for a PI whose output rises with the input (w0 > 0), −1 for a falling one (w0 < 0)."""
+        return -1.0 if float(np.asarray(theta, float).ravel()[0]) < 0 else 1.0
+
     def inverse_operator(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Weights and thresholds of the inverse PI (paper 003 eq. 17–20)."""
-        w = np.asarray(theta[: self.n_operators], float)
+        """Weights and thresholds of the inverse PI (paper 003 eq. 17–20) of s·Σ w_j F_{r_j}, s =
+        :meth:`output_sign` (a falling output is inverted as the rising PI of −w applied to −y)."""
+        w = self.output_sign(theta) * np.asarray(theta[: self.n_operators], float)
         r = self.r
         csum = np.cumsum(w)
         if w[0] <= 0 or np.any(csum <= 0):
             raise ConfigError(
-                "pi: the inverse needs w0 > 0 and positive partial sums of the weights; refit with non-negative weights"
+                "pi: the inverse needs w0 ≠ 0 and partial sums of the weights of one sign; refit with "
+                "non-negative weights (--model-option nonnegative=true)"
             )
         w_inv = np.empty_like(w)
         w_inv[0] = 1.0 / w[0]
@@ -152,7 +164,7 @@ class PI(Model):
     def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float) -> np.ndarray:
         theta = np.asarray(theta, float).ravel()
         w_inv, r_inv = self.inverse_operator(theta)
-        v = np.ascontiguousarray(np.asarray(y_target, float) - theta[-1])
+        v = np.ascontiguousarray(self.output_sign(theta) * (np.asarray(y_target, float) - theta[-1]))
         # initial inverse-operator states consistent with a virgin forward state
         state0 = np.maximum(v[0] - r_inv, np.minimum(v[0] + r_inv, 0.0))
         return play_matrix_from(v, r_inv, state0) @ w_inv

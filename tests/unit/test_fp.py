@@ -107,8 +107,14 @@ def test_exact_inverse_round_trip_on_raised_cosine_target():
     np.testing.assert_allclose(m.simulate_one(THETA, u_inv, DT), y_d, rtol=0, atol=1e-9 * 10.0)
     u = raised_cosine(60.0, cycles=2)
     np.testing.assert_allclose(m.invert(THETA, m.simulate_one(THETA, u, DT), DT), u, rtol=0, atol=1e-9 * 60)
-    with pytest.raises(ConfigError, match="E0 > 0"):
+    with pytest.raises(ConfigError, match="E0 ≠ 0"):
         m.invert(np.array([0.0, 0.1, 0.01, 0.5, 0.0]), y_d, DT)
+    # a falling output (both gains negative, DataScale.sign = −1) inverts as exactly
+    neg = THETA * np.array([-1.0, -1.0, 1.0, 1.0, -1.0])
+    y_neg = 100.0 - y_d
+    np.testing.assert_allclose(m.simulate_one(neg, m.invert(neg, y_neg, DT), DT), y_neg, rtol=0, atol=1e-9 * 100)
+    with pytest.raises(ConfigError, match="Einf of E0's sign"):
+        m.invert(np.array([0.3, -0.1, 0.01, 0.5, 0.0]), y_d, DT)
 
 
 def test_structure_validation_and_memory_is_a_time_span():

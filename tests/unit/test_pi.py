@@ -79,3 +79,27 @@ def test_pi_inverse_refuses_non_invertible_weights():
     m = PI(3, thresholds_V=(0.0, 1.0, 2.0))
     with pytest.raises(ConfigError, match="inverse"):
         m.invert(np.array([0.0, 0.1, 0.1, 0.0]), np.zeros(10), 1e-3)
+
+
+def test_inverted_output_gives_weights_of_one_negative_sign_and_an_exact_inverse(rng):
+    """A stage whose sensor reads downwards: the data's sign is −1, the non-negative constraint
+    becomes w ≤ 0, the exact least-squares fit recovers the weights and the inverse is exact."""
+    from hystfit.identify import fit_captures
+    from hystfit.capture import Capture
+    from hystfit.optimizers.auto import Auto
+
+    t = np.arange(4000) * 1e-4
+    u = 30 * (1 - np.cos(2 * np.pi * 10 * t))
+    m = PI(6).adapt(_scale(u, u))
+    w = np.array([0.2, 0.05, 0.03, 0.02, 0.01, 0.005])
+    y = -m.simulate_one(np.r_[w, 0.0], u, 1e-4) + 80.0
+    sc = _scale(u, y)
+    assert sc.sign == -1.0 and _scale(u, -y).sign == 1.0
+    assert all(p.upper == 0.0 and p.lower < 0 for p in m.params(sc)[:-1])
+    cap = Capture(source="inv.csv", t=t, u=u, y=y, dt=1e-4, y_unit="um", amplitude_V=60.0, frequency_Hz=10.0)
+    fit = fit_captures([cap], PI(6), Auto(), seed=0)
+    np.testing.assert_allclose(fit.theta[:6], -w, rtol=1e-4)
+    assert fit.metrics["rmse_um"] < 1e-5
+    target = 80.0 - 5.0 * (1 - np.cos(2 * np.pi * 5 * t))
+    back = m.simulate_one(fit.theta, m.invert(fit.theta, target, 1e-4), 1e-4)
+    np.testing.assert_allclose(back, target, atol=1e-9)

@@ -278,3 +278,23 @@ def test_every_registered_model_runs_as_a_plant(name):
     np.testing.assert_allclose(ff.output, res.inversion.predicted, rtol=0, atol=1e-9 * np.ptp(y))
     for run in res.runs:
         assert np.all(np.isfinite(run.output)) and run.metrics["rmse_pct_of_stroke"] < 0.5
+
+
+def test_feedback_on_a_stage_whose_displacement_falls_with_the_voltage():
+    """An inverted sensor: the table's weights are negative (DataScale.sign = −1), K < 0, and the
+    automatic and the given PID gains take K's sign, so the loop is stable and corrects a gain error."""
+    def inverted(scale_w, path):
+        w = -np.asarray(DEFAULT_WEIGHTS_UM_PER_V) * scale_w
+        sc = DataScale(0.0, 60.0, 100.0 - 0.31 * 60, 100.0, 1e-4, 4000.0, sign=-1.0)
+        cell = Cell("60V_10Hz", 60.0, 10.0, PI(10, thresholds_V=DEFAULT_THRESHOLDS_V), np.r_[w, 100.0], sc)
+        return ParamsFile(path, "pi", "um", "per-condition", (cell,), {})
+
+    pf, plant = inverted(1.0, "pi.json"), inverted(1.15, "plant.json")
+    up = sine_target(10.0, 10.0, cycles=2, offset=2.0)  # the mirror image of the rising stage's test
+    tgt = target_from_array(100.0 - up.y, up.dt, frequency_Hz=10.0)
+    res = track(pf, tgt, ["ff", "pid", "ff+pid"], plant_pf=plant)
+    rmse = {r.controller: r.metrics["rmse_pct_of_stroke"] for r in res.runs}
+    assert res.pid.kp < 0 and res.pid.ki < 0 and res.pid.gain_margin >= 2
+    assert rmse["ff"] > 5 and rmse["ff+pid"] < 0.2 and rmse["pid"] < rmse["ff"]
+    given = given_pid(nominal_plant(pf, res.inversion.choices, 1e-4), 0.0, 2000.0, 0.0)
+    assert given.ki < 0 and "sign of K" in given.rule
