@@ -1,0 +1,79 @@
+"""Command-line flags that the other CLI tests leave out, each checked for its visible effect."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from hystfit.cli import app
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "sample_data"
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def nested(tmp_path_factory):
+    """Two captures, one of them in a subdirectory (what --recursive is for)."""
+    d = tmp_path_factory.mktemp("nested")
+    shutil.copy(SAMPLE / "a20V_f10Hz.csv", d / "a20V_f10Hz.csv")
+    (d / "sub").mkdir()
+    shutil.copy(SAMPLE / "a40V_f10Hz.csv", d / "sub" / "a40V_f10Hz.csv")
+    return d
+
+
+def test_identify_recursive_polish_and_optimizer_options(nested, tmp_path):
+    r = run("identify", nested, "--out", tmp_path / "flat", "--no-plots", "--json", "--quiet")
+    assert r.exit_code == 0, r.output
+    assert [c["label"] for c in json.loads(r.stdout)["conditions"]] == ["20V_10Hz"]
+    r = run("identify", nested, "--recursive", "--model", "bw", "--opt", "pso", "--pop", "20", "--iters", "10",
+            "--opt-option", "max_evals=100", "--no-polish", "--no-plots", "--out", tmp_path / "rec", "--quiet")
+    assert r.exit_code == 0, r.output
+    params = json.loads((tmp_path / "rec" / "params.json").read_text())
+    assert [c["label"] for c in params["conditions"]] == ["20V_10Hz", "40V_10Hz"]
+    assert params["optimizer"]["polish"] is False and params["optimizer"]["settings"]["max_evals"] == 100
+    for c in params["conditions"]:
+        assert c["evaluations"] <= 100 + 20 and not c["runs"][0]["polished"]
+    r = run("identify", nested / "a20V_f10Hz.csv", "--model", "bw", "--opt", "pso", "--pop", "20", "--iters", "10",
+            "--polish", "--no-plots", "--out", tmp_path / "pol", "--quiet")
+    assert r.exit_code == 0, r.output
+    params = json.loads((tmp_path / "pol" / "params.json").read_text())
+    assert params["optimizer"]["polish"] is True and params["conditions"][0]["runs"][0]["polished"]
+    assert not (tmp_path / "rec" / "plots").exists()
+    r = run("identify", nested, "--opt-option", "no_such_setting=1", "--out", tmp_path / "bad")
+    assert r.exit_code == 2 and "no_such_setting" in r.output and not (tmp_path / "bad").exists()
+
+
+def test_compare_without_polish_and_figures(tmp_path):
+    r = run("compare", SAMPLE / "a20V_f10Hz.csv", "--models", "pi,bw", "--opts", "pso", "--pop", "20", "--iters",
+            "10", "--no-polish", "--no-figures", "--jobs", "1", "--out", tmp_path / "c", "--quiet")
+    assert r.exit_code == 0, r.output
+    md = (tmp_path / "c" / "compare.md").read_text()
+    assert "polish after global optimizers: no" in md
+    assert not (tmp_path / "c" / "figures").exists()
+
+
+def test_diagnose_per_condition_without_figures(tmp_path):
+    data = [SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a20V_f80Hz.csv", SAMPLE / "a60V_f10Hz.csv", SAMPLE / "a60V_f80Hz.csv"]
+    r = run("diagnose", *data, "--model", "pi", "--per-condition", "--effects", "delay,creep", "--opt-option",
+            "restarts=1", "--no-figures", "--out", tmp_path / "d", "--quiet")
+    assert r.exit_code == 0, r.output
+    d = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert d["mode"] == "per-condition" and {e["effect"] for e in d["effects"]} == {"delay", "creep"}
+    assert not (tmp_path / "d" / "figures").exists()
+
+
+def test_simulate_recursive(nested, tmp_path):
+    r = run("identify", nested, "--recursive", "--no-plots", "--out", tmp_path / "id", "--quiet")
+    assert r.exit_code == 0, r.output
+    r = run("simulate", tmp_path / "id" / "params.json", nested, "--recursive", "--no-plots", "--out",
+            tmp_path / "sim", "--json")
+    assert r.exit_code == 0, r.output
+    names = {p.name for p in (tmp_path / "sim").iterdir()}
+    assert {"a20V_f10Hz_prediction.csv", "a40V_f10Hz_prediction.csv"} <= names
