@@ -1029,19 +1029,9 @@ def blend_segments(arrays: dict[int, np.ndarray], choices: Sequence[SegmentChoic
     """Σ_c w_c(k)·arrays[c][k] with per-segment weights, cross-faded linearly after each join."""
     out = np.zeros(n)
     for ch in choices:
-        s, e = ch.segment.start, ch.segment.stop
-        for c in ch.cells:
-            out[s:e] += c.weight * arrays[c.index][s:e]
+        _blend_into(out, ch.cells, arrays, ch.segment.start, ch.segment.stop)
     for prev, nxt in zip(choices, choices[1:]):
-        j = nxt.segment.start
-        m = min(_crossfade(prev.segment.stop - prev.segment.start, nxt.segment.stop - j), nxt.segment.stop - j)
-        if {(c.index, c.weight) for c in prev.cells} == {(c.index, c.weight) for c in nxt.cells}:
-            continue
-        ramp = (np.arange(m) + 1.0) / (m + 1.0)  # weight of the new segment's cells
-        old = np.zeros(m)
-        for c in prev.cells:
-            old += c.weight * arrays[c.index][j:j + m]
-        out[j:j + m] = (1.0 - ramp) * old + ramp * out[j:j + m]
+        _crossfade_into(out, prev, arrays, nxt)
     return out
 
 
