@@ -99,14 +99,23 @@ class Objective:
         self.nfev += h.size + 1
         return ((y[1:] - y[0]) / h[:, None]).T
 
-    def normal_matrix(self, theta: np.ndarray, rel_step: float = 1e-6,
-                      upper: np.ndarray | None = None) -> tuple[np.ndarray, float, int]:
-        """(JᵀJ (d, d), rᵀr, M) at θ without forming the (M, d) Jacobian: one capture at a time,
-        differences taken in place, so the working memory is one capture's (d+1, N) simulation
-        (what parameter standard errors need on a 10⁶-sample capture)."""
+    def normal_equations(self, theta: np.ndarray, rel_step: float = 1e-6,
+                         upper: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float, int]:
+        """(JᵀJ (d, d), Jᵀr (d,), rᵀr, M) at θ without forming the (M, d) Jacobian or the (M,)
+        residual vector: one pass, one capture at a time (its d + 1 candidates θ, θ + h_j e_j in one
+        population call, steps as :meth:`_fd_population`), differences and products over time
+        chunks, so the working memory is one capture's (d+1, N) simulation plus O(d·chunk).
+
+        J is the forward-difference Jacobian of :meth:`jacobian` and r the residuals of
+        :meth:`residuals` (r = ŷ(θ) − y): the bounded Levenberg–Marquardt route of
+        :class:`hystfit.optimizers.lsq.LSQ` and the parameter standard errors need only these sums
+        on a 10⁶-sample capture. Counts d + 1 evaluations. Non-finite simulations propagate
+        (callers check).
+        """
         h, pop = self._fd_population(theta, rel_step, upper)
         d = h.size
         JtJ = np.zeros((d, d))
+        Jtr = np.zeros(d)
         rr = 0.0
         chunk = 1 << 16
         for sim, s in zip(self._sims, self.series):
@@ -117,6 +126,16 @@ class Objective:
                     rr += float(r @ r)
                     D = (Y[1:, a:a + chunk] - Y[0, a:a + chunk]) / h[:, None]
                     JtJ += D @ D.T
+                    Jtr += D @ r
             del Y
         self.nfev += d + 1
-        return JtJ, rr, self.n_total
+        return JtJ, Jtr, rr, self.n_total
+
+    def normal_matrix(self, theta: np.ndarray, rel_step: float = 1e-6,
+                      upper: np.ndarray | None = None) -> tuple[np.ndarray, float, int]:
+        """(JᵀJ (d, d), rᵀr, M) at θ without forming the (M, d) Jacobian: one capture at a time,
+        differences taken in place, so the working memory is one capture's (d+1, N) simulation
+        (what parameter standard errors need on a 10⁶-sample capture). The first, third and fourth
+        entries of :meth:`normal_equations`."""
+        JtJ, _, rr, m = self.normal_equations(theta, rel_step, upper)
+        return JtJ, rr, m

@@ -19,6 +19,8 @@ sfft = lazy_module("scipy.fft")  # imported on first use: keeps start-up fast
 RECURRENCE_MAX_TERMS = 200
 #: r^M of the z-transform circle used by the FFT evaluation (aliasing error ≈ this · N).
 _FFT_ALIAS = 1e-14
+#: complex spectrum elements per FFT block of candidates (≈ 64 MB per work array)
+FFT_BLOCK_ELEMENTS = 4_000_000
 
 
 @models.register
@@ -169,15 +171,26 @@ class FractionalZener(Model):
         X = sfft.rfft(x * r ** np.arange(N), M)
         inv_rn = r ** -np.arange(N, dtype=np.float64)
 
+        # candidates per FFT block: bounds the complex work arrays (≈ 4 × 16 B × block × M/2) to
+        # ~256 MB whatever the capture length (a 10⁶-sample capture goes one candidate at a time)
+        block = max(1, FFT_BLOCK_ELEMENTS // (M // 2 + 1))
+
         def sim_fft(theta: np.ndarray) -> np.ndarray:
             theta = self.check_theta(theta, d)
-            E0, Ei, tau, a = (np.ascontiguousarray(theta[:, i]) for i in range(4))
+            P = theta.shape[0]
+            ydev = np.empty((P, N))
             with np.errstate(all="ignore"):
-                b = (tau / dt) ** a
-                w = gl_weights(a, L).T * rn  # (P, L+1), damped onto |z| = r
-                Pz = sfft.rfft(w, M, axis=1)
-                H = (E0[:, None] + (Ei * b)[:, None] * Pz) / (1.0 + b[:, None] * Pz)
-                ydev = sfft.irfft(H * X, M, axis=1)[:, :N] * inv_rn
+                for i in range(0, P, block):
+                    E0, Ei, tau, a = (np.ascontiguousarray(theta[i:i + block, j]) for j in range(4))
+                    b = (tau / dt) ** a
+                    w = gl_weights(a, L).T * rn  # (p, L+1), damped onto |z| = r
+                    Pz = sfft.rfft(w, M, axis=1)
+                    del w
+                    H = (E0[:, None] + (Ei * b)[:, None] * Pz) / (1.0 + b[:, None] * Pz)
+                    del Pz
+                    H *= X
+                    ydev[i:i + block] = sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
+                    del H
                 return finish(theta, ydev)
 
         return sim_fft

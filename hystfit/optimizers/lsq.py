@@ -9,11 +9,18 @@ import numpy as np
 from ..registry import optimizers
 from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
 
+#: residual count × parameter count above which the polish takes the memory-bounded
+#: normal-equation route (when the objective offers ``normal_equations``): 4·10⁶ elements is a
+#: 32 MB Jacobian, of which scipy's ``least_squares`` keeps ≈ 8 copies (≈ 260 MB); below it scipy
+#: is used unchanged. A 10⁶-sample capture with 5 parameters (bw) is 5·10⁶.
+NORMAL_EQUATIONS_ABOVE = 4_000_000
+
 
 @optimizers.register
 @dataclass
 class LSQ(Optimizer):
-    """Local bounded least squares from a start point (scipy ``least_squares``, method ``trf``).
+    """Local bounded least squares from a start point (scipy ``least_squares``, method ``trf``;
+    on large problems a memory-bounded Levenberg–Marquardt on the normal equations).
 
     Needs residuals: the objective must expose ``objective.residuals(theta (d,)) → (M,)``
     (hystfit's identification objectives do); otherwise ``sqrt(objective)`` is used as a single
@@ -24,22 +31,51 @@ class LSQ(Optimizer):
     population call of d + 1 candidates instead of d single simulations; each counts as d + 1
     evaluations.
 
+    Two routes (the result's ``message`` says which one was taken):
+
+    * *scipy* (small problems): ``least_squares`` needs the residual vector (M,) and the Jacobian
+      (M, d) in memory and keeps ≈ 8 copies of the Jacobian.
+    * *normal equations* (large problems: M·d > :data:`NORMAL_EQUATIONS_ABOVE` = 4·10⁶
+      elements, a 32 MB Jacobian, and the objective offers ``normal_equations(theta, upper=...)
+      → (JᵀJ, Jᵀr, rᵀr, M)`` and ``n_total`` = M, as hystfit's identification objectives do): a
+      bounded Levenberg–Marquardt that never forms J nor r, only the d×d sums (computed capture by
+      capture in time chunks), so a 10⁶-sample capture polishes in O(d·N) memory for one
+      capture's population simulation. Each iteration: at θ, one Jacobian (d + 1 evaluations),
+      then trial steps δ = argmin ½δᵀ(JᵀJ + λD)δ + (Jᵀr)ᵀδ subject to lower ≤ θ + δ ≤ upper,
+      solved exactly as a box-constrained QP (:func:`hystfit.separable.solve_box_qp`, in
+      variables scaled by √D). D is Marquardt's diag(JᵀJ), kept as its running maximum over the
+      iterations (as MINPACK does) and floored at 10⁻¹² of its largest entry; λ starts at 10⁻³.
+      A trial is scored by the true cost (the MSE of ``objective(theta[None, :])``, one
+      evaluation) and accepted when the gain ratio ρ = actual / predicted reduction > 10⁻⁴
+      (then λ ← λ·max(1/3, 1 − (2ρ − 1)³)); otherwise λ grows by a factor 2, 4, 8, …
+      (Nielsen 1999). Non-finite entries of JᵀJ or Jᵀr freeze those parameters for the iteration.
+
     Parameters
     ----------
     max_evals : int, default 2000
-        Residual evaluations (scipy's ``max_nfev``).
+        Residual evaluations (scipy's ``max_nfev``): on the normal-equation route, the cost
+        evaluations at the start and at the trial points (Jacobians not counted, as in scipy).
     ftol, xtol, gtol : float, default 1e-10
-        scipy's relative tolerances on the cost, the step and the gradient.
+        Relative tolerances on the cost, the step and the gradient (scipy's on the scipy route;
+        the same meaning on the normal-equation route, see Stop rules).
 
     Notes
     -----
     Stop rules: scipy's tolerances ``ftol``/``xtol``/``gtol`` (status 5, converged) or
     ``max_evals`` residual evaluations (status 0). No stall, target or time-limit rule: a local
-    solve is short.
+    solve is short. On the normal-equation route the same settings with scipy's meanings: ``ftol``
+    when an accepted step lowers the cost by less than ``ftol`` × cost with ρ > 0.25; ``xtol`` when
+    a step (accepted or not) is shorter than ``xtol`` · (``xtol`` + ‖θ‖); ``gtol`` when the
+    projected gradient, scaled as MINPACK's (the largest |Jⱼᵀr| / (‖Jⱼ‖·‖r‖) over the parameters
+    not held at a bound by their gradient), is below ``gtol`` (all status 5); ``max_evals`` cost
+    evaluations (status 0); a callback asking to stop (status 4, the callback is called after
+    every trial step).
 
     Bounds: scipy's trust-region reflective method keeps every iterate strictly inside the box
     (reflection of the step at the faces); the start is clipped into the box, 10⁻¹⁰ of its width
-    inside the faces.
+    inside the faces. The normal-equation route solves every step within the box exactly (its
+    iterates may lie on a face, where a parameter stays while its gradient points outwards;
+    finite-difference steps at an upper face are taken backwards), from the same start.
     """
 
     name = "lsq"
@@ -60,6 +96,11 @@ class LSQ(Optimizer):
         # keep the start strictly inside: trf needs an interior point
         eps = 1e-10 * (upper - lower)
         start = np.clip(start, lower + eps, upper - eps)
+        normal_equations = getattr(objective, "normal_equations", None)
+        m_total = getattr(objective, "n_total", None)
+        if (normal_equations is not None and m_total is not None
+                and int(m_total) * start.size > NORMAL_EQUATIONS_ABOVE):
+            return self._normal_equation_lm(objective, normal_equations, int(m_total), lower, upper, start, tr)
         residuals = getattr(objective, "residuals", None)
         if residuals is None:
             def residuals(th):  # noqa: E306
@@ -89,7 +130,104 @@ class LSQ(Optimizer):
         f = tr.evaluate(sol.x[None, :])
         tr.end_iteration(f)
         tr.status = 5 if sol.status > 0 else 0
-        tr.message = sol.message
+        tr.message = f"scipy least_squares (trf): {sol.message}"
+        return tr.result(self.name)
+
+    def _normal_equation_lm(self, objective: Objective, normal_equations, m_total: int, lower: np.ndarray,
+                            upper: np.ndarray, start: np.ndarray, tr: Tracker) -> OptimizeResult:
+        """The memory-bounded route: bounded Levenberg–Marquardt on (JᵀJ, Jᵀr, rᵀr) (see the class
+        docstring). Costs are MSE (rᵀr / M); the quadratic model of the cost at θ is
+        (rᵀr + 2(Jᵀr)ᵀδ + δᵀJᵀJδ) / M."""
+        from ..separable import solve_box_qp  # deferred: keeps start-up fast
+
+        d = start.size
+        route = f"normal-equation Levenberg-Marquardt ({m_total} residuals x {d} parameters)"
+        theta = start.copy()
+        f0 = tr.evaluate(theta[None, :])
+        n_cost = 1  # cost evaluations, the budget's unit (scipy's nfev)
+        if tr.end_iteration(f0):
+            tr.message = f"{route}: {tr.message}"
+            return tr.result(self.name)
+        f = float(f0[0])
+        if not np.isfinite(f):
+            tr.status, tr.message = 0, f"{route}: non-finite cost at the start, no step taken"
+            return tr.result(self.name)
+
+        def system(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            JtJ, Jtr, _, _ = normal_equations(th, upper=upper)
+            tr.nfev += d + 1
+            JtJ, Jtr = np.array(JtJ, dtype=np.float64), np.array(Jtr, dtype=np.float64)
+            bad = ~(np.all(np.isfinite(JtJ), axis=1) & np.isfinite(Jtr) & np.isfinite(np.diag(JtJ)))
+            if np.any(bad):  # a diverging perturbation: freeze that parameter for this iteration
+                JtJ[bad, :] = 0.0
+                JtJ[:, bad] = 0.0
+                Jtr[bad] = 0.0
+            return JtJ, Jtr
+
+        A, g = system(theta)
+        D = np.zeros(d)
+        lam, nu = 1e-3, 2.0
+        status, why = 0, f"evaluation budget max_evals = {self.max_evals} reached"
+        done = False
+        while not done:
+            D = np.maximum(D, np.diag(A))
+            D = np.maximum(D, 1e-12 * max(float(np.max(D)), 1e-300))
+            s = 1.0 / np.sqrt(D)  # δ = s·z: the scaled problem has JᵀJ of (about) unit diagonal
+            As = A * s[:, None] * s[None, :]
+            gs = g * s
+            # gtol: MINPACK's scaled gradient |Jⱼᵀr| / (‖Jⱼ‖·‖r‖), projected on the box
+            width = upper - lower
+            at_lo = theta <= lower + 1e-12 * width
+            at_hi = theta >= upper - 1e-12 * width
+            free = ~((at_lo & (g > 0)) | (at_hi & (g < 0)))
+            rnorm = np.sqrt(f * m_total)
+            colnorm = np.sqrt(np.maximum(np.diag(A), 0.0))
+            with np.errstate(all="ignore"):
+                cosine = np.where(free & (colnorm > 0), np.abs(g) / (colnorm * rnorm), 0.0)
+            if rnorm == 0.0 or float(np.max(cosine, initial=0.0)) < self.gtol:
+                status, why = 5, "projected scaled gradient below gtol"
+                break
+            lo_z, hi_z = (lower - theta) / s, (upper - theta) / s
+            while True:  # trial steps at growing λ until one is accepted or a stop rule fires
+                if n_cost >= self.max_evals:
+                    done = True
+                    break
+                G = As + lam * np.eye(d)
+                z = solve_box_qp(G[None], -gs[None], lo_z, hi_z)[0]
+                if not np.all(np.isfinite(z)):
+                    z = np.zeros(d)
+                step = s * z
+                trial = np.clip(theta + step, lower, upper)
+                step = trial - theta
+                pred = -(2.0 * float(g @ step) + float(step @ A @ step)) / m_total
+                f_new = float(tr.evaluate(trial[None, :])[0])
+                n_cost += 1
+                if tr.end_iteration(np.array([f_new])):  # the callback asked to stop
+                    status, why = tr.status, tr.message
+                    done = True
+                actual = f - f_new if np.isfinite(f_new) else -np.inf
+                rho = actual / pred if pred > 0 else -np.inf
+                accepted = rho > 1e-4
+                if not done:
+                    if np.linalg.norm(step) < self.xtol * (self.xtol + np.linalg.norm(theta)):
+                        status, why, done = 5, "relative step below xtol", True
+                    elif accepted and actual < self.ftol * f and rho > 0.25:
+                        status, why, done = 5, "relative cost reduction below ftol", True
+                if accepted:
+                    theta, f = trial, f_new
+                    lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12)
+                    nu = 2.0
+                else:
+                    lam, nu = lam * nu, 2.0 * nu
+                if done:
+                    break
+                if accepted:
+                    if n_cost >= self.max_evals:
+                        done = True
+                    else:
+                        A, g = system(theta)
+                    break
+        tr.status, tr.message = status, f"{route}: {why}"
         return tr.result(self.name)
 
 

@@ -93,3 +93,134 @@ def test_auto_budget_bounds_all_searches_together():
     search_evals = len(capped.history_best) - 1  # iterations of the searches (the last entry is the polish)
     assert capped.nfev < free.nfev
     assert search_evals * Auto().pop <= 60 + Auto().pop
+
+
+# ------------------------------------------------------------------ LSQ: the normal-equation route
+BW_TRUTH = np.array([0.25, 0.12, 0.03, 0.01, 0.3])
+FS_BW = 10_000.0
+
+
+def _bw_problem(rng, n_captures=1):
+    """A Bouc–Wen identification objective (loops of two amplitudes, σ = 0.01 µm noise), its box
+    and its default start."""
+    from hystfit.models.bw import BoucWen
+    from hystfit.objective import Series
+    from hystfit.params import DataScale
+
+    def raised_cosine(amplitude, cycles):
+        t = np.arange(int(cycles * FS_BW / 10.0) + 1) / FS_BW
+        return 0.5 * amplitude * (1 - np.cos(2 * np.pi * 10.0 * t))
+
+    model = BoucWen()
+    u = np.r_[raised_cosine(60, 2), raised_cosine(30, 2)[1:]]
+    series = [Series(u, model.simulate_one(BW_TRUTH, u, 1 / FS_BW) + rng.normal(0, 0.01, u.size), 1 / FS_BW)
+              for _ in range(n_captures)]
+    scale = DataScale.from_arrays([s.u for s in series], [s.y for s in series], [s.dt for s in series])
+    ps = model.params(scale)
+    lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
+    return model, series, lo, hi, np.array([p.default for p in ps])
+
+
+def _recording_objective(model, series):
+    """An identification objective that records every parameter vector it is asked about."""
+    from hystfit.objective import Objective
+
+    class Recording(Objective):
+        seen: list
+
+        def __call__(self, theta):
+            self.seen.append(np.atleast_2d(theta).copy())
+            return super().__call__(theta)
+
+        def normal_equations(self, theta, rel_step=1e-6, upper=None):
+            h, pop = self._fd_population(theta, rel_step, upper)
+            self.seen.append(pop)
+            return super().normal_equations(theta, rel_step, upper)
+
+    obj = Recording(model, series)
+    obj.seen = []
+    return obj
+
+
+@pytest.mark.parametrize("box", ["free", "kv_upper", "beta_lower"])
+def test_lsq_normal_equation_route_reaches_the_scipy_optimum(box, rng, monkeypatch):
+    """Forced onto a mid-size Bouc–Wen problem (4001 residuals × 5 parameters), the memory-bounded
+    Levenberg–Marquardt on the normal equations lands on scipy's optimum — also when it lies on a
+    bound (Kv ≤ 0.24 < 0.25 true; β ≥ 0.04 > 0.03 true) — and never leaves the box."""
+    import hystfit.optimizers.lsq as lsq_module
+    from hystfit.objective import Objective
+
+    model, series, lo, hi, x0 = _bw_problem(rng)
+    if box == "kv_upper":
+        hi = np.r_[0.24, hi[1:]]
+    elif box == "beta_lower":
+        lo = np.r_[lo[:2], 0.04, lo[3:]]
+    m, d = series[0].y.size, lo.size
+    assert m * d < lsq_module.NORMAL_EQUATIONS_ABOVE  # small: scipy by default
+    ref = LSQ().minimize(Objective(model, series), lo, hi, rng=np.random.default_rng(0), x0=x0)
+    assert ref.message.startswith("scipy least_squares")
+
+    monkeypatch.setattr(lsq_module, "NORMAL_EQUATIONS_ABOVE", 0)
+    obj = _recording_objective(model, series)
+    ne = LSQ().minimize(obj, lo, hi, rng=np.random.default_rng(0), x0=x0)
+    assert "normal-equation" in ne.message and ne.status == 5, ne.message
+    assert isinstance(ne, type(ref)) and ne.optimizer == "lsq"
+    width = hi - lo
+    assert np.all(np.abs(ne.x - ref.x) <= 1e-5 * np.abs(ref.x) + 1e-7 * width), (ne.x, ref.x)
+    assert ne.fun == pytest.approx(ref.fun, rel=1e-9)
+    assert ne.fun == pytest.approx(float(Objective(model, series)(ne.x[None, :])[0]), rel=1e-12)
+    if box == "free":
+        np.testing.assert_allclose(ne.x[:4], BW_TRUTH[:4], rtol=0.02)  # the truth, to the noise
+    # bounds: every candidate evaluated (costs and finite-difference populations) is inside the box
+    seen = np.vstack(obj.seen)
+    assert np.all(seen >= lo) and np.all(seen <= hi)
+    if box == "kv_upper":
+        assert ne.x[0] == pytest.approx(0.24, abs=1e-12)
+    if box == "beta_lower":
+        assert ne.x[2] == pytest.approx(0.04, abs=1e-12)
+    # evaluations counted like the scipy route: every Jacobian is d + 1, every cost 1
+    assert ne.nfev == obj.nfev
+    assert ne.nit == len(ne.history_best) and np.all(np.diff(ne.history_best) <= 0)
+
+
+def test_lsq_normal_equation_route_stop_rules(rng, monkeypatch):
+    """max_evals bounds the cost evaluations (status 0); a loose ftol stops early (status 5)."""
+    import hystfit.optimizers.lsq as lsq_module
+    from hystfit.objective import Objective
+
+    model, series, lo, hi, x0 = _bw_problem(rng)
+    monkeypatch.setattr(lsq_module, "NORMAL_EQUATIONS_ABOVE", 0)
+    capped = LSQ(max_evals=4).minimize(Objective(model, series), lo, hi, rng=np.random.default_rng(0), x0=x0)
+    assert capped.status == 0 and "max_evals" in capped.message
+    assert capped.nit == 4  # the start and three trial steps
+    full = LSQ().minimize(Objective(model, series), lo, hi, rng=np.random.default_rng(0), x0=x0)
+    loose = LSQ(ftol=1e-2, xtol=1e-2, gtol=1e-2).minimize(Objective(model, series), lo, hi,
+                                                           rng=np.random.default_rng(0), x0=x0)
+    assert loose.status == 5 and loose.nfev < full.nfev and loose.fun >= full.fun
+    assert capped.fun >= full.fun
+
+
+def test_normal_equations_equal_the_dense_products(rng):
+    """(JᵀJ, Jᵀr, rᵀr, M) from the chunked one-pass computation equal the products of the dense
+    ``jacobian`` and ``residuals`` (two pooled captures, away from the optimum, with and without
+    backward steps at the upper bounds); ``normal_matrix`` returns its first, third and fourth."""
+    from hystfit.objective import Objective
+
+    model, series, lo, hi, _ = _bw_problem(rng, n_captures=2)
+    obj = Objective(model, series)
+    theta = BW_TRUTH * np.array([1.1, 0.9, 1.2, 0.8, 1.5])
+    for upper in (None, np.r_[theta[0], hi[1:]]):  # Kv at its upper bound: its step is taken backwards
+        J = obj.jacobian(theta, upper=upper)
+        r = obj.residuals(theta)
+        n0 = obj.nfev
+        JtJ, Jtr, rr, m = obj.normal_equations(theta, upper=upper)
+        assert obj.nfev - n0 == theta.size + 1
+        assert m == r.size == J.shape[0] == sum(s.y.size for s in series)
+        np.testing.assert_allclose(JtJ, J.T @ J, rtol=1e-10, atol=1e-10 * np.max(np.abs(J.T @ J)))
+        scale = np.linalg.norm(J, axis=0) * np.linalg.norm(r)
+        assert np.all(np.abs(Jtr - J.T @ r) <= 1e-10 * scale)
+        assert np.all(np.abs(J.T @ r) > 1e-6 * scale)  # a non-trivial gradient is being compared
+        assert rr == pytest.approx(float(r @ r), rel=1e-10)
+        JtJ2, rr2, m2 = obj.normal_matrix(theta, upper=upper)
+        np.testing.assert_array_equal(JtJ2, JtJ)
+        assert (rr2, m2) == (rr, m)
