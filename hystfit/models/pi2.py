@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import hashlib
 import math
+import weakref
 from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
-from .._jit import njit
+from .._jit import njit, prange
 
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels import play_matrix
+from ._kernels import PARALLEL_MIN_POP, play_matrix
 from .base import Model
 from .pi import PI
 
@@ -56,6 +58,300 @@ def biquad_columns(x, b0, b1, b2, a1, a2):
             e1[m] = e
             out[k, m] = e + x0[m]
     return out
+
+
+#: fastmath flags of the fused pi2 kernels: no ``nnan``/``ninf`` (a non-finite candidate must stay inf/NaN)
+_PI2_FASTMATH = {"contract", "arcp", "nsz", "reassoc"}
+
+
+@njit(cache=True, fastmath=_PI2_FASTMATH)
+def _pi2_sse_block(F, y, W, c0, b0, b1, b2, a1, a2, out, p0, p1):
+    """Σ_k (ŷ_k − y_k)² of the pi2 candidates p0:p1 into ``out[p0:p1]``, without storing ŷ.
+
+    For candidate p (weights w = W[:, p], biquad b0, b1, b2, a1, a2 of :func:`bilinear_biquad`):
+
+        d[k] = Σ_j w_j (F[k, j] − F[0, j])          (PI output v[k] minus its first sample v[0])
+        e[k] = b0 d[k] + b1 d[k−1] + b2 d[k−2] − a1 e[k−1] − a2 e[k−2],   d[<0] = e[<0] = 0
+        ŷ[k] = e[k] + c0,   c0 = v[0] + y0 = Σ_j w_j F[0, j] + y0
+
+    i.e. :func:`biquad_columns` (the filter at rest at its first input) applied to the PI output
+    F·w, plus the offset: the arithmetic of :meth:`PI2.simulate` up to the order of the PI sum.
+
+    Layout (``shared/PERFORMANCE.md``): the time loop is sequential and outermost; inside it every
+    loop runs over the block's candidates, contiguous — the weights are copied to a (n, m) array
+    (one contiguous row per operator), coefficients and filter states are (m,) arrays — so LLVM
+    vectorizes across candidates. Memory O(n·m): the (N, P) outputs are never formed. A candidate
+    with non-finite parameters gets a non-finite sum (never an exception).
+
+    Parameters
+    ----------
+    F : (N, n) play-operator outputs of the capture (θ-independent: computed once per capture).
+    y : (N,) measured output.  W : (n, P) weights.  c0 : (P,) at-rest output v[0] + y0.
+    b0, b1, b2, a1, a2 : (P,) biquad coefficients (a0 = 1).
+    out : (P,) receives the sums of the block.  p0, p1 : the candidate block.
+    """
+    N, n = F.shape
+    m = p1 - p0
+    w = np.empty((n, m))
+    for j in range(n):
+        for i in range(m):
+            w[j, i] = W[j, p0 + i]
+    B0 = b0[p0:p1].copy()
+    B1 = b1[p0:p1].copy()
+    B2 = b2[p0:p1].copy()
+    A1 = a1[p0:p1].copy()
+    A2 = a2[p0:p1].copy()
+    C0 = c0[p0:p1].copy()
+    F0 = np.zeros(n)
+    if N > 0:
+        F0[:] = F[0]
+    d = np.empty(m)
+    d1 = np.zeros(m)
+    d2 = np.zeros(m)
+    e1 = np.zeros(m)
+    e2 = np.zeros(m)
+    acc = np.zeros(m)
+    for k in range(N):
+        x = F[k, 0] - F0[0]
+        for i in range(m):
+            d[i] = w[0, i] * x
+        for j in range(1, n):
+            x = F[k, j] - F0[j]
+            for i in range(m):
+                d[i] += w[j, i] * x
+        yk = y[k]
+        for i in range(m):
+            # states read into locals before any store: no reloads through possibly aliasing arrays
+            di = d[i]
+            da = d1[i]
+            db = d2[i]
+            ea = e1[i]
+            eb = e2[i]
+            e = B0[i] * di + B1[i] * da + B2[i] * db - A1[i] * ea - A2[i] * eb
+            d2[i] = da
+            d1[i] = di
+            e2[i] = ea
+            e1[i] = e
+            r = e + C0[i] - yk
+            acc[i] += r * r
+    for i in range(m):
+        out[p0 + i] = acc[i]
+
+
+@njit(cache=True)
+def _pi2_sse_serial(F, y, W, c0, b0, b1, b2, a1, a2, out):
+    _pi2_sse_block(F, y, W, c0, b0, b1, b2, a1, a2, out, 0, c0.shape[0])
+
+
+@njit(cache=True, parallel=True)
+def _pi2_sse_parallel(F, y, W, c0, b0, b1, b2, a1, a2, out, n_blocks):
+    """:func:`_pi2_sse_serial` with ``n_blocks`` candidate blocks spread over threads."""
+    P = c0.shape[0]
+    size = (P + n_blocks - 1) // n_blocks
+    for b in prange(n_blocks):
+        p0 = b * size
+        p1 = min(P, p0 + size)
+        if p0 < p1:
+            _pi2_sse_block(F, y, W, c0, b0, b1, b2, a1, a2, out, p0, p1)
+
+
+@njit(cache=True, fastmath=_PI2_FASTMATH)
+def _pi2_gram_block(F, y, b0, b1, b2, a1, a2, G, c, p0, p1):
+    """Normal equations of the pi2 linear parameters (w0 … w{n−1}, y0) for the candidate
+    dynamics p0:p1, accumulated in the time loop without storing the filtered signals.
+
+    The basis of candidate p at sample k is b_k = [φ_0[k] … φ_{n−1}[k], 1], φ_j the play output
+    F[:, j] filtered by the candidate's biquad from rest at its first input (:func:`biquad_columns`):
+
+        x_j[k] = F[k, j] − F[0, j]
+        e_j[k] = b0 x_j[k] + b1 x_j[k−1] + b2 x_j[k−2] − a1 e_j[k−1] − a2 e_j[k−2],  x, e = 0 before k = 0
+        φ_j[k] = F[0, j] + e_j[k]
+
+    (the constant column of y0 passes the unit-DC-gain filter unchanged). Accumulated:
+
+        G[p] = Σ_k b_k b_kᵀ:  G[p, j, l] = Σ φ_j φ_l,  G[p, j, n] = G[p, n, j] = Σ φ_j,  G[p, n, n] = N
+        c[p] = Σ_k b_k y_k:   c[p, j] = Σ φ_j y_k,     c[p, n] = Σ y_k
+
+    Layout (``shared/PERFORMANCE.md``): the time loop is sequential and outermost; inside it every
+    loop runs over the block's candidates, contiguous: the output states e_j[k−1], e_j[k−2] and
+    the accumulators are (rows, m) arrays with the candidate index last, so LLVM vectorizes
+    across candidates. The inputs x_j are shared by every candidate (only the coefficients
+    differ), so they are kept once. The filtered rows of 4 consecutive samples are buffered
+    ((4, n, m)) and added to the n(n+1)/2 pair accumulators in one pass (a quarter of the
+    accumulator loads and stores). Memory O(n²·m) whatever N. Candidates with non-finite
+    coefficients get non-finite G, c entries (never an exception).
+
+    Parameters
+    ----------
+    F : (N, n) play-operator outputs (computed once per capture).  y : (N,) measured output.
+    b0, b1, b2, a1, a2 : (P,) biquad coefficients (a0 = 1, :func:`bilinear_biquad`).
+    G : (P, n + 1, n + 1) and c : (P, n + 1) receive the rows p0:p1.
+    """
+    N, n = F.shape
+    m = p1 - p0
+    U = 4  # samples per pass over the pair accumulators (the update below is written out for 4)
+    B0 = b0[p0:p1].copy()
+    B1 = b1[p0:p1].copy()
+    B2 = b2[p0:p1].copy()
+    A1 = a1[p0:p1].copy()
+    A2 = a2[p0:p1].copy()
+    F0 = np.zeros(n)
+    if N > 0:
+        F0[:] = F[0]
+    x1 = np.zeros(n)  # x_j[k−1], x_j[k−2]: shared by all candidates
+    x2 = np.zeros(n)
+    e1 = np.zeros((n, m))
+    e2 = np.zeros((n, m))
+    phi = np.zeros((U, n, m))  # filtered rows of the current group of samples
+    npair = n * (n + 1) // 2
+    gacc = np.zeros((npair, m))
+    sacc = np.zeros((n, m))
+    cacc = np.zeros((n, m))
+    sy = 0.0
+    for k0 in range(0, N, U):
+        nt = min(U, N - k0)
+        for t in range(nt):
+            k = k0 + t
+            yk = y[k]
+            sy += yk
+            for j in range(n):
+                x = F[k, j] - F0[j]
+                xa = x1[j]
+                xb = x2[j]
+                f0 = F0[j]
+                for i in range(m):
+                    ea = e1[j, i]
+                    eb = e2[j, i]
+                    e = B0[i] * x + B1[i] * xa + B2[i] * xb - A1[i] * ea - A2[i] * eb
+                    e2[j, i] = ea
+                    e1[j, i] = e
+                    ph = e + f0
+                    phi[t, j, i] = ph
+                    sacc[j, i] += ph
+                    cacc[j, i] += ph * yk
+                x2[j] = xa
+                x1[j] = x
+        if nt < U:  # last, partial group: the unused rows contribute exact zeros
+            for t in range(nt, U):
+                for j in range(n):
+                    for i in range(m):
+                        phi[t, j, i] = 0.0
+        q = 0
+        for j in range(n):
+            for l in range(j, n):
+                for i in range(m):
+                    gacc[q, i] += ((phi[0, j, i] * phi[0, l, i] + phi[1, j, i] * phi[1, l, i])
+                                   + (phi[2, j, i] * phi[2, l, i] + phi[3, j, i] * phi[3, l, i]))
+                q += 1
+    for i in range(m):
+        p = p0 + i
+        q = 0
+        for j in range(n):
+            for l in range(j, n):
+                G[p, j, l] = gacc[q, i]
+                G[p, l, j] = gacc[q, i]
+                q += 1
+            G[p, j, n] = sacc[j, i]
+            G[p, n, j] = sacc[j, i]
+            c[p, j] = cacc[j, i]
+        G[p, n, n] = float(N)
+        c[p, n] = sy
+
+
+@njit(cache=True)
+def _pi2_gram_serial(F, y, b0, b1, b2, a1, a2, G, c):
+    _pi2_gram_block(F, y, b0, b1, b2, a1, a2, G, c, 0, b0.shape[0])
+
+
+@njit(cache=True, parallel=True)
+def _pi2_gram_parallel(F, y, b0, b1, b2, a1, a2, G, c, n_blocks):
+    """:func:`_pi2_gram_serial` with ``n_blocks`` candidate blocks spread over threads."""
+    P = b0.shape[0]
+    size = (P + n_blocks - 1) // n_blocks
+    for b in prange(n_blocks):
+        p0 = b * size
+        p1 = min(P, p0 + size)
+        if p0 < p1:
+            _pi2_gram_block(F, y, b0, b1, b2, a1, a2, G, c, p0, p1)
+
+
+#: the Gram kernel does ~n²/2 = 50 multiply-adds per candidate and sample where the sum-of-squares
+#: kernel does ~n + 5: it is worth threading from this population on (blocks of ≥ 8 candidates,
+#: one AVX-512 vector), where :data:`~hystfit.models._kernels.PARALLEL_MIN_POP` applies to the latter
+GRAM_PARALLEL_MIN_POP = 16
+
+
+def _n_blocks(P: int, min_pop: int, min_block: int) -> int:
+    """Candidate blocks for the threaded variant, as :func:`hystfit.models._kernels._bw_run` does
+    it (0: run serially — a small population or a single thread)."""
+    import numba
+
+    threads = numba.get_num_threads()
+    if P >= min_pop and threads > 1:
+        return min(threads, P // min_block)
+    return 0
+
+
+def _f64(x):
+    return np.ascontiguousarray(x, dtype=np.float64)
+
+
+def pi2_sse(F, y, W, c0, b0, b1, b2, a1, a2):
+    """Σ_k (ŷ_k − y_k)² per candidate (P,) from the fused kernel :func:`_pi2_sse_block`, threaded
+    over candidate blocks for populations ≥ :data:`~hystfit.models._kernels.PARALLEL_MIN_POP`.
+
+    F (N, n) play outputs, y (N,), W (n, P) weights, c0 (P,) = Σ_j w_j F[0, j] + y0,
+    b0 … a2 (P,) biquad coefficients. The (N, P) outputs are never stored."""
+    F, y, W, c0 = _f64(F), _f64(y), _f64(W), _f64(c0)
+    co = [_f64(a) for a in (b0, b1, b2, a1, a2)]
+    out = np.empty(c0.shape[0])
+    nb = _n_blocks(c0.shape[0], PARALLEL_MIN_POP, 32)
+    if nb:
+        _pi2_sse_parallel(F, y, W, c0, *co, out, nb)
+    else:
+        _pi2_sse_serial(F, y, W, c0, *co, out)
+    return out
+
+
+def pi2_gram(F, y, b0, b1, b2, a1, a2):
+    """Normal equations (G (P, n + 1, n + 1), c (P, n + 1)) of the pi2 linear parameters for
+    each candidate's biquad, from the fused kernel :func:`_pi2_gram_block` (threaded over
+    candidate blocks for populations ≥ :data:`GRAM_PARALLEL_MIN_POP`). O(P·n²) memory."""
+    F, y = _f64(F), _f64(y)
+    co = [_f64(a) for a in (b0, b1, b2, a1, a2)]
+    P, L = co[0].shape[0], F.shape[1] + 1
+    G = np.empty((P, L, L))
+    c = np.empty((P, L))
+    nb = _n_blocks(P, GRAM_PARALLEL_MIN_POP, 8)
+    if nb:
+        _pi2_gram_parallel(F, y, *co, G, c, nb)
+    else:
+        _pi2_gram_serial(F, y, *co, G, c)
+    return G, c
+
+
+#: play-operator matrices in use, keyed by the content of the input and the thresholds, held
+#: weakly: an entry lives as long as a closure that uses it (see :func:`shared_play_matrix`)
+_PLAYS: "weakref.WeakValueDictionary[tuple, np.ndarray]" = weakref.WeakValueDictionary()
+
+
+def shared_play_matrix(u: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """:func:`~hystfit.models._kernels.play_matrix` (N, n) of one capture, computed once and shared.
+
+    The simulator, the fused sum of squares and the normal equations of one capture each need
+    the θ-independent play matrix (80 MB for 10⁶ samples and 10 operators); they share one
+    read-only copy. The key is a digest of the input's bytes (plus N and the thresholds), so an
+    input changed in place gets its own matrix, never a stale one.
+    """
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    r = np.ascontiguousarray(r, dtype=np.float64)
+    key = (hashlib.blake2b(memoryview(u).cast("B"), digest_size=20).digest(), u.shape[0], r.tobytes())
+    F = _PLAYS.get(key)
+    if F is None:
+        F = play_matrix(u, r)
+        F.flags.writeable = False
+        _PLAYS[key] = F
+    return F
 
 
 def bilinear_biquad(fn_Hz, zeta, dt: float):
@@ -133,11 +429,14 @@ class PI2(Model):
     10 kHz), (b) prewarping places the resonance exactly, (c) it is unconditionally stable,
     and (d) it is what hystfit's virtual actuator uses (:mod:`hystfit.synth`), so the model
     can represent that plant exactly. The population is filtered by a numba biquad kernel,
-    time outermost, candidates innermost (:func:`biquad_columns`).
+    time outermost, candidates innermost (:func:`biquad_columns`). The identification objective
+    does not store the (P, N) outputs: :meth:`sse_evaluator` forms the PI output, filters it and
+    accumulates the squared error in one time loop (:func:`pi2_sse`).
 
     Exploited structure: for fixed (f_n, ζ) the output is linear in (w, y0) —
     :meth:`design_matrix` (filtered play outputs and ones), and :meth:`separable` for the
-    ``auto`` optimizer (only f_n and ζ are searched).
+    ``auto`` optimizer (only f_n and ζ are searched; the normal equations of (w, y0) come from
+    the fused kernel :func:`pi2_gram`, O(P·n²) memory whatever the capture length).
 
     Inverse (:meth:`invert`): dynamic inversion of the linear part, then the analytic PI inverse
     (paper 003 eq. 17–20). The discrete filter's exact inverse is unusable: the bilinear
@@ -225,34 +524,73 @@ class PI2(Model):
         return self._simulate_from_plays(theta, play_matrix(u, self.pi.r), dt)
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
-        F = play_matrix(np.ascontiguousarray(u, dtype=np.float64), self.pi.r)  # once per capture
+        F = shared_play_matrix(u, self.pi.r)  # once per capture
         return lambda theta: self._simulate_from_plays(theta, F, dt)
 
+    def sse_evaluator(self, u: np.ndarray, dt: float, y: np.ndarray):
+        """Σ_k (ŷ_k − y_k)² per candidate from the fused kernel :func:`pi2_sse` (PI sum, biquad and
+        squared error inside one time loop): the (P, N) outputs are never stored. The play-operator
+        matrix is computed once per capture (shared with the simulator, :func:`shared_play_matrix`).
+        Non-finite candidates give inf/NaN (never an exception)."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        y = np.ascontiguousarray(y, dtype=np.float64)
+        n = self.n_operators
+        F = shared_play_matrix(u, self.pi.r)  # once per capture
+        F0 = F[0].copy() if F.shape[0] else np.zeros(n)
+
+        def sse(theta):
+            theta = self.check_theta(theta, n + 3)
+            with np.errstate(all="ignore"):
+                b0, b1, b2, a1, a2 = bilinear_biquad(theta[:, n + 1], theta[:, n + 2], dt)
+                c0 = theta[:, :n] @ F0 + theta[:, n]  # at-rest output v[0] + y0
+                return pi2_sse(F, y, theta[:, :n].T, c0, b0, b1, b2, a1, a2)
+
+        return sse
+
     def separable(self):
-        """Weights and y0 enter linearly; only (f_n, ζ) are searched (variable projection)."""
+        """Weights and y0 enter linearly; only (f_n, ζ) are searched (variable projection).
+
+        ``gram_factory``: the normal equations Σ_k b_k b_kᵀ, Σ_k b_k y_k of the basis
+        b_k = [filtered plays, 1] straight from the fused kernel :func:`pi2_gram` (O(P·n²) memory,
+        ``gram_fused=True``). ``basis_factory``: the basis itself, (P, N, n + 1), for callers that
+        need it (filtered candidate by candidate; the play matrix is fetched on first use)."""
         from ..separable import Separable
 
         n = self.n_operators
 
+        def gram_factory(u, dt, y):
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            y = np.ascontiguousarray(y, dtype=np.float64)
+            F = shared_play_matrix(u, self.pi.r)  # once per capture
+            yy = float(y @ y)
+
+            def gram(theta_nl):
+                theta_nl = np.atleast_2d(np.asarray(theta_nl, dtype=np.float64))
+                G, c = pi2_gram(F, y, *bilinear_biquad(theta_nl[:, 0], theta_nl[:, 1], dt))
+                return G, c, yy
+
+            return gram
+
         def factory(u, dt):
-            F = play_matrix(np.ascontiguousarray(u, dtype=np.float64), self.pi.r)
-            N = F.shape[0]
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            plays = []  # the play matrix, computed on the first call only
 
             def basis(theta_nl):
-                theta_nl = np.atleast_2d(theta_nl)
-                P = theta_nl.shape[0]
-                X = np.tile(F, (1, P))  # (N, P·n): candidate-major blocks of the n plays
-                fn = np.repeat(theta_nl[:, 0], n)
-                ze = np.repeat(theta_nl[:, 1], n)
-                Xf = self._filter(X, fn, ze, dt).reshape(N, P, n)
+                if not plays:
+                    plays.append(shared_play_matrix(u, self.pi.r))
+                F = plays[0]
+                theta_nl = np.atleast_2d(np.asarray(theta_nl, dtype=np.float64))
+                P, N = theta_nl.shape[0], F.shape[0]
+                coef = bilinear_biquad(theta_nl[:, 0], theta_nl[:, 1], dt)
                 B = np.empty((P, N, n + 1))
-                B[:, :, :n] = Xf.transpose(1, 0, 2)
+                for p in range(P):  # one candidate at a time: no (N, P·n) copy of the plays
+                    B[p, :, :n] = biquad_columns(F, *(np.full(n, a[p]) for a in coef))
                 B[:, :, n] = 1.0
                 return B
 
             return basis
 
-        return Separable(tuple(range(n + 1)), (n + 1, n + 2), factory)
+        return Separable(tuple(range(n + 1)), (n + 1, n + 2), factory, gram_factory, gram_fused=True)
 
     # ------------------------------------------------------------------ stepping
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:

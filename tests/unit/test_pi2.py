@@ -129,6 +129,70 @@ def test_separable_basis_reproduces_simulate(rng):
                                atol=1e-11)
 
 
+@pytest.mark.parametrize("P", [7, 90])  # serial and threaded kernels (candidate blocks)
+def test_fused_sse_and_normal_equations_equal_the_simulated_ones(rng, P):
+    """The fused kernels (Σ(ŷ − y)² in the time loop; BᵀB, Bᵀy of the filtered plays and ones)
+    equal the simulated sum and the stored basis to 1e-9 relative for random candidates inside
+    the bounds; non-finite parameters give a non-finite result for that candidate only."""
+    N = 2500
+    u = raised_cosine(40, N=N) * (1 - 0.3 * np.sin(np.arange(N) * DT * 2 * np.pi * 13)) + 5.0  # starts off zero
+    m = adapted([u])
+    sc = DataScale.from_arrays([u], [0.3 * u], [DT])
+    ps = m.params(sc)
+    lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
+    theta = lo + rng.random((P, len(ps))) * (hi - lo)
+    theta[0] = TRUE
+    bad = {1: (3, np.nan), 2: (10, np.inf), 3: (11, np.nan), 4: (12, np.inf), 5: (11, 0.6 * FS)}  # row: (column, value)
+    for row, (col, val) in bad.items():
+        theta[row, col] = val
+    y = m.simulate_one(TRUE, u, DT) + 0.01 * rng.standard_normal(N)
+
+    with np.errstate(all="ignore"):
+        ref = np.sum((m.simulate(theta, u, DT) - y) ** 2, axis=1)
+    got = m.sse_evaluator(u, DT, y)(theta)
+    finite = np.ones(P, bool)
+    finite[list(bad)] = False
+    np.testing.assert_array_equal(np.isfinite(ref), finite)
+    np.testing.assert_array_equal(np.isfinite(got), finite)
+    np.testing.assert_allclose(got[finite], ref[finite], rtol=1e-9)
+
+    sep = m.separable()
+    assert sep.gram_fused and sep.nonlinear == (11, 12)
+    nl = list(sep.nonlinear)
+    G, c, yy = sep.gram_factory(u, DT, y)(theta[:, nl])
+    B = sep.basis_factory(u, DT)(theta[:, nl])
+    assert G.shape == (P, 11, 11) and c.shape == (P, 11)
+    with np.errstate(all="ignore"):
+        G_ref = np.einsum("pnl,pnk->plk", B, B)
+        c_ref = np.einsum("pnl,n->pl", B, y)
+    ok = np.isfinite(G_ref.reshape(P, -1)).all(axis=1)
+    np.testing.assert_array_equal(ok, ~np.isin(np.arange(P), [3, 4, 5]))  # non-finite or out-of-range dynamics
+    np.testing.assert_array_equal(np.isfinite(G.reshape(P, -1)).all(axis=1), ok)
+    np.testing.assert_allclose(G[ok], G_ref[ok], rtol=1e-9)
+    np.testing.assert_allclose(c[ok], c_ref[ok], rtol=1e-9, atol=1e-12 * np.abs(c_ref[ok]).max())
+    assert yy == pytest.approx(float(y @ y), rel=1e-14)
+    # solving the normal equations at the true dynamics recovers (w, y0) to the noise level
+    x = np.linalg.solve(G[0], c[0])
+    np.testing.assert_allclose(x, TRUE[:11], atol=0.02)
+
+
+def test_play_matrix_is_shared_per_capture_and_never_stale():
+    """Simulator, fused SSE and normal equations of one capture share one read-only play matrix;
+    an input changed in place gets its own (content-keyed), never the stale one."""
+    from hystfit.models._kernels import play_matrix
+    from hystfit.models.pi2 import shared_play_matrix
+
+    u = raised_cosine(30, N=600)
+    r = adapted([u]).pi.r
+    F = shared_play_matrix(u, r)
+    assert shared_play_matrix(u.copy(), r) is F and not F.flags.writeable
+    np.testing.assert_array_equal(F, play_matrix(u, r))
+    u2 = u.copy()
+    u2[100] += 1.0
+    assert shared_play_matrix(u2, r) is not F
+    np.testing.assert_array_equal(shared_play_matrix(u2, r), play_matrix(u2, r))
+
+
 def test_step_agrees_with_simulate(rng):
     u = 30 + np.cumsum(rng.normal(size=400))
     m = adapted([u])
