@@ -77,3 +77,28 @@ def test_simulate_recursive(nested, tmp_path):
     assert r.exit_code == 0, r.output
     names = {p.name for p in (tmp_path / "sim").iterdir()}
     assert {"a20V_f10Hz_prediction.csv", "a40V_f10Hz_prediction.csv"} <= names
+
+
+@pytest.mark.slow
+def test_identify_a_million_samples_peaks_under_1_GB_resident(tmp_path):
+    """Issue 5: a 10⁶-sample capture identifies (load, Bouc–Wen fit with auto and its polish,
+    standard errors, reports) in a fresh process whose peak resident set size stays under 1 GB."""
+    import subprocess
+    import sys
+
+    from hystfit.synth import Effects, Plant, raised_cosine, simulate_plant, write_capture
+
+    t, u = raised_cosine(60, 10, fs_Hz=10_000, cycles=1000)  # 1,000,001 samples
+    plant = Plant.default().with_effects(Effects.from_names(["noise"]))
+    cap = write_capture(tmp_path / "big.parquet", t, u, simulate_plant(plant, t, u, seed=0))
+    code = ("import resource, sys\n"
+            "from hystfit.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit as exc:\n    assert exc.code in (0, None), exc.code\n"
+            "print('peak_kB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+    r = subprocess.run([sys.executable, "-c", code, "identify", str(cap), "--model", "bw", "--no-plots", "--json",
+                        "--quiet", "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    peak_kB = int(r.stderr.split("peak_kB")[1].split()[0])
+    assert peak_kB < 1_000_000, f"peak RSS {peak_kB / 1e3:.0f} MB"
+    cond = json.loads(r.stdout)["conditions"][0]
+    assert cond["metrics"]["n_samples"] == 1_000_001 and cond["metrics"]["r2"] > 0.999
