@@ -160,10 +160,12 @@ def linear_sse_evaluator(model: Model, u: np.ndarray, dt: float, y: np.ndarray):
 
     Applies when ``model.separable()`` declares every parameter linear (PI with fixed thresholds,
     Hammerstein with a fixed linear part): ŷ = C + B·θ with a basis B (N, d) that does not
-    depend on θ. With θ* a least-squares solution and r* = y − C − Bθ* its residual,
-    Σ(ŷ − y)² = ‖r*‖² + (θ − θ*)ᵀ BᵀB (θ − θ*) exactly (Bᵀr* = 0), so a population costs
-    O(P·d²) instead of O(P·N·d) — and the form is centred on θ*, so there is no cancellation
-    between large terms near the optimum. Returns None for any other model.
+    depend on θ. With θ* ≈ the least-squares solution (from the normal equations, so B is never
+    copied: a 10⁶-sample capture needs one (N, d) basis in memory) and r* = y − C − Bθ*,
+    Σ(ŷ − y)² = ‖r*‖² − 2δᵀBᵀr* + δᵀ BᵀB δ with δ = θ − θ*, exactly for any θ* (Bᵀr* ≈ 0 is
+    kept, not assumed), so a population costs O(P·d²) instead of O(P·N·d) — and the form is
+    centred on θ*, so there is no cancellation between large terms near the optimum. Returns None
+    for any other model.
     """
     sep = model.separable()
     if sep is None or len(sep.nonlinear) != 0:
@@ -177,16 +179,21 @@ def linear_sse_evaluator(model: Model, u: np.ndarray, dt: float, y: np.ndarray):
     target = np.asarray(y, dtype=np.float64) - (0.0 if C is None else np.asarray(C, dtype=np.float64)[0])
     if B.ndim != 2 or B.shape[1] != d or not (np.all(np.isfinite(B)) and np.all(np.isfinite(target))):
         return None
-    theta_star = np.linalg.lstsq(B, target, rcond=None)[0]
+    G = B.T @ B
+    c = B.T @ target
+    scale = np.sqrt(np.maximum(np.diag(G), 1e-300))  # equilibrate before solving
+    Gs = G / np.outer(scale, scale)
+    theta_star = np.linalg.lstsq(Gs, c / scale, rcond=None)[0] / scale
     r = target - B @ theta_star
     sse_min = float(r @ r)
-    G = B.T @ B
+    g = B.T @ r  # ≈ 0: the residual of the normal equations, kept so the form is exact
+    del B, r
     order = np.asarray(sep.linear, dtype=int)
 
     def sse(theta: np.ndarray) -> np.ndarray:
         delta = np.atleast_2d(theta)[:, order] - theta_star
         with np.errstate(all="ignore"):
-            return sse_min + np.einsum("pi,ij,pj->p", delta, G, delta)
+            return sse_min - 2.0 * (delta @ g) + np.einsum("pi,ij,pj->p", delta, G, delta)
 
     return sse
 

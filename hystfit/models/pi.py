@@ -122,7 +122,12 @@ class PI(Model):
         return theta @ self.design_matrix(u, dt).T
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
-        phi_t = np.ascontiguousarray(self.design_matrix(u, dt).T)  # (n+1, N), computed once
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        F = play_matrix(u, self.r)
+        phi_t = np.empty((self.n_operators + 1, u.shape[0]))  # (n+1, N), computed once, no extra copy
+        phi_t[:-1] = F.T
+        phi_t[-1] = 1.0
+        del F
         d = self.n_operators + 1
         return lambda theta: self.check_theta(theta, d) @ phi_t
 
