@@ -100,80 +100,78 @@ def _bw_advance(h, du, a, beta, gamma):
     return s * g1
 
 
-#: |c·Δv| up to which the series form of the exact Bouc–Wen update is used directly (larger
-#: arguments are halved until they fit and the result is squared back, see :func:`_bw_sample`)
+#: |c·Δv| up to which the series of degree 7 in c·Δv is used (truncation error < 3e-14)
 _BW_SERIES_MAX = 0.1
+
+#: |c·Δv| up to which the series of degree 11 is used (truncation error < 6e-16); larger
+#: arguments are halved until they fit and the result is squared back (see :func:`_bw_block`)
+_BW_SERIES11_MAX = 0.35
 
 #: fastmath flags of the Bouc–Wen kernels: no ``nnan``/``ninf`` (a diverging candidate must stay inf/NaN)
 _BW_FASTMATH = {"contract", "arcp", "nsz", "reassoc"}
 
 
 @njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
-def _bw_phi(x):
-    """φ(x) = (1 − e^{−x})/x for |x| ≤ 0.1 by its series to x⁷ (error < 3e-14; branch- and call-free)."""
+def _bw_phi11(x):
+    """φ(x) = (1 − e^{−x})/x for |x| ≤ 0.35 by its series to x¹¹ (error < 6e-16)."""
     mx = -x
     return 1.0 + mx * (0.5 + mx * (1.0 / 6 + mx * (1.0 / 24 + mx * (1.0 / 120 + mx * (
-        1.0 / 720 + mx * (1.0 / 5040 + mx * (1.0 / 40320)))))))
+        1.0 / 720 + mx * (1.0 / 5040 + mx * (1.0 / 40320 + mx * (1.0 / 362880 + mx * (
+            1.0 / 3628800 + mx * (1.0 / 39916800 + mx * (1.0 / 479001600)))))))))))
 
 
 @njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
-def _bw_sample(h, hold, X, F, a, be, ga, du, cabs_max):
-    """Advance the Bouc–Wen states ``h`` (m,) of a block of candidates exactly over one input
-    segment ``du``, in place (``hold`` receives the previous states).
+def _bw_coefs7(dv):
+    """q_j = dv^{j+1}/(j+1)!, j = 0..7: ψ(c) = dv·φ(c·dv) = Σ_j (−c)^j·q_j."""
+    q0 = dv
+    q1 = q0 * dv * (1.0 / 2)
+    q2 = q1 * dv * (1.0 / 3)
+    q3 = q2 * dv * (1.0 / 4)
+    q4 = q3 * dv * (1.0 / 5)
+    q5 = q4 * dv * (1.0 / 6)
+    q6 = q5 * dv * (1.0 / 7)
+    q7 = q6 * dv * (1.0 / 8)
+    return (q0, q1, q2, q3, q4, q5, q6, q7)
 
-    In the driven direction s = sgn(Δu) and with g = s·h, v = |Δu|, the equation is
-    dg/dv = a − c·g with c = β + γ·sgn(g) (n = 1), solved exactly:
-    g₁ = g·e^{−cv} + a·v·φ(cv) = g + (a − c·g)·v·φ(cv),  φ(x) = (1 − e^{−x})/x.
-    φ is evaluated branch-free for every candidate at once (contiguous arrays, so LLVM vectorizes
-    the loops): by its series when |c·v| ≤ 0.1, otherwise by scaling and squaring — the argument
-    is halved ``nsq`` times (one count for the whole block, from ``cabs_max`` = max |c|) and
-    φ(2x) = φ(x)·(1 + e^{−x})/2 with e^{−x} = 1 − x·φ(x) is applied ``nsq`` times
-    (relative error ≲ 2^nsq · 3e-14). The few candidates whose state changes sign inside the
-    segment, or starts exactly at 0 (where the regime is set by the sign of a), are redone by
-    :func:`_bw_advance`, which locates the zero crossing exactly. ``X``, ``F`` are scratch (m,).
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_coefs11(q, dv):
+    """q_j = dv^{j+1}/(j+1)!, j = 0..11, from those to j = 7 (``q``)."""
+    q8 = q[7] * dv * (1.0 / 9)
+    q9 = q8 * dv * (1.0 / 10)
+    q10 = q9 * dv * (1.0 / 11)
+    q11 = q10 * dv * (1.0 / 12)
+    return (q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7], q8, q9, q10, q11)
+
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_neg(x):
+    """Sign bit of x (set for −0.0): compiles to a bit test, not a floating-point comparison."""
+    return math.copysign(1.0, x) < 0.0
+
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_next(kind, h, mcp, mcn, sa, q, psi):
+    """Exact Bouc–Wen update of one state h over one input segment, branch-free.
+
+    With s = sgn(Δu), v = |Δu|, the equation along the segment is dh/dv = s·a − c·h with
+    c = β + s·γ·sgn(h) (n = 1), solved exactly: h₁ = h + (s·a − c·h)·ψ, ψ = v·φ(c·v) =
+    (1 − e^{−cv})/c. −c is ``mcp`` = −(β + sγ) for h ≥ +0 and ``mcn`` = −(β − sγ) for h ≤ −0
+    (by the sign bit, as the exact redo reads the sign of a zero state); ``sa`` = s·a.
+    ψ by its series Σ_j (−c)^j·q_j to degree ``kind`` (7 or 11; q from :func:`_bw_coefs7`,
+    :func:`_bw_coefs11`), or ``psi`` (kind 0: computed beforehand). Valid while the sign bit of
+    h does not change; the caller redoes the other candidates.
     """
-    m = h.shape[0]
-    dv = abs(du)
-    s = 1.0 if du > 0.0 else -1.0
-    nsq = 0
-    v = cabs_max * dv
-    while v > _BW_SERIES_MAX and nsq < 64:
-        v *= 0.5
-        nsq += 1
-    nbad = 0
-    if nsq == 0:  # the common case near a fit: one pass
-        for i in range(m):
-            hi = h[i]
-            g = s * hi
-            c = be[i] + ga[i] * math.copysign(1.0, g)
-            g1 = g + (a[i] - c * g) * dv * _bw_phi(c * dv)
-            nbad += (g * g1 < 0.0) | (g == 0.0)
-            hold[i] = hi
-            h[i] = s * g1
+    mc = mcn if _bw_neg(h) else mcp
+    if kind == 7:
+        f = q[0] + mc * (q[1] + mc * (q[2] + mc * (q[3] + mc * (q[4] + mc * (q[5] + mc * (
+            q[6] + mc * q[7]))))))
+    elif kind == 11:
+        f = q[0] + mc * (q[1] + mc * (q[2] + mc * (q[3] + mc * (q[4] + mc * (q[5] + mc * (
+            q[6] + mc * (q[7] + mc * (q[8] + mc * (q[9] + mc * (q[10] + mc * q[11]))))))))))
     else:
-        dvs = dv * 0.5 ** nsq
-        for i in range(m):
-            g = s * h[i]
-            x = (be[i] + ga[i] * math.copysign(1.0, g)) * dvs
-            X[i] = x
-            F[i] = _bw_phi(x)
-        for _ in range(nsq):
-            for i in range(m):
-                e = 1.0 - X[i] * F[i]
-                F[i] = F[i] * (1.0 + e) * 0.5
-                X[i] = 2.0 * X[i]
-        for i in range(m):
-            hi = h[i]
-            g = s * hi
-            c = be[i] + ga[i] * math.copysign(1.0, g)
-            g1 = g + (a[i] - c * g) * dv * F[i]
-            nbad += (g * g1 < 0.0) | (g == 0.0)
-            hold[i] = hi
-            h[i] = s * g1
-    if nbad:
-        for i in range(m):
-            if (hold[i] * h[i] < 0.0) | (hold[i] == 0.0):
-                h[i] = _bw_advance(hold[i], du, a[i], be[i], ga[i])
+        f = psi
+    return h + (sa + mc * h) * f
 
 
 #: what a Bouc–Wen block kernel produces
@@ -190,23 +188,49 @@ def _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1):
     - ``_BW_SSE``: ``out`` (P, 1) receives Σ_k (Kv·u_k + h_k + y0 − y_k)², without storing h;
     - ``_BW_MOMENTS``: ``out`` (P, 4) receives Σh², Σh·u, Σh, Σh·y (for the exact solve of the
       parameters that enter linearly, see :meth:`hystfit.models.bw.BoucWen.separable`).
+
+    Per sample, every candidate's state is advanced exactly by :func:`_bw_next` and its
+    contribution to the output is added in the same loop (contiguous arrays, branch-free: the
+    loops vectorize across candidates). ψ comes from one series chosen for the whole block by the
+    largest argument max|c|·|Δu|: degree 7 up to 0.1, degree 11 up to 0.35; beyond, c·Δu is halved
+    ``nsq`` times to ≤ 0.35 and φ(2x) = φ(x)·(1 + e^{−x})/2 with e^{−x} = 1 − x·φ(x) is applied
+    ``nsq`` times (relative error ≲ 2^nsq · 1e-16). A candidate whose state changes its sign bit
+    in the segment has used the wrong regime (or, from a zero state, the regime that the sign of
+    a excludes): its contribution is left out of the loop and it is redone by :func:`_bw_advance`,
+    which locates the zero crossing exactly. The states alternate between the two rows of ``H``,
+    so the previous ones stay available for that.
+
+    What makes the loops fast (measured; see ``../shared/PERFORMANCE.md`` for the layout rule):
+    the regime and the sign-change test use sign bits only (a masked load and an integer xor, no
+    floating-point work); the coefficients of ψ as a polynomial in c are computed once per sample;
+    and no array is handed to a helper inside the time loop, because each such call costs atomic
+    reference-count updates per sample.
     """
     N = u.shape[0]
     m = p1 - p0
-    h = np.zeros(m)
-    hn = np.zeros(m)  # previous states, for the few candidates redone exactly
+    H = np.zeros((2, m))  # states before (row c) and after (row 1 − c) the sample
+    c = 0
     X = np.empty(m)
     F = np.empty(m)
     a = alpha[p0:p1].copy()
     be = beta[p0:p1].copy()
     ga = gamma[p0:p1].copy()
-    cp = be + ga
-    cn = be - ga
     cabs_max = 0.0
     for i in range(m):
-        cabs_max = max(cabs_max, abs(cp[i]), abs(cn[i]))
+        cabs_max = max(cabs_max, abs(be[i] + ga[i]), abs(be[i] - ga[i]))
     if not np.isfinite(cabs_max):
         cabs_max = 1e300  # a NaN/inf candidate: the squaring count saturates, its own output is NaN/inf
+    # per input direction j (0: s = +1, 1: s = −1): s·a and −c for h ≥ +0 / h ≤ −0
+    sa = np.empty((2, m))
+    mcp = np.empty((2, m))
+    mcn = np.empty((2, m))
+    for i in range(m):
+        sa[0, i] = a[i]
+        sa[1, i] = -a[i]
+        mcp[0, i] = -(be[i] + ga[i])
+        mcn[0, i] = -(be[i] - ga[i])
+        mcp[1, i] = -(be[i] - ga[i])
+        mcn[1, i] = -(be[i] + ga[i])
     acc0 = np.zeros(m)
     acc1 = np.zeros(m)
     acc2 = np.zeros(m)
@@ -217,30 +241,159 @@ def _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1):
     else:
         k_v = np.zeros(m)
         off = np.zeros(m)
+    has_y = mode != _BW_STATES
     for k in range(N):
-        if k > 0:
-            du = u[k] - u[k - 1]
-            if du != 0.0:
-                _bw_sample(h, hn, X, F, a, be, ga, du, cabs_max)
-        if mode == _BW_STATES:
-            uk = u[k]
+        uk = u[k]
+        yk = y[k] if has_y else 0.0
+        du = uk - u[k - 1] if k > 0 else 0.0
+        d = 1 - c
+        nbad = False
+        if du == 0.0:  # no input change (or k = 0): the states stay
+            if mode == _BW_SSE:
+                for i in range(m):
+                    e = k_v[i] * uk + H[c, i] + off[i] - yk
+                    acc0[i] += e * e
+            elif mode == _BW_MOMENTS:
+                for i in range(m):
+                    hi = H[c, i]
+                    acc0[i] += hi * hi
+                    acc1[i] += hi * uk
+                    acc2[i] += hi
+                    acc3[i] += hi * yk
+            else:
+                for i in range(m):
+                    out[k, p0 + i] = k_v[i] * uk + H[c, i] + off[i]
+            continue
+        dv = abs(du)
+        j = 0 if du > 0.0 else 1
+        xmax = cabs_max * dv
+        kind = 7 if xmax <= _BW_SERIES_MAX else (11 if xmax <= _BW_SERIES11_MAX else 0)
+        if dv > 1e20:
+            kind = 0  # keep the powers of dv in the series coefficients finite
+        q7 = _bw_coefs7(dv if kind != 0 else 0.0)
+        q11 = _bw_coefs11(q7, dv if kind == 11 else 0.0)
+        if kind == 0:
+            nsq = 0
+            v = xmax
+            while v > _BW_SERIES11_MAX and nsq < 64:
+                v *= 0.5
+                nsq += 1
+            dvs = dv * 0.5 ** nsq
             for i in range(m):
-                out[k, p0 + i] = k_v[i] * uk + h[i] + off[i]
-        elif mode == _BW_SSE:
-            uk = u[k]
-            yk = y[k]
+                x = -(mcn[j, i] if _bw_neg(H[c, i]) else mcp[j, i]) * dvs
+                X[i] = x
+                F[i] = _bw_phi11(x)
+            for _ in range(nsq):
+                for i in range(m):
+                    e = 1.0 - X[i] * F[i]
+                    F[i] = F[i] * (1.0 + e) * 0.5
+                    X[i] = 2.0 * X[i]
             for i in range(m):
-                e = k_v[i] * uk + h[i] + off[i] - yk
-                acc0[i] += e * e
+                F[i] *= dv
+        if mode == _BW_SSE:
+            if kind == 7:
+                for i in range(m):
+                    hi = H[c, i]
+                    hn = _bw_next(7, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, 0.0)
+                    H[d, i] = hn
+                    bad = _bw_neg(hi) != _bw_neg(hn)
+                    nbad |= bad
+                    e = k_v[i] * uk + hn + off[i] - yk
+                    acc0[i] += 0.0 if bad else e * e
+            elif kind == 11:
+                for i in range(m):
+                    hi = H[c, i]
+                    hn = _bw_next(11, hi, mcp[j, i], mcn[j, i], sa[j, i], q11, 0.0)
+                    H[d, i] = hn
+                    bad = _bw_neg(hi) != _bw_neg(hn)
+                    nbad |= bad
+                    e = k_v[i] * uk + hn + off[i] - yk
+                    acc0[i] += 0.0 if bad else e * e
+            else:
+                for i in range(m):
+                    hi = H[c, i]
+                    hn = _bw_next(0, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, F[i])
+                    H[d, i] = hn
+                    bad = _bw_neg(hi) != _bw_neg(hn)
+                    nbad |= bad
+                    e = k_v[i] * uk + hn + off[i] - yk
+                    acc0[i] += 0.0 if bad else e * e
+        elif mode == _BW_MOMENTS:
+            if kind == 7:
+                for i in range(m):
+                    hi = H[c, i]
+                    hn = _bw_next(7, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, 0.0)
+                    H[d, i] = hn
+                    bad = _bw_neg(hi) != _bw_neg(hn)
+                    nbad |= bad
+                    hm = 0.0 if bad else hn
+                    acc0[i] += hm * hm
+                    acc1[i] += hm * uk
+                    acc2[i] += hm
+                    acc3[i] += hm * yk
+            elif kind == 11:
+                for i in range(m):
+                    hi = H[c, i]
+                    hn = _bw_next(11, hi, mcp[j, i], mcn[j, i], sa[j, i], q11, 0.0)
+                    H[d, i] = hn
+                    bad = _bw_neg(hi) != _bw_neg(hn)
+                    nbad |= bad
+                    hm = 0.0 if bad else hn
+                    acc0[i] += hm * hm
+                    acc1[i] += hm * uk
+                    acc2[i] += hm
+                    acc3[i] += hm * yk
+            else:
+                for i in range(m):
+                    hi = H[c, i]
+                    hn = _bw_next(0, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, F[i])
+                    H[d, i] = hn
+                    bad = _bw_neg(hi) != _bw_neg(hn)
+                    nbad |= bad
+                    hm = 0.0 if bad else hn
+                    acc0[i] += hm * hm
+                    acc1[i] += hm * uk
+                    acc2[i] += hm
+                    acc3[i] += hm * yk
         else:
-            uk = u[k]
-            yk = y[k]
+            if kind == 7:
+                for i in range(m):
+                    hi = H[c, i]
+                    hn = _bw_next(7, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, 0.0)
+                    H[d, i] = hn
+                    nbad |= _bw_neg(hi) != _bw_neg(hn)
+                    out[k, p0 + i] = k_v[i] * uk + hn + off[i]
+            elif kind == 11:
+                for i in range(m):
+                    hi = H[c, i]
+                    hn = _bw_next(11, hi, mcp[j, i], mcn[j, i], sa[j, i], q11, 0.0)
+                    H[d, i] = hn
+                    nbad |= _bw_neg(hi) != _bw_neg(hn)
+                    out[k, p0 + i] = k_v[i] * uk + hn + off[i]
+            else:
+                for i in range(m):
+                    hi = H[c, i]
+                    hn = _bw_next(0, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, F[i])
+                    H[d, i] = hn
+                    nbad |= _bw_neg(hi) != _bw_neg(hn)
+                    out[k, p0 + i] = k_v[i] * uk + hn + off[i]
+        if nbad:  # the few candidates whose state changed its sign bit: redo exactly
             for i in range(m):
-                hi = h[i]
-                acc0[i] += hi * hi
-                acc1[i] += hi * uk
-                acc2[i] += hi
-                acc3[i] += hi * yk
+                hi = H[c, i]
+                if _bw_neg(hi) != _bw_neg(H[d, i]):
+                    hn = _bw_advance(hi, du, a[i], be[i], ga[i])
+                    H[d, i] = hn
+                    if mode == _BW_SSE:
+                        e = k_v[i] * uk + hn + off[i] - yk
+                        acc0[i] += e * e
+                    elif mode == _BW_MOMENTS:
+                        acc0[i] += hn * hn
+                        acc1[i] += hn * uk
+                        acc2[i] += hn
+                        acc3[i] += hn * yk
+                    else:
+                        out[k, p0 + i] = k_v[i] * uk + hn + off[i]
+        c = d
     if mode == _BW_SSE:
         for i in range(m):
             out[p0 + i, 0] = acc0[i]

@@ -105,3 +105,123 @@ def test_free_exponent_n1_matches_default_and_n2_differs():
     assert mn.separable() is None and m1.separable() is not None
     # structure round-trips through JSON
     assert BoucWen.from_structure(mn.structure()) == mn
+
+
+# --- exact per-candidate reference for the compiled population kernels -------------------------
+
+def _exact_segment(g, v, a, c):
+    """g(v) of dg/dv = a − c·g from g(0) = g, exactly (expm1: no cancellation for small c·v)."""
+    from math import expm1
+
+    x = c * v
+    if x == 0.0:
+        return g + a * v
+    em1 = expm1(-x)
+    return g * (1.0 + em1) + a * v * (-em1 / x)
+
+
+def _exact_step(h, du, a, b, g):
+    """One sample of ḣ = α u̇ − β|u̇|h − γ u̇|h| along a straight input segment, straightforwardly:
+    in g = sgn(Δu)·h the regime c = β ± γ is fixed until g reaches 0, where it is split."""
+    from math import log1p
+
+    v = abs(du)
+    s = 1.0 if du > 0 else -1.0
+    G = s * h
+    cp, cn = b + g, b - g
+    c = cp if (G > 0 or (G == 0 and a >= 0)) else cn
+    G1 = _exact_segment(G, v, a, c)
+    if G != 0 and (G > 0) != (G1 > 0):  # reaches 0 at v* (G·e^{−cv*} + a(1 − e^{−cv*})/c = 0)
+        vz = -G / a if c == 0.0 else -log1p(c * G / (a - c * G)) / c
+        vz = min(max(vz, 0.0), v)
+        G1 = _exact_segment(0.0, v - vz, a, cp if a >= 0 else cn)
+    return s * G1
+
+
+def _exact_states(u, a, b, g):
+    h, out = 0.0, [0.0]
+    for k in range(1, len(u)):
+        if u[k] != u[k - 1]:
+            h = _exact_step(h, u[k] - u[k - 1], a, b, g)
+        out.append(h)
+    return np.array(out)
+
+
+def _wide_range_capture(rng, N=500):
+    """Input whose per-sample steps span 1e-3 … 3 (with holds and many reversals): with β, γ inside
+    the model's bounds every per-sample regime of the kernel occurs (series of degree 7 and 11,
+    scaling and squaring) and states cross zero often."""
+    steps = np.exp(rng.uniform(np.log(1e-3), np.log(3.0), N - 1))
+    steps *= np.where((np.arange(N - 1) // 37) % 2 == 0, 1.0, -1.0) * np.where(rng.random(N - 1) < 0.8, 1.0, -1.0)
+    steps[rng.random(N - 1) < 0.02] = 0.0
+    return np.r_[0.0, np.cumsum(steps)]
+
+
+def _assert_within(actual, expected, tol):
+    """|actual − expected| ≤ tol elementwise (tol broadcast), with the worst ratio in the message."""
+    err = np.abs(actual - expected)
+    assert np.all(err <= tol), f"max error / tolerance = {np.max(err / tol):.3g}"
+
+
+def test_population_kernels_match_exact_reference_in_every_regime(rng):
+    from hystfit.models import _kernels as kern
+    from hystfit.models._kernels import bouc_wen_moments, bouc_wen_output, bouc_wen_sse
+
+    u = _wide_range_capture(rng)
+    N, span = len(u), float(np.ptp(u))
+    P = 80  # ≥ PARALLEL_MIN_POP: the threaded variant when numba has several threads
+    kv = rng.uniform(-1, 1, P)
+    a = rng.uniform(-1, 1, P)
+    b = rng.uniform(0.0, 50.0 / span, P)  # BoucWen.params bounds for this input range
+    g = rng.uniform(-50.0 / span, 50.0 / span, P)
+    a[0], b[1], g[1], b[2], g[2] = 0.0, 0.0, 0.0, 0.3 / span, -0.3 / span  # α = 0; β = γ = 0; β + γ = 0
+    y0 = rng.uniform(-5, 5, P)
+    y = 0.2 * u + rng.normal(size=N)
+
+    H = np.array([_exact_states(u, a[p], b[p], g[p]) for p in range(P)]).T  # (N, P)
+    # the per-sample series/squaring choice is made per block by max|c|·|Δu|: all regimes occur
+    x = np.abs(np.diff(u)) * np.max(np.maximum(np.abs(b + g), np.abs(b - g)))
+    assert np.any((x > 0) & (x <= kern._BW_SERIES_MAX))
+    assert np.any((x > kern._BW_SERIES_MAX) & (x <= kern._BW_SERIES11_MAX))
+    assert np.any(x > kern._BW_SERIES11_MAX)
+    assert np.sum(H[:-1] * H[1:] < 0) > 100  # many zero crossings (the exact redo)
+    assert np.all(np.isfinite(H))
+
+    scale = np.max(np.abs(H), axis=0) + 1e-300
+    for sel in (slice(None), slice(3, 8)):  # threaded and serial
+        h = bouc_wen_population(u, a[sel], b[sel], g[sel])
+        _assert_within(h, H[:, sel], 1e-12 * scale[sel])
+    Y = kv * u[:, None] + H + y0
+    out = bouc_wen_output(u, kv, a, b, g, y0)
+    _assert_within(out, Y, 1e-12 * np.max(np.abs(Y), axis=0))
+    sse = bouc_wen_sse(u, y, kv, a, b, g, y0)
+    np.testing.assert_allclose(sse, np.sum((Y - y[:, None]) ** 2, axis=0), rtol=1e-12, atol=0)
+    G = np.array([_exact_states(u, 1.0, b[p], g[p]) for p in range(P)]).T  # unit gain
+    M = bouc_wen_moments(u, y, b, g)
+    ref = np.stack([np.sum(G * G, 0), G.T @ u, np.sum(G, 0), G.T @ y], axis=1)
+    A = np.abs(G)
+    size = np.stack([np.sum(G * G, 0), A.T @ np.abs(u), np.sum(A, 0), A.T @ np.abs(y)], axis=1)
+    _assert_within(M, ref, 1e-12 * size + 1e-300)
+
+
+def test_population_kernels_nonfinite_parameters_stay_with_their_candidate(rng):
+    from hystfit.models._kernels import bouc_wen_moments, bouc_wen_sse
+
+    u = _wide_range_capture(rng, 200)
+    P = 70
+    a, b, g = rng.uniform(-1, 1, P), rng.uniform(0, 0.5, P), rng.uniform(-0.5, 0.5, P)
+    kv, y0, y = rng.uniform(size=P), rng.uniform(size=P), rng.normal(size=len(u))
+    ref = bouc_wen_sse(u, y, kv, a, b, g, y0)
+    bad = {5: ("a", np.nan), 17: ("b", np.nan), 30: ("g", np.inf), 41: ("b", -np.inf), 66: ("a", np.inf)}
+    for p, (name, val) in bad.items():
+        {"a": a, "b": b, "g": g}[name][p] = val
+    for sel in (slice(None), slice(0, 20)):  # threaded and serial
+        sse = bouc_wen_sse(u, y, kv[sel], a[sel], b[sel], g[sel], y0[sel])
+        h = bouc_wen_population(u, a[sel], b[sel], g[sel])
+        idx = np.arange(P)[sel]
+        isbad = np.isin(idx, list(bad))
+        assert not np.any(np.isfinite(sse[isbad])) and np.all(np.isfinite(sse[~isbad]))
+        assert np.all(~np.all(np.isfinite(h[:, isbad]), axis=0))
+        np.testing.assert_allclose(sse[~isbad], ref[sel][~isbad], rtol=1e-12)
+    M = bouc_wen_moments(u, y, b, g)  # α does not enter the unit-gain moments
+    assert np.all(np.isfinite(M[[5, 66]])) and not np.any(np.isfinite(M[[17, 30, 41]]).all(axis=1))
