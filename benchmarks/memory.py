@@ -52,8 +52,10 @@ def main() -> None:
                 continue
             wall = time.perf_counter() - t0
             if r.returncode != 0 or "PEAK_KB" not in r.stderr:
-                last = (r.stderr.strip().splitlines() or ["?"])[-1][:120]
-                print(f"| {model} | {wall:.1f} | – | – | failed: {last} |", flush=True)
+                lines = r.stderr.strip().splitlines() or ["?"]
+                said = [ln for ln in lines if ln.startswith("hystfit: error:")]  # the CLI's one-line error
+                why = (said[0].removeprefix("hystfit: error:").strip() if said else lines[-1])[:160]
+                print(f"| {model} | {wall:.1f} | – | – | refused: {why} |", flush=True)
                 continue
             peak = int(r.stderr.split("PEAK_KB")[1].split()[0]) / 1e3
             rmse = json.loads(r.stdout)["conditions"][0]["metrics"]["rmse_um"]
