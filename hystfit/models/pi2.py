@@ -14,7 +14,7 @@ from .._jit import njit, prange
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels import PARALLEL_MIN_POP, play_matrix
+from ._kernels import PARALLEL_MIN_POP, play_matrix, thread_blocks
 from .base import Model
 from .pi import PI
 
@@ -281,17 +281,6 @@ def _pi2_gram_parallel(F, y, b0, b1, b2, a1, a2, G, c, n_blocks):
 GRAM_PARALLEL_MIN_POP = 16
 
 
-def _n_blocks(P: int, min_pop: int, min_block: int) -> int:
-    """Candidate blocks for the threaded variant, as :func:`hystfit.models._kernels._bw_run` does
-    it (0: run serially — a small population or a single thread)."""
-    import numba
-
-    threads = numba.get_num_threads()
-    if P >= min_pop and threads > 1:
-        return min(threads, P // min_block)
-    return 0
-
-
 def _f64(x):
     return np.ascontiguousarray(x, dtype=np.float64)
 
@@ -305,7 +294,7 @@ def pi2_sse(F, y, W, c0, b0, b1, b2, a1, a2):
     F, y, W, c0 = _f64(F), _f64(y), _f64(W), _f64(c0)
     co = [_f64(a) for a in (b0, b1, b2, a1, a2)]
     out = np.empty(c0.shape[0])
-    nb = _n_blocks(c0.shape[0], PARALLEL_MIN_POP, 32)
+    nb = thread_blocks(c0.shape[0], PARALLEL_MIN_POP, 32)
     if nb:
         _pi2_sse_parallel(F, y, W, c0, *co, out, nb)
     else:
@@ -322,7 +311,7 @@ def pi2_gram(F, y, b0, b1, b2, a1, a2):
     P, L = co[0].shape[0], F.shape[1] + 1
     G = np.empty((P, L, L))
     c = np.empty((P, L))
-    nb = _n_blocks(P, GRAM_PARALLEL_MIN_POP, 8)
+    nb = thread_blocks(P, GRAM_PARALLEL_MIN_POP, 8)
     if nb:
         _pi2_gram_parallel(F, y, *co, G, c, nb)
     else:
