@@ -147,7 +147,7 @@ def run_cell(spec: CellSpec) -> CellResult:
     a, f = spec.key
     t0 = time.perf_counter()
     try:
-        model = make_model(model_registry.get(spec.model), spec.model_options)
+        model = make_model(spec.model, spec.model_options)
         opt = make_optimizer(optimizer_registry.get(spec.optimizer), spec.optimizer_options)
         _warm_up(spec, model, opt)
         fit = fit_captures(spec.captures, model, opt, seed=spec.seed, cell=spec.index, runs=spec.runs,
@@ -196,7 +196,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     notes = []
     for m in model_names:
         try:
-            base = make_model(model_registry.get(m), model_options[m])
+            base = make_model(m, model_options[m])
             prepared = base.prepare(captures)
             if prepared is not base:
                 model_options[m] = prepared.structure()

@@ -37,7 +37,6 @@ from ._lazy import lazy_module
 from .errors import ConfigError
 
 # scipy submodules are imported on first use: keeps start-up fast
-signal = lazy_module("scipy.signal")
 optimize = lazy_module("scipy.optimize")
 
 __all__ = [
@@ -46,11 +45,6 @@ __all__ = [
     "EffectFit",
     "Linearization",
     "Effect",
-    "Dynamics",
-    "Creep",
-    "Asymmetry",
-    "Drift",
-    "Delay",
     "Placebo",
     "phase_surrogate",
     "EFFECTS",
@@ -193,69 +187,6 @@ def _as_cols(x: np.ndarray) -> np.ndarray:
     return x[:, None] if x.ndim == 1 else x
 
 
-def lowpass_at_rest(x: np.ndarray, tau_s: float, dt: float) -> np.ndarray:
-    """First-order low-pass τ ẋ_f = x − x_f, exact for piecewise-constant input (ZOH), started at
-    rest at x(0): x_f[k] = p x_f[k−1] + (1 − p) x[k], p = e^{−dt/τ}, x_f[0] = x[0].
-
-    ``x`` is (N,) or (N, m) (filtered along axis 0); the same shape is returned.
-    """
-    x = np.asarray(x, dtype=np.float64)
-    p = math.exp(-dt / tau_s)
-    xc = _as_cols(x)
-    zi = (p * xc[0])[None, :]
-    out, _ = signal.lfilter([1.0 - p], [1.0, -p], xc, axis=0, zi=zi)
-    return out[:, 0] if x.ndim == 1 else out
-
-
-def second_order_coefficients(fn_Hz: float, zeta: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Discrete ω_n²/(s² + 2ζω_n s + ω_n²): bilinear transform prewarped at ω_n = 2π f_n.
-
-    With s = k(z − 1)/(z + 1), k = ω_n / tan(ω_n dt/2) (prewarping: the discrete resonance sits
-    exactly at f_n; the plain bilinear map would shift it down), the coefficients in closed form
-    are b = ω_n²(1, 2, 1)/a₀, a = (1, 2(ω_n² − k²)/a₀, (k² − 2ζω_n k + ω_n²)/a₀) with
-    a₀ = k² + 2ζω_n k + ω_n² (what ``scipy.signal.bilinear`` returns, 100× faster). The DC gain
-    is exactly 1. Requires f_n below the Nyquist frequency 1/(2 dt).
-    """
-    wn = 2.0 * math.pi * fn_Hz
-    if not 0.0 < wn * dt / 2.0 < math.pi / 2.0:
-        raise ConfigError(f"dynamics: f_n = {fn_Hz:g} Hz must lie below the Nyquist frequency {0.5 / dt:g} Hz")
-    k = wn / math.tan(wn * dt / 2.0)
-    w2, k2, c = wn * wn, k * k, 2.0 * zeta * wn * k
-    a0 = k2 + c + w2
-    b = np.array([w2, 2.0 * w2, w2]) / a0
-    a = np.array([1.0, 2.0 * (w2 - k2) / a0, (k2 - c + w2) / a0])
-    return b, a
-
-
-def second_order_at_rest(x: np.ndarray, fn_Hz: float, zeta: float, dt: float) -> np.ndarray:
-    """Filter ``x`` ((N,) or (N, m), axis 0) by the prewarped second-order stage, at rest at x(0).
-
-    The initial state of the transposed direct form is the steady state for the constant input
-    x(0): z₁ = (b₁ − a₁ + b₂ − a₂)·x(0), z₂ = (b₂ − a₂)·x(0) (unit DC gain).
-    """
-    x = np.asarray(x, dtype=np.float64)
-    b, a = second_order_coefficients(fn_Hz, zeta, dt)
-    xc = _as_cols(x)
-    zi = np.array([b[1] - a[1] + b[2] - a[2], b[2] - a[2]])[:, None] * xc[0][None, :]
-    out, _ = signal.lfilter(b, a, xc, axis=0, zi=zi)
-    return out[:, 0] if x.ndim == 1 else out
-
-
-def fractional_delay(x: np.ndarray, delay_s: float, dt: float) -> np.ndarray:
-    """x(t − T) by linear interpolation between samples; x(t < T) = x(0) (held first value)."""
-    x = np.asarray(x, dtype=np.float64)
-    d = max(float(delay_s) / dt, 0.0)
-    n = int(math.floor(d))
-    f = d - n
-    N = x.shape[0]
-    idx = np.arange(N) - n
-    i0 = np.clip(idx, 0, N - 1)
-    i1 = np.clip(idx - 1, 0, N - 1)
-    if f == 0.0:
-        return x[i0]
-    return (1.0 - f) * x[i0] + f * x[i1]
-
-
 def phase_surrogate(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Phase-randomized surrogate of every column of ``x`` (N, m): the same amplitude spectrum
     (hence the same RMS and smoothness), uniformly random phases (DC and Nyquist kept)."""
@@ -267,10 +198,6 @@ def phase_surrogate(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     if n % 2 == 0:
         ph[-1] = 1.0
     return np.fft.irfft(X * ph, n=n, axis=0)
-
-
-def _derivative(x: np.ndarray, dt: float) -> np.ndarray:
-    return np.gradient(np.asarray(x, dtype=np.float64), dt, axis=0)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -653,330 +580,18 @@ def signature_share(effect: Effect, yhats: Sequence[np.ndarray], views: Sequence
 # ----------------------------------------------------------------------------------------------
 
 
-def _periodic_fmax(views: Sequence[CaptureView]) -> float:
+def periodic_fmax(views: Sequence[CaptureView]) -> float:
     fs = [v.frequency_Hz for v in views if v.periodic and np.isfinite(v.frequency_Hz) and v.frequency_Hz > 0]
     return max(fs) if fs else float("nan")
 
 
-def _fmt_list(x) -> list[float]:
+def fmt_list(x) -> list[float]:
     return [float(v) for v in np.asarray(x, float).ravel()]
 
 
 # ----------------------------------------------------------------------------------------------
 # The candidate effects
 # ----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Dynamics(Effect):
-    r"""Linear stage dynamics after the hysteresis: a second-order low-pass of the base output.
-
-    .. math:: \ddot y + 2\zeta\omega_n\dot y + \omega_n^2 y = \omega_n^2\,\hat y,\qquad \omega_n = 2\pi f_n
-
-    the "electromechanical" linear subsystem of paper 000 (``shared/papers/README.md``, model
-    pi2), unit DC gain, discretized exactly for a resonance: bilinear transform prewarped at ω_n
-    (the discrete peak sits at f_n), started at rest at ŷ(0), ``scipy.signal.lfilter``.
-
-    Why this form: a piezo stage is a mass on a spring; below its first resonance it adds a
-    phase lag ≈ 2ζ f/f_n and a gain rise ≈ (1 − 2ζ²)(f/f_n)² that grow with the drive frequency,
-    and it rings at f_n after fast input changes — the rate dependence a rate-independent
-    hysteresis model cannot show. Two searched parameters, nothing linear (the DC gain belongs
-    to the base model).
-
-    Parameters
-    ----------
-    fn_Hz : natural frequency f_n (Hz), searched log-spaced in [fn_min_Hz, fn_max_Hz].
-    zeta : damping ratio ζ (1), searched log-spaced in [0.02, 2].
-    fn_min_Hz, fn_max_Hz : search range (Hz); :meth:`configure` sets 2× the highest periodic
-        excitation frequency (a resonance inside the excitation band would be obvious in the
-        loops) … 0.45·f_s (below Nyquist).
-    """
-
-    name: ClassVar[str] = "dynamics"
-    title: ClassVar[str] = "linear stage dynamics (second-order)"
-    equation: ClassVar[str] = "y'' + 2ζω_n y' + ω_n² y = ω_n² ŷ"
-
-    fn_min_Hz: float = 10.0
-    fn_max_Hz: float = 4000.0
-    zeta_min: float = 0.02
-    zeta_max: float = 2.0
-    n_fn: int = 16
-    n_zeta: int = 8
-
-    def configure(self, views, yhats):
-        fs_min = min(1.0 / v.dt for v in views)
-        fmax = _periodic_fmax(views)
-        dur = min(v.t[-1] - v.t[0] + v.dt for v in views)
-        lo = 2.0 * fmax if np.isfinite(fmax) else 20.0 / dur
-        hi = 0.45 * fs_min
-        lo = min(max(lo, 1.0), hi / 4.0)
-        return replace(self, fn_min_Hz=float(lo), fn_max_Hz=float(hi))
-
-    def param_table(self):
-        return (EffectParam("fn_Hz", "Hz", "searched", "natural frequency of the stage"),
-                EffectParam("zeta", "1", "searched", "damping ratio"))
-
-    def searched_bounds(self):
-        return np.array([self.fn_min_Hz, self.zeta_min]), np.array([self.fn_max_Hz, self.zeta_max])
-
-    def search_grid(self):
-        fn = np.geomspace(self.fn_min_Hz, self.fn_max_Hz, self.n_fn)
-        z = np.geomspace(self.zeta_min, self.zeta_max, self.n_zeta)
-        F, Z = np.meshgrid(fn, z, indexing="ij")
-        return np.column_stack([F.ravel(), Z.ravel()])
-
-    def operator(self, x, view, phi):
-        return second_order_at_rest(x, float(phi[0]), float(phi[1]), view.dt)
-
-    def signature(self, yhat, view):
-        d1 = _derivative(yhat, view.dt)
-        d2 = _derivative(d1, view.dt)
-        return np.column_stack([d1, d2]), np.zeros((yhat.shape[0], 0))
-
-    def describe(self, phi, shared, local, views, sources=None):
-        fn, z = float(phi[0]), float(phi[1])
-        fmax = _periodic_fmax(views)
-        out = {"fn_Hz": fn, "zeta": z,
-               "group_delay_low_frequency_us": 1e6 * z / (math.pi * fn),
-               "search_fn_Hz": [self.fn_min_Hz, self.fn_max_Hz]}
-        if np.isfinite(fmax):
-            r = fmax / fn
-            h = 1.0 / complex(1.0 - r * r, 2.0 * z * r)
-            out["at_highest_excitation_Hz"] = fmax
-            out["phase_lag_at_highest_excitation_deg"] = -math.degrees(math.atan2(h.imag, h.real))
-            out["gain_at_highest_excitation"] = abs(h)
-        return out
-
-
-@dataclass(frozen=True)
-class Delay(Effect):
-    r"""Pure time delay between input and output: y(t) = ŷ(t − T_d).
-
-    Fractional samples by linear interpolation, ŷ(0) held for t < T_d (as an amplifier or a
-    sensor filter with a constant group delay would look from the data). Applied to the base
-    output; for a rate-independent base model this equals delaying the input.
-
-    Why this form: DAQ pipelines, amplifiers and digital sensor filters delay the signal by a
-    few samples; it shows as a phase lag 2πfT_d that grows linearly with frequency, with no gain
-    change and no ringing (which separates it from :class:`Dynamics`). One searched parameter.
-
-    Parameters
-    ----------
-    delay_s : T_d (s), searched in [0, max_delay_s].
-    max_delay_s : :meth:`configure` sets min(50 samples, 5 % of the shortest excitation period).
-    """
-
-    name: ClassVar[str] = "delay"
-    title: ClassVar[str] = "pure time delay"
-    equation: ClassVar[str] = "y(t) = ŷ(t − T_d)"
-
-    max_delay_s: float = 0.005
-    n_grid: int = 41
-
-    def configure(self, views, yhats):
-        dt = max(v.dt for v in views)
-        fmax = _periodic_fmax(views)
-        hi = 50.0 * dt
-        if np.isfinite(fmax):
-            hi = min(hi, 0.05 / fmax)
-        return replace(self, max_delay_s=float(max(hi, 2.0 * dt)))
-
-    def param_table(self):
-        return (EffectParam("delay_s", "s", "searched", "delay between input and output"),)
-
-    def searched_bounds(self):
-        return np.array([0.0]), np.array([self.max_delay_s])
-
-    def search_grid(self):
-        return np.linspace(0.0, self.max_delay_s, self.n_grid)[:, None]
-
-    def operator(self, x, view, phi):
-        return fractional_delay(x, float(phi[0]), view.dt)
-
-    def signature(self, yhat, view):
-        """One sample of delay, ŷ(t − dt) − ŷ(t): first order in T_d for smooth inputs, and the
-        right shape at steps (a derivative would be a spike there)."""
-        x = np.asarray(yhat, float)
-        back = np.empty_like(x)
-        back[0] = 0.0
-        back[1:] = x[:-1] - x[1:]
-        return back[:, None], np.zeros((x.shape[0], 0))
-
-    def describe(self, phi, shared, local, views, sources=None):
-        d = float(phi[0])
-        dt = min(v.dt for v in views)
-        out = {"delay_s": d, "delay_ms": 1e3 * d, "delay_samples": d / dt, "search_max_ms": 1e3 * self.max_delay_s}
-        fmax = _periodic_fmax(views)
-        if np.isfinite(fmax):
-            out["phase_lag_at_highest_excitation_deg"] = 360.0 * fmax * d
-        return out
-
-
-@dataclass(frozen=True)
-class Creep(Effect):
-    r"""Slow viscoelastic creep driven by the base output (a Kelvin–Voigt chain).
-
-    .. math:: y = \hat y + \sum_i c_i\,(\mathrm{LP}_{\tau_i}[\hat y] - \hat y),\qquad
-              \tau_i \dot x_i = \hat y - x_i
-
-    LP_τ a first-order low-pass started at rest at ŷ(0). After a step Δŷ the output keeps
-    moving by Δŷ·Σ c_i(1 − e^{−t/τ_i}); with one τ per decade and equal gains that is ≈ c per
-    decade of time, the logarithmic creep of piezo stacks. The quasi-static gain grows by
-    1 + Σc_i (absorbed by the base refit).
-
-    Why this form: creep is slow and follows the displacement history, not the input alone; a
-    fixed log-spaced bank of time constants spans 0.01 s … the capture length without a
-    nonlinear search, and the gains c_i enter linearly (solved exactly, c_i ≥ 0: creep follows
-    the motion). Time constants below 10 ms are excluded on purpose: they would make creep a
-    second way to fit stage dynamics.
-
-    Parameters
-    ----------
-    tau_s : the time constants τ_i (s), one per decade from 0.01 s to the first decade at or
-        above the longest capture (at most 100 s), set by :meth:`configure`.
-    c_i (``gain``) : fraction of a step added with time constant τ_i (1), linear, ≥ 0.
-    """
-
-    name: ClassVar[str] = "creep"
-    title: ClassVar[str] = "viscoelastic creep"
-    equation: ClassVar[str] = "y = ŷ + Σ c_i (LP_τi[ŷ] − ŷ)"
-
-    tau_s: tuple[float, ...] = (0.01, 0.1, 1.0, 10.0)
-
-    def configure(self, views, yhats):
-        longest = max(v.t[-1] - v.t[0] + v.dt for v in views)
-        top = min(max(10.0 ** math.ceil(math.log10(max(longest, 1e-3)) - 1e-9), 0.1), 100.0)
-        taus = tuple(float(x) for x in 10.0 ** np.arange(-2, round(math.log10(top)) + 1))
-        dt_max = max(v.dt for v in views)
-        taus = tuple(t for t in taus if t >= 5.0 * dt_max) or (float(top),)
-        return replace(self, tau_s=taus)
-
-    def param_table(self):
-        return tuple(EffectParam(f"c{i}", "1", "linear", f"creep gain with time constant {t:g} s")
-                     for i, t in enumerate(self.tau_s))
-
-    def layout(self):
-        return len(self.tau_s), 0
-
-    def coefficient_bounds(self):
-        k = len(self.tau_s)
-        return np.zeros(k), np.full(k, np.inf), np.empty(0), np.empty(0)
-
-    def _bank(self, x: np.ndarray, dt: float) -> list[np.ndarray]:
-        return [lowpass_at_rest(x, tau, dt) - x for tau in self.tau_s]
-
-    def regressors(self, yhat, view, phi):
-        cols = self._bank(yhat, view.dt)
-        return np.column_stack(cols), np.zeros((yhat.shape[0], 0))
-
-    def tangent(self, x, yhat, view, phi, shared, local):
-        out = np.array(x, dtype=float, copy=True)
-        for c, term in zip(shared, self._bank(x, view.dt)):
-            if c != 0.0:
-                out += c * term
-        return out
-
-    def describe(self, phi, shared, local, views, sources=None):
-        c = _fmt_list(shared)
-        return {"tau_s": list(self.tau_s), "gain": c, "total_gain": float(np.sum(c)),
-                "gain_per_decade": float(np.sum(c)) / max(len(c), 1)}
-
-
-@dataclass(frozen=True)
-class Asymmetry(Effect):
-    r"""Static output nonlinearity after the hysteresis: a polynomial bow of the base output.
-
-    .. math:: y = \hat y + a_2 s^2 + a_3 s^3,\qquad s = (\hat y - m)/h
-
-    m and h the middle and half-range of the measured output (fixed by :meth:`configure`), so
-    a₂ and a₃ are in output units: a₂ is how far the stroke ends sit above a straight line
-    through mid-stroke (a₂ < 0: the middle bulges up, saturation), a₃ a skew (stiffening at
-    one end).
-
-    Why this form: the classical PI model's loops are point-symmetric (ascending and descending
-    branches are the same curve rotated by 180°) and its quasi-static curve is what the weights
-    allow. A static bow after the hysteresis — the form a Wiener–Hammerstein or generalized-PI
-    model adds — breaks that symmetry: the two branches bend differently, and the error grows
-    faster than the stroke. Linear in a₂, a₃ (solved exactly); it is the first two terms of any
-    smooth monotone output map (linear and constant terms belong to the base model).
-    """
-
-    name: ClassVar[str] = "asymmetry"
-    title: ClassVar[str] = "asymmetry / saturation (static output bow)"
-    equation: ClassVar[str] = "y = ŷ + a2·s² + a3·s³, s = (ŷ − m)/h"
-
-    center: float = 0.0
-    half_range: float = 1.0
-
-    def configure(self, views, yhats):
-        ys = np.concatenate([v.y[v.fit] for v in views])
-        lo, hi = float(ys.min()), float(ys.max())
-        return replace(self, center=0.5 * (lo + hi), half_range=max(0.5 * (hi - lo), 1e-12))
-
-    def param_table(self):
-        return (EffectParam("a2", "out", "linear", "quadratic bow: stroke ends vs mid-stroke"),
-                EffectParam("a3", "out", "linear", "cubic skew"),
-                EffectParam("center", "out", "fixed", "middle of the measured output range"),
-                EffectParam("half_range", "out", "fixed", "half the measured output range"))
-
-    def layout(self):
-        return 2, 0
-
-    def _s(self, yhat):
-        return (np.asarray(yhat, float) - self.center) / self.half_range
-
-    def regressors(self, yhat, view, phi):
-        s = self._s(yhat)
-        return np.column_stack([s * s, s ** 3]), np.zeros((s.shape[0], 0))
-
-    def tangent(self, x, yhat, view, phi, shared, local):
-        s = self._s(yhat)
-        slope = 1.0 + (2.0 * shared[0] * s + 3.0 * shared[1] * s * s) / self.half_range
-        return x * slope[:, None]
-
-    def describe(self, phi, shared, local, views, sources=None):
-        a2, a3 = float(shared[0]), float(shared[1])
-        return {"a2_out": a2, "a3_out": a3, "center_out": self.center, "half_range_out": self.half_range,
-                "mid_stroke_bow_out": -a2,
-                "bow_pct_of_stroke": 100.0 * abs(a2) / (2.0 * self.half_range)}
-
-
-@dataclass(frozen=True)
-class Drift(Effect):
-    r"""Slow output drift not driven by the input: an offset and a rate per capture.
-
-    .. math:: y_c(t) = \hat y_c(t) + d_{0,c} + v_c\,t
-
-    Why this form: thermal drift of the sensor or the mechanics changes from one capture to
-    the next (captures are taken at different times), so it gets its own offset d₀ (out) and
-    rate v (out/s) per capture; over one capture (seconds) a thermal drift is close to linear,
-    and a higher-order polynomial would extrapolate wildly into held-out time. Independent of the
-    input: the same rate at every amplitude, which separates it from :class:`Creep`.
-    """
-
-    name: ClassVar[str] = "drift"
-    title: ClassVar[str] = "slow output drift (per capture)"
-    equation: ClassVar[str] = "y_c = ŷ_c + d0_c + v_c·t"
-
-    def param_table(self):
-        return (EffectParam("offset", "out", "per-capture", "output offset of the capture"),
-                EffectParam("rate", "out/s", "per-capture", "drift rate of the capture"))
-
-    def layout(self):
-        return 0, 2
-
-    def regressors(self, yhat, view, phi):
-        t = view.t[: yhat.shape[0]] - view.t[0]
-        return np.zeros((t.shape[0], 0)), np.column_stack([np.ones_like(t), t])
-
-    def describe(self, phi, shared, local, views, sources=None):
-        local = np.asarray(local, float).reshape(-1, 2)
-        names = list(sources) if sources is not None else [f"capture{i}" for i in range(local.shape[0])]
-        rates = local[:, 1]
-        return {"per_capture": [{"source": s, "offset_out": float(o), "rate_out_per_s": float(r)}
-                                for s, (o, r) in zip(names, local)],
-                "median_abs_rate_out_per_s": float(np.median(np.abs(rates))) if rates.size else 0.0,
-                "mean_rate_out_per_s": float(np.mean(rates)) if rates.size else 0.0}
 
 
 @dataclass(frozen=True)
@@ -1032,19 +647,22 @@ class Placebo(Effect):
         return {"n_shared": self.n_shared, "n_per_capture": self.n_local}
 
 
-#: The candidate effects, in the order they are reported when tied.
-EFFECTS: dict[str, type[Effect]] = {
-    "dynamics": Dynamics,
-    "creep": Creep,
-    "asymmetry": Asymmetry,
-    "drift": Drift,
-    "delay": Delay,
-}
+def __getattr__(name: str):
+    """``EFFECTS``: the candidate effects of diagnose — every registered block, in registration
+    order (the order they are reported when tied), name → class."""
+    if name == "EFFECTS":
+        from .registry import blocks
+
+        return {n: blocks.get(n) for n in blocks.names()}
+    raise AttributeError(name)
 
 
 def make_effect(name: str) -> Effect:
-    """A fresh (unconfigured) effect by name; :class:`ConfigError` for an unknown name."""
+    """A fresh (unconfigured) candidate effect — a registered block — by name; :class:`ConfigError`
+    listing the valid names for an unknown one."""
+    from .registry import blocks
+
     key = name.strip().lower()
-    if key not in EFFECTS:
-        raise ConfigError(f"unknown effect {name!r}: choose from {', '.join(EFFECTS)}")
-    return EFFECTS[key]()
+    if key not in blocks:
+        raise ConfigError(f"unknown effect {name!r}: choose from {', '.join(blocks.names())}")
+    return blocks.get(key)()

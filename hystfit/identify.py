@@ -187,7 +187,8 @@ def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | Non
     preds = objective.predict(theta)
     unit = problem.unit
     metrics = compute_metrics_pooled([(c.y, p) for c, p in zip(captures, preds)], unit)
-    per = tuple({"source": c.source, **compute_metrics(c.y, p, unit)} for c, p in zip(captures, preds))
+    per = tuple({"source": c.source, **compute_metrics(c.y, p, unit), **_nuisance_fields(a, unit)}
+                for c, p, a in zip(captures, preds, objective.nuisance_coefficients(theta)))
     stderr = _stderr(objective, theta, problem.lower, problem.upper)
     if condition is None:
         condition = (captures[0].amplitude_V, captures[0].frequency_Hz)
@@ -198,6 +199,13 @@ def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | Non
         predictions=tuple(preds), runs=tuple(records), best_run=best,
         runtime_s=float(sum(r.wall_time_s for r in records)), unit=unit,
     )
+
+
+def _nuisance_fields(coef: np.ndarray | None, unit: str) -> dict[str, float]:
+    """The per-capture drift of a model with a ``drift`` block (offset and rate), named with units."""
+    if coef is None or len(coef) < 2:
+        return {}
+    return {f"drift_offset_{unit}": float(coef[0]), f"drift_rate_{unit}_per_s": float(coef[1])}
 
 
 def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int, cell: int = 0,

@@ -26,26 +26,49 @@ class Series:
     dt: float
 
 
+def _project(Y: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """The rows of Y (P, N) with their components in span(Q) removed (Q (N, k) orthonormal)."""
+    return Y - (Y @ Q) @ Q.T
+
+
+def _projected(sim, Q: np.ndarray):
+    return lambda theta: _project(np.asarray(sim(theta), dtype=np.float64), Q)
+
+
 class Objective:
     """MSE(θ) = Σ_captures Σ_k (ŷ_k(θ) − y_k)² / Σ_captures N, for a whole population θ (P, d).
 
     ``residuals(θ)`` returns the concatenated residual vector of one candidate (for least
     squares). Non-finite simulations (a diverging parameter vector) score +inf, never raise.
     ``nfev`` counts candidate evaluations.
+
+    Nuisance regressors: when the model declares per-capture regressors R_c
+    (:meth:`hystfit.models.base.Model.nuisance_basis`, e.g. the ``drift`` block's offset and rate),
+    every residual is projected onto the orthogonal complement of span(R_c) — the exact
+    least-squares nuisance coefficients of each capture, for every candidate — so the objective is
+    min_a Σ‖ŷ_c(θ) + R_c a_c − y_c‖². :meth:`predict` returns ŷ_c + R_c a_c with those coefficients.
     """
 
     def __init__(self, model: Model, series: Sequence[Series]) -> None:
         self.model = model
         self.series = list(series)
-        self._sims = [model.simulator(s.u, s.dt) for s in self.series]
+        self._Q = []
+        for s in self.series:
+            R = model.nuisance_basis(s.y.shape[0], s.dt)
+            self._Q.append(None if R is None else np.linalg.qr(np.asarray(R, dtype=np.float64))[0])
+        raw = [model.simulator(s.u, s.dt) for s in self.series]
+        self._sims = [sim if Q is None else _projected(sim, Q) for sim, Q in zip(raw, self._Q)]
+        self._raw_sims = raw
+        self._targets = [s.y if Q is None else _project(s.y[None, :], Q)[0] for s, Q in zip(self.series, self._Q)]
         # fused sums of squared errors where the model offers them (no (P, N) outputs in memory)
-        self._sse_fns = [model.sse_evaluator(s.u, s.dt, s.y) for s in self.series]
+        self._sse_fns = [model.sse_evaluator(s.u, s.dt, s.y) if Q is None else None
+                         for s, Q in zip(self.series, self._Q)]
         self.n_total = int(sum(s.y.shape[0] for s in self.series))
         self.nfev = 0
 
     def _sse(self, theta: np.ndarray) -> np.ndarray:
         total = np.zeros(theta.shape[0])
-        for sim, sse_fn, s in zip(self._sims, self._sse_fns, self.series):
+        for sim, sse_fn, s in zip(self._sims, self._sse_fns, self._targets_as_series()):
             if sse_fn is not None:
                 with np.errstate(all="ignore"):
                     total += sse_fn(theta)
@@ -67,11 +90,32 @@ class Objective:
         theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
         self.nfev += 1
         with np.errstate(all="ignore"):
-            return np.concatenate([sim(theta)[0] - s.y for sim, s in zip(self._sims, self.series)])
+            return np.concatenate([sim(theta)[0] - y for sim, y in zip(self._sims, self._targets)])
+
+    def _targets_as_series(self) -> list[Series]:
+        return [Series(s.u, y, s.dt) for s, y in zip(self.series, self._targets)]
 
     def predict(self, theta: np.ndarray) -> list[np.ndarray]:
+        """Per capture the prediction of ``theta`` (d,) — with the fitted nuisance terms, if any."""
         theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
-        return [sim(theta)[0] for sim in self._sims]
+        out = []
+        for sim, s, Q in zip(self._raw_sims, self.series, self._Q):
+            p = np.asarray(sim(theta)[0], dtype=np.float64)
+            out.append(p if Q is None else p + Q @ (Q.T @ (s.y - p)))
+        return out
+
+    def nuisance_coefficients(self, theta: np.ndarray) -> list[np.ndarray | None]:
+        """Per capture the least-squares nuisance coefficients a_c (None without nuisance)."""
+        theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
+        out = []
+        for sim, s in zip(self._raw_sims, self.series):
+            R = self.model.nuisance_basis(s.y.shape[0], s.dt)
+            if R is None:
+                out.append(None)
+                continue
+            r = s.y - np.asarray(sim(theta)[0], dtype=np.float64)
+            out.append(np.linalg.lstsq(R, r, rcond=None)[0])
+        return out
 
     @staticmethod
     def _fd_population(theta: np.ndarray, rel_step: float, upper: np.ndarray | None):
@@ -118,7 +162,7 @@ class Objective:
         Jtr = np.zeros(d)
         rr = 0.0
         chunk = 1 << 16
-        for sim, s in zip(self._sims, self.series):
+        for sim, s in zip(self._sims, self._targets_as_series()):
             with np.errstate(all="ignore"):
                 Y = np.asarray(sim(pop), dtype=np.float64)  # (d+1, N)
                 for a in range(0, Y.shape[1], chunk):  # differences over time chunks: O(d·chunk) extra memory

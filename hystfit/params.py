@@ -63,6 +63,8 @@ class DataScale:
     #: sensor or a contracting mount): the sign of the pooled input–output covariance. Models
     #: whose gains are constrained to one sign (PI weights, gpi's ρ, fp's E0/E∞) take it from here.
     sign: float = 1.0
+    #: duration of the longest capture (s); None in files written before it was recorded
+    duration_s: float | None = None
 
     @property
     def u_range(self) -> float:
@@ -95,8 +97,9 @@ class DataScale:
             u, y = np.asarray(u, float), np.asarray(y, float)
             if u.size and u.size == y.size:
                 cov += float(np.dot(u - u.mean(), y - y.mean()))
+        duration = max(len(u) * dt for u, dt in zip(us, dts))
         return cls(float(u_all.min()), float(u_all.max()), float(y_all.min()), float(y_all.max()),
-                   float(min(dts)), max(rate, 1e-12), -1.0 if cov < 0 else 1.0)
+                   float(min(dts)), max(rate, 1e-12), -1.0 if cov < 0 else 1.0, float(duration))
 
 
 def parse_bound_overrides(items: Sequence[str]) -> dict[str, tuple[float, float]]:

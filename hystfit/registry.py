@@ -1,4 +1,4 @@
-"""Name → component registries (one per axis: models, optimizers).
+"""Name → component registries (one per axis: models, blocks, optimizers).
 
 Adding a model or optimizer is adding one file that decorates its class with
 ``@models.register`` / ``@optimizers.register``; the CLI choices, ``hystfit models``,
@@ -53,6 +53,7 @@ class Registry(Generic[T]):
 
 models: Registry = Registry("model")
 optimizers: Registry = Registry("optimizer")
+blocks: Registry = Registry("block")
 
 _loaded = False
 
@@ -67,5 +68,6 @@ def _load_builtin() -> None:
 
     importlib.import_module(f"{__package__}.models")
     importlib.import_module(f"{__package__}.optimizers")
+    importlib.import_module(f"{__package__}.blocks")
 
 

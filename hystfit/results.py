@@ -30,11 +30,14 @@ from . import __version__
 from .errors import InputError
 from .identify import ConditionFit, IdentifyResult, unit_param
 from .models.base import Model
+from .models.composite import model_from_structure
 from .params import DataScale
-from .registry import models
+from .setup import make_model
 
 SCHEMA = "hystfit.params"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: versions this hystfit reads (version 1: before composite models; read as version 2)
+READABLE_VERSIONS = (1, 2)
 
 
 def _num(x: Any) -> Any:
@@ -68,7 +71,7 @@ def condition_to_dict(fit: ConditionFit) -> dict[str, Any]:
     runs = [{"run": r.run, "seed": r.seed, "fun": r.fun, f"rmse_{u}": r.rmse, "nfev": r.nfev,
              "iterations": r.result.nit, "wall_time_s": r.wall_time_s, "stop": r.result.message,
              "polished": r.polish is not None} for r in fit.runs]
-    return {
+    out = {
         "label": fit.label, "amplitude_V": fit.amplitude_V, "frequency_Hz": fit.frequency_Hz,
         "sources": [c.source for c in fit.captures],
         "model_structure": fit.model.structure(),
@@ -79,14 +82,19 @@ def condition_to_dict(fit: ConditionFit) -> dict[str, Any]:
         "runtime_s": fit.runtime_s, "evaluations": fit.evaluations,
         "best_run": fit.best_run, "runs": runs, "run_spread": fit.spread(),
     }
+    if fit.model.composition is not None:
+        out["blocks"] = fit.model.describe_blocks(fit.theta, u)
+    return out
 
 
 def identify_to_dict(res: IdentifyResult) -> dict[str, Any]:
-    m = models.get(res.model_name)
+    m = res.fits[0].model if res.fits else make_model(res.model_name)
+    base, blocks = m.composition if m.composition is not None else (m, ())
     return _clean({
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION,
         "tool": {"name": "hystfit", "version": __version__},
         "model": {"name": m.name, "title": m.title, "reference": m.reference, "equation": m.equation,
+                  "base": base.name, "blocks": [b.name for b in blocks],
                   "options": res.model_options},
         "optimizer": {"name": res.optimizer_name, "settings": res.optimizer_settings, "polish": res.polish,
                       "runs": res.runs},
@@ -139,13 +147,14 @@ def load_params(path: str | Path) -> ParamsFile:
         raise InputError(f"{p}: line {exc.lineno}: not valid JSON ({exc.msg}); pass a params.json written by 'hystfit identify'") from None
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise InputError(f"{p}: field 'schema' is not {SCHEMA!r}; this is not a hystfit parameter file")
-    if data.get("schema_version") != SCHEMA_VERSION:
-        raise InputError(f"{p}: field 'schema_version' is {data.get('schema_version')!r}; this hystfit reads version {SCHEMA_VERSION}")
+    if data.get("schema_version") not in READABLE_VERSIONS:
+        raise InputError(f"{p}: field 'schema_version' is {data.get('schema_version')!r}; this hystfit reads versions "
+                         f"{', '.join(map(str, READABLE_VERSIONS))}")
     try:
-        cls = models.get(data["model"]["name"])
+        expr = data["model"]["name"]
         cells = []
         for i, c in enumerate(data["conditions"]):
-            model = cls.from_structure(c["model_structure"])
+            model = model_from_structure(expr, c["model_structure"])
             theta = np.array([float(q["value"]) for q in c["parameters"]])
             scale = DataScale(**c["data_scale"])
             a = c["amplitude_V"]

@@ -21,14 +21,20 @@ def _build(cls: type, options: Mapping[str, Any], what: str):
         raise ConfigError(f"{what} {cls.name!r}: invalid options {dict(options)!r} ({exc})") from None
 
 
-def make_model(cls: type, options: Mapping[str, Any] | None = None):
-    """Instantiate a registered model class with structure options (e.g. ``n_operators=12``).
+def make_model(model: "str | type", options: Mapping[str, Any] | None = None):
+    """The model named by an expression (``pi``, ``pi+creep+delay``; see
+    :mod:`hystfit.models.composite`) or a registered model class, with structure options
+    (e.g. ``n_operators=12``; ``creep.tau_s=[0.01,0.1]`` for a block of the expression).
 
     JSON lists (e.g. ``thresholds_V=[0,5,10]`` or a saved structure) become tuples, as the
     frozen model dataclasses store them.
     """
+    from .models.composite import build_model
+
     opts = {k: tuple(v) if isinstance(v, list) else v for k, v in dict(options or {}).items()}
-    return _build(cls, opts, "model")
+    if isinstance(model, str):
+        return build_model(model, opts, builder=lambda cls, o: _build(cls, o, "model"))
+    return _build(model, opts, "model")
 
 
 def make_optimizer(cls: type, options: Mapping[str, Any] | None = None, *, pop: int | None = None,

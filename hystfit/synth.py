@@ -31,12 +31,13 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
-from ._lazy import lazy_module
 from .errors import ConfigError
 from .io import atomic_write_bytes
+from .blocks.asymmetry import bow
+from .blocks.creep import Creep
+from .blocks.delay import fractional_delay
+from .blocks.dynamics import Dynamics
 from .models._kernels import play_matrix
-
-signal = lazy_module("scipy.signal")  # imported on first use: keeps start-up fast
 
 __all__ = [
     "EFFECT_NAMES",
@@ -73,7 +74,7 @@ EFFECT_NAMES: tuple[str, ...] = (
 OUTPUT_UNITS: dict[str, float] = {"um": 1.0, "nm": 1e3, "mm": 1e-3, "m": 1e-6}
 
 #: Excitation names accepted by :func:`make_excitation` (and the CLI).
-EXCITATIONS: tuple[str, ...] = ("raised-cosine", "sine", "triangle", "prbs", "multisine", "steps")
+EXCITATIONS: tuple[str, ...] = ("raised-cosine", "sine", "triangle", "rising-sine", "prbs", "multisine", "steps")
 
 #: Effects of :meth:`Plant.default`.
 DEFAULT_PLANT_EFFECTS: tuple[str, ...] = ("creep", "dynamics", "noise", "quantization")
@@ -136,6 +137,26 @@ def raised_cosine(
     t = _periodic_time(frequency_Hz, cycles, fs_Hz)
     u = 0.5 * amplitude_V * (1.0 - np.cos(2.0 * np.pi * frequency_Hz * t))
     return t, u
+
+
+def rising_sine(
+    amplitude_V: float, frequency_Hz: float, cycles: float = 50, fs_Hz: float = 10_000,
+    start_fraction: float = 0.02,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rising-amplitude raised cosine: every cycle starts at the lower rail 0 V and its crest rises
+    linearly with time from ``start_fraction``·A to A over ``cycles`` periods,
+    u = c(t)/2 · (1 − cos 2πft), c(t) = A·(s + (1 − s)·t/T), T = cycles/f.
+
+    The excitation of rig captures that sweep the loop size in one recording (small loops first,
+    the largest last): every amplitude is present, but not stationary within the capture.
+    """
+    amplitude_V = _check_nonneg("amplitude_V", amplitude_V)
+    if not 0.0 <= start_fraction <= 1.0:
+        raise ConfigError(f"start_fraction must lie in [0, 1]. Got {start_fraction!r}.")
+    t = _periodic_time(frequency_Hz, cycles, fs_Hz)
+    T = cycles / frequency_Hz
+    crest = amplitude_V * (start_fraction + (1.0 - start_fraction) * t / T)
+    return t, 0.5 * crest * (1.0 - np.cos(2.0 * np.pi * frequency_Hz * t))
 
 
 def sine(
@@ -292,15 +313,19 @@ def make_excitation(
     """One excitation by name (see :data:`EXCITATIONS`), with the meaning of the shared options:
 
     - ``raised-cosine``, ``sine``, ``triangle``: ``frequency_Hz`` required, ``cycles`` periods.
+    - ``rising-sine``: :func:`rising_sine`, a raised cosine whose crest rises linearly from 2 % of
+      ``amplitude_V`` to ``amplitude_V`` over ``cycles`` periods (``frequency_Hz`` required).
     - ``prbs``: ``frequency_Hz`` = bit clock (default 2.5 kHz), ``duration_s`` (default 3 s).
     - ``multisine``: ``frequency_Hz`` = highest component (default 1 kHz), 40 log-spaced
       components (:func:`multisine_frequencies`), ``duration_s`` (default 3 s).
     - ``steps``: :func:`step_pattern`, ``duration_s`` total (default 7.7 s: 1.5 s per level).
     """
     kind = kind.strip().lower().replace("_", "-")
-    if kind in ("raised-cosine", "sine", "triangle"):
+    if kind in ("raised-cosine", "sine", "triangle", "rising-sine"):
         if frequency_Hz is None:
             raise ConfigError(f"excitation {kind!r} needs a frequency (--frequency HZ).")
+        if kind == "rising-sine":
+            return rising_sine(amplitude_V, frequency_Hz, cycles, fs_Hz)
         if kind == "raised-cosine":
             return raised_cosine(amplitude_V, frequency_Hz, cycles, fs_Hz)
         fn = sine if kind == "sine" else triangle
@@ -358,7 +383,7 @@ class Effects:
     dynamics : bool
         Second-order stage y'' + 2ζω_n y' + ω_n² y = ω_n² z (paper 000's linear subsystem, unit DC
         gain), solved exactly in discrete time: bilinear transform prewarped at ω_n
-        (``scipy.signal.bilinear`` + ``lfilter``), starting at rest at z(0).
+        (the ``dynamics`` block, :mod:`hystfit.blocks.dynamics`), starting at rest at z(0).
     dynamics_fn_Hz : float
         Natural frequency f_n = ω_n/2π (Hz). Default 1200 Hz.
     dynamics_zeta : float
@@ -625,18 +650,6 @@ def _check_signals(t, u) -> tuple[np.ndarray, np.ndarray, float]:
     return t, u, dt
 
 
-def _second_order_filter(fn_Hz: float, zeta: float, dt: float):
-    """Bilinear transform of ω_n²/(s² + 2ζω_n s + ω_n²), prewarped so that ω_n maps exactly."""
-    wn = 2.0 * np.pi * fn_Hz
-    if wn * dt / 2.0 >= np.pi / 2.0:
-        raise ConfigError(
-            f"dynamics_fn_Hz ({fn_Hz:g} Hz) must lie below the Nyquist frequency ({0.5 / dt:g} Hz)."
-        )
-    k = wn / math.tan(wn * dt / 2.0)  # s = k (z − 1)/(z + 1)
-    b, a = signal.bilinear([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn], fs=k / 2.0)
-    return b, a
-
-
 def simulate_plant_components(
     plant: Plant, t: np.ndarray, u: np.ndarray, seed: int = 0
 ) -> dict[str, np.ndarray]:
@@ -666,30 +679,26 @@ def simulate_plant_components(
         z += w[j] * F[:, j]
     comps["hysteresis"] = out(z)
 
-    if e.asymmetry:
+    if e.asymmetry:  # the asymmetry block with its ends at z = 0 and z = s (m = h = s/2)
         s = float(e.asymmetry_span_um)
-        z = z + float(e.asymmetry_a2) * z * (z - s) / s
+        z = bow(z, float(e.asymmetry_a2) * s / 4.0, 0.0, 0.5 * s, 0.5 * s)
     comps["asymmetry"] = out(z)
 
-    if e.creep:
-        extra = np.zeros_like(z)
-        for tau, g in zip(e.creep_tau_s, e.creep_gain):
-            p = math.exp(-dt / tau)
-            b_c, a_c = [1.0 - p], [1.0, -p]  # x[k] = p·x[k−1] + (1−p)·z[k]
-            zi = signal.lfilter_zi(b_c, a_c) * z[0]
-            x, _ = signal.lfilter(b_c, a_c, z, zi=zi)
-            extra += g * x
-        z = z + extra
+    if e.creep:  # z + Σ g_i LP_τi[z] is the creep block on (1 + G)z with gains g_i/(1 + G)
+        g = np.asarray(e.creep_gain, dtype=np.float64)
+        G = float(g.sum())
+        z = Creep(tau_s=e.creep_tau_s).apply_population(((1.0 + G) * z)[None, :], (g / (1.0 + G))[None, :], dt)[0]
     comps["creep"] = out(z)
 
     if e.dynamics:
-        b, a = _second_order_filter(float(e.dynamics_fn_Hz), float(e.dynamics_zeta), dt)
-        zi = signal.lfilter_zi(b, a) * z[0]
-        z, _ = signal.lfilter(b, a, z, zi=zi)
+        fn, zeta = float(e.dynamics_fn_Hz), float(e.dynamics_zeta)
+        if not fn * dt < 0.5:
+            raise ConfigError(f"dynamics_fn_Hz ({fn:g} Hz) must lie below the Nyquist frequency ({0.5 / dt:g} Hz).")
+        z = Dynamics().apply_population(z[None, :], np.array([[fn, zeta]]), dt)[0]
     comps["dynamics"] = out(z)
 
     if e.delay and e.delay_s > 0:
-        z = np.interp(t - float(e.delay_s), t, z, left=z[0])
+        z = fractional_delay(z, float(e.delay_s), dt)
     comps["delay"] = out(z)
 
     if e.drift:

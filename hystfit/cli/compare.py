@@ -28,7 +28,7 @@ def _names(text: str, what: str) -> list[str]:
 @guarded
 def compare(
     data: DataArg,
-    models: Annotated[str, typer.Option("--models", help="Comma-separated model names, or 'all'.")] = "pi,bw",
+    models: Annotated[str, typer.Option("--models", help="Comma-separated model names or expressions (pi,pi+creep+delay), or 'all'.")] = "pi,bw",
     opts: Annotated[str, typer.Option("--opts", help="Comma-separated optimizer names.")] = "auto",
     runs: Annotated[int, typer.Option("--runs", help="Independent seeded runs per cell.", min=1)] = 1,
     out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("hystfit-compare"),
@@ -55,12 +55,12 @@ def compare(
     from ..registry import models as model_registry
     from ..registry import optimizers as optimizer_registry
     from ..report.compare_report import compare_frame, write_compare_outputs
-    from ..setup import make_optimizer
+    from ..setup import make_model, make_optimizer
 
     model_names = model_registry.names() if models.strip().lower() == "all" else _names(models, "models")
     opt_names = _names(opts, "opts")
     for m in model_names:
-        model_registry.get(m)
+        make_model(m)  # validates the expression (unknown model or block: one line, exit 2)
     opt_options = {}
     for o in opt_names:
         cls = optimizer_registry.get(o)

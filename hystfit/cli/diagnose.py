@@ -28,7 +28,7 @@ def _parse_effects(value: Optional[str]) -> list[str] | None:
 @guarded
 def diagnose(
     data: DataArg,
-    model: Annotated[str, typer.Option("--model", "-m", help="Base model (see 'hystfit models').")] = "pi",
+    model: Annotated[str, typer.Option("--model", "-m", help="Base model: a name or BASE+BLOCK+... (see 'hystfit models').")] = "pi",
     opt: Annotated[str, typer.Option("--opt", "-o", help="Optimizer of the base fits (see 'hystfit optimizers').")] = "auto",
     out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-diagnose"),
     per_condition: Annotated[bool, typer.Option("--per-condition", help="One base parameter set per condition (look-up table) instead of one for all captures.")] = False,
@@ -56,13 +56,12 @@ def diagnose(
     from ..diagnose import DiagnoseSettings, check_seed
     from ..diagnose import diagnose as run_diagnose
     from ..io import load_captures, staged_output_dir
-    from ..registry import models, optimizers
+    from ..registry import optimizers
     from ..report.diagnose_report import write_diagnose_outputs
     from ..setup import make_model, make_optimizer
 
-    model_cls = models.get(model)
     opt_cls = optimizers.get(opt)
-    m = make_model(model_cls, parse_key_values(model_option or [], "--model-option"))
+    m = make_model(model, parse_key_values(model_option or [], "--model-option"))
     o = make_optimizer(opt_cls, parse_key_values(opt_option or [], "--opt-option"))
     names = _parse_effects(effects)
     settings = DiagnoseSettings(fit_fraction=fit_fraction, threshold=threshold, max_effects=max_effects)
@@ -74,7 +73,7 @@ def diagnose(
             for c in captures:
                 for note in c.notes:
                     stderr.print(f"[dim]{c.name}: {note}[/dim]")
-        with progress_bar(not quiet and not json_out, f"diagnose {model_cls.name}") as cb:
+        with progress_bar(not quiet and not json_out, f"diagnose {m.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb)
         write_diagnose_outputs(d, stage, make_figures=figures)

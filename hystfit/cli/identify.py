@@ -17,7 +17,7 @@ from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, 
 @guarded
 def identify(
     data: DataArg,
-    model: Annotated[str, typer.Option("--model", "-m", help="Model name (see 'hystfit models').")] = "pi",
+    model: Annotated[str, typer.Option("--model", "-m", help="Model: a name or BASE+BLOCK+... (e.g. pi+creep+delay; see 'hystfit models').")] = "pi",
     opt: Annotated[str, typer.Option("--opt", "-o", help="Optimizer name (see 'hystfit optimizers'); auto = exact linear solves + search over the nonlinear parameters.")] = "auto",
     out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-out"),
     seed: Annotated[int, typer.Option("--seed", help="Seed of every random choice; each run derives its own.")] = 0,
@@ -45,16 +45,15 @@ def identify(
     from ..identify import identify as run_identify
     from ..io import load_captures, staged_output_dir
     from ..params import parse_bound_overrides
-    from ..registry import models, optimizers
+    from ..registry import optimizers
     from ..report.identify_report import summary_rows, write_identify_outputs
     from ..results import identify_to_dict
     from ..setup import make_model, make_optimizer
 
-    model_cls = models.get(model)
     opt_cls = optimizers.get(opt)
     mopts = parse_key_values(model_option or [], "--model-option")
     oopts = parse_key_values(opt_option or [], "--opt-option")
-    m = make_model(model_cls, mopts)
+    m = make_model(model, mopts)
     o = make_optimizer(opt_cls, oopts, pop=pop, iters=iters)
     bnds = parse_bound_overrides(bounds or [])
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
@@ -64,7 +63,7 @@ def identify(
             for c in captures:
                 for note in c.notes:
                     stderr.print(f"[dim]{c.name}: {note}[/dim]")
-        with progress_bar(not quiet and not json_out, f"identify {model_cls.name} / {opt_cls.name}") as cb:
+        with progress_bar(not quiet and not json_out, f"identify {m.name} / {opt_cls.name}") as cb:
             res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=global_fit,
                                bounds=bnds, progress=cb, model_options=mopts, jobs=jobs)
         write_identify_outputs(res, stage, make_plots=plots)
@@ -80,7 +79,7 @@ def identify(
     if quiet:
         return
     u = res.unit
-    table = Table(title=f"{model_cls.name} / {opt_cls.name} — {len(res.fits)} condition(s), output in {out}")
+    table = Table(title=f"{m.name} / {opt_cls.name} — {len(res.fits)} condition(s), output in {out}")
     for col in ("condition", f"rmse_{u}", "nrmse_pct", "r2", f"max_error_{u}", "runtime_s"):
         table.add_column(col, justify="right")
     for row in summary_rows(res):

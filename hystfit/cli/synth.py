@@ -96,7 +96,7 @@ def capture(
     ],
     excitation: Annotated[
         str,
-        typer.Option("--excitation", "-e", help="raised-cosine, sine, triangle, prbs, multisine or steps."),
+        typer.Option("--excitation", "-e", help="raised-cosine, sine, triangle, rising-sine, prbs, multisine or steps."),
     ] = "raised-cosine",
     frequency: Annotated[
         Optional[float],

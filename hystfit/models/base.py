@@ -106,6 +106,17 @@ class Model(ABC):
         """Simulate a single parameter vector θ (d,) → y (N,)."""
         return self.simulate(np.atleast_2d(np.asarray(theta, float)), np.asarray(u, float), dt)[0]
 
+    @property
+    def composition(self) -> "tuple[Model, tuple] | None":
+        """(base, blocks) for a composite model (:mod:`hystfit.models.composite`); None otherwise."""
+        return None
+
+    def nuisance_basis(self, n: int, dt: float) -> np.ndarray | None:
+        """Per-capture regressors (n, k) whose coefficients are fitted anew for every capture and
+        projected out of the identification residual (a composite with a ``drift`` block); None
+        (the default) for none. See :class:`hystfit.objective.Objective`."""
+        return None
+
     # ----------------------------------------------------------------- structure for exact solves
     def separable(self):
         """The model's separable structure (:class:`hystfit.separable.Separable`) or None.

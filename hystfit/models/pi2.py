@@ -14,50 +14,10 @@ from .._jit import njit, prange
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
+from ..blocks.dynamics import bilinear_biquad, biquad_columns, invert_second_order
 from ._kernels import PARALLEL_MIN_POP, play_matrix, thread_blocks
 from .base import Model
 from .pi import PI
-
-
-@njit(cache=True)
-def biquad_columns(x, b0, b1, b2, a1, a2):
-    """Filter every column of x (N, M) with its own biquad, each starting at rest at x[0, m].
-
-    y[k] = x[0] + e[k],  e[k] = b0 d[k] + b1 d[k−1] + b2 d[k−2] − a1 e[k−1] − a2 e[k−2],
-    d[k] = x[k] − x[0], d[<0] = e[<0] = 0 (direct form I on deviations from the first sample).
-
-    For a unit-DC-gain filter this is exactly the response from rest at x[0] (the filter has
-    seen x[0] forever), computed without the cancellation of a large offset through poles near
-    z = 1. Layout (``shared/PERFORMANCE.md``): time outermost, columns innermost and contiguous.
-    A column with non-finite coefficients gives non-finite output (never an exception).
-
-    Parameters
-    ----------
-    x : (N, M) float64 inputs.  b0, b1, b2, a1, a2 : (M,) coefficients (a0 = 1).
-
-    Returns
-    -------
-    (N, M) float64 outputs.
-    """
-    N, M = x.shape
-    out = np.empty((N, M))
-    if N == 0:
-        return out
-    x0 = x[0].copy()
-    d1 = np.zeros(M)
-    d2 = np.zeros(M)
-    e1 = np.zeros(M)
-    e2 = np.zeros(M)
-    for k in range(N):
-        for m in range(M):
-            d = x[k, m] - x0[m]
-            e = b0[m] * d + b1[m] * d1[m] + b2[m] * d2[m] - a1[m] * e1[m] - a2[m] * e2[m]
-            d2[m] = d1[m]
-            d1[m] = d
-            e2[m] = e1[m]
-            e1[m] = e
-            out[k, m] = e + x0[m]
-    return out
 
 
 #: fastmath flags of the fused pi2 kernels: no ``nnan``/``ninf`` (a non-finite candidate must stay inf/NaN)
@@ -343,37 +303,6 @@ def shared_play_matrix(u: np.ndarray, r: np.ndarray) -> np.ndarray:
     return F
 
 
-def bilinear_biquad(fn_Hz, zeta, dt: float):
-    """Prewarped bilinear (Tustin) discretization of ω_n²/(s² + 2ζω_n s + ω_n²), per candidate.
-
-    s = K (1 − z⁻¹)/(1 + z⁻¹), K = ω_n / tan(ω_n Ts/2) (prewarping: the resonance ω_n maps
-    exactly). Closed form, a0 = K² + 2ζω_n K + ω_n²:
-
-        a1 = 2(ω_n² − K²)/a0,  a2 = (K² − 2ζω_n K + ω_n²)/a0,  b = g·[1, 2, 1],  g = (1 + a1 + a2)/4
-
-    The numerator is built from the denominator so that the static gain H(1) = 4g/(1 + a1 + a2)
-    is 1 to one rounding (analytically it is exactly 1). Candidates with f_n outside (0, f_s/2)
-    or ζ < 0 get NaN coefficients (their simulation is non-finite, scored +inf by the objective).
-
-    Returns
-    -------
-    b0, b1, b2, a1, a2 : (P,) float64 arrays.
-    """
-    fn = np.atleast_1d(np.asarray(fn_Hz, dtype=np.float64))
-    z = np.atleast_1d(np.asarray(zeta, dtype=np.float64))
-    with np.errstate(all="ignore"):
-        wn = 2.0 * np.pi * fn
-        ok = (fn > 0) & (fn * dt < 0.5) & (z >= 0) & np.isfinite(fn) & np.isfinite(z)
-        K = wn / np.tan(0.5 * wn * dt)
-        a0 = K * K + 2.0 * z * wn * K + wn * wn
-        a1 = 2.0 * (wn * wn - K * K) / a0
-        a2 = (K * K - 2.0 * z * wn * K + wn * wn) / a0
-        g = 0.25 * (1.0 + a1 + a2)
-    nan = np.full_like(g, np.nan)
-    a1, a2, g = (np.where(ok, c, nan) for c in (a1, a2, g))
-    return g, 2.0 * g, g.copy(), a1, a2
-
-
 @models.register
 @dataclass(frozen=True)
 class PI2(Model):
@@ -612,30 +541,14 @@ class PI2(Model):
 
     # ------------------------------------------------------------------ inverse
     def invert_dynamics(self, theta: np.ndarray, y_target: np.ndarray, dt: float) -> np.ndarray:
-        """Hysteresis output v (N,) that drives the linear part along ``y_target`` (offset included).
-
-        v = y + (2ζ/ω_n)·S y + S² y/ω_n² with the bilinear-consistent central differences
-        S ≈ (K/4)(y[k+1] − y[k−1]), S² ≈ (K²/4)(y[k+1] − 2y[k] + y[k−1]), K = ω_n/tan(ω_n Ts/2),
-        then the dynamic correction c = v − y is sharpened once, c ← 2c − M c with the 3-tap
-        smoother M = [1, 2, 1]/4 (M is the cos²(θ/2) factor of the central differences; 2 − M
-        inverts it to O(θ⁴)). y is held at y[0] before the first and at y[N−1] after the last sample.
-        """
+        """Hysteresis output v (N,) that drives the linear part along ``y_target`` (offset included):
+        the ``dynamics`` block's inverse (:func:`hystfit.blocks.dynamics.invert_second_order`)."""
         t = np.asarray(theta, dtype=np.float64).ravel()
         n = self.n_operators
-        fn, zeta = float(t[n + 1]), float(t[n + 2])
-        if not (0 < fn * dt < 0.5 and zeta >= 0):
-            raise ConfigError(f"pi2: cannot invert with fn_Hz={fn:g} (must lie in (0, fs/2)) and zeta={zeta:g}")
-        wn = 2.0 * math.pi * fn
-        K = wn / math.tan(0.5 * wn * dt)
-        y = np.asarray(y_target, dtype=np.float64)
-        yp = np.concatenate([[y[0]], y, [y[-1]]])
-        d1 = 0.25 * K * (yp[2:] - yp[:-2])
-        d2 = 0.25 * K * K * (yp[2:] - 2.0 * y + yp[:-2])
-        c = (2.0 * zeta / wn) * d1 + d2 / (wn * wn)
-        cp = np.concatenate([[0.0], c, [c[-1]]])  # at rest before (c = 0), held after
-        c = 2.0 * c - 0.25 * (cp[2:] + 2.0 * c + cp[:-2])
-        c[0] = 0.0  # the filter starts at rest at its first input: y[0] = v[0] whatever comes next
-        return y + c
+        try:
+            return invert_second_order(y_target, float(t[n + 1]), float(t[n + 2]), dt)
+        except ConfigError as exc:
+            raise ConfigError(f"pi2: {str(exc).removeprefix('dynamics: ')}") from None
 
     def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
                u_range: tuple[float, float] | None = None) -> np.ndarray:

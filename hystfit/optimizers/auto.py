@@ -69,7 +69,13 @@ class Auto(Optimizer):
         if model is not None and series is not None and hasattr(model, "separable"):
             sep = model.separable()
         tr = Tracker(objective, StopRules(), callback)
-        if sep is None:
+        composition = model.composition if (model is not None and series is not None) else None
+        if composition is not None and all(b.nuisance for b in composition[1]):
+            composition = None  # base + nuisance only: variable projection on the projected basis
+        if composition is not None:
+            start, nfev = self._composite_start(objective, composition, lower, upper, rng, x0)
+            hist_b, hist_m = [], []
+        elif sep is None:
             pso = PSO(pop=max(self.pop, 30), iters=max(self.iters, 150), stall_iter=max(self.stall_iter, 30),
                       stall_tol=self.stall_tol, max_evals=self.max_evals, time_limit_s=self.time_limit_s)
             g = pso.minimize(objective, lower, upper, rng=rng, x0=x0, callback=callback)
@@ -113,11 +119,92 @@ class Auto(Optimizer):
                     best_nl, best_f = g.x, g.fun
             start = proj.full(best_nl[None, :])[0]
         f = tr.evaluate(np.clip(start, lower, upper)[None, :])
+        if not hist_b:
+            hist_b, hist_m = [float(f[0])], [float(f[0])]
         pol = polisher().minimize(objective, lower, upper, rng=rng, x0=np.clip(start, lower, upper))
         tr.evaluate(pol.x[None, :])
         tr.nfev += nfev + pol.nfev
         tr.hist_best = [min(hist_b[: i + 1]) for i in range(len(hist_b))] + [tr.best_f]
         tr.hist_mean = hist_m + [float(f[0])]
         tr.nit = len(tr.hist_best)
-        tr.status, tr.message = 5, "global search over nonlinear parameters + least-squares polish"
+        tr.status, tr.message = 5, ("staged start (base, then each block with its linear coefficients solved exactly) "
+                                    "+ joint least-squares polish" if composition is not None else
+                                    "global search over nonlinear parameters + least-squares polish")
         return tr.result(self.name)
+
+    def _composite_start(self, objective: Objective, composition, lower, upper, rng, x0) -> tuple[np.ndarray, int]:
+        """A start for a composite model (base + blocks), fitted in stages.
+
+        1. The base alone (with the composite's nuisance blocks, e.g. per-capture drift) by this
+           optimizer's own route (variable projection where the base is separable).
+        2. Each block in the written order, on the prediction of the base and the blocks before
+           it: its searched parameters (delay, f_n, ζ) by a grid and a local search, its linear
+           coefficients (creep gains, asymmetry coefficients) solved exactly together with a
+           Gauss–Newton step of every parameter before it (:meth:`hystfit.effects.Effect.fit`);
+           the step is kept only if it lowers the objective.
+        3. (in :meth:`minimize`) a bounded least-squares polish of the whole vector: the joint optimum.
+        """
+        from ..effects import CaptureView, Linearization
+        from ..models.composite import Composite
+        from ..objective import Objective as Obj, Series
+
+        base, blocks = composition
+        series = list(objective.series)
+        sizes = [b.n_theta for b in blocks]
+        d_b = lower.size - sum(sizes)
+        nuisance = tuple(b for b in blocks if b.nuisance)
+        base_model = Composite(base, nuisance) if nuisance else base
+        sub = Auto(pop=self.pop, iters=self.iters, stall_iter=self.stall_iter, stall_tol=self.stall_tol,
+                   restarts=self.restarts, max_evals=self.max_evals, time_limit_s=self.time_limit_s)
+        rb = sub.minimize(Obj(base_model, series), lower[:d_b], upper[:d_b], rng=rng,
+                          x0=None if x0 is None else np.asarray(x0)[:d_b])
+        nfev = rb.nfev
+        theta = np.clip(np.asarray(x0, dtype=np.float64) if x0 is not None else 0.5 * (lower + upper), lower, upper)
+        theta[:d_b] = rb.x
+        start = d_b
+        for k, (b, size) in enumerate(zip(blocks, sizes)):
+            if b.nuisance:
+                continue
+            end = start + size
+            active = tuple(x for x in blocks[:k] if not x.nuisance)
+            prefix = Composite(base, active) if active else base
+            upto = Composite(base, tuple(x for x in blocks[:k + 1] if not x.nuisance or x in nuisance))
+            full_obj = Obj(upto, series)
+            raw_obj = Obj(prefix, series)
+            th_p = theta[:start]
+            yhats = raw_obj.predict(th_p)
+            views = []
+            for c, (s, yh) in enumerate(zip(series, yhats)):
+                y = s.y
+                R = base_model.nuisance_basis(s.y.shape[0], s.dt)
+                if R is not None:  # take the current per-capture nuisance estimate off the target
+                    y = y - R @ np.linalg.lstsq(R, y - yh, rcond=None)[0]
+                n = s.y.shape[0]
+                views.append(CaptureView(t=np.arange(n) * s.dt, dt=s.dt, y=y, fit=np.ones(n, bool), index=c))
+            J = raw_obj.jacobian(th_p, upper=upper[:start])
+            nfev += start + 1
+            jacs, row = [], 0
+            for s in series:
+                jacs.append(J[row:row + s.y.shape[0]])
+                row += s.y.shape[0]
+            cols = tuple(np.arange(start) for _ in series)
+            lin = Linearization(tuple(jacs), cols, lower[:start] - th_p, upper[:start] - th_p)
+            candidates = []
+            for use_lin in (True, False):
+                try:
+                    fit = b.fit(yhats, views, lin if use_lin else None)
+                except (np.linalg.LinAlgError, ValueError):
+                    continue
+                nfev += fit.evaluations
+                cand = theta[:end].copy()
+                if use_lin and fit.delta.size:
+                    cand[:start] = th_p + fit.delta
+                cand[start:end] = np.concatenate([fit.phi, fit.shared])
+                candidates.append(np.clip(cand, lower[:end], upper[:end]))
+            if not candidates:
+                continue
+            scores = full_obj(np.vstack(candidates))
+            nfev += len(candidates)
+            theta[:end] = candidates[int(np.argmin(scores))]
+            start = end
+        return theta, nfev

@@ -1,0 +1,130 @@
+"""The block interface: a physical effect that follows any hysteresis model.
+
+A *block* maps the signal x coming out of the model before it (the base hysteresis model, or
+the blocks written before it in a model expression such as ``pi+creep+delay``) to the signal
+after it. Each block is one file of this package and serves three users with one implementation:
+
+- **composite models** (:class:`hystfit.models.composite.Composite`): :meth:`Block.params` is the
+  block's part of the parameter vector θ (units, data-scaled bounds), :meth:`Block.apply_population`
+  applies it to a whole population at once (θ (P, k), x (P, N) → (P, N)), :meth:`Block.invert`
+  undoes it for feedforward, :meth:`Block.step_init`/:meth:`Block.step` advance it one sample for
+  closed-loop simulation;
+- **diagnose** (:mod:`hystfit.diagnose`): the :class:`hystfit.effects.Effect` interface it inherits
+  (searched parameters φ, linear coefficients solved exactly, evidence text);
+- **the virtual actuator** (:mod:`hystfit.synth`), whose effect switches call the same functions.
+
+In θ a block's entries are its searched parameters φ followed by its shared linear coefficients
+(the :class:`hystfit.effects.Effect` layout), so ``apply_population(x, concat(φ, a))`` equals
+``Effect.apply(x, view, φ, a, [])`` (checked by the block contract tests). A *nuisance* block
+(drift) has no entry in θ: its per-capture coefficients are projected out of every capture's
+residual by the identification objective (:meth:`Block.nuisance_basis`).
+
+Units: time s, input V, output in the capture's unit (``out`` in parameter units).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from abc import abstractmethod
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..effects import Effect
+from ..errors import ConfigError
+from ..params import DataScale, Param
+
+
+class Block(Effect):
+    """Base class of every block (subclasses are frozen dataclasses registered on
+    :data:`hystfit.registry.blocks`)."""
+
+    #: one line for ``hystfit models`` and the docs
+    reference: ClassVar[str] = ""
+    #: True: the block has no θ entries; its per-capture regressors are projected out of the residual
+    nuisance: ClassVar[bool] = False
+
+    # ------------------------------------------------------------------ structure
+    def adapt(self, scale: DataScale) -> "Block":
+        """Fill data-dependent structure (search ranges, time constants, normalisation) from the
+        identification data's scale; the adapted block is what gets saved."""
+        return self
+
+    def structure(self) -> dict[str, Any]:
+        """JSON-serialisable constructor arguments (the inverse of :meth:`from_structure`)."""
+        out = {}
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            if not f.init or not f.compare:
+                continue
+            v = getattr(self, f.name)
+            out[f.name] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    @classmethod
+    def from_structure(cls, data: dict[str, Any]) -> "Block":
+        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        unknown = set(data) - names
+        if unknown:
+            raise ConfigError(f"block {cls.name!r}: unknown option(s) {sorted(unknown)}; valid: {', '.join(sorted(names))}")
+        kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+        try:
+            return cls(**kwargs)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"block {cls.name!r}: invalid options {data!r} ({exc})") from None
+
+    # ------------------------------------------------------------------ parameters
+    @abstractmethod
+    def params(self, scale: DataScale) -> tuple[Param, ...]:
+        """The block's entries of θ (searched φ, then shared linear coefficients), unprefixed."""
+
+    @property
+    def n_theta(self) -> int:
+        """Number of θ entries (searched + shared linear)."""
+        lo, _ = self.searched_bounds()
+        return int(lo.size + self.layout()[0])
+
+    # ------------------------------------------------------------------ simulation
+    @abstractmethod
+    def apply_population(self, x: np.ndarray, theta: np.ndarray, dt: float) -> np.ndarray:
+        """The block's output for a population: x (P, N), θ (P, k) → (P, N) (x is not modified)."""
+
+    def nuisance_basis(self, n: int, dt: float) -> np.ndarray | None:
+        """Per-capture regressors (n, k) projected out of the residual (nuisance blocks only)."""
+        return None
+
+    # ------------------------------------------------------------------ inverse and stepping
+    @abstractmethod
+    def invert(self, theta: np.ndarray, y: np.ndarray, dt: float) -> np.ndarray:
+        """The block's input x (N,) whose output follows ``y`` (N,): θ (k,)."""
+
+    def step_init(self, theta: np.ndarray, x0: float, dt: float) -> np.ndarray:
+        """The block's memory (S,) at rest at input ``x0`` (its output is then the block applied to
+        a constant ``x0``)."""
+        return np.empty(0)
+
+    def step(self, theta: np.ndarray, state: np.ndarray, x_new: np.ndarray, dt: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """Advance one sample for candidate inputs x_new (C,): outputs (C,) and states (C, S).
+
+        Stepping a whole signal from :meth:`step_init` at its first sample reproduces
+        :meth:`apply_population` from the second sample on (contract-tested)."""
+        x_new = np.atleast_1d(np.asarray(x_new, dtype=np.float64))
+        y = self.apply_population(x_new[:, None], np.repeat(np.atleast_2d(theta), x_new.size, axis=0), dt)[:, 0]
+        return y, np.zeros((x_new.size, 0))
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def population(theta: np.ndarray, k: int, P: int) -> np.ndarray:
+        theta = np.asarray(theta, dtype=np.float64)
+        theta = theta.reshape(-1, k) if theta.size else np.zeros((P, 0))
+        if theta.shape[0] == 1 and P > 1:
+            theta = np.repeat(theta, P, axis=0)
+        return theta
+
+
+def frequency_of_excitation(scale: DataScale) -> float:
+    """The frequency (Hz) of a sine with the captures' input range and peak rate: rate/(π·range).
+
+    For a periodic drive that is its fundamental; for a rising-amplitude sine, the drive frequency.
+    """
+    return float(scale.rate_max / (np.pi * scale.u_range))
