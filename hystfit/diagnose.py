@@ -214,7 +214,60 @@ class Diagnosis:
                      "placebo_draws": self.settings.placebo_draws, "max_effects": self.settings.max_effects},
             "captures": list(self.captures),
             "runtime_s": self.runtime_s,
+            "recommended_model": self.recommended_model,
+            f"heldout_rmse_with_named_effects_{u}": _num(self.heldout_rmse_named),
         })
+
+    @property
+    def recommended_model(self) -> str:
+        """The model expression to identify next: the base followed by the named effects as blocks,
+        in the order a signal meets them (:data:`SIGNAL_ORDER`)."""
+        return recommend_expression(self.base_model, self.explained_by)
+
+    @property
+    def heldout_rmse_named(self) -> float:
+        """Held-out RMSE of the base with every named effect (the last named step); the base's own
+        held-out RMSE when none is named."""
+        if not self.explained_by or len(self.steps) < len(self.explained_by):
+            return self.effects[0].heldout_rmse_before if self.effects else float("nan")
+        last = self.explained_by[-1]
+        for r in self.steps[len(self.explained_by) - 1]:
+            if r.effect == last:
+                return r.heldout_rmse_after
+        return float("nan")
+
+
+#: The order in which a signal meets the effects after the hysteresis (that of the virtual
+#: actuator, :func:`hystfit.synth.simulate_plant_components`): a recommended model is written so.
+SIGNAL_ORDER = ("asymmetry", "creep", "dynamics", "delay", "drift")
+
+
+def recommend_expression(base_model: str, named: Sequence[str]) -> str:
+    """``base_model`` (a name or an expression) followed by the ``named`` effects it lacks, the new
+    ones in :data:`SIGNAL_ORDER`."""
+    parts = [p.strip() for p in base_model.split("+")]
+    present = set(parts[1:])
+    new = [e for e in SIGNAL_ORDER if e in set(named) and e not in present]
+    new += [e for e in named if e not in SIGNAL_ORDER and e not in present]
+    return "+".join(parts + new)
+
+
+def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, optimizer: Optimizer, *,
+                    seed: int, model_options: dict | None = None, progress=None):
+    """Identify the recommended model on all the data (globally, or per condition as the diagnosis
+    was made), so the diagnosis hands over a model that ``simulate``/``invert``/``track`` accept.
+
+    Returns the :class:`hystfit.identify.IdentifyResult`, or None when nothing was named.
+    """
+    from .identify import identify
+    from .setup import make_model
+
+    if not d.explained_by:
+        return None
+    opts = dict(model_options or {})
+    rec = make_model(d.recommended_model, opts)
+    return identify(captures, rec, optimizer, seed=seed, global_fit=d.mode != "per-condition",
+                    model_options=opts, progress=progress)
 
 
 def check_seed(seed) -> int:

@@ -35,16 +35,14 @@ def lowpass_at_rest(x: np.ndarray, tau_s: float, dt: float, axis: int = 0) -> np
 
 
 def time_constants(longest_s: float, dt: float) -> tuple[float, ...]:
-    """One τ per decade from 0.01 s up to the largest decade ≤ twice the longest capture (at least
+    """One τ per decade from 0.01 s to the first decade at or above the longest capture (at least
     0.1 s, at most 100 s), keeping only τ ≥ 5 samples.
 
-    Bounded by what the data can determine: a relaxation much slower than the capture looks,
-    within it, like a gain change or a linear drift, and extrapolates badly to longer captures
-    (a 10 s τ on 2.5 s captures); one up to twice the capture length still bends visibly.
     Time constants below 10 ms are excluded on purpose: they would make creep a second way to
-    fit stage dynamics.
+    fit stage dynamics. The top one can exceed the capture length by up to 10×: within the
+    capture it then looks like a gain change or a linear drift (set ``tau_s`` to bound it).
     """
-    top = min(max(10.0 ** math.floor(math.log10(max(2.0 * longest_s, 1e-3)) + 1e-9), 0.1), 100.0)
+    top = min(max(10.0 ** math.ceil(math.log10(max(longest_s, 1e-3)) - 1e-9), 0.1), 100.0)
     taus = tuple(float(x) for x in 10.0 ** np.arange(-2, round(math.log10(top)) + 1))
     return tuple(t for t in taus if t >= 5.0 * dt) or (float(top),)
 
@@ -101,8 +99,8 @@ class Creep(Block):
 
     Structure
     ---------
-    tau_s : the time constants τ_i (s); by default (None) one per decade from 0.01 s up to twice
-        the longest capture (at least 0.1 s, at most 100 s), set from the data
+    tau_s : the time constants τ_i (s); by default (None) one per decade from 0.01 s to the first
+        decade at or above the longest capture (at least 0.1 s, at most 100 s), set from the data
         (:func:`time_constants`); ``--model-option creep.tau_s=[0.02,0.3]`` fixes them.
 
     Inverse: exact and causal (:func:`_creep_inverse`): with s_i the filter states,

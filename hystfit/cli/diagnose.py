@@ -53,15 +53,16 @@ def diagnose(
 
     Writes OUT/diagnosis.json, OUT/diagnosis.md and OUT/figures/.
     """
-    from ..diagnose import DiagnoseSettings, check_seed
+    from ..diagnose import DiagnoseSettings, check_seed, fit_recommended
     from ..diagnose import diagnose as run_diagnose
     from ..io import load_captures, staged_output_dir
     from ..registry import optimizers
-    from ..report.diagnose_report import write_diagnose_outputs
+    from ..report.diagnose_report import next_step_line, write_diagnose_outputs
     from ..setup import make_model, make_optimizer
 
     opt_cls = optimizers.get(opt)
-    m = make_model(model, parse_key_values(model_option or [], "--model-option"))
+    mopts = parse_key_values(model_option or [], "--model-option")
+    m = make_model(model, mopts)
     o = make_optimizer(opt_cls, parse_key_values(opt_option or [], "--opt-option"))
     names = _parse_effects(effects)
     settings = DiagnoseSettings(fit_fraction=fit_fraction, threshold=threshold, max_effects=max_effects)
@@ -76,9 +77,12 @@ def diagnose(
         with progress_bar(not quiet and not json_out, f"diagnose {m.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb)
-        write_diagnose_outputs(d, stage, make_figures=figures)
+        with progress_bar(not quiet and not json_out and bool(d.explained_by),
+                          f"identify {d.recommended_model} on all the data") as cb:
+            rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb)
+        write_diagnose_outputs(d, stage, make_figures=figures, recommended=rec)
     if json_out:
-        print_json(d.to_dict())
+        print_json({**d.to_dict(), "params": str(out / "params.json") if d.explained_by else None})
         return
     if quiet:
         return
@@ -94,3 +98,4 @@ def diagnose(
     for p in d.where["pointers"]:
         stdout.print(f"where: {p}")
     stdout.print(f"explained by (in order): {', '.join(d.explained_by) or 'none'}; report: {out / 'diagnosis.md'}")
+    stdout.print(next_step_line(d, out))

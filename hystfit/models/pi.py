@@ -166,7 +166,25 @@ class PI(Model):
         r_inv = np.array([np.sum(w[: i + 1] * (r[i] - r[: i + 1])) for i in range(len(w))])
         return w_inv, r_inv
 
-    def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float) -> np.ndarray:
+    def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
+        """The play-operator states (n,) after the first sample u0 (from the virgin state 0)."""
+        r = self.r
+        return np.maximum(u0 - r, np.minimum(u0 + r, 0.0))
+
+    def step(self, theta, state, u_prev, u_new, dt):
+        """One sample for candidate inputs u_new (C,): outputs (C,) and play states (C, n)."""
+        t = np.asarray(theta, dtype=np.float64).ravel()
+        n = self.n_operators
+        u_new = np.atleast_1d(np.asarray(u_new, dtype=np.float64))
+        r = self.r
+        plays = np.maximum(u_new[:, None] - r[None, :], np.minimum(u_new[:, None] + r[None, :],
+                                                                     np.asarray(state)[None, :n]))
+        return plays @ t[:n] + t[n], plays
+
+    def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
+               u_range: tuple[float, float] | None = None) -> np.ndarray:
+        """The analytic inverse (paper 003 eq. 17–20); ``u_range`` is accepted for the common
+        signature and not needed (the inverse is exact)."""
         theta = np.asarray(theta, float).ravel()
         w_inv, r_inv = self.inverse_operator(theta)
         v = np.ascontiguousarray(self.output_sign(theta) * (np.asarray(y_target, float) - theta[-1]))

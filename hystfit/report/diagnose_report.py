@@ -674,8 +674,25 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
     return "\n".join(L)
 
 
-def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = True) -> dict[str, Path]:
-    """Write diagnosis.json, diagnosis.md and (optionally) figures/ into ``out_dir`` (which must exist)."""
+def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
+    """The report's last line: the effects named, the held-out error of the base with all of
+    them, and what to run next."""
+    u = d.unit
+    if not d.explained_by:
+        return (f"next: no effect named; {d.base_model} is as good as any augmentation on held-out data "
+                f"(held-out RMSE {d.heldout_rmse_named:.4g} {u}).")
+    params = f"{out_dir}/params.json" if out_dir is not None else "params.json"
+    return (f"next: named {', '.join(d.explained_by)}; held-out RMSE of {d.recommended_model} "
+            f"{d.heldout_rmse_named:.4g} {u}. {d.recommended_model} fitted on all the data is in {params}: "
+            f"hystfit invert {params} --sine AMPLITUDE,FREQUENCY --out v.csv, or identify it anew with "
+            f"--model {d.recommended_model}")
+
+
+def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = True,
+                           recommended=None) -> dict[str, Path]:
+    """Write diagnosis.json, diagnosis.md, (optionally) figures/ and — when effects were named and
+    ``recommended`` (their model fitted on all the data) is given — params.json (the same schema as
+    ``hystfit identify`` writes) into ``out_dir`` (which must exist)."""
     out_dir = Path(out_dir)
     paths = {"json": out_dir / "diagnosis.json", "md": out_dir / "diagnosis.md"}
     atomic_write_text(paths["json"], dumps(d.to_dict()))
@@ -683,5 +700,16 @@ def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = 
     if make_figures:
         figs = write_figures(d, out_dir / "figures")
         paths["figures"] = out_dir / "figures"
-    atomic_write_text(paths["md"], markdown(d, figs))
+    md = markdown(d, figs)
+    if recommended is not None:
+        from ..results import identify_to_dict
+
+        paths["params"] = out_dir / "params.json"
+        atomic_write_text(paths["params"], dumps(identify_to_dict(recommended)))
+        rms = ", ".join(f"{f.label}: {f.metrics[f'rmse_{d.unit}']:.4g} {d.unit}" for f in recommended.fits)
+        md += (f"\n## The model to use next\n\n`{d.recommended_model}` (the base followed by the named effects, "
+               f"in the order a signal meets them) was identified on all the data and written to `params.json` "
+               f"(fit RMSE {rms}).\n")
+    md += f"\n{next_step_line(d)}\n"
+    atomic_write_text(paths["md"], md)
     return paths

@@ -119,8 +119,8 @@ def test_delay_recovers_the_delay(rng):
 def test_creep_recovers_its_gains(rng):
     base = [u for _, u, _, _ in _signals()]
     eff = Creep().configure(_views(base), base)
-    assert eff.tau_s == (0.01, 0.1, 1.0)  # longest capture 3.05 s → up to 1 s (≤ twice the data)
-    c_true = np.array([0.012, 0.02, 0.015])
+    assert eff.tau_s == (0.01, 0.1, 1.0, 10.0)  # longest capture 3.05 s → up to 10 s
+    c_true = np.array([0.012, 0.02, 0.015, 0.0])
     ys = _noisy([eff.apply(b, v, np.empty(0), c_true, np.empty(0)) for b, v in zip(base, _views(base))], rng)
     views = _views(ys)
     fit = eff.fit(base, views)
@@ -131,7 +131,7 @@ def test_creep_recovers_its_gains(rng):
 def test_creep_gains_stay_non_negative(rng):
     base = [u for _, u, _, _ in _signals()]
     eff = Creep().configure(_views(base), base)
-    neg = np.array([0.0, -0.03, 0.0])  # "anti-creep": not physical
+    neg = np.array([0.0, -0.03, 0.0, 0.0])  # "anti-creep": not physical
     ys = [eff.apply(b, v, np.empty(0), neg, np.empty(0)) for b, v in zip(base, _views(base))]
     fit = eff.fit(base, _views(ys))
     assert np.all(fit.shared >= 0)
