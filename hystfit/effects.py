@@ -648,12 +648,13 @@ class Placebo(Effect):
 
 
 def __getattr__(name: str):
-    """``EFFECTS``: the candidate effects of diagnose — every registered block, in registration
+    """``EFFECTS``: the candidate effects of diagnose — every registered block that is a candidate
+    (:attr:`hystfit.blocks.base.Block.candidate`; not ``lti``, which is identified, not fitted), in registration
     order (the order they are reported when tied), name → class."""
     if name == "EFFECTS":
         from .registry import blocks
 
-        return {n: blocks.get(n) for n in blocks.names()}
+        return {n: blocks.get(n) for n in blocks.names() if blocks.get(n).candidate}
     raise AttributeError(name)
 
 
@@ -663,6 +664,7 @@ def make_effect(name: str) -> Effect:
     from .registry import blocks
 
     key = name.strip().lower()
-    if key not in blocks:
-        raise ConfigError(f"unknown effect {name!r}: choose from {', '.join(blocks.names())}")
+    names = [n for n in blocks.names() if blocks.get(n).candidate]
+    if key not in names:
+        raise ConfigError(f"unknown effect {name!r}: choose from {', '.join(names)}")
     return blocks.get(key)()

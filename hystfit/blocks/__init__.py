@@ -5,6 +5,6 @@ Each module registers one block on :data:`hystfit.registry.blocks`; a model expr
 """
 
 from .base import Block
-from . import dynamics, creep, asymmetry, drift, delay  # noqa: F401  (registration; this order is the order diagnose reports ties in)
+from . import dynamics, creep, asymmetry, drift, delay, lti  # noqa: F401  (registration; this order is the order diagnose reports ties in)
 
 __all__ = ["Block"]

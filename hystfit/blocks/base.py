@@ -43,8 +43,15 @@ class Block(Effect):
     reference: ClassVar[str] = ""
     #: True: the block has no θ entries; its per-capture regressors are projected out of the residual
     nuisance: ClassVar[bool] = False
+    #: True: diagnose tests it as a candidate unmodelled effect
+    candidate: ClassVar[bool] = True
 
     # ------------------------------------------------------------------ structure
+    def prepare(self, captures) -> "Block":
+        """Identify structure shared by every operating condition from all captures (the ``lti``
+        block's state space); the default has none and returns ``self``."""
+        return self
+
     def adapt(self, scale: DataScale) -> "Block":
         """Fill data-dependent structure (search ranges, time constants, normalisation) from the
         identification data's scale; the adapted block is what gets saved."""

@@ -14,12 +14,13 @@ from .common import print_json, stdout
 @app.command("models")
 @guarded
 def list_models(json_out: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False) -> None:
-    """List the registered hysteresis models with their parameters (units, default bounds) and references."""
-    from ..catalog import model_catalog
+    """List the registered hysteresis models and blocks with their parameters (units, default bounds) and references."""
+    from ..catalog import block_catalog, model_catalog
 
     cat = model_catalog()
+    blk = block_catalog()
     if json_out:
-        print_json({"models": cat})
+        print_json({"models": cat, "blocks": blk})
         return
     for m in cat:
         t = Table(title=f"[bold]{m['name']}[/bold] — {m['title']}  ({m['reference']})", title_justify="left")
@@ -31,6 +32,18 @@ def list_models(json_out: Annotated[bool, typer.Option("--json", help="Machine-r
         stdout.print(f"  {m['equation']}")
         stdout.print(f"  bounds shown for a reference stage (0–100 V → 0–30 µm); they scale with the data. "
                      f"Structure options: {m['structure'] or 'none'}\n")
+    stdout.print("[bold]Blocks[/bold]: follow any model in an expression BASE+BLOCK+... (e.g. pi+creep+delay), "
+                 "in the written order; options as --model-option BLOCK.KEY=VALUE, bounds as --bounds BLOCK.NAME=LO:HI\n")
+    for b in blk:
+        t = Table(title=f"[bold]+{b['name']}[/bold] — {b['title']}  ({b['reference']})", title_justify="left")
+        for col in ("parameter", "unit", "lower", "upper", "meaning"):
+            t.add_column(col)
+        for p in b["parameters"]:
+            t.add_row(p["name"], p["unit"], f"{p['lower']:.4g}", f"{p['upper']:.4g}", p["description"])
+        if not b["parameters"]:
+            t.add_row("(none)", "", "", "", "per-capture offset and rate, projected out of the residual")
+        stdout.print(t)
+        stdout.print(f"  {b['equation']}   structure options: {b['structure'] or 'none'}\n")
 
 
 #: stop-rule settings shared by the optimizers (hystfit.optimizers.base.StopRules) and what they mean

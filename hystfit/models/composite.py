@@ -88,7 +88,7 @@ class Composite(Model):
         return replace(self, base=self.base.adapt(scale), blocks=tuple(b.adapt(scale) for b in self.blocks))
 
     def prepare(self, captures) -> "Composite":
-        return replace(self, base=self.base.prepare(captures))
+        return replace(self, base=self.base.prepare(captures), blocks=tuple(b.prepare(captures) for b in self.blocks))
 
     def structure_summary(self) -> str:
         """How the shared structure was found (the base's, if it has any) and the block chain."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -212,3 +213,23 @@ def test_version_1_params_files_still_load(tmp_path):
     path.write_text(json.dumps(data))
     pf = load_params(path)
     assert pf.model_name == "pi" and len(pf.cells) == 1
+
+
+def test_lti_block_is_identified_from_broadband_captures_and_matches_hammerstein():
+    """pi+lti: the ERA stage identified once from the broadband captures, the PI fitted through it."""
+    from hystfit.io import LoadOptions, load_captures
+
+    caps = load_captures([str(Path(__file__).resolve().parents[2] / "sample_data" / "broadband")], LoadOptions())
+    opt = make_optimizer(optimizers.get("auto"))
+    comp = identify(caps, make_model("pi+lti"), opt, global_fit=True).fits[0]
+    ham = identify(caps, make_model("hammerstein"), opt, global_fit=True).fits[0]
+    plain = identify(caps, make_model("pi"), opt, global_fit=True).fits[0]
+    assert comp.model.blocks[0].order > 0 and comp.model.blocks[0].method == "era"
+    assert comp.metrics["rmse_um"] < 0.02 * plain.metrics["rmse_um"]
+    assert comp.metrics["rmse_um"] <= 1.05 * ham.metrics["rmse_um"]
+
+
+def test_lti_block_refuses_sine_only_data():
+    caps = _plant_captures(synth.Effects(dynamics=True), freqs=(20.0,), rising=False, cycles=3)
+    with pytest.raises(ConfigError, match="no broadband capture"):
+        make_model("pi+lti").prepare(caps)
