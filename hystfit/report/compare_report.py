@@ -17,6 +17,7 @@ import pandas as pd
 from .. import __version__
 from ..compare import CellResult, CompareResult
 from ..io import atomic_write_text, write_table
+from ..registry import optimizers as optimizer_registry
 from . import plots
 from .tables import fmt, markdown_table, metric_columns, metric_legend
 
@@ -262,7 +263,7 @@ def ranking(res: CompareResult) -> list[str]:
                     out += [f"- not ranked (failed on some condition): {', '.join(f'`{m}`' for m in skipped)}"]
                 out += [""]
     if len(res.optimizers) > 1:
-        polished = res.polish and any(o not in ("auto", "lsq") for o in res.optimizers)
+        polished = res.polish and any(not optimizer_registry.get(o).polishes_itself for o in res.optimizers)
         for m in res.models:
             names, samples = [], []
             for o in res.optimizers:
@@ -353,7 +354,7 @@ def _optimizer_layout(df: pd.DataFrame) -> pd.DataFrame:
 
 def markdown(res: CompareResult, figures: list[str]) -> str:
     u = res.unit
-    polished = res.polish and any(o not in ("auto", "lsq") for o in res.optimizers)
+    polished = res.polish and any(not optimizer_registry.get(o).polishes_itself for o in res.optimizers)
     lines = ["# hystfit comparison", "",
              f"- models: {', '.join(f'`{m}`' for m in res.models)}; optimizers: "
              f"{', '.join(f'`{o}`' for o in res.optimizers)}; conditions: {len(res.conditions)}; runs per cell: {res.runs}",
