@@ -41,7 +41,7 @@ def budget_options(cls: type, *, pop: int | None = None, iters: int | None = Non
     ``--iters`` means the same budget for every population search. ``max_evals`` (already chosen
     by the caller) makes that translation a conflict. Local solvers take neither flag.
     """
-    from .optimizers.base import IteratedSearch, PopulationSearch
+    from .optimizers.base import IteratedSearch
 
     out: dict[str, Any] = {}
     for key, val in (("pop", pop), ("iters", iters)):
@@ -49,7 +49,7 @@ def budget_options(cls: type, *, pop: int | None = None, iters: int | None = Non
             continue
         if isinstance(val, bool) or not isinstance(val, int) or val < 1:
             raise ConfigError(f"--{key} must be a positive integer, got {val}")
-        if not issubclass(cls, PopulationSearch):
+        if not cls.takes_budget_flags():
             raise ConfigError(f"--{key} does not apply to optimizer {cls.name!r} (not a population search); "
                               f"bound it with --opt-option max_evals=N")
     if pop is not None:

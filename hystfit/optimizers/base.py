@@ -270,6 +270,11 @@ class Optimizer(ABC):
 
     # ---------------------------------------------------------------- settings, flat
     @classmethod
+    def takes_budget_flags(cls) -> bool:
+        """Whether ``--pop`` / ``--iters`` apply (population searches); see :func:`hystfit.setup.budget_options`."""
+        return False
+
+    @classmethod
     def default_stop(cls) -> StopRules:
         return next(f.default for f in fields(cls) if f.name == "stop")  # type: ignore[arg-type]
 
@@ -328,6 +333,10 @@ class PopulationSearch(Optimizer):
         if isinstance(self.pop, bool) or not isinstance(self.pop, (int, np.integer)) or self.pop < self.min_pop:
             raise ConfigError(f"{self.name}: pop must be a whole number ≥ {self.min_pop}, got {self.pop!r}; "
                               f"set e.g. --pop 40")
+
+    @classmethod
+    def takes_budget_flags(cls) -> bool:
+        return True
 
     def max_iterations(self) -> int | None:
         """The iteration count the tracker stops at (None: no preset count)."""
