@@ -170,9 +170,12 @@ class IGWO(GWO):
     Where this differs from paper 004, and why:
 
     * Eq. 10 is not a chaotic *sequence*: both factors are fresh uniform draws (two ``rand``
-      calls), so "chaos" is only the name. We implement the equation as written; iterating the
-      logistic map along the pack instead (hystfit ≤ 0.1) with F = 2 converges to the fixed point
-      1/2 and put 93 % of the coordinates on the upper face.
+      calls), so "chaos" is only the name. We implement the equation as written, not the
+      formulation of ``shared/papers/README.md`` (the logistic map iterated along the pack, its
+      range [0, μ/4] stretched onto the box), which hystfit 0.1.0 used: with 004's F = 2 that
+      sequence converges to its fixed point 1/2, i.e. the upper face, for 93 % of the coordinates.
+      The choice of one independent pair (r1, r2) per coordinate follows MATLAB's semantics of
+      the two ``rand(Np, d)`` calls in the equation.
     * Γ: 004 gives no value; a fixed fraction of the box width makes the step independent of
       parameter units. The steps do not shrink as the pack converges, so the positions keep
       jittering by about ``levy_scale``·(upper − lower) and the final values stay above plain
