@@ -224,3 +224,39 @@ def test_normal_equations_equal_the_dense_products(rng):
         JtJ2, rr2, m2 = obj.normal_matrix(theta, upper=upper)
         np.testing.assert_array_equal(JtJ2, JtJ)
         assert (rr2, m2) == (rr, m)
+
+
+# ------------------------------------------------------------------ issue 12: one StopRules value
+def test_stop_rules_are_one_frozen_validated_value():
+    import dataclasses
+
+    from hystfit.errors import ConfigError
+    from hystfit.optimizers.base import StopRules
+
+    rules = StopRules(max_evals=100, stall_iter=5)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        rules.max_evals = 3  # type: ignore[misc]
+    with pytest.raises(ConfigError, match=r"stop rule max_evals .* got -5; set e\.g\. --opt-option max_evals="):
+        StopRules(max_evals=-5)
+    with pytest.raises(ConfigError, match="time_limit_s"):
+        StopRules(time_limit_s=0.0)
+    # every optimizer holds it, and the flat options build it
+    opt = PSO.from_options({"max_evals": 100, "stall_iter": 5})
+    assert opt.stop == rules and opt.settings()["max_evals"] == 100
+
+
+def test_identify_with_a_negative_budget_exits_2_in_one_line(tmp_path):
+    """Issue 12's reproduction: this used to exit 0 and record "evaluation budget -5 reached"."""
+    from pathlib import Path
+
+    from typer.testing import CliRunner
+
+    from hystfit.cli import app
+
+    data = Path(__file__).resolve().parents[2] / "sample_data" / "a40V_f10Hz.csv"
+    for opt in ("pso", "ipso", "gwo", "igwo", "ga", "de", "auto", "lsq", "pso-cf"):
+        r = CliRunner().invoke(app, ["identify", str(data), "--opt", opt, "--opt-option", "max_evals=-5",
+                                     "--out", str(tmp_path / opt), "--no-plots", "--quiet"])
+        assert r.exit_code == 2, (opt, r.output)
+        assert "max_evals" in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
+        assert not (tmp_path / opt).exists()
