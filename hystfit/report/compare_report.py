@@ -371,7 +371,8 @@ def markdown(res: CompareResult, figures: list[str]) -> str:
         lines += ["- budgets (each optimizer's settings; the evaluations each run used are in `compare.csv`, "
                   "columns `search_evaluations` and `evaluations` with the polish):"]
         lines += [f"  - `{o}`: " + ", ".join(f"{k}={v}" for k, v in s.items()
-                                            if k in ("pop", "iters") + STOP_RULE_NAMES and v is not None)
+                                            if k in ("pop", "iters") + STOP_RULE_NAMES and v is not None
+                                            and not (k == "stall_tol" and s.get("stall_iter") is None))
                   for o, s in res.optimizer_settings.items()]
     lines += [""]
     if res.notes:
