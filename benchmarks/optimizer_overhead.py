@@ -20,7 +20,6 @@ only the pop − elite children per generation.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib
 import time
 
@@ -46,7 +45,7 @@ class TimedSphere:
 
 def build(cls):
     """The optimizer at POP × ITERS (or the equal evaluation budget), stall rule off."""
-    names = {f.name for f in dataclasses.fields(cls)}
+    names = set(cls.option_names())
     kw = {"pop": POP}
     if "iters" in names:
         kw["iters"] = ITERS
@@ -54,7 +53,7 @@ def build(cls):
         kw["max_evals"] = POP * ITERS
     if "stall_iter" in names:
         kw["stall_iter"] = None
-    return cls(**kw)
+    return cls.from_options(kw)
 
 
 def measure(cls, d: int, seed: int) -> dict:

@@ -51,7 +51,7 @@ def optimizer_catalog() -> list[dict]:
     out = []
     for name in optimizers.names():
         cls = optimizers.get(name)
-        settings = {f.name: f.default for f in dataclasses.fields(cls)}
+        settings = dict(cls.setting_docs())
         out.append({"name": name, "title": cls.title, "reference": cls.reference, "settings": settings,
                     "doc": (cls.__doc__ or "").strip().splitlines()[0]})
     return out

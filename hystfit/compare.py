@@ -24,6 +24,7 @@ from .identify import fit_captures
 from .metrics import compute_metrics_pooled
 from .objective import Objective, Series
 from .parallel import default_jobs, run_jobs
+from .params import DataScale, apply_bound_overrides
 from .registry import models as model_registry
 from .registry import optimizers as optimizer_registry
 from .setup import make_model, make_optimizer
@@ -44,6 +45,7 @@ class CellSpec:
     polish: bool
     model_options: dict
     optimizer_options: dict
+    bounds: dict = field(default_factory=dict)  # parameter name → (lower, upper) for this cell's model
 
 
 @dataclass(frozen=True)
@@ -61,6 +63,7 @@ class RunMetrics:
     history_best: np.ndarray
     search_fun: float = np.nan
     search_j: float = np.nan
+    search_nfev: int = 0  # evaluations of the optimizer alone (``nfev`` adds the polish)
 
 
 @dataclass(frozen=True)
@@ -101,6 +104,10 @@ class CompareResult:
     jobs: int = 1
     polish: bool = True
     notes: tuple[str, ...] = ()  # e.g. how a model's shared structure was identified
+    optimizer_settings: dict = field(default_factory=dict)  # optimizer → its settings (budget included)
+    bounds: dict = field(default_factory=dict)  # model → bound overrides applied to it
+    global_fit: bool = False
+    self_polishing: tuple[str, ...] = ()  # optimizers that are not polished after (``polishes_itself``)
 
     def cell(self, model: str, optimizer: str, label: str) -> CellResult | None:
         for c in self.cells:
@@ -134,7 +141,7 @@ def _warm_up(spec: CellSpec, model, opt) -> None:
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
-            fit_captures([short], model, opt, seed=spec.seed, polish=spec.polish)
+            fit_captures([short], model, opt, seed=spec.seed, polish=spec.polish, bounds=spec.bounds)
     except Exception:  # noqa: BLE001 - a warm-up only; the real fit reports any error
         pass
 
@@ -151,7 +158,7 @@ def run_cell(spec: CellSpec) -> CellResult:
         opt = make_optimizer(optimizer_registry.get(spec.optimizer), spec.optimizer_options)
         _warm_up(spec, model, opt)
         fit = fit_captures(spec.captures, model, opt, seed=spec.seed, cell=spec.index, runs=spec.runs,
-                           polish=spec.polish, label=spec.label, condition=spec.key)
+                           polish=spec.polish, label=spec.label, condition=spec.key, bounds=spec.bounds)
         objective = Objective(fit.model, [Series(c.u, c.y, c.dt) for c in spec.captures])
         sum_y2 = float(sum(np.dot(c.y, c.y) for c in spec.captures))
         to_j = objective.n_total / sum_y2 if sum_y2 > 0 else np.nan  # MSE → J = Σe²/Σy² (004 eq. 16)
@@ -160,7 +167,8 @@ def run_cell(spec: CellSpec) -> CellResult:
             preds = objective.predict(r.x)
             m = compute_metrics_pooled([(c.y, p) for c, p in zip(spec.captures, preds)], fit.unit)
             runs.append(RunMetrics(r.run, r.seed, r.fun, r.fun * to_j, m, r.wall_time_s, r.nfev,
-                                   np.asarray(r.result.history_best), float(r.result.fun), float(r.result.fun) * to_j))
+                                   np.asarray(r.result.history_best), float(r.result.fun), float(r.result.fun) * to_j,
+                                   int(r.result.nfev)))
         return CellResult(spec.model, spec.optimizer, a, f, spec.label, len(fit.params), tuple(runs), fit.best_run,
                           fit.theta, tuple(p.name for p in fit.params), tuple(fit.predictions),
                           time.perf_counter() - t0)
@@ -172,24 +180,70 @@ def run_cell(spec: CellSpec) -> CellResult:
                       runtime_s=time.perf_counter() - t0)
 
 
+def scoped_options(items: Mapping[str, object], valid: Mapping[str, Sequence[str]], flag: str) -> dict[str, dict]:
+    """Spread ``KEY=VALUE`` items over several models or optimizers, as ``compare`` takes them.
+
+    ``KEY`` applies to every name in ``valid`` (name → the keys it accepts) and must be valid for
+    all of them; ``NAME.KEY`` applies to that name only and wins over an unscoped ``KEY``. A key
+    that some name accepts as written (a block's ``creep.tau_s`` of ``pi+creep``) is unscoped.
+    Unknown scopes and unscoped keys some name lacks are ConfigErrors naming ``flag`` and the fix.
+    """
+    out: dict[str, dict] = {n: {} for n in valid}
+    scoped = []
+    for key, val in items.items():
+        scope, dot, name = key.partition(".")
+        if dot and not any(key in keys for keys in valid.values()):
+            if scope not in valid:
+                raise ConfigError(f"{flag} {key}: {scope!r} is not one of {', '.join(valid)}; "
+                                  f"write NAME.KEY=VALUE with a NAME from that list")
+            scoped.append((scope, name, val))
+            continue
+        lacking = [n for n, keys in valid.items() if key not in keys]
+        if lacking:
+            having = [n for n in valid if n not in lacking]
+            fix = (f"scope it, e.g. {flag} {having[0]}.{key}=…" if having
+                   else f"valid for {lacking[0]}: {', '.join(valid[lacking[0]]) or 'none'}")
+            raise ConfigError(f"{flag} {key}: {lacking[0]!r} has no {key!r}; {fix}")
+        for n in valid:
+            out[n][key] = val
+    for scope, name, val in scoped:
+        out[scope][name] = val
+    return out
+
+
 def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_names: Sequence[str], *,
             runs: int = 1, seed: int = 0, jobs: int | None = None, polish: bool = True,
             model_options: Mapping[str, dict] | None = None, optimizer_options: Mapping[str, dict] | None = None,
+            bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None, global_fit: bool = False,
             progress: Progress = None) -> CompareResult:
-    """Run the cross product models × optimizers × conditions with ``runs`` runs per cell."""
+    """Run the cross product models × optimizers × conditions with ``runs`` runs per cell.
+
+    ``model_options`` / ``optimizer_options`` / ``bounds`` are per model or optimizer name (see
+    :func:`scoped_options` for spreading command-line items). Every optimizer is built (and its
+    options validated) before any fit; its settings, which fix its budget, are recorded in the
+    result. ``global_fit`` fits one parameter set to all captures instead of one per condition.
+    """
     if not model_names or not optimizer_names:
         raise ConfigError("compare needs at least one model and one optimizer")
     for m in model_names:
         model_registry.get(m)
-    for o in optimizer_names:
-        optimizer_registry.get(o)
+    optimizer_options = {o: dict((optimizer_options or {}).get(o, {})) for o in optimizer_names}
+    settings = {o: make_optimizer(optimizer_registry.get(o), optimizer_options[o]).settings() for o in optimizer_names}
+    bounds = {m: dict((bounds or {}).get(m, {})) for m in model_names}
     if runs < 1:
         raise ConfigError(f"--runs must be at least 1, got {runs}")
     units = {c.y_unit for c in captures}
     if len(units) != 1:
         raise ConfigError(f"captures have different output units {sorted(units)}; convert them to one unit first")
-    groups = group_by_condition(captures)
-    conds = tuple((k, condition_label(k)) for k in groups)
+    if global_fit:
+        amps = sorted({c.amplitude_V for c in captures})
+        freqs = sorted({c.frequency_Hz for c in captures})
+        key = (amps[0], freqs[0]) if len(amps) * len(freqs) == 1 else (float("nan"), float("nan"))
+        groups, labels = {key: list(captures)}, {key: "global"}
+    else:
+        groups = group_by_condition(captures)
+        labels = {k: condition_label(k) for k in groups}
+    conds = tuple((k, labels[k]) for k in groups)
     # structure shared by all conditions (e.g. a Hammerstein model's stage dynamics) is identified
     # once from all captures here and handed to every cell as fixed structure
     model_options = {m: dict((model_options or {}).get(m, {})) for m in model_names}
@@ -205,15 +259,23 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
                     notes.append(f"`{m}`: {summary()}")
         except HystfitError:
             pass  # reported by the cells themselves
+    for m in model_names:  # bound names are checked here, as identify does: a typo is exit 2, not failed cells
+        if bounds[m] and all(c.y is not None for c in captures):
+            scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
+            model = make_model(model_registry.get(m), model_options[m]).prepare(captures).adapt(scale)
+            try:
+                apply_bound_overrides(model.params(scale), bounds[m])
+            except ConfigError as exc:
+                raise ConfigError(f"model {m!r}: {exc} (a bound for one model only: --bounds MODEL.NAME=LOWER:UPPER)") from None
     specs = []
     for ci, (key, caps) in enumerate(groups.items()):
         for mi, m in enumerate(model_names):
             for oi, o in enumerate(optimizer_names):
                 # the cell index (for seeds) depends on the condition and optimizer only, so every
                 # model sees the same seeds on a condition, and the numbers never depend on --jobs
-                specs.append(CellSpec(ci * 1000 + oi, m, o, key, condition_label(key), tuple(caps), runs, seed, polish,
-                                      dict((model_options or {}).get(m, {})),
-                                      dict((optimizer_options or {}).get(o, {}))))
+                specs.append(CellSpec(ci * 1000 + oi, m, o, key, labels[key], tuple(caps), runs, seed, polish,
+                                      dict((model_options or {}).get(m, {})), dict(optimizer_options[o]),
+                                      dict(bounds[m])))
     jobs = default_jobs() if jobs is None else max(1, int(jobs))
     if progress:
         progress("start", {"total": len(specs)})
@@ -226,4 +288,5 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     cells = tuple(run_jobs(run_cell, specs, jobs, done))
     return CompareResult(tuple(model_names), tuple(optimizer_names), conds,
                          {lab: tuple(groups[k]) for k, lab in conds}, cells, runs, seed, units.pop(), jobs, polish,
-                         tuple(notes))
+                         tuple(notes), settings, bounds, global_fit,
+                         tuple(o for o in optimizer_names if optimizer_registry.get(o).polishes_itself))

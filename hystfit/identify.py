@@ -159,13 +159,12 @@ def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int
     s = run_seed(seed, cell, run)
     rng = np.random.default_rng(s)
     t_run = time.perf_counter()
-    # local optimizers start from the defaults; `auto` seeds one particle of its swarm with them
-    x0 = (np.array([p.default for p in problem.params])
-          if (not optimizer.population_based or optimizer.name == "auto") else None)
+    # optimizers that declare `uses_start_point` start from (or seed their search with) the defaults
+    x0 = np.array([p.default for p in problem.params]) if optimizer.uses_start_point else None
     res = optimizer.minimize(objective, problem.lower, problem.upper, rng=rng, x0=x0)
     pol = None
     x, fun = res.x, res.fun
-    if polish and optimizer.name not in ("lsq", "auto") and np.isfinite(fun):
+    if polish and not optimizer.polishes_itself and np.isfinite(fun):
         pol = polisher().minimize(objective, problem.lower, problem.upper, rng=rng, x0=res.x)
         if pol.fun <= fun:
             x, fun = pol.x, pol.fun
@@ -290,7 +289,7 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
             progress("advance", {"label": cells[work[i][3]][2], "run": rec.run, "rmse": rec.rmse})
 
     if jobs is None:  # all cores, unless every cell is one exact linear solve (a pool would only add start-up)
-        sep = model.separable() if optimizer.name == "auto" else None
+        sep = model.separable() if optimizer.uses_separable_structure else None
         jobs = 1 if (sep is not None and not sep.nonlinear) else default_jobs()
     records = run_jobs(_run_job, work, jobs, done)
     fits = []

@@ -37,17 +37,66 @@ def make_model(model: "str | type", options: Mapping[str, Any] | None = None):
     return _build(model, opts, "model")
 
 
-def make_optimizer(cls: type, options: Mapping[str, Any] | None = None, *, pop: int | None = None,
-                   iters: int | None = None):
-    """Instantiate a registered optimizer; ``pop``/``iters`` apply where the optimizer has them."""
-    opts = dict(options or {})
-    names = {f.name for f in dataclasses.fields(cls)}
+def budget_options(cls: type, *, pop: int | None = None, iters: int | None = None,
+                   max_evals: int | None = None) -> dict[str, Any]:
+    """The options that give optimizer ``cls`` the budget ``--pop`` × ``--iters`` (one rule for all).
+
+    ``pop`` applies to population searches. ``iters`` sets the iteration count of those that have
+    one; a population search without an iteration count (``ipso``) honours it as the evaluation
+    budget ``max_evals = pop · iters`` (its own default ``pop`` if none is given), so that
+    ``--iters`` means the same budget for every population search. ``max_evals`` (already chosen
+    by the caller) makes that translation a conflict. Local solvers take neither flag.
+    """
+    from .optimizers.base import IteratedSearch
+
+    out: dict[str, Any] = {}
     for key, val in (("pop", pop), ("iters", iters)):
         if val is None:
             continue
-        if key not in names:
-            raise ConfigError(f"--{key} does not apply to optimizer {cls.name!r}")
-        if val < 1:
+        if isinstance(val, bool) or not isinstance(val, int) or val < 1:
             raise ConfigError(f"--{key} must be a positive integer, got {val}")
-        opts[key] = val
-    return _build(cls, opts, "optimizer")
+        if not cls.takes_budget_flags():
+            raise ConfigError(f"--{key} does not apply to optimizer {cls.name!r} (not a population search); "
+                              f"bound it with --opt-option max_evals=N")
+    if pop is not None:
+        out["pop"] = pop
+    if iters is not None:
+        if issubclass(cls, IteratedSearch):
+            out["iters"] = iters
+        elif max_evals is not None:
+            raise ConfigError(f"optimizer {cls.name!r} has no iteration count: --iters {iters} means "
+                              f"max_evals = pop·iters, which conflicts with max_evals={max_evals}; give one of them")
+        else:
+            out["max_evals"] = (pop if pop is not None else cls.pop) * iters
+    return out
+
+
+def make_optimizer(cls: type, options: Mapping[str, Any] | None = None, *, pop: int | None = None,
+                   iters: int | None = None):
+    """Instantiate a registered optimizer from flat KEY=VALUE options (own settings and stop rules
+    by name) and the ``--pop`` / ``--iters`` budget (:func:`budget_options`)."""
+    opts = dict(options or {})
+    opts.update(budget_options(cls, pop=pop, iters=iters, max_evals=opts.get("max_evals")))
+    return cls.from_options(opts)
+
+
+def model_option_names(expr: str) -> list[str]:
+    """The ``--model-option`` keys the model ``expr`` accepts: its base's structure fields and, for
+    a composite, ``BLOCK.FIELD`` for each of its blocks' fields."""
+    from .models.composite import split_expression
+    from .registry import blocks, models
+
+    base, names = split_expression(expr)
+    keys = [f.name for f in dataclasses.fields(models.get(base))]
+    for n in names:
+        if n in blocks:
+            keys += [f"{n}.{f.name}" for f in dataclasses.fields(blocks.get(n))]
+    return keys
+
+
+def model_param_names(expr: str) -> list[str]:
+    """The parameter names (for ``--bounds``) of the model ``expr``, on a reference data scale."""
+    from .catalog import REFERENCE_SCALE
+
+    m = make_model(expr).adapt(REFERENCE_SCALE)
+    return [p.name for p in m.params(REFERENCE_SCALE)]

@@ -10,7 +10,7 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
-                     TimeCol, load_options, print_json, progress_bar, stdout)
+                     TimeCol, load_options, parse_key_values, print_json, progress_bar, stdout)
 
 
 def _names(text: str, what: str) -> list[str]:
@@ -34,9 +34,13 @@ def compare(
     out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("hystfit-compare"),
     seed: Annotated[int, typer.Option("--seed", help="Base seed; every run derives its own.")] = 0,
     jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", help="Parallel processes (default: all cores).", min=1)] = None,
-    pop: Annotated[Optional[int], typer.Option("--pop", help="Population size for optimizers that have one.")] = None,
-    iters: Annotated[Optional[int], typer.Option("--iters", help="Iterations for optimizers that have them.")] = None,
+    pop: Annotated[Optional[int], typer.Option("--pop", help="Population size of every population search.")] = None,
+    iters: Annotated[Optional[int], typer.Option("--iters", help="Iterations of every population search (ipso, which has no iteration count: max_evals = pop·iters).")] = None,
     polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after global searches.")] = True,
+    global_fit: Annotated[bool, typer.Option("--global", help="One parameter set for all captures instead of one per condition.")] = False,
+    bounds: Annotated[Optional[list[str]], typer.Option("--bounds", help="Override a bound: NAME=LOWER:UPPER, or MODEL.NAME=LOWER:UPPER for one model (repeatable).")] = None,
+    model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE for every model, or MODEL.KEY=VALUE for one (repeatable).")] = None,
+    opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE for every optimizer, e.g. max_evals=3000, or OPT.KEY=VALUE for one (repeatable).")] = None,
     figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write the figures.")] = True,
     json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no summary table.")] = False,
@@ -51,29 +55,35 @@ def compare(
     tables and a ranking) and OUT/figures/.
     """
     from ..compare import compare as run_compare
+    from ..compare import scoped_options
     from ..io import load_captures, staged_output_dir
     from ..registry import models as model_registry
     from ..registry import optimizers as optimizer_registry
     from ..report.compare_report import compare_frame, write_compare_outputs
-    from ..setup import make_model, make_optimizer
+    from ..params import parse_bound_overrides
+    from ..setup import budget_options, make_model, model_option_names, model_param_names
 
     model_names = model_registry.names() if models.strip().lower() == "all" else _names(models, "models")
     opt_names = _names(opts, "opts")
-    for m in model_names:
-        make_model(m)  # validates the expression (unknown model or block: one line, exit 2)
-    opt_options = {}
-    for o in opt_names:
-        cls = optimizer_registry.get(o)
-        inst = make_optimizer(cls, {}, pop=pop if pop is not None and "pop" in cls.__dataclass_fields__ else None,
-                              iters=iters if iters is not None and "iters" in cls.__dataclass_fields__ else None)
-        opt_options[o] = {k: v for k, v in inst.settings().items() if k in ("pop", "iters") and
-                          ((k == "pop" and pop is not None) or (k == "iters" and iters is not None))}
+    opt_classes = {o: optimizer_registry.get(o) for o in opt_names}
+    mopts = scoped_options(parse_key_values(model_option or [], "--model-option"),
+                           {m: model_option_names(m) for m in model_names}, "--model-option")
+    for m in model_names:  # bad expressions or structure options: exit 2 before any data is read
+        make_model(m, mopts[m])
+    opt_options = scoped_options(parse_key_values(opt_option or [], "--opt-option"),
+                                 {o: c.option_names() for o, c in opt_classes.items()}, "--opt-option")
+    for o, c in opt_classes.items():  # --pop/--iters: the same budget for every population search
+        if c.takes_budget_flags():
+            opt_options[o].update(budget_options(c, pop=pop, iters=iters, max_evals=opt_options[o].get("max_evals")))
+    bnds = parse_bound_overrides(bounds or [])
+    bnds = scoped_options(bnds, {m: model_param_names(m) for m in model_names}, "--bounds")
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
     with staged_output_dir(out, force) as stage:
         captures = load_captures(data, options, recursive=recursive)
         with progress_bar(not quiet and not json_out, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
-                              optimizer_options=opt_options, progress=cb)
+                              model_options=mopts, optimizer_options=opt_options, bounds=bnds, global_fit=global_fit,
+                              progress=cb)
         write_compare_outputs(res, stage, make_figures=figures)
     df = compare_frame(res)
     u = res.unit

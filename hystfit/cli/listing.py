@@ -77,10 +77,8 @@ def _doc_paragraph(doc: str, label: str) -> str:
 def optimizer_rules(cls) -> dict[str, str]:
     """Stop rules and bounds handling of an optimizer class, from its docstring's "Stop rules:"
     and "Bounds:" paragraphs; the stop rules fall back to the stop settings it has."""
-    import dataclasses
-
     doc = cls.__doc__ or ""
-    fields = {f.name for f in dataclasses.fields(cls)}
+    fields = set(cls.option_names())
     stop = _doc_paragraph(doc, "Stop rules:") or "; ".join(
         f"{what} ({name})" for name, what in _STOP_SETTINGS if name in fields)
     return {"stop_rules": stop, "bounds_handling": _doc_paragraph(doc, "Bounds:")}

@@ -3,19 +3,20 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
+from .base import Callback, IteratedSearch, Objective, OptimizeResult, StopRules, Tracker, check_box, stop_field
 from .lsq import polisher
 from .pso import PSO
 
 
 @optimizers.register
 @dataclass
-class Auto(Optimizer):
+class Auto(IteratedSearch):
     """Exact solves for linear parameters, a global search only over the nonlinear ones, then a polish.
 
     1. If the objective is a hystfit identification objective whose model declares a separable
@@ -50,15 +51,23 @@ class Auto(Optimizer):
     name = "auto"
     title = "Automatic (variable projection + PSO + least squares)"
     reference = "Golub & Pereyra (1973) variable projection; paper 001 PSO; scipy least_squares"
-    population_based = True
+    uses_start_point = True
+    polishes_itself = True
+    uses_separable_structure = True
+    applied_stop_rules = ("max_evals", "stall_iter", "stall_tol", "time_limit_s")
 
     pop: int = 24
     iters: int = 60
-    stall_iter: int = 12
-    stall_tol: float = 1e-7
     restarts: int = 1
-    max_evals: int | None = None
-    time_limit_s: float | None = None
+    stop: StopRules = stop_field(stall_iter=12, stall_tol=1e-7)
+
+    def check_settings(self) -> None:
+        super().check_settings()
+        if self.stop.stall_iter is None:
+            raise ConfigError("auto: stall_iter must be a whole number ≥ 1 (each search stops on a stall); "
+                              "set e.g. --opt-option stall_iter=12")
+        if self.restarts < 1:
+            raise ConfigError(f"auto: restarts must be ≥ 1, got {self.restarts}; set e.g. --opt-option restarts=2")
 
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
@@ -76,8 +85,8 @@ class Auto(Optimizer):
             start, nfev = self._composite_start(objective, composition, lower, upper, rng, x0)
             hist_b, hist_m = [], []
         elif sep is None:
-            pso = PSO(pop=max(self.pop, 30), iters=max(self.iters, 150), stall_iter=max(self.stall_iter, 30),
-                      stall_tol=self.stall_tol, max_evals=self.max_evals, time_limit_s=self.time_limit_s)
+            pso = PSO(pop=max(self.pop, 30), iters=max(self.iters, 150),
+                      stop=replace(self.stop, stall_iter=max(self.stop.stall_iter, 30)))
             g = pso.minimize(objective, lower, upper, rng=rng, x0=x0, callback=callback)
             start, hist_b, hist_m, nfev = g.x, list(g.history_best), list(g.history_mean), g.nfev
         else:
@@ -98,18 +107,19 @@ class Auto(Optimizer):
             # the search grows with the number of nonlinear parameters (1–2 for most models, 10 for gpi)
             pop = max(self.pop, 5 * m) if m > 2 else self.pop
             iters = max(self.iters, 15 * m) if m > 2 else self.iters
-            stall = max(self.stall_iter, 3 * m) if m > 2 else self.stall_iter
+            stall = max(self.stop.stall_iter, 3 * m) if m > 2 else self.stop.stall_iter
             restarts = max(self.restarts, 2 if m > 2 else 1)
             t_start = time.perf_counter()
             for r in range(restarts):
-                evals_left = None if self.max_evals is None else self.max_evals - nfev
-                time_left = None if self.time_limit_s is None else self.time_limit_s - (time.perf_counter() - t_start)
+                max_evals, time_limit_s = self.stop.max_evals, self.stop.time_limit_s
+                evals_left = None if max_evals is None else max_evals - nfev
+                time_left = None if time_limit_s is None else time_limit_s - (time.perf_counter() - t_start)
                 if best_nl is not None and ((evals_left is not None and evals_left < pop)
                                             or (time_left is not None and time_left <= 0)):
                     break  # the budget is spent: keep the best search so far
-                pso = PSO(pop=pop, iters=iters, stall_iter=stall, stall_tol=self.stall_tol,
-                          max_evals=None if evals_left is None else max(evals_left, pop),
-                          time_limit_s=None if time_left is None else max(time_left, 0.0))
+                pso = PSO(pop=pop, iters=iters, stop=StopRules(
+                    max_evals=None if evals_left is None else max(evals_left, pop), stall_iter=stall,
+                    stall_tol=self.stop.stall_tol, time_limit_s=None if time_left is None else max(time_left, 1e-9)))
                 g = pso.minimize(proj, lower[nl], upper[nl], rng=rng,
                                  x0=None if (x0 is None or r > 0) else np.asarray(x0)[nl], callback=callback)
                 hist_b += list(g.history_best)
@@ -146,7 +156,7 @@ class Auto(Optimizer):
         """
         from ..effects import CaptureView, Linearization
         from ..models.composite import Composite
-        from ..objective import Objective as Obj, Series
+        from ..objective import Objective as Obj
 
         base, blocks = composition
         series = list(objective.series)
@@ -154,8 +164,7 @@ class Auto(Optimizer):
         d_b = lower.size - sum(sizes)
         nuisance = tuple(b for b in blocks if b.nuisance)
         base_model = Composite(base, nuisance) if nuisance else base
-        sub = Auto(pop=self.pop, iters=self.iters, stall_iter=self.stall_iter, stall_tol=self.stall_tol,
-                   restarts=self.restarts, max_evals=self.max_evals, time_limit_s=self.time_limit_s)
+        sub = Auto(pop=self.pop, iters=self.iters, restarts=self.restarts, stop=self.stop)
         rb = sub.minimize(Obj(base_model, series), lower[:d_b], upper[:d_b], rng=rng,
                           x0=None if x0 is None else np.asarray(x0)[:d_b])
         nfev = rb.nfev

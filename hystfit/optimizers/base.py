@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field, fields
-from typing import Any, Callable, ClassVar, Optional
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Callable, ClassVar, Mapping, Optional
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, HystfitError
 
 Objective = Callable[[np.ndarray], np.ndarray]
 #: callback(iteration, best_value, mean_value) → True to stop early.
@@ -49,25 +49,80 @@ class OptimizeResult:
         }
 
 
-@dataclass
-class StopRules:
-    """The common stop rules. Status codes: 0 budget (iterations/evaluations) reached,
-    1 stall, 2 target value reached, 3 time limit, 4 callback asked to stop, 5 converged (local)."""
+#: the stop rules every optimizer shares, in the order they are listed and recorded
+STOP_RULE_NAMES = ("max_evals", "stall_iter", "stall_tol", "target", "time_limit_s")
 
-    max_iter: int | None = None
+
+def _count_rule(name: str, value, what: str) -> None:
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(f"stop rule {name} ({what}) must be a whole number ≥ 1 or null, got {value!r}; "
+                          f"set e.g. --opt-option {name}=1000, or {name}=null to switch it off")
+
+
+def _real_rule(name: str, value, rule: str, ok, example: str, nullable: bool = True) -> None:
+    if value is None and nullable:
+        return
+    if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not np.isfinite(value) or not ok(float(value))):
+        raise ConfigError(f"stop rule {name} must be {rule}, got {value!r}; set e.g. --opt-option {name}={example}")
+
+
+@dataclass(frozen=True)
+class StopRules:
+    """The stop rules shared by every optimizer, validated once, here.
+
+    Attributes
+    ----------
+    max_evals : int ≥ 1 or None
+        Evaluation budget: stop once this many candidates have been evaluated (checked after
+        each iteration, so a population optimizer may overshoot by less than one population).
+    stall_iter : int ≥ 1 or None
+        Stall window: stop when the best value has not improved by more than ``stall_tol``
+        (relative) for this many iterations.
+    stall_tol : float ≥ 0
+        Relative improvement the stall rule asks for.
+    target : float or None
+        Stop as soon as the best value is ≤ ``target``.
+    time_limit_s : float > 0 or None
+        Wall-clock limit in seconds (checked after each iteration).
+
+    Status codes of :class:`OptimizeResult`: 0 budget (iterations/evaluations) reached, 1 stall,
+    2 target value reached, 3 time limit, 4 callback asked to stop, 5 converged (local).
+    Bad values raise :class:`~hystfit.errors.ConfigError` (one line: the option, the rule, the fix).
+    """
+
     max_evals: int | None = None
     stall_iter: int | None = None
     stall_tol: float = 1e-9
     target: float | None = None
     time_limit_s: float | None = None
 
+    def __post_init__(self) -> None:
+        _count_rule("max_evals", self.max_evals, "evaluation budget")
+        _count_rule("stall_iter", self.stall_iter, "stall window in iterations")
+        _real_rule("stall_tol", self.stall_tol, "a finite number ≥ 0", lambda v: v >= 0, "1e-6", nullable=False)
+        _real_rule("target", self.target, "a finite number or null", lambda v: True, "1e-3")
+        _real_rule("time_limit_s", self.time_limit_s, "a number of seconds > 0 or null", lambda v: v > 0, "60")
+
+
+def stop_field(**defaults: Any) -> Any:
+    """The ``stop`` field of an optimizer dataclass, with that optimizer's default rules."""
+    return field(default=StopRules(**defaults), kw_only=True)
+
 
 class Tracker:
-    """Counts evaluations, keeps the best point and the histories, and applies the stop rules."""
+    """Counts evaluations, keeps the best point and the histories, and applies the stop rules.
 
-    def __init__(self, objective: Objective, rules: StopRules, callback: Callback = None) -> None:
+    ``max_iter`` is the optimizer's own iteration count (``iters``), if it has one.
+    """
+
+    def __init__(self, objective: Objective, rules: StopRules, callback: Callback = None,
+                 max_iter: int | None = None) -> None:
         self.objective = objective
         self.rules = rules
+        self.max_iter = max_iter
         self.callback = callback
         self.nfev = 0
         self.nit = 0
@@ -114,8 +169,8 @@ class Tracker:
                 self._stall_count += 1
                 if self._stall_count >= r.stall_iter:
                     return self._stop(1, f"no relative improvement above {r.stall_tol:g} in {r.stall_iter} iterations")
-        if r.max_iter is not None and self.nit >= r.max_iter:
-            return self._stop(0, f"iteration budget {r.max_iter} reached")
+        if self.max_iter is not None and self.nit >= self.max_iter:
+            return self._stop(0, f"iteration budget {self.max_iter} reached")
         if r.max_evals is not None and self.nfev >= r.max_evals:
             return self._stop(0, f"evaluation budget {r.max_evals} reached")
         if r.time_limit_s is not None and time.perf_counter() - self.t0 >= r.time_limit_s:
@@ -160,22 +215,178 @@ def reflect(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     return lower + y * width
 
 
+@dataclass
 class Optimizer(ABC):
-    """Base class; concrete optimizers are dataclasses whose fields are their settings."""
+    """Base class; concrete optimizers are dataclasses whose fields are their settings.
+
+    Every optimizer holds its stop rules as one :class:`StopRules` value, ``stop`` (keyword-only;
+    a class with other defaults declares ``stop: StopRules = stop_field(...)``). On the command
+    line and in :meth:`from_options` the rules are set by their own names (``max_evals=3000``),
+    and :meth:`settings` lists them flat next to the optimizer's own settings.
+
+    Contracts the orchestration reads instead of names (class attributes):
+
+    ``uses_start_point``
+        The search starts from (or seeds itself with) ``x0``, the model's default parameters;
+        the others search the box from their own initialisation.
+    ``polishes_itself``
+        The result is already a least-squares solution (or polished by the optimizer itself):
+        no least-squares polish after it.
+    ``uses_separable_structure``
+        Solves the parameters a model declares linear exactly (variable projection); a model
+        with no nonlinear parameter is then one exact solve.
+    ``applied_stop_rules``
+        The stop rules the optimizer honours; setting another one is a ConfigError.
+    """
 
     name: ClassVar[str] = ""
     title: ClassVar[str] = ""
     reference: ClassVar[str] = ""
-    population_based: ClassVar[bool] = True
+    uses_start_point: ClassVar[bool] = False
+    polishes_itself: ClassVar[bool] = False
+    uses_separable_structure: ClassVar[bool] = False
+    applied_stop_rules: ClassVar[tuple[str, ...]] = STOP_RULE_NAMES
+
+    stop: StopRules = stop_field()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.stop, StopRules):
+            raise ConfigError(f"{self.name}: stop must be a StopRules value, got {type(self.stop).__name__}")
+        default = self.default_stop()
+        ignored = [k for k in STOP_RULE_NAMES
+                   if k not in self.applied_stop_rules and getattr(self.stop, k) != getattr(default, k)]
+        if ignored:
+            raise ConfigError(f"optimizer {self.name!r} does not apply the stop rule {ignored[0]}; "
+                              f"it applies {', '.join(self.applied_stop_rules) or 'none'}")
+        self.check_settings()
+
+    def check_settings(self) -> None:
+        """Validate the optimizer's own settings (ConfigError); the stop rules are already valid."""
 
     @abstractmethod
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
         """Minimize ``objective`` over the box [lower, upper]."""
 
-    def settings(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}  # type: ignore[arg-type]
+    # ---------------------------------------------------------------- settings, flat
+    @classmethod
+    def takes_budget_flags(cls) -> bool:
+        """Whether ``--pop`` / ``--iters`` apply (population searches); see :func:`hystfit.setup.budget_options`."""
+        return False
+
+    @classmethod
+    def default_stop(cls) -> StopRules:
+        return next(f.default for f in fields(cls) if f.name == "stop")  # type: ignore[arg-type]
+
+    @classmethod
+    def own_setting_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls) if f.name != "stop")  # type: ignore[arg-type]
+
+    @classmethod
+    def option_names(cls) -> tuple[str, ...]:
+        """Every KEY accepted by ``--opt-option KEY=VALUE``: own settings, then the stop rules."""
+        return cls.own_setting_names() + cls.applied_stop_rules
 
     @classmethod
     def setting_docs(cls) -> list[tuple[str, Any]]:
-        return [(f.name, f.default) for f in fields(cls)]  # type: ignore[arg-type]
+        """(name, default) of every option, flat."""
+        stop = cls.default_stop()
+        own = {f.name: f.default for f in fields(cls)}  # type: ignore[arg-type]
+        return [(k, own[k]) for k in cls.own_setting_names()] + [(k, getattr(stop, k)) for k in cls.applied_stop_rules]
+
+    def settings(self) -> dict[str, Any]:
+        """The settings as recorded in params.json: own settings, then the applied stop rules."""
+        out = {k: getattr(self, k) for k in self.own_setting_names()}
+        out.update((k, getattr(self.stop, k)) for k in self.applied_stop_rules)
+        return out
+
+    @classmethod
+    def from_options(cls, options: Mapping[str, Any] | None = None) -> "Optimizer":
+        """Build from flat KEY=VALUE options (own settings and stop rules by name), validated."""
+        options = dict(options or {})
+        valid = cls.option_names()
+        unknown = [k for k in options if k not in valid]
+        if unknown:
+            key = unknown[0]
+            why = ("a stop rule it does not apply" if key in STOP_RULE_NAMES else "unknown option")
+            raise ConfigError(f"optimizer {cls.name!r}: {why} {key!r}; valid options: {', '.join(valid) or 'none'}")
+        rules = {k: options.pop(k) for k in list(options) if k in STOP_RULE_NAMES}
+        try:
+            if rules:
+                options["stop"] = replace(cls.default_stop(), **rules)
+            return cls(**options)
+        except HystfitError:
+            raise
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"optimizer {cls.name!r}: invalid options {dict(options)!r} ({exc})") from None
+
+
+@dataclass
+class PopulationSearch(Optimizer):
+    """An optimizer that evaluates ``pop`` candidates per iteration (``--pop`` applies)."""
+
+    min_pop: ClassVar[int] = 2
+
+    pop: int = 40
+
+    def check_settings(self) -> None:
+        if isinstance(self.pop, bool) or not isinstance(self.pop, (int, np.integer)) or self.pop < self.min_pop:
+            raise ConfigError(f"{self.name}: pop must be a whole number ≥ {self.min_pop}, got {self.pop!r}; "
+                              f"set e.g. --pop 40")
+
+    @classmethod
+    def takes_budget_flags(cls) -> bool:
+        return True
+
+    def max_iterations(self) -> int | None:
+        """The iteration count the tracker stops at (None: no preset count)."""
+        return None
+
+
+@dataclass
+class IteratedSearch(PopulationSearch):
+    """A population search with a preset iteration count ``iters`` (the initial population is
+    iteration 1, so ``nfev = pop · iters`` when that rule stops a plain population search)."""
+
+    iters: int = 200
+
+    def check_settings(self) -> None:
+        super().check_settings()
+        if isinstance(self.iters, bool) or not isinstance(self.iters, (int, np.integer)) or self.iters < 1:
+            raise ConfigError(f"{self.name}: iters must be a whole number ≥ 1, got {self.iters!r}; set e.g. --iters 200")
+
+    def max_iterations(self) -> int | None:
+        return self.iters
+
+
+class PopulationLoop(ABC):
+    """Mixin: the loop start-up shared by the native population searches (pso, pso-cf, ipso, ga,
+    gwo, igwo), for classes that also derive from :class:`PopulationSearch`.
+
+    :meth:`minimize` checks the box, opens the :class:`Tracker` with the stop rules and the
+    iteration count, draws the initial population (:meth:`initial_population`: uniform in the box,
+    paper 004 eq. 3, unless overridden), puts ``x0`` (clipped) in place of the first member,
+    evaluates it as iteration 1 and, unless a stop rule already fired, hands over to
+    :meth:`search`, which iterates until ``tr.end_iteration`` says stop.
+    """
+
+    def initial_population(self, rng: np.random.Generator, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+        return lower + rng.random((self.pop, lower.size)) * (upper - lower)  # type: ignore[attr-defined]
+
+    def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
+                 x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
+        lower, upper = check_box(lower, upper)
+        tr = Tracker(objective, self.stop, callback, self.max_iterations())  # type: ignore[attr-defined]
+        x = self.initial_population(rng, lower, upper)
+        if x0 is not None:
+            x[0] = np.clip(np.asarray(x0, float), lower, upper)
+        f = tr.evaluate(x)
+        if not tr.end_iteration(f):
+            self.search(tr, x, f, lower, upper, rng)
+        return tr.result(self.name)  # type: ignore[attr-defined]
+
+    @abstractmethod
+    def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+               rng: np.random.Generator) -> None:
+        """Iterate from the evaluated initial population ``x`` (values ``f``) until
+        ``tr.end_iteration`` returns True; everything to report is in ``tr``."""

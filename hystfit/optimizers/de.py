@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
+from .base import Callback, IteratedSearch, Objective, OptimizeResult, Tracker, check_box
 
 
 
@@ -29,7 +29,7 @@ class _StopRun(Exception):
 
 @optimizers.register
 @dataclass
-class DE(Optimizer):
+class DE(IteratedSearch):
     """Differential evolution (Storn & Price 1997) via ``scipy.optimize.differential_evolution``.
 
     Default strategy ``best1bin``: for each member x_i, a mutant v = x_best + F (x_r1 − x_r2)
@@ -89,24 +89,17 @@ class DE(Optimizer):
     name = "de"
     title = "Differential evolution (scipy)"
     reference = "Storn & Price 1997; scipy.optimize.differential_evolution"
+    min_pop = 1
 
-    pop: int = 40
-    iters: int = 200
     strategy: str = "best1bin"
     mutation_min: float = 0.5
     mutation_max: float = 1.0
     recombination: float = 0.7
     init: str = "latinhypercube"
     tol: float = 0.0
-    max_evals: int | None = None
-    stall_iter: int | None = None
-    stall_tol: float = 1e-9
-    target: float | None = None
-    time_limit_s: float | None = None
 
-    def __post_init__(self) -> None:
-        if self.pop < 1 or self.iters < 1:
-            raise ConfigError(f"de: pop and iters must be ≥ 1 (got pop={self.pop}, iters={self.iters})")
+    def check_settings(self) -> None:
+        super().check_settings()
         if self.strategy not in _STRATEGIES:
             raise ConfigError(f"de: unknown strategy {self.strategy!r}; choose one of {', '.join(_STRATEGIES)}")
         if self.init not in _INITS:
@@ -119,14 +112,11 @@ class DE(Optimizer):
         if self.tol < 0:
             raise ConfigError(f"de: tol must be ≥ 0, got {self.tol:g}")
 
-    def _rules(self) -> StopRules:
-        return StopRules(self.iters, self.max_evals, self.stall_iter, self.stall_tol, self.target, self.time_limit_s)
-
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
         lower, upper = check_box(lower, upper)
         d = lower.size
-        tr = Tracker(objective, self._rules(), callback)
+        tr = Tracker(objective, self.stop, callback, self.iters)
         state = {"initial": True, "stopped": False}
 
         def func(x_t: np.ndarray) -> np.ndarray:

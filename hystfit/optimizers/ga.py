@@ -9,7 +9,7 @@ from .._jit import njit
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
+from .base import IteratedSearch, PopulationLoop, Tracker
 
 
 @njit(cache=True)
@@ -149,7 +149,7 @@ def make_children(x, f, lower, upper, n_child, tournament, eta_c, p_crossover, e
 
 @optimizers.register
 @dataclass
-class GA(Optimizer):
+class GA(PopulationLoop, IteratedSearch):
     """Real-coded genetic algorithm with elitism (the GA of paper 000's comparison; README).
 
     One generation::
@@ -202,27 +202,19 @@ class GA(Optimizer):
     title = "Genetic algorithm (real-coded, SBX, polynomial mutation)"
     reference = "paper 000 (GA comparison); Deb & Agrawal 1995; Deb & Goyal 1996"
 
-    pop: int = 40
-    iters: int = 200
     tournament: int = 3
     eta_c: float = 15.0
     p_crossover: float = 0.9
     eta_m: float = 20.0
     p_mutation: float | None = None
     elite: int = 2
-    max_evals: int | None = None
-    stall_iter: int | None = None
-    stall_tol: float = 1e-9
-    target: float | None = None
-    time_limit_s: float | None = None
 
-    def __post_init__(self) -> None:
-        if self.iters < 1:
-            raise ConfigError(f"ga: iters must be ≥ 1, got {self.iters}")
+    def check_settings(self) -> None:
         if self.elite < 1:
             raise ConfigError(f"ga: elite must be ≥ 1, got {self.elite}")
         if self.pop < self.elite + 2:
             raise ConfigError(f"ga: pop must be ≥ elite + 2 = {self.elite + 2}, got {self.pop}")
+        super().check_settings()
         if self.tournament < 1:
             raise ConfigError(f"ga: tournament must be ≥ 1, got {self.tournament}")
         if self.eta_c < 0 or self.eta_m < 0:
@@ -232,24 +224,14 @@ class GA(Optimizer):
         if self.p_mutation is not None and not 0 <= self.p_mutation <= 1:
             raise ConfigError(f"ga: p_mutation must lie in [0, 1] or be None, got {self.p_mutation:g}")
 
-    def _rules(self) -> StopRules:
-        return StopRules(self.iters, self.max_evals, self.stall_iter, self.stall_tol, self.target, self.time_limit_s)
-
-    def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
-                 x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
-        lower, upper = check_box(lower, upper)
-        d, P, E, k = lower.size, self.pop, self.elite, self.tournament
+    def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+               rng: np.random.Generator) -> None:
+        P, d = x.shape
+        E, k = self.elite, self.tournament
         p_mut = 1.0 / d if self.p_mutation is None else float(self.p_mutation)
         eta_c, p_c, eta_m = float(self.eta_c), float(self.p_crossover), float(self.eta_m)
         n_child = P - E
         n_rand = random_count(P, E, d, k)
-        tr = Tracker(objective, self._rules(), callback)
-        x = lower + rng.random((P, d)) * (upper - lower)
-        if x0 is not None:
-            x[0] = np.clip(np.asarray(x0, float), lower, upper)
-        f = tr.evaluate(x)
-        if tr.end_iteration(f):
-            return tr.result(self.name)
         while True:
             children = np.empty((n_child, d))
             make_children(x, f, lower, upper, n_child, k, eta_c, p_c, eta_m, p_mut, rng.random(n_rand), children)
@@ -258,4 +240,4 @@ class GA(Optimizer):
             x = np.concatenate((x[keep], children))
             f = np.concatenate((f[keep], fc))
             if tr.end_iteration(f):
-                return tr.result(self.name)
+                return

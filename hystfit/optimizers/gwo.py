@@ -7,9 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
+from .base import IteratedSearch, PopulationLoop, Tracker
 
 
 def linear_convergence_factor(t: float, T: float) -> float:
@@ -77,7 +76,7 @@ def hunt(leaders: np.ndarray, x: np.ndarray, a: float, rng: np.random.Generator)
 
 @optimizers.register
 @dataclass
-class GWO(Optimizer):
+class GWO(PopulationLoop, IteratedSearch):
     """Grey wolf optimizer (paper 004 eq. 3–9, Mirjalili, Mirjalili & Lewis 2014).
 
     The three best points found so far are the α, β, δ wolves (L_1, L_2, L_3). Each iteration
@@ -116,42 +115,26 @@ class GWO(Optimizer):
     name = "gwo"
     title = "Grey wolf optimizer"
     reference = "paper 004 eq. 3–9 (Mirjalili et al. 2014)"
+    min_pop = 3
 
-    pop: int = 40
-    iters: int = 200
-    max_evals: int | None = None
-    stall_iter: int | None = None
-    stall_tol: float = 1e-9
-    target: float | None = None
-    time_limit_s: float | None = None
+    def convergence_factor(self, t: float, T: float) -> float:
+        return linear_convergence_factor(t, T)
 
-    def __post_init__(self) -> None:
-        if self.pop < 3 or self.iters < 1:
-            raise ConfigError(f"gwo: pop must be ≥ 3 and iters ≥ 1 (got pop={self.pop}, iters={self.iters})")
+    def perturb(self, x_sum: np.ndarray, lower: np.ndarray, upper: np.ndarray, rng: np.random.Generator) -> None:
+        """Change X_1 + X_2 + X_3 (in place) before eq. 9 averages it; GWO adds nothing."""
 
-    def _rules(self) -> StopRules:
-        return StopRules(self.iters, self.max_evals, self.stall_iter, self.stall_tol, self.target, self.time_limit_s)
-
-    def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
-                 x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
-        lower, upper = check_box(lower, upper)
-        d, P = lower.size, self.pop
-        T = schedule_length(self.iters, P, self.max_evals)
-        tr = Tracker(objective, self._rules(), callback)
-        x = lower + rng.random((P, d)) * (upper - lower)
-        if x0 is not None:
-            x[0] = np.clip(np.asarray(x0, float), lower, upper)
-        f = tr.evaluate(x)
-        leaders, leaders_f = update_leaders(np.empty((0, d)), np.empty(0), x, f)
-        if tr.end_iteration(f):
-            return tr.result(self.name)
+    def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+               rng: np.random.Generator) -> None:
+        T = schedule_length(self.iters, self.pop, self.stop.max_evals)
+        leaders, leaders_f = update_leaders(np.empty((0, x.shape[1])), np.empty(0), x, f)
         t = 0
         while True:
-            x = hunt(leaders, x, linear_convergence_factor(t, T), rng).sum(axis=0)
+            x = hunt(leaders, x, self.convergence_factor(t, T), rng).sum(axis=0)
+            self.perturb(x, lower, upper, rng)
             x *= 1.0 / 3.0
             np.clip(x, lower, upper, out=x)
             f = tr.evaluate(x)
             leaders, leaders_f = update_leaders(leaders, leaders_f, x, f)
             t += 1
             if tr.end_iteration(f):
-                return tr.result(self.name)
+                return

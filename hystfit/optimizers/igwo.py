@@ -1,4 +1,4 @@
-"""Improved grey wolf optimizer (paper 004 §2.3): logistic chaos start, nonlinear a, Lévy flight."""
+"""Improved grey wolf optimizer (paper 004 §2.3): chaos initialisation (eq. 10), nonlinear a, Lévy flight."""
 
 from __future__ import annotations
 
@@ -9,8 +9,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
-from .gwo import hunt, schedule_length, update_leaders
+from .gwo import GWO
 
 _E_MINUS_1 = math.e - 1.0
 
@@ -80,54 +79,58 @@ def nonlinear_convergence_factor(t: float, T: float) -> float:
     return 2.0 * (1.0 - (math.exp(min(t / T, 1.0)) - 1.0) / _E_MINUS_1)
 
 
-def logistic_init(rng: np.random.Generator, n: int, lower: np.ndarray, upper: np.ndarray,
-                  mu: float = 4.0) -> np.ndarray:
-    """Logistic-map chaotic initial population (paper 004 eq. 10), mapped into the box.
+def chaos_init(rng: np.random.Generator, n: int, lower: np.ndarray, upper: np.ndarray,
+               chaos_factor: float = 2.0) -> np.ndarray:
+    """Logistic chaos initial pack of paper 004 eq. 10, placed in the box as eq. 3 places ``rand``.
 
-    A chaotic sequence runs along the population: z_1 ~ U(0, 1)^d, z_{i+1} = μ z_i (1 − z_i)
-    (each dimension its own sequence); the map sends [0, 1] into [0, μ/4], so
-    x_i = lower + z_i / (μ/4) · (upper − lower) lies in the box. μ = 4 is the fully chaotic
-    regime (invariant arcsine density, denser towards the faces); below μ ≈ 3.57 the sequence
-    settles on a periodic orbit and the pack loses diversity.
+    Eq. 10 reads ``P = F · rand(Np, d) · (1 − rand(Np, d))``: two *independent* uniform arrays
+    r1, r2 ~ U(0, 1)^(n×d) (two ``rand`` calls), P = F r1 (1 − r2). "We employ it … to replace
+    the random initialization", i.e. P takes the place of ``rand(Np, d)`` in eq. 3::
+
+        X = lower + P · (upper − lower),   then clipped into the box (Algorithm 1, step 14).
+
+    P ranges over [0, F], so the coordinates with P > 1 land on the upper face: a fraction
+    1 − 1/F − ln(F)/F (0.153 for 004's F = 2, 0.403 for F = 4); the rest has the density
+    ln(F/p)/F of p = P on [0, 1], highest towards the lower face. 004 chooses F = 2 (§3.2, Fig. 5b).
 
     Parameters
     ----------
     rng : numpy.random.Generator
-        Draws the seeds z_1 (deterministic per generator state).
+        Draws r1 then r2 (deterministic per generator state).
     n : int
-        Number of points.
+        Number of wolves.
     lower, upper : ndarray, shape (d,)
-    mu : float, default 4.0
-        Logistic parameter, 0 < μ ≤ 4 (paper 004: F ∈ [2, 4]).
+    chaos_factor : float, default 2.0
+        The adjustment factor F, > 0 (004: "typically ranges from 2 to 4").
 
     Returns
     -------
     ndarray, shape (n, d)
     """
-    if not 0.0 < mu <= 4.0:
-        raise ConfigError(f"logistic_init: mu must lie in (0, 4], got {mu:g}")
-    z = np.empty((n, lower.size))
-    z[0] = rng.random(lower.size)
-    for i in range(1, n):
-        z[i] = mu * z[i - 1] * (1.0 - z[i - 1])
-    return lower + np.clip(z / (mu / 4.0), 0.0, 1.0) * (upper - lower)
+    if not (np.isfinite(chaos_factor) and chaos_factor > 0.0):
+        raise ConfigError(f"chaos_init: chaos_factor must be a positive number, got {chaos_factor:g}")
+    r = rng.random((2, n, lower.size))
+    p = chaos_factor * r[0] * (1.0 - r[1])
+    return np.clip(lower + p * (upper - lower), lower, upper)
 
 
 @optimizers.register
 @dataclass
-class IGWO(Optimizer):
+class IGWO(GWO):
     """Improved grey wolf optimizer (paper 004 §2.3, eq. 10–15; ``shared/papers/README.md``).
 
     As :class:`~hystfit.optimizers.gwo.GWO` with three changes:
 
-    1. Logistic chaos initialisation: z_{i+1} = μ z_i (1 − z_i) along the pack, mapped into the
-       box (:func:`logistic_init`, μ = 4).
+    1. Logistic chaos initialisation (eq. 10): P = F · r1 ⊙ (1 − r2) with r1, r2 ~ U(0, 1)^(Np×d)
+       independent, placed in the box as eq. 3 places ``rand``: X = lower + P ⊙ (upper − lower),
+       clipped into the box (:func:`chaos_init`). F = ``chaos_factor`` = 2, 004's choice (§3.2):
+       about 15 % of the coordinates start on the upper face, the rest mostly in the lower part.
     2. Nonlinear convergence factor a = 2 (1 − (e^{t/T} − 1)/(e − 1))
        (:func:`nonlinear_convergence_factor`).
     3. Lévy flight on the three leader-guided positions (eq. 12–14)::
 
-           X_k ← X_k + Γ ⊙ s_k,   s_k Mantegna steps with β = 1.5 (:func:`levy_steps`),
-           Γ = levy_scale · (upper − lower) = 0.01 · (upper − lower),
+           X_k ← X_k + Γ ⊙ s_k,   s_k Mantegna steps with β = ``levy_beta`` = 1.5 (:func:`levy_steps`),
+           Γ = ``levy_scale`` · (upper − lower) = 0.01 · (upper − lower),
            X  ← (X_1 + X_2 + X_3) / 3.
 
        The steps enter X only through s_1 + s_2 + s_3, which is drawn directly and exactly
@@ -140,15 +143,16 @@ class IGWO(Optimizer):
     Parameters
     ----------
     pop : int, default 40
-        Pack size (≥ 3).
+        Pack size (≥ 3); 004 settles on 60 (§3.2).
     iters : int, default 200
-        Iterations, the initial evaluation included (``nfev = pop · iters`` when this rule stops).
-    mu : float, default 4.0
-        Logistic-map parameter (paper 004's F, in [2, 4]; 4 is fully chaotic).
+        Iterations, the initial evaluation included (``nfev = pop · iters`` when this rule stops);
+        004 settles on T = 50.
+    chaos_factor : float, default 2.0
+        The adjustment factor F of eq. 10 (> 0; 004: "typically ranges from 2 to 4", chooses 2).
     levy_beta : float, default 1.5
-        Lévy stability index β.
+        Lévy stability index β, 0 < β < 2.
     levy_scale : float, default 0.01
-        Step size coefficient Γ as a fraction of (upper − lower).
+        Step size coefficient Γ as a fraction of (upper − lower) (≥ 0; 0 switches the flight off).
     max_evals, stall_iter, stall_tol, target, time_limit_s
         The common stop rules (:class:`~hystfit.optimizers.base.StopRules`).
 
@@ -160,70 +164,52 @@ class IGWO(Optimizer):
     Bounds: positions that leave the box (Lévy steps occasionally throw far) are *clipped* to the
     violated face, as in GWO and paper 004 (Algorithm 1, step 14).
 
-    Initialisation: logistic chaos; if ``x0`` is given it replaces the first wolf (clipped).
+    Initialisation: eq. 10 (:func:`chaos_init`); if ``x0`` is given it replaces the first wolf
+    (clipped).
 
-    Precision: the Lévy steps do not shrink as the pack converges (Γ is fixed by the box), so
-    the positions keep jittering by about ``levy_scale``·(upper − lower) and the final values
-    stay above plain GWO's on smooth problems; hystfit's least-squares polish removes that, or
-    lower ``levy_scale``.
+    Where this differs from paper 004, and why:
 
-    Paper 004's Algorithm 1 applies the Lévy update only when |A| < 1 and is ambiguous about the
-    other case; we apply it to every wolf, as the README formulation states.
+    * Eq. 10 is not a chaotic *sequence*: both factors are fresh uniform draws (two ``rand``
+      calls), so "chaos" is only the name. We implement the equation as written, not the
+      formulation of ``shared/papers/README.md`` (the logistic map iterated along the pack, its
+      range [0, μ/4] stretched onto the box), which hystfit 0.1.0 used: with 004's F = 2 that
+      sequence converges to its fixed point 1/2, i.e. the upper face, for 93 % of the coordinates.
+      The choice of one independent pair (r1, r2) per coordinate follows MATLAB's semantics of
+      the two ``rand(Np, d)`` calls in the equation.
+    * Γ: 004 gives no value; a fixed fraction of the box width makes the step independent of
+      parameter units. The steps do not shrink as the pack converges, so the positions keep
+      jittering by about ``levy_scale``·(upper − lower) and the final values stay above plain
+      GWO's on smooth problems; hystfit's least-squares polish removes that, or lower ``levy_scale``.
+    * Algorithm 1 applies the Lévy update only when |A| < 1 and is ambiguous about the other
+      case; we apply it to every wolf, as the README formulation states.
     """
 
     name = "igwo"
     title = "Improved grey wolf optimizer (chaos, nonlinear a, Lévy flight)"
     reference = "paper 004 §2.3 eq. 10–15"
 
-    pop: int = 40
-    iters: int = 200
-    mu: float = 4.0
+    chaos_factor: float = 2.0
     levy_beta: float = 1.5
     levy_scale: float = 0.01
-    max_evals: int | None = None
-    stall_iter: int | None = None
-    stall_tol: float = 1e-9
-    target: float | None = None
-    time_limit_s: float | None = None
 
-    def __post_init__(self) -> None:
-        if self.pop < 3 or self.iters < 1:
-            raise ConfigError(f"igwo: pop must be ≥ 3 and iters ≥ 1 (got pop={self.pop}, iters={self.iters})")
-        if not 0.0 < self.mu <= 4.0:
-            raise ConfigError(f"igwo: mu must lie in (0, 4], got {self.mu:g}")
+    def check_settings(self) -> None:
+        super().check_settings()
+        if not (np.isfinite(self.chaos_factor) and self.chaos_factor > 0.0):
+            raise ConfigError(f"igwo: chaos_factor (F of paper 004 eq. 10) must be > 0, got {self.chaos_factor:g}; "
+                              f"004 uses 2")
         if not 0.0 < self.levy_beta < 2.0:
             raise ConfigError(f"igwo: levy_beta must lie in (0, 2), got {self.levy_beta:g}")
-        if self.levy_scale < 0:
+        if not (np.isfinite(self.levy_scale) and self.levy_scale >= 0):
             raise ConfigError(f"igwo: levy_scale must be ≥ 0, got {self.levy_scale:g}")
 
-    def _rules(self) -> StopRules:
-        return StopRules(self.iters, self.max_evals, self.stall_iter, self.stall_tol, self.target, self.time_limit_s)
+    def initial_population(self, rng: np.random.Generator, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+        return chaos_init(rng, self.pop, lower, upper, self.chaos_factor)
 
-    def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
-                 x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
-        lower, upper = check_box(lower, upper)
-        d, P = lower.size, self.pop
-        T = schedule_length(self.iters, P, self.max_evals)
-        step = self.levy_scale * (upper - lower)
-        tr = Tracker(objective, self._rules(), callback)
-        x = logistic_init(rng, P, lower, upper, self.mu)
-        if x0 is not None:
-            x[0] = np.clip(np.asarray(x0, float), lower, upper)
-        f = tr.evaluate(x)
-        leaders, leaders_f = update_leaders(np.empty((0, d)), np.empty(0), x, f)
-        if tr.end_iteration(f):
-            return tr.result(self.name)
-        t = 0
-        while True:
-            x = hunt(leaders, x, nonlinear_convergence_factor(t, T), rng).sum(axis=0)
-            # eq. 12–14: X = Σ_k (X_k + Γ s_k) / 3; the three steps are drawn as their exact sum
-            s = levy_steps(rng, x.shape, self.levy_beta, n_sum=3)
-            s *= step
-            x += s
-            x *= 1.0 / 3.0
-            np.clip(x, lower, upper, out=x)
-            f = tr.evaluate(x)
-            leaders, leaders_f = update_leaders(leaders, leaders_f, x, f)
-            t += 1
-            if tr.end_iteration(f):
-                return tr.result(self.name)
+    def convergence_factor(self, t: float, T: float) -> float:
+        return nonlinear_convergence_factor(t, T)
+
+    def perturb(self, x_sum: np.ndarray, lower: np.ndarray, upper: np.ndarray, rng: np.random.Generator) -> None:
+        # eq. 12–14: X = Σ_k (X_k + Γ s_k) / 3; the three steps are drawn as their exact sum
+        s = levy_steps(rng, x_sum.shape, self.levy_beta, n_sum=3)
+        s *= self.levy_scale * (upper - lower)
+        x_sum += s

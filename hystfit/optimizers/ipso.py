@@ -8,7 +8,8 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box, reflect
+from .base import PopulationLoop, PopulationSearch, StopRules, Tracker, stop_field
+from .pso import fly, update_personal_bests
 
 
 def rank_coefficients(pbest_f: np.ndarray, w_min: float = 0.4, w_max: float = 0.9, c_min: float = 1.5,
@@ -75,7 +76,7 @@ def social_attractors(rank: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 @optimizers.register
 @dataclass
-class IPSO(Optimizer):
+class IPSO(PopulationLoop, PopulationSearch):
     """Improved PSO of paper 000 as ``shared/papers/README.md`` formulates it.
 
     Each iteration the particles are ranked by personal-best value (rank 1 = best, s particles);
@@ -133,68 +134,40 @@ class IPSO(Optimizer):
     title = "Improved particle swarm (rank-adaptive, stall stop)"
     reference = "paper 000 (improved PSO); shared/papers/README.md"
 
-    pop: int = 40
     w_min: float = 0.4
     w_max: float = 0.9
     c_min: float = 1.5
     c_max: float = 2.5
     vmax_frac: float = 0.2
-    max_evals: int | None = 60_000
-    stall_iter: int | None = 50
-    stall_tol: float = 1e-6
-    target: float | None = None
-    time_limit_s: float | None = None
+    stop: StopRules = stop_field(max_evals=60_000, stall_iter=50, stall_tol=1e-6)
 
-    def __post_init__(self) -> None:
-        if self.pop < 2:
-            raise ConfigError(f"ipso: pop must be ≥ 2, got {self.pop}")
+    def check_settings(self) -> None:
+        super().check_settings()
         if not 0 <= self.w_min < self.w_max:
             raise ConfigError(f"ipso: need 0 ≤ w_min < w_max (got {self.w_min:g}, {self.w_max:g})")
         if not 0 <= self.c_min <= self.c_max:
             raise ConfigError(f"ipso: need 0 ≤ c_min ≤ c_max (got {self.c_min:g}, {self.c_max:g})")
         if not self.vmax_frac > 0:
             raise ConfigError(f"ipso: vmax_frac must be positive, got {self.vmax_frac:g}")
-        if self.max_evals is not None and self.max_evals < 1:
-            raise ConfigError(f"ipso: max_evals must be ≥ 1, got {self.max_evals}")
-        if self.stall_iter is not None and self.stall_iter < 1:
-            raise ConfigError(f"ipso: stall_iter must be ≥ 1, got {self.stall_iter}")
-        if self.max_evals is None and self.stall_iter is None and self.target is None and self.time_limit_s is None:
+        s = self.stop
+        if s.max_evals is None and s.stall_iter is None and s.target is None and s.time_limit_s is None:
             raise ConfigError("ipso: has no iteration count; set at least one of max_evals, stall_iter, "
-                              "target, time_limit_s")
+                              "target, time_limit_s (e.g. --opt-option max_evals=60000)")
 
-    def _rules(self) -> StopRules:
-        return StopRules(None, self.max_evals, self.stall_iter, self.stall_tol, self.target, self.time_limit_s)
-
-    def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
-                 x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
-        lower, upper = check_box(lower, upper)
-        d, P = lower.size, self.pop
-        width = upper - lower
-        vmax = self.vmax_frac * width
-        tr = Tracker(objective, self._rules(), callback)
-        x = lower + rng.random((P, d)) * width
-        if x0 is not None:
-            x[0] = np.clip(np.asarray(x0, float), lower, upper)
+    def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+               rng: np.random.Generator) -> None:
+        P, d = x.shape
+        vmax = self.vmax_frac * (upper - lower)
         v = (rng.random((P, d)) * 2 - 1) * vmax
-        f = tr.evaluate(x)
         pbest, pbest_f = x.copy(), f.copy()
-        if tr.end_iteration(f):
-            return tr.result(self.name)
         while True:
             rank, w, c1, c2 = rank_coefficients(pbest_f, self.w_min, self.w_max, self.c_min, self.c_max)
             att = social_attractors(rank, rng)
             r = rng.random((2, P, d))
             v = (w[:, None] * v + c1[:, None] * r[0] * (pbest - x)
                  + c2[:, None] * r[1] * (pbest[att] - x))
-            np.clip(v, -vmax, vmax, out=v)
-            x = x + v                      # a new array: the objective may keep the previous one
-            out = (x < lower) | (x > upper)
-            if out.any():
-                x = reflect(x, lower, upper)
-                np.negative(v, out=v, where=out)
+            x = fly(x, v, vmax, lower, upper)
             f = tr.evaluate(x)
-            better = f < pbest_f
-            pbest[better] = x[better]
-            pbest_f[better] = f[better]
+            update_personal_bests(pbest, pbest_f, x, f)
             if tr.end_iteration(f):
-                return tr.result(self.name)
+                return

@@ -6,8 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box
+from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box, stop_field
 
 #: residual count × parameter count above which the polish takes the memory-bounded
 #: normal-equation route (when the objective offers ``normal_equations``): 4·10⁶ elements is a
@@ -81,12 +82,19 @@ class LSQ(Optimizer):
     name = "lsq"
     title = "Least squares (trust-region reflective)"
     reference = "scipy.optimize.least_squares (Branch, Coleman & Li 1999)"
-    population_based = False
+    uses_start_point = True
+    polishes_itself = True
+    applied_stop_rules = ("max_evals",)
 
-    max_evals: int = 2000
     ftol: float = 1e-10
     xtol: float = 1e-10
     gtol: float = 1e-10
+    stop: StopRules = stop_field(max_evals=2000)
+
+    def check_settings(self) -> None:
+        if self.stop.max_evals is None:
+            raise ConfigError("lsq: max_evals must be a whole number ≥ 1 (a local solve needs a budget); "
+                              "set e.g. --opt-option max_evals=2000")
 
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
@@ -126,7 +134,7 @@ class LSQ(Optimizer):
         from scipy.optimize import least_squares  # deferred: keeps start-up fast
 
         sol = least_squares(fun, start, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
-                            ftol=self.ftol, xtol=self.xtol, gtol=self.gtol, max_nfev=self.max_evals)
+                            ftol=self.ftol, xtol=self.xtol, gtol=self.gtol, max_nfev=self.stop.max_evals)
         f = tr.evaluate(sol.x[None, :])
         tr.end_iteration(f)
         tr.status = 5 if sol.status > 0 else 0
@@ -167,7 +175,7 @@ class LSQ(Optimizer):
         A, g = system(theta)
         D = np.zeros(d)
         lam, nu = 1e-3, 2.0
-        status, why = 0, f"evaluation budget max_evals = {self.max_evals} reached"
+        status, why = 0, f"evaluation budget max_evals = {self.stop.max_evals} reached"
         done = False
         while not done:
             D = np.maximum(D, np.diag(A))
@@ -189,7 +197,7 @@ class LSQ(Optimizer):
                 break
             lo_z, hi_z = (lower - theta) / s, (upper - theta) / s
             while True:  # trial steps at growing λ until one is accepted or a stop rule fires
-                if n_cost >= self.max_evals:
+                if n_cost >= self.stop.max_evals:
                     done = True
                     break
                 G = As + lam * np.eye(d)
@@ -222,7 +230,7 @@ class LSQ(Optimizer):
                 if done:
                     break
                 if accepted:
-                    if n_cost >= self.max_evals:
+                    if n_cost >= self.stop.max_evals:
                         done = True
                     else:
                         A, g = system(theta)
@@ -235,4 +243,4 @@ def polisher() -> LSQ:
     """The least-squares polish used after global searches: a bounded budget (300 residual
     evaluations) and tolerances of 1e-9, enough to land on the noise floor from a good start
     without hundreds of iterations along a flat, poorly identifiable direction."""
-    return LSQ(max_evals=300, ftol=1e-9, xtol=1e-9, gtol=1e-9)
+    return LSQ(ftol=1e-9, xtol=1e-9, gtol=1e-9, stop=StopRules(max_evals=300))

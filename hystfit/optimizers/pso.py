@@ -6,14 +6,34 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box, reflect
+from .base import IteratedSearch, PopulationLoop, Tracker, reflect
+
+
+def fly(x: np.ndarray, v: np.ndarray, vmax: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """One move of the swarm: v clamped to ±vmax (in place), x + v as a new array (the objective
+    may keep the previous one); a coordinate that leaves the box is reflected back inside and its
+    velocity component reversed (in place). Used by ``pso-cf`` and ``ipso``; :class:`PSO` reflects
+    every coordinate (its numbers predate this helper)."""
+    np.clip(v, -vmax, vmax, out=v)
+    x = x + v
+    out = (x < lower) | (x > upper)
+    if out.any():
+        x = reflect(x, lower, upper)
+        np.negative(v, out=v, where=out)
+    return x
+
+
+def update_personal_bests(pbest: np.ndarray, pbest_f: np.ndarray, x: np.ndarray, f: np.ndarray) -> None:
+    """Replace (in place) the personal bests that ``x`` improves on."""
+    better = f < pbest_f
+    pbest[better] = x[better]
+    pbest_f[better] = f[better]
 
 
 @optimizers.register
 @dataclass
-class PSO(Optimizer):
+class PSO(PopulationLoop, IteratedSearch):
     """Global-best PSO with inertia weight (paper 001 eq. 4–5; ``shared/papers/README.md``).
 
     v ← W v + φ1 r1 (p_i − x) + φ2 r2 (p_g − x),  x ← x + v,
@@ -36,42 +56,19 @@ class PSO(Optimizer):
     title = "Particle swarm (inertia weight)"
     reference = "paper 001 eq. 4–5"
 
-    pop: int = 40
-    iters: int = 200
     w_start: float = 0.9
     w_end: float = 0.4
     phi1: float = 2.0
     phi2: float = 2.0
     vmax_frac: float = 0.2
-    max_evals: int | None = None
-    stall_iter: int | None = None
-    stall_tol: float = 1e-9
-    target: float | None = None
-    time_limit_s: float | None = None
 
-    def __post_init__(self) -> None:
-        if self.pop < 2 or self.iters < 1:
-            raise ConfigError(f"pso: pop must be ≥ 2 and iters ≥ 1 (got pop={self.pop}, iters={self.iters})")
-
-    def _rules(self) -> StopRules:
-        return StopRules(self.iters, self.max_evals, self.stall_iter, self.stall_tol, self.target, self.time_limit_s)
-
-    def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
-                 x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
-        lower, upper = check_box(lower, upper)
-        d, P = lower.size, self.pop
-        width = upper - lower
-        vmax = self.vmax_frac * width
-        tr = Tracker(objective, self._rules(), callback)
-        x = lower + rng.random((P, d)) * width
-        if x0 is not None:
-            x[0] = np.clip(np.asarray(x0, float), lower, upper)
+    def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+               rng: np.random.Generator) -> None:
+        P, d = x.shape
+        vmax = self.vmax_frac * (upper - lower)
         v = (rng.random((P, d)) * 2 - 1) * vmax
-        f = tr.evaluate(x)
         pbest, pbest_f = x.copy(), f.copy()
         g = int(np.argmin(pbest_f))
-        if tr.end_iteration(f):
-            return tr.result(self.name)
         while True:
             frac = min(tr.nit / max(self.iters - 1, 1), 1.0)
             w = self.w_start + (self.w_end - self.w_start) * frac
@@ -84,9 +81,7 @@ class PSO(Optimizer):
             x = reflect(x_new, lower, upper)
             v = np.where(out, -v, v)
             f = tr.evaluate(x)
-            better = f < pbest_f
-            pbest[better] = x[better]
-            pbest_f[better] = f[better]
+            update_personal_bests(pbest, pbest_f, x, f)
             g = int(np.argmin(pbest_f))
             if tr.end_iteration(f):
-                return tr.result(self.name)
+                return

@@ -9,7 +9,8 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box, reflect
+from .base import IteratedSearch, PopulationLoop, Tracker
+from .pso import fly, update_personal_bests
 
 
 def constriction_factor(phi: float) -> float:
@@ -32,7 +33,7 @@ def constriction_factor(phi: float) -> float:
 
 @optimizers.register
 @dataclass
-class ConstrictionPSO(Optimizer):
+class ConstrictionPSO(PopulationLoop, IteratedSearch):
     """Global-best PSO with constriction factor (paper 001 eq. 6–7; ``shared/papers/README.md``).
 
     v ← χ [v + φ1 r1 (p_i − x) + φ2 r2 (p_g − x)],  x ← x + v,
@@ -73,61 +74,34 @@ class ConstrictionPSO(Optimizer):
     title = "Particle swarm (constriction factor)"
     reference = "paper 001 eq. 6–7 (Clerc & Kennedy 2002)"
 
-    pop: int = 40
-    iters: int = 200
     phi1: float = 2.05
     phi2: float = 2.05
     vmax_frac: float = 1.0
-    max_evals: int | None = None
-    stall_iter: int | None = None
-    stall_tol: float = 1e-9
-    target: float | None = None
-    time_limit_s: float | None = None
 
-    def __post_init__(self) -> None:
-        if self.pop < 2 or self.iters < 1:
-            raise ConfigError(f"pso-cf: pop must be ≥ 2 and iters ≥ 1 (got pop={self.pop}, iters={self.iters})")
+    def check_settings(self) -> None:
+        super().check_settings()
         if self.phi1 < 0 or self.phi2 < 0:
             raise ConfigError(f"pso-cf: phi1 and phi2 must be non-negative (got {self.phi1:g}, {self.phi2:g})")
         if not self.vmax_frac > 0:
             raise ConfigError(f"pso-cf: vmax_frac must be positive, got {self.vmax_frac:g}")
         constriction_factor(self.phi1 + self.phi2)  # validates φ > 4
 
-    def _rules(self) -> StopRules:
-        return StopRules(self.iters, self.max_evals, self.stall_iter, self.stall_tol, self.target, self.time_limit_s)
-
-    def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
-                 x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
-        lower, upper = check_box(lower, upper)
-        d, P = lower.size, self.pop
-        width = upper - lower
-        vmax = self.vmax_frac * width
+    def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+               rng: np.random.Generator) -> None:
+        P, d = x.shape
+        vmax = self.vmax_frac * (upper - lower)
         chi = constriction_factor(self.phi1 + self.phi2)
         c1, c2 = chi * self.phi1, chi * self.phi2
-        tr = Tracker(objective, self._rules(), callback)
-        x = lower + rng.random((P, d)) * width
-        if x0 is not None:
-            x[0] = np.clip(np.asarray(x0, float), lower, upper)
         v = (rng.random((P, d)) * 2 - 1) * vmax
-        f = tr.evaluate(x)
         pbest, pbest_f = x.copy(), f.copy()
         g = int(np.argmin(pbest_f))
-        if tr.end_iteration(f):
-            return tr.result(self.name)
         while True:
             r = rng.random((2, P, d))
             # χ[v + φ1 r1 (p_i − x) + φ2 r2 (p_g − x)], with χ folded into the coefficients
             v = chi * v + c1 * r[0] * (pbest - x) + c2 * r[1] * (pbest[g] - x)
-            np.clip(v, -vmax, vmax, out=v)
-            x = x + v                      # a new array: the objective may keep the previous one
-            out = (x < lower) | (x > upper)
-            if out.any():
-                x = reflect(x, lower, upper)
-                np.negative(v, out=v, where=out)
+            x = fly(x, v, vmax, lower, upper)
             f = tr.evaluate(x)
-            better = f < pbest_f
-            pbest[better] = x[better]
-            pbest_f[better] = f[better]
+            update_personal_bests(pbest, pbest_f, x, f)
             g = int(np.argmin(pbest_f))
             if tr.end_iteration(f):
-                return tr.result(self.name)
+                return

@@ -17,6 +17,7 @@ import pandas as pd
 from .. import __version__
 from ..compare import CellResult, CompareResult
 from ..io import atomic_write_text, write_table
+from ..optimizers.base import STOP_RULE_NAMES
 from . import plots
 from .tables import fmt, markdown_table, metric_columns, metric_legend
 
@@ -38,7 +39,8 @@ def compare_frame(res: CompareResult) -> pd.DataFrame:
                    "j": r.j, "objective_mse_search": r.search_fun, "j_search": r.search_j}
             for k in mcols:
                 row[k] = r.metrics.get(k, np.nan)
-            row.update({"runtime_s": r.wall_time_s, "evaluations": r.nfev, "error": ""})
+            row.update({"runtime_s": r.wall_time_s, "evaluations": r.nfev, "search_evaluations": r.search_nfev,
+                        "error": ""})
             rows.append(row)
     return pd.DataFrame(rows)
 
@@ -153,6 +155,7 @@ def optimizer_table(res: CompareResult) -> pd.DataFrame:
         row.update(_stats([r.metrics.get(f"rmse_{u}", np.nan) for r in c.runs], "RMSE", f" ({u})"))
         row["time median (s)"] = float(np.median([r.wall_time_s for r in c.runs]))
         row["evaluations mean"] = float(np.mean([r.nfev for r in c.runs]))
+        row["search evaluations mean"] = float(np.mean([r.search_nfev for r in c.runs]))
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -262,7 +265,7 @@ def ranking(res: CompareResult) -> list[str]:
                     out += [f"- not ranked (failed on some condition): {', '.join(f'`{m}`' for m in skipped)}"]
                 out += [""]
     if len(res.optimizers) > 1:
-        polished = res.polish and any(o not in ("auto", "lsq") for o in res.optimizers)
+        polished = res.polish and any(o not in res.self_polishing for o in res.optimizers)
         for m in res.models:
             names, samples = [], []
             for o in res.optimizers:
@@ -353,7 +356,7 @@ def _optimizer_layout(df: pd.DataFrame) -> pd.DataFrame:
 
 def markdown(res: CompareResult, figures: list[str]) -> str:
     u = res.unit
-    polished = res.polish and any(o not in ("auto", "lsq") for o in res.optimizers)
+    polished = res.polish and any(o not in res.self_polishing for o in res.optimizers)
     lines = ["# hystfit comparison", "",
              f"- models: {', '.join(f'`{m}`' for m in res.models)}; optimizers: "
              f"{', '.join(f'`{o}`' for o in res.optimizers)}; conditions: {len(res.conditions)}; runs per cell: {res.runs}",
@@ -361,7 +364,17 @@ def markdown(res: CompareResult, figures: list[str]) -> str:
              f"hystfit {__version__}; output unit {u}",
              f"- least-squares polish after global optimizers: "
              f"{'yes (the optimizers are also compared on their search alone, before the polish)' if polished else 'no' if not res.polish else 'not applicable (auto and lsq end with their own local solve)'}",
-             ""]
+             f"- fit: {'one parameter set for all captures (--global)' if res.global_fit else 'one parameter set per condition'}"
+             + "".join(f"; bounds of `{m}`: " + ", ".join(f"{k} = [{lo:g}, {hi:g}]" for k, (lo, hi) in b.items())
+                       for m, b in res.bounds.items() if b)]
+    if res.optimizer_settings:
+        lines += ["- budgets (each optimizer's settings; the evaluations each run used are in `compare.csv`, "
+                  "columns `search_evaluations` and `evaluations` with the polish):"]
+        lines += [f"  - `{o}`: " + ", ".join(f"{k}={v}" for k, v in s.items()
+                                            if k in ("pop", "iters") + STOP_RULE_NAMES and v is not None
+                                            and not (k == "stall_tol" and s.get("stall_iter") is None))
+                  for o, s in res.optimizer_settings.items()]
+    lines += [""]
     if res.notes:
         lines += ["## Structure identified once from all captures", ""] + [f"- {n}" for n in res.notes] + [""]
     failed = [c for c in res.cells if not c.ok]

@@ -1,8 +1,9 @@
 """Contract suite run over every registered population optimizer.
 
-Every name from ``hystfit.registry.optimizers`` is tested except the local ``lsq``, ``auto``
-and any class with ``population_based = False``. Budgets are set through the common fields
-(``pop``, ``iters`` where the optimizer has one, else ``max_evals``) with the stall rule off,
+Every name from ``hystfit.registry.optimizers`` that is a population search searching the box
+from its own initialisation (``PopulationSearch`` without ``uses_start_point``; not ``lsq`` nor
+``auto``) is tested. Budgets are set through the common options (``pop``, ``iters`` where the
+optimizer has one, else ``max_evals``) with the stall rule off,
 so each optimizer spends its whole budget; random search gets exactly the same number of
 evaluations. Test functions are shifted so that the optimum is neither the box centre nor
 the origin (GWO-type updates are biased towards the origin).
@@ -10,26 +11,21 @@ the origin (GWO-type updates are biased towards the origin).
 
 from __future__ import annotations
 
-import dataclasses
 import importlib
 
 import numpy as np
 import pytest
 
 importlib.import_module("hystfit.optimizers")  # registers the built-in optimizers
+from hystfit.errors import ConfigError  # noqa: E402
+from hystfit.optimizers.base import STOP_RULE_NAMES, PopulationSearch, StopRules  # noqa: E402
 from hystfit.registry import optimizers as registry  # noqa: E402
-
-LOCAL = {"lsq", "auto"}
+from hystfit.setup import make_optimizer  # noqa: E402
 
 
 def _population_names() -> list[str]:
-    names = []
-    for name in registry.names():
-        cls = registry.get(name)
-        if name in LOCAL or not getattr(cls, "population_based", True):
-            continue
-        names.append(name)
-    return names
+    return [name for name in registry.names()
+            if issubclass(registry.get(name), PopulationSearch) and not registry.get(name).uses_start_point]
 
 
 NAMES = _population_names()
@@ -39,10 +35,9 @@ SEEDS = (0, 1, 2)
 def make(name: str, pop: int, iters: int, **extra):
     """The optimizer with ``pop`` × ``iters`` (or ``max_evals = pop·iters``), stall rule off."""
     cls = registry.get(name)
-    fields = {f.name for f in dataclasses.fields(cls)}
     kw = {"pop": pop, "iters": iters, "max_evals": pop * iters, "stall_iter": None}
     kw.update(extra)
-    return cls(**{k: v for k, v in kw.items() if k in fields})
+    return cls.from_options({k: v for k, v in kw.items() if k in cls.option_names()})
 
 
 # ------------------------------------------------------------------ test problems
@@ -235,6 +230,48 @@ def test_docstring_documents_every_setting_stop_rule_and_bounds_handling(name):
     bounds handling; ``hystfit optimizers`` shows the 'Stop rules:' and 'Bounds:' paragraphs."""
     cls = registry.get(name)
     doc = cls.__doc__ or ""
-    missing = [f.name for f in dataclasses.fields(cls) if f.name not in doc]
+    missing = [k for k in cls.option_names() if k not in doc]
     assert not missing, f"{name}: settings not described in the docstring: {missing}"
     assert "Stop rules:" in doc and "Bounds:" in doc
+
+
+# ------------------------------------------------------------------ stop rules and budgets (issues 12, 13)
+BAD_RULES = [("max_evals", -5), ("max_evals", 0), ("max_evals", 2.5), ("max_evals", "many"), ("max_evals", True),
+             ("stall_iter", 0), ("stall_tol", -1e-3), ("stall_tol", None), ("target", float("nan")),
+             ("time_limit_s", 0), ("time_limit_s", -1.0)]
+
+
+@pytest.mark.parametrize("name", registry.names())
+def test_holds_one_validated_stop_rule_value(name):
+    cls = registry.get(name)
+    opt = cls()
+    assert isinstance(opt.stop, StopRules)
+    assert set(cls.applied_stop_rules) <= set(STOP_RULE_NAMES) and "max_evals" in cls.applied_stop_rules
+    # the flat settings (as params.json records them) rebuild the same optimizer
+    assert cls.from_options(opt.settings()) == opt
+    assert list(opt.settings())[-len(cls.applied_stop_rules):] == list(cls.applied_stop_rules)
+
+
+@pytest.mark.parametrize("name", registry.names())
+@pytest.mark.parametrize("key,value", BAD_RULES)
+def test_invalid_stop_rule_is_a_one_line_config_error(name, key, value):
+    cls = registry.get(name)
+    if key not in cls.applied_stop_rules:
+        with pytest.raises(ConfigError, match="does not apply"):
+            cls.from_options({key: value})
+        return
+    with pytest.raises(ConfigError) as info:
+        cls.from_options({key: value})
+    msg = str(info.value)
+    assert "\n" not in msg and key in msg and "--opt-option" in msg
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_pop_and_iters_give_every_population_search_the_same_budget(name):
+    """``--pop 10 --iters 7`` bounds every population search by 70 evaluations (GA, which does
+    not re-evaluate its elite, uses fewer; DE rounds its population up to a multiple of d)."""
+    cls = registry.get(name)
+    opt = make_optimizer(cls, {"stall_iter": None}, pop=10, iters=7)
+    res = opt.minimize(sphere, -np.ones(2), np.ones(2), rng=np.random.default_rng(0))
+    assert res.nfev <= 70 and res.status == 0
+    assert res.nfev >= 70 - 6 * opt.elite if name == "ga" else res.nfev == 70

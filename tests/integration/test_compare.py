@@ -151,3 +151,59 @@ def test_shared_structure_is_identified_once_and_reported(tmp_path):
     write_compare_outputs(res, tmp_path, make_figures=False)
     md = (tmp_path / "compare.md").read_text()
     assert "## Structure identified once from all captures" in md and res.notes[0] in md
+
+
+# ------------------------------------------------------------------ issue 13: compare takes identify's flags
+def test_every_population_search_gets_the_same_budget_and_the_csv_says_so(tmp_path):
+    """--pop 8 --iters 5 is 40 evaluations for every search; ipso (no iteration count) used to
+    ignore --iters and ran to its 60,000-evaluation default."""
+    out = tmp_path / "cmp"
+    r = CliRunner().invoke(app, ["compare", str(FILES[0]), "--models", "bw", "--opts", "pso,ipso,gwo,igwo",
+                                 "--pop", "8", "--iters", "5", "--opt-option", "stall_iter=null", "--no-polish",
+                                 "--jobs", "1", "--no-figures", "--out", str(out), "--quiet"])
+    assert r.exit_code == 0, r.output
+    df = pd.read_csv(out / "compare.csv")
+    assert (df["search_evaluations"] == 40).all(), df[["optimizer", "search_evaluations"]]
+    assert (df["evaluations"] == df["search_evaluations"]).all()  # no polish
+    md = (out / "compare.md").read_text()
+    assert "- `ipso`: pop=8, max_evals=40" in md and "- `pso`: pop=8, iters=5" in md
+
+
+def test_bounds_model_and_optimizer_options_reach_the_cells(captures):
+    res = compare(captures, ["bw", "pi"], ["pso"], jobs=1, polish=False,
+                  optimizer_options={"pso": {"pop": 6, "iters": 3, "max_evals": 12}},
+                  model_options={"pi": {"n_operators": 4}}, bounds={"bw": {"Kv": (0.0, 0.05)}})
+    bw = [c for c in res.cells if c.model == "bw"]
+    pi = [c for c in res.cells if c.model == "pi"]
+    assert all(c.ok for c in res.cells)
+    assert all(0.0 <= c.theta[c.param_names.index("Kv")] <= 0.05 for c in bw)
+    default_pi = compare(captures, ["pi"], ["pso"], jobs=1, polish=False,
+                         optimizer_options={"pso": {"pop": 6, "iters": 2}}).cells[0]
+    assert all(c.n_params == default_pi.n_params - 6 for c in pi)  # 4 play operators instead of 10
+    assert all(r.search_nfev == 12 for c in res.cells for r in c.runs)
+    assert res.optimizer_settings["pso"]["max_evals"] == 12 and res.bounds["bw"] == {"Kv": (0.0, 0.05)}
+
+
+def test_global_fit_is_one_cell_over_all_captures(captures):
+    res = compare(captures, ["bw"], ["pso"], jobs=1, polish=False, global_fit=True,
+                  optimizer_options={"pso": {"pop": 6, "iters": 3}})
+    assert [lab for _, lab in res.conditions] == ["global"] and len(res.cells) == 1
+    assert len(res.cells[0].predictions) == len(captures) and res.global_fit
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--opt-option", "max_evals=-5"], "stop rule max_evals"),
+    (["--opt-option", "vmax_frac=0.3"], "scope it, e.g. --opt-option pso.vmax_frac"),
+    (["--opt-option", "nosuch.pop=3"], "'nosuch' is not one of pso, gwo"),
+    (["--opt-option", "pso.nosuch=3"], "unknown option 'nosuch'"),
+    (["--bounds", "alpha=0:1"], "model 'pi'"),
+    (["--bounds", "bw.nosuch=0:1"], "unknown parameter 'nosuch'"),
+    (["--model-option", "pi.n_operators=0"], "n_operators"),
+    (["--model-option", "n_operators=4"], "'bw' has no 'n_operators'"),
+])
+def test_bad_compare_options_are_one_line_config_errors(tmp_path, args, message):
+    r = CliRunner().invoke(app, ["compare", str(FILES[0]), "--models", "pi,bw", "--opts", "pso,gwo", "--pop", "6",
+                                 "--iters", "2", "--jobs", "1", "--no-figures", "--out", str(tmp_path / "o"), *args])
+    assert r.exit_code == 2, r.output
+    assert message in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
+    assert not (tmp_path / "o").exists()

@@ -35,9 +35,9 @@ def test_nfev_and_history_are_consistent(pop, d):
 
 
 def test_eval_budget_and_stall_stop_after_a_generation():
-    r = DE(pop=20, iters=1000, max_evals=500).minimize(sphere, -np.ones(2), np.ones(2), rng=np.random.default_rng(1))
+    r = DE.from_options(dict(pop=20, iters=1000, max_evals=500)).minimize(sphere, -np.ones(2), np.ones(2), rng=np.random.default_rng(1))
     assert r.status == 0 and 500 <= r.nfev < 520 and r.nfev == 20 * r.nit
-    r = DE(pop=20, iters=10_000, stall_iter=10, stall_tol=1e-2).minimize(
+    r = DE.from_options(dict(pop=20, iters=10_000, stall_iter=10, stall_tol=1e-2)).minimize(
         sphere, -np.ones(2), np.ones(2), rng=np.random.default_rng(1))
     assert r.status == 1 and r.nit < 10_000
 

@@ -5,8 +5,7 @@ import pytest
 
 from hystfit.errors import ConfigError
 from hystfit.optimizers.gwo import GWO, linear_convergence_factor, schedule_length
-from hystfit.optimizers.igwo import (IGWO, levy_steps, logistic_init, mantegna_sigma,
-                                     nonlinear_convergence_factor)
+from hystfit.optimizers.igwo import IGWO, chaos_init, levy_steps, mantegna_sigma, nonlinear_convergence_factor
 
 
 def hill_tail_index(x: np.ndarray, k: int) -> float:
@@ -48,22 +47,50 @@ def test_levy_steps_shape_and_beta_check(rng):
         levy_steps(rng, 10, beta=2.5)
 
 
-def test_logistic_init_in_bounds_deterministic_and_chaotic():
+def _upper_face_fraction(F: float) -> float:
+    """P(F r1 (1 − r2) ≥ 1) for independent uniforms: 1 − 1/F − ln(F)/F."""
+    return 1.0 - 1.0 / F - math.log(F) / F
+
+
+@pytest.mark.parametrize("F", [2.0, 3.0, 4.0])
+def test_chaos_init_follows_paper_004_eq_10(F):
+    """P = F r1 (1 − r2) on independent uniforms, X = lower + P (upper − lower), clipped."""
     lower, upper = np.array([-1.0, 0.0, 10.0]), np.array([1.0, 1e-3, 20.0])
-    a = logistic_init(np.random.default_rng(5), 200, lower, upper)
-    b = logistic_init(np.random.default_rng(5), 200, lower, upper)
-    c = logistic_init(np.random.default_rng(6), 200, lower, upper)
-    assert a.shape == (200, 3)
-    assert np.all(a >= lower) and np.all(a <= upper)
+    x = chaos_init(np.random.default_rng(5), 40_000, lower, upper, chaos_factor=F)
+    assert x.shape == (40_000, 3) and np.all(x >= lower) and np.all(x <= upper)
+    p = (x - lower) / (upper - lower)
+    at_upper = np.mean(p == 1.0, axis=0)
+    np.testing.assert_allclose(at_upper, _upper_face_fraction(F), atol=0.01)
+    assert np.all(np.mean(p == 0.0, axis=0) == 0.0)
+    # CDF of P below 1: P(F·XY ≤ p) = q − q ln q, q = p/F (product of two uniforms)
+    for level in (0.1, 0.5, 0.9):
+        q = level / F
+        np.testing.assert_allclose(np.mean(p <= level, axis=0), q - q * math.log(q), atol=0.01)
+
+
+def test_chaos_init_is_deterministic_by_seed_and_not_the_fixed_point_of_the_map():
+    lower, upper = np.full(4, 0.1), np.full(4, 10.0)
+    a = chaos_init(np.random.default_rng(5), 60, lower, upper)
+    b = chaos_init(np.random.default_rng(5), 60, lower, upper)
+    c = chaos_init(np.random.default_rng(6), 60, lower, upper)
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
-    z = (a - lower) / (upper - lower)
-    np.testing.assert_allclose(z[1:], 4.0 * z[:-1] * (1.0 - z[:-1]), atol=1e-9)   # x ← μx(1−x)
-    # μ < 4: the map's range [0, μ/4] is stretched onto the box
-    d = logistic_init(np.random.default_rng(5), 50, lower, upper, mu=3.2)
-    assert np.all(d >= lower) and np.all(d <= upper)
+    # iterating the logistic map with F = 2 along the pack (the old code) put 93 % on the upper face
+    assert np.mean(a == upper) < 0.3
     with pytest.raises(ConfigError):
-        logistic_init(np.random.default_rng(5), 5, lower, upper, mu=4.5)
+        chaos_init(np.random.default_rng(5), 5, lower, upper, chaos_factor=0.0)
+
+
+def test_igwo_starts_from_the_chaos_pack():
+    lower, upper = np.full(3, 0.1), np.full(3, 10.0)
+    seen = []
+
+    def f(X):
+        seen.append(X.copy())
+        return np.sum(X ** 2, axis=1)
+
+    IGWO(pop=30, iters=2, chaos_factor=3.0).minimize(f, lower, upper, rng=np.random.default_rng(9))
+    np.testing.assert_array_equal(seen[0], chaos_init(np.random.default_rng(9), 30, lower, upper, 3.0))
 
 
 def test_convergence_factor_endpoints():
@@ -98,8 +125,13 @@ def test_igwo_runs_reproducibly_and_converges_on_sphere():
 
 
 def test_settings_validation():
-    with pytest.raises(ConfigError):
-        IGWO(mu=0.0)
+    with pytest.raises(ConfigError, match="chaos_factor"):
+        IGWO(chaos_factor=0.0)
+    with pytest.raises(ConfigError, match="unknown option 'mu'"):
+        IGWO.from_options({"mu": 4.0})  # the old logistic-map parameter is gone (eq. 10 has F)
+    with pytest.raises(ConfigError, match="levy_scale"):
+        IGWO(levy_scale=-0.1)
+    assert IGWO.from_options({"levy_scale": 0.002, "chaos_factor": 4}).levy_scale == 0.002
     with pytest.raises(ConfigError):
         IGWO(levy_beta=2.0)
     with pytest.raises(ConfigError):

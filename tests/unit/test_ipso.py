@@ -1,4 +1,3 @@
-import dataclasses
 
 import numpy as np
 import pytest
@@ -46,8 +45,8 @@ def test_social_attractors_are_better_ranked_and_cover_them(rng):
 
 
 def test_stops_on_stall_without_an_iteration_count():
-    assert "iters" not in {f.name for f in dataclasses.fields(IPSO)}
-    r = IPSO(pop=20, max_evals=None, stall_iter=15, stall_tol=1e-3).minimize(
+    assert "iters" not in IPSO.option_names()
+    r = IPSO.from_options(dict(pop=20, max_evals=None, stall_iter=15, stall_tol=1e-3)).minimize(
         sphere, -np.ones(3), np.ones(3), rng=np.random.default_rng(0))
     assert r.status == 1 and "no relative improvement" in r.message
     assert r.nfev == 20 * r.nit
@@ -57,7 +56,7 @@ def test_stops_on_stall_without_an_iteration_count():
 
 
 def test_evaluation_budget_stops_with_status_0():
-    r = IPSO(pop=10, max_evals=200, stall_iter=None).minimize(sphere, -np.ones(2), np.ones(2),
+    r = IPSO.from_options(dict(pop=10, max_evals=200, stall_iter=None)).minimize(sphere, -np.ones(2), np.ones(2),
                                                              rng=np.random.default_rng(0))
     assert r.status == 0 and r.nfev == 200 and r.nit == 20
 
@@ -65,11 +64,14 @@ def test_evaluation_budget_stops_with_status_0():
 def test_defaults_and_settings_validation():
     opt = IPSO()
     assert (opt.w_min, opt.w_max, opt.c_min, opt.c_max) == (0.4, 0.9, 1.5, 2.5)
-    assert opt.max_evals == 200 * 300 and opt.stall_iter is not None
+    assert opt.stop.max_evals == 200 * 300 and opt.stop.stall_iter is not None
     with pytest.raises(ConfigError):
-        IPSO(max_evals=None, stall_iter=None)
+        IPSO.from_options(dict(max_evals=None, stall_iter=None))
     with pytest.raises(ConfigError):
         IPSO(w_min=0.9, w_max=0.4)
-    with pytest.raises(ConfigError):
-        make_optimizer(IPSO, iters=100)  # --iters does not apply
+    # no iteration count: --iters is honoured as the evaluation budget pop·iters (issue 13)
+    assert make_optimizer(IPSO, iters=100).stop.max_evals == IPSO().pop * 100
+    assert make_optimizer(IPSO, pop=20, iters=100).stop.max_evals == 2000
+    with pytest.raises(ConfigError, match="conflicts with max_evals"):
+        make_optimizer(IPSO, {"max_evals": 500}, iters=100)
     assert make_optimizer(IPSO, pop=200).pop == 200

@@ -37,10 +37,10 @@ def test_pso_respects_bounds_and_is_reproducible():
 
 
 def test_pso_stall_and_target_stop():
-    r = PSO(pop=10, iters=10_000, stall_iter=20, stall_tol=1e-3).minimize(sphere, -np.ones(2), np.ones(2),
+    r = PSO.from_options(dict(pop=10, iters=10_000, stall_iter=20, stall_tol=1e-3)).minimize(sphere, -np.ones(2), np.ones(2),
                                                                           rng=np.random.default_rng(0))
     assert r.status == 1 and r.nit < 10_000
-    r = PSO(pop=10, iters=10_000, target=1e-2).minimize(sphere, -np.ones(2), np.ones(2), rng=np.random.default_rng(0))
+    r = PSO.from_options(dict(pop=10, iters=10_000, target=1e-2)).minimize(sphere, -np.ones(2), np.ones(2), rng=np.random.default_rng(0))
     assert r.status == 2 and r.fun <= 1e-2
 
 
@@ -88,7 +88,7 @@ def test_auto_budget_bounds_all_searches_together():
     lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
     y = model.simulate_one(np.array([0.25, 0.08, 0.05, 0.01, 0.1]), u, 1 / fs)
     free = Auto(restarts=3).minimize(Objective(model, [Series(u, y, 1 / fs)]), lo, hi, rng=np.random.default_rng(0))
-    capped = Auto(restarts=3, max_evals=60).minimize(Objective(model, [Series(u, y, 1 / fs)]), lo, hi,
+    capped = Auto.from_options(dict(restarts=3, max_evals=60)).minimize(Objective(model, [Series(u, y, 1 / fs)]), lo, hi,
                                                      rng=np.random.default_rng(0))
     search_evals = len(capped.history_best) - 1  # iterations of the searches (the last entry is the polish)
     assert capped.nfev < free.nfev
@@ -190,7 +190,7 @@ def test_lsq_normal_equation_route_stop_rules(rng, monkeypatch):
 
     model, series, lo, hi, x0 = _bw_problem(rng)
     monkeypatch.setattr(lsq_module, "NORMAL_EQUATIONS_ABOVE", 0)
-    capped = LSQ(max_evals=4).minimize(Objective(model, series), lo, hi, rng=np.random.default_rng(0), x0=x0)
+    capped = LSQ.from_options(dict(max_evals=4)).minimize(Objective(model, series), lo, hi, rng=np.random.default_rng(0), x0=x0)
     assert capped.status == 0 and "max_evals" in capped.message
     assert capped.nit == 4  # the start and three trial steps
     full = LSQ().minimize(Objective(model, series), lo, hi, rng=np.random.default_rng(0), x0=x0)
@@ -224,3 +224,39 @@ def test_normal_equations_equal_the_dense_products(rng):
         JtJ2, rr2, m2 = obj.normal_matrix(theta, upper=upper)
         np.testing.assert_array_equal(JtJ2, JtJ)
         assert (rr2, m2) == (rr, m)
+
+
+# ------------------------------------------------------------------ issue 12: one StopRules value
+def test_stop_rules_are_one_frozen_validated_value():
+    import dataclasses
+
+    from hystfit.errors import ConfigError
+    from hystfit.optimizers.base import StopRules
+
+    rules = StopRules(max_evals=100, stall_iter=5)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        rules.max_evals = 3  # type: ignore[misc]
+    with pytest.raises(ConfigError, match=r"stop rule max_evals .* got -5; set e\.g\. --opt-option max_evals="):
+        StopRules(max_evals=-5)
+    with pytest.raises(ConfigError, match="time_limit_s"):
+        StopRules(time_limit_s=0.0)
+    # every optimizer holds it, and the flat options build it
+    opt = PSO.from_options({"max_evals": 100, "stall_iter": 5})
+    assert opt.stop == rules and opt.settings()["max_evals"] == 100
+
+
+def test_identify_with_a_negative_budget_exits_2_in_one_line(tmp_path):
+    """Issue 12's reproduction: this used to exit 0 and record "evaluation budget -5 reached"."""
+    from pathlib import Path
+
+    from typer.testing import CliRunner
+
+    from hystfit.cli import app
+
+    data = Path(__file__).resolve().parents[2] / "sample_data" / "a40V_f10Hz.csv"
+    for opt in ("pso", "ipso", "gwo", "igwo", "ga", "de", "auto", "lsq", "pso-cf"):
+        r = CliRunner().invoke(app, ["identify", str(data), "--opt", opt, "--opt-option", "max_evals=-5",
+                                     "--out", str(tmp_path / opt), "--no-plots", "--quiet"])
+        assert r.exit_code == 2, (opt, r.output)
+        assert "max_evals" in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
+        assert not (tmp_path / opt).exists()
