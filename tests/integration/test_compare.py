@@ -196,7 +196,7 @@ def test_global_fit_is_one_cell_over_all_captures(captures):
     (["--opt-option", "vmax_frac=0.3"], "scope it, e.g. --opt-option pso.vmax_frac"),
     (["--opt-option", "nosuch.pop=3"], "'nosuch' is not one of pso, gwo"),
     (["--opt-option", "pso.nosuch=3"], "unknown option 'nosuch'"),
-    (["--bounds", "alpha=0:1"], "model 'pi'"),
+    (["--bounds", "alpha=0:1"], "'pi' has no 'alpha'"),
     (["--bounds", "bw.nosuch=0:1"], "unknown parameter 'nosuch'"),
     (["--model-option", "pi.n_operators=0"], "n_operators"),
     (["--model-option", "n_operators=4"], "'bw' has no 'n_operators'"),
