@@ -25,7 +25,6 @@ from .metrics import compute_metrics_pooled
 from .objective import Objective, Series
 from .parallel import default_jobs, run_jobs
 from .params import DataScale, apply_bound_overrides
-from .registry import models as model_registry
 from .registry import optimizers as optimizer_registry
 from .setup import make_model, make_optimizer
 
@@ -226,7 +225,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     if not model_names or not optimizer_names:
         raise ConfigError("compare needs at least one model and one optimizer")
     for m in model_names:
-        model_registry.get(m)
+        make_model(m)  # an unknown model or block: one line, exit 2
     optimizer_options = {o: dict((optimizer_options or {}).get(o, {})) for o in optimizer_names}
     settings = {o: make_optimizer(optimizer_registry.get(o), optimizer_options[o]).settings() for o in optimizer_names}
     bounds = {m: dict((bounds or {}).get(m, {})) for m in model_names}
@@ -253,7 +252,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
             base = make_model(m, model_options[m])
             prepared = base.prepare(captures)
             if prepared is not base:
-                model_options[m] = prepared.structure()
+                model_options[m] = prepared.as_options()
                 summary = getattr(prepared, "structure_summary", None)
                 if summary is not None:
                     notes.append(f"`{m}`: {summary()}")
@@ -262,7 +261,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     for m in model_names:  # bound names are checked here, as identify does: a typo is exit 2, not failed cells
         if bounds[m] and all(c.y is not None for c in captures):
             scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
-            model = make_model(model_registry.get(m), model_options[m]).prepare(captures).adapt(scale)
+            model = make_model(m, model_options[m]).prepare(captures).adapt(scale)
             try:
                 apply_bound_overrides(model.params(scale), bounds[m])
             except ConfigError as exc:

@@ -144,8 +144,8 @@ def rising_sine(
     start_fraction: float = 0.02,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rising-amplitude raised cosine: every cycle starts at the lower rail 0 V and its crest rises
-    linearly with time from ``start_fraction``·A to A over ``cycles`` periods,
-    u = c(t)/2 · (1 − cos 2πft), c(t) = A·(s + (1 − s)·t/T), T = cycles/f.
+    linearly with time from ``start_fraction``·A to A, reached at the last cycle's peak,
+    u = c(t)/2 · (1 − cos 2πft), c(t) = A·min(s + (1 − s)·t/T', 1), T' = (cycles − ½)/f.
 
     The excitation of rig captures that sweep the loop size in one recording (small loops first,
     the largest last): every amplitude is present, but not stationary within the capture.
@@ -154,8 +154,8 @@ def rising_sine(
     if not 0.0 <= start_fraction <= 1.0:
         raise ConfigError(f"start_fraction must lie in [0, 1]. Got {start_fraction!r}.")
     t = _periodic_time(frequency_Hz, cycles, fs_Hz)
-    T = cycles / frequency_Hz
-    crest = amplitude_V * (start_fraction + (1.0 - start_fraction) * t / T)
+    T = max(cycles - 0.5, 0.5) / frequency_Hz
+    crest = amplitude_V * np.minimum(start_fraction + (1.0 - start_fraction) * t / T, 1.0)
     return t, 0.5 * crest * (1.0 - np.cos(2.0 * np.pi * frequency_Hz * t))
 
 

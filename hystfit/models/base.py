@@ -60,6 +60,11 @@ class Model(ABC):
             out[f.name] = list(v) if isinstance(v, tuple) else v
         return out
 
+    def as_options(self) -> dict[str, Any]:
+        """The structure as ``--model-option`` keys: ``make_model(self.name, self.as_options())``
+        rebuilds this model (a composite adds ``BLOCK.FIELD`` keys)."""
+        return self.structure()
+
     @classmethod
     def from_structure(cls, data: dict[str, Any]) -> "Model":
         names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]

@@ -111,6 +111,12 @@ class Composite(Model):
     def structure(self) -> dict[str, Any]:
         return {"base": self.base.structure(), "blocks": [{"name": b.name, **b.structure()} for b in self.blocks]}
 
+    def as_options(self) -> dict[str, Any]:
+        out = dict(self.base.structure())
+        for b in self.blocks:
+            out.update({f"{b.name}.{k}": v for k, v in b.structure().items()})
+        return out
+
     @classmethod
     def from_structure(cls, data: dict[str, Any]) -> "Model":  # pragma: no cover - use model_from_structure
         raise ConfigError("a composite is rebuilt from its expression: use hystfit.models.composite.model_from_structure")

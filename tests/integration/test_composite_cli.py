@@ -1,0 +1,96 @@
+"""Composite models through the command line: identify, compare, simulate, invert, track, diagnose."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from hystfit import synth
+from hystfit.cli import app
+
+SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
+runner = CliRunner()
+
+
+def _run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_identify_simulate_invert_track_with_an_expression(tmp_path):
+    data = [SAMPLE / "a40V_f10Hz.csv", SAMPLE / "a40V_f40Hz.csv", SAMPLE / "a40V_f80Hz.csv"]
+    out = tmp_path / "id"
+    r = _run("identify", *data, "--model", "pi+creep+delay", "--global", "--out", out, "--no-plots", "--quiet")
+    assert r.exit_code == 0, r.output
+    params = json.loads((out / "params.json").read_text())
+    assert params["model"]["name"] == "pi+creep+delay"
+    names = [p["name"] for p in params["conditions"][0]["parameters"]]
+    assert "creep.c0" in names and "delay.delay_s" in names
+    r = _run("simulate", out / "params.json", SAMPLE / "a40V_f20Hz.csv", "--out", tmp_path / "sim", "--no-plots",
+             "--quiet")
+    assert r.exit_code == 0, r.output
+    r = _run("invert", out / "params.json", "--sine", "10,5", "--out", tmp_path / "v.csv", "--quiet")
+    assert r.exit_code == 0, r.output
+    v = pd.read_csv(tmp_path / "v.csv", comment="#")
+    assert np.all(np.isfinite(v["voltage_V"]))
+    r = _run("track", out / "params.json", "--sine", "10,5", "--controller", "ff,ff+pid", "--out", tmp_path / "trk",
+             "--quiet")
+    assert r.exit_code == 0, r.output
+
+
+@pytest.mark.parametrize("expr, text", [("pi+thermal", "unknown block 'thermal'"),
+                                        ("pi+delay+delay", "appears twice")])
+def test_bad_expressions_exit_2_with_one_line(expr, text, tmp_path):
+    r = _run("identify", SAMPLE / "a40V_f10Hz.csv", "--model", expr, "--out", tmp_path / "x")
+    assert r.exit_code == 2
+    msg = r.stderr.strip() if r.stderr else r.output.strip()
+    assert text in msg and len(msg.splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+
+
+def test_compare_takes_expressions_and_block_options(tmp_path):
+    data = [SAMPLE / "a40V_f10Hz.csv", SAMPLE / "a40V_f80Hz.csv"]
+    r = _run("compare", *data, "--models", "pi,pi+creep", "--opts", "auto", "--model-option",
+             "pi+creep.creep.tau_s=[0.01,0.1]", "--out", tmp_path / "cmp", "--no-figures", "--quiet")
+    assert r.exit_code == 0, r.output
+    df = pd.read_csv(tmp_path / "cmp" / "compare.csv")
+    assert set(df["model"]) == {"pi", "pi+creep"}
+    assert df["error"].isna().all() if "error" in df else True
+
+
+def test_diagnose_hands_over_a_params_file_that_invert_accepts(tmp_path):
+    data = [SAMPLE / "a40V_f10Hz.csv", SAMPLE / "a40V_f40Hz.csv", SAMPLE / "a40V_f80Hz.csv"]
+    d = tmp_path / "d"
+    r = _run("diagnose", *data, "--model", "pi", "--out", d, "--no-figures")
+    assert r.exit_code == 0, r.output
+    diag = json.loads((d / "diagnosis.json").read_text())
+    rec = diag["recommended_model"]
+    assert rec.startswith("pi+") and set(rec.split("+")[1:]) == set(diag["explained_by"])
+    assert "next:" in r.output and rec in r.output
+    params = json.loads((d / "params.json").read_text())
+    assert params["model"]["name"] == rec
+    assert (d / "diagnosis.md").read_text().rstrip().splitlines()[-1].startswith("next:")
+    r = _run("invert", d / "params.json", "--sine", "10,5", "--out", tmp_path / "v.csv", "--quiet")
+    assert r.exit_code == 0, r.output
+
+
+def test_models_lists_the_blocks():
+    r = _run("models", "--json")
+    assert r.exit_code == 0
+    blocks = {b["name"]: b for b in json.loads(r.output)["blocks"]}
+    assert {"delay", "dynamics", "lti", "creep", "asymmetry", "drift"} <= set(blocks)
+    assert [p["name"] for p in blocks["dynamics"]["parameters"]] == ["dynamics.fn_Hz", "dynamics.zeta"]
+
+
+def test_synth_rising_sine_excitation(tmp_path):
+    t, u = synth.rising_sine(100.0, 20.0, cycles=10, fs_Hz=10_000)
+    crests = [u[(t >= k / 20.0) & (t < (k + 1) / 20.0)].max() for k in range(10)]
+    assert np.all(np.diff(crests) > 0) and crests[-1] == pytest.approx(100.0, rel=0.02)
+    assert u.min() == pytest.approx(0.0, abs=1e-9)
+    r = _run("synth", "capture", "--excitation", "rising-sine", "--amplitude", "60", "--frequency", "20",
+             "--cycles", "10", tmp_path / "rs.csv")
+    assert r.exit_code == 0, r.output
