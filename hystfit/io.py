@@ -876,6 +876,34 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
                 pass
 
 
+def check_writable_file(path: str | os.PathLike) -> None:
+    """Refuse, before any work, a file location that :func:`atomic_write_bytes` could not write.
+
+    Probes the nearest existing ancestor directory of ``path`` by creating and removing a temporary
+    file there (permissions alone do not tell: root, read-only mounts). Creates nothing that stays.
+
+    Raises
+    ------
+    OutputError
+        ``path`` is a directory, an ancestor is not a directory, or the directory is not writable.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise OutputError(f"{p}: is a directory; choose a file name")
+    parent = p.parent if str(p.parent) else Path(".")
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(f"{p}: {parent} is not a directory; choose another location")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".probe", dir=parent)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot write here ({exc.strerror or exc}); check the directory and permissions, "
+                          "or choose another location") from None
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8, line ends as given) atomically; see :func:`atomic_write_bytes`."""
     atomic_write_bytes(path, text.encode("utf-8"))

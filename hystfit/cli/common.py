@@ -29,6 +29,37 @@ Condition = Annotated[Optional[str], typer.Option("--condition", help="Force the
 OutputUnit = Annotated[Optional[str], typer.Option("--output-unit", help="Output unit when the column name has no suffix: nm, um, mm, m.")]
 Recursive = Annotated[bool, typer.Option("--recursive", "-r", help="Expand directories recursively.")]
 
+# Options several commands share: one name, one meaning, one default, one range (enforced by
+# tests/integration/test_option_names.py).
+SEED_MAX = 2 ** 32 - 1
+Seed = Annotated[int, typer.Option("--seed", min=0, max=SEED_MAX,
+                                   help="Seed of every random choice (0 … 4294967295); each run derives its own.")]
+Pop = Annotated[Optional[int], typer.Option("--pop", min=1, show_default="the optimizer's own, see 'hystfit "
+                                            "optimizers'", help="Population size of population-based optimizers "
+                                                                "(>= 1).")]
+Iters = Annotated[Optional[int], typer.Option("--iters", min=1, show_default="the optimizer's own, see 'hystfit "
+                                              "optimizers'", help="Iterations of iterative optimizers (>= 1).")]
+Jobs = Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default="all cores",
+                                             help="Parallel processes (the numbers do not depend on it).")]
+Runs = Annotated[int, typer.Option("--runs", min=1, help="Independent seeded runs per condition; the best is kept "
+                                                         "(>= 1).")]
+Plots = Annotated[bool, typer.Option("--plots/--no-plots", help="Write the figures.")]
+FiguresAlias = Annotated[Optional[bool], typer.Option("--figures/--no-figures", hidden=True,
+                                                      help="Deprecated spelling of --plots/--no-plots.")]
+JsonOut = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress and no summary table.")]
+Force = Annotated[bool, typer.Option("--force", help="Replace an existing output (checked before any work).")]
+PerCondition = Annotated[bool, typer.Option("--per-condition/--global",
+                                            help="One parameter set per operating condition (look-up table) or "
+                                                 "one for all captures.")]
+Method = Annotated[str, typer.Option("--method", help="Look-up-table cells: interpolate (bilinear blend of the "
+                                                      "nearest cells) or nearest.")]
+
+
+def plots_flag(plots: bool, figures_alias: Optional[bool]) -> bool:
+    """``--plots``, unless the deprecated ``--figures/--no-figures`` spelling was given."""
+    return plots if figures_alias is None else figures_alias
+
 
 def parse_col(value: Optional[str]) -> str | int | None:
     if value is None:

@@ -9,8 +9,9 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
-                     TimeCol, load_options, print_json, progress_bar, stdout)
+from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut, NoHeader,
+                     OutputCol, OutputUnit, Plots, Pop, Quiet, Recursive, Runs, Seed, TimeCol, load_options, plots_flag,
+                     print_json, progress_bar, stdout)
 
 
 def _names(text: str, what: str) -> list[str]:
@@ -30,17 +31,18 @@ def compare(
     data: DataArg,
     models: Annotated[str, typer.Option("--models", help="Comma-separated model names, or 'all'.")] = "pi,bw",
     opts: Annotated[str, typer.Option("--opts", help="Comma-separated optimizer names.")] = "auto",
-    runs: Annotated[int, typer.Option("--runs", help="Independent seeded runs per cell.", min=1)] = 1,
-    out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("hystfit-compare"),
-    seed: Annotated[int, typer.Option("--seed", help="Base seed; every run derives its own.")] = 0,
-    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", help="Parallel processes (default: all cores).", min=1)] = None,
-    pop: Annotated[Optional[int], typer.Option("--pop", help="Population size for optimizers that have one.")] = None,
-    iters: Annotated[Optional[int], typer.Option("--iters", help="Iterations for optimizers that have them.")] = None,
-    polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after global searches.")] = True,
-    figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write the figures.")] = True,
-    json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no summary table.")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    runs: Runs = 1,
+    out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-compare"),
+    seed: Seed = 0,
+    jobs: Jobs = None,
+    pop: Pop = None,
+    iters: Iters = None,
+    polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after the global search.")] = True,
+    plots: Plots = True,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+    force: Force = False,
+    figures_alias: FiguresAlias = None,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
     recursive: Recursive = False,
@@ -74,7 +76,7 @@ def compare(
         with progress_bar(not quiet and not json_out, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
                               optimizer_options=opt_options, progress=cb)
-        write_compare_outputs(res, stage, make_figures=figures)
+        write_compare_outputs(res, stage, make_figures=plots_flag(plots, figures_alias))
     df = compare_frame(res)
     u = res.unit
     if json_out:

@@ -9,8 +9,9 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
-                     TimeCol, load_options, parse_key_values, print_json, progress_bar, stderr, stdout)
+from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, JsonOut, NoHeader, OutputCol,
+                     OutputUnit, PerCondition, Plots, Quiet, Recursive, Seed, TimeCol, load_options, parse_key_values,
+                     plots_flag, print_json, progress_bar, stderr, stdout)
 
 
 def _parse_effects(value: Optional[str]) -> list[str] | None:
@@ -31,18 +32,19 @@ def diagnose(
     model: Annotated[str, typer.Option("--model", "-m", help="Base model (see 'hystfit models').")] = "pi",
     opt: Annotated[str, typer.Option("--opt", "-o", help="Optimizer of the base fits (see 'hystfit optimizers').")] = "auto",
     out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-diagnose"),
-    per_condition: Annotated[bool, typer.Option("--per-condition", help="One base parameter set per condition (look-up table) instead of one for all captures.")] = False,
+    per_condition: PerCondition = False,
     effects: Annotated[Optional[str], typer.Option("--effects", help="Candidate effects, comma-separated (default: dynamics,creep,asymmetry,drift,delay).")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the base fits and of the placebo draws (>= 0).")] = 0,
+    seed: Seed = 0,
     fit_fraction: Annotated[float, typer.Option("--fit-fraction", help="Share of every capture used to fit; the rest is held out.")] = 0.6,
     threshold: Annotated[float, typer.Option("--threshold", help="Minimum held-out reduction for naming an effect.")] = 0.3,
     max_effects: Annotated[int, typer.Option("--max-effects", help="How many effects may be named, in order (>= 1).")] = 3,
     model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE (repeatable).")] = None,
     opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE (repeatable).")] = None,
-    figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write the figures.")] = True,
-    json_out: Annotated[bool, typer.Option("--json", help="Print diagnosis.json on stdout.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no summary table.")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    plots: Plots = True,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+    force: Force = False,
+    figures_alias: FiguresAlias = None,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
     recursive: Recursive = False,
@@ -77,7 +79,7 @@ def diagnose(
         with progress_bar(not quiet and not json_out, f"diagnose {model_cls.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb)
-        write_diagnose_outputs(d, stage, make_figures=figures)
+        write_diagnose_outputs(d, stage, make_figures=plots_flag(plots, figures_alias))
     if json_out:
         print_json(d.to_dict())
         return

@@ -9,8 +9,9 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
-                     TimeCol, load_options, parse_key_values, print_json, progress_bar, stderr, stdout)
+from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut, NoHeader,
+                     OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Runs, Seed, TimeCol, load_options,
+                     parse_key_values, plots_flag, print_json, progress_bar, stderr, stdout)
 
 
 @app.command()
@@ -20,20 +21,21 @@ def identify(
     model: Annotated[str, typer.Option("--model", "-m", help="Model name (see 'hystfit models').")] = "pi",
     opt: Annotated[str, typer.Option("--opt", "-o", help="Optimizer name (see 'hystfit optimizers'); auto = exact linear solves + search over the nonlinear parameters.")] = "auto",
     out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-out"),
-    seed: Annotated[int, typer.Option("--seed", help="Seed of every random choice; each run derives its own.")] = 0,
-    pop: Annotated[Optional[int], typer.Option("--pop", help="Population size of population-based optimizers.")] = None,
-    iters: Annotated[Optional[int], typer.Option("--iters", help="Iterations of iterative optimizers.")] = None,
-    runs: Annotated[int, typer.Option("--runs", help="Independent seeded runs per condition; the best is kept.", min=1)] = 1,
+    seed: Seed = 0,
+    pop: Pop = None,
+    iters: Iters = None,
+    runs: Runs = 1,
     polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after the global search.")] = True,
-    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", help="Parallel processes over conditions and runs (default: all cores; the numbers do not depend on it).", min=1)] = None,
-    global_fit: Annotated[bool, typer.Option("--global", help="One parameter set for all captures instead of one per condition.")] = False,
+    jobs: Jobs = None,
+    per_condition: PerCondition = True,
     bounds: Annotated[Optional[list[str]], typer.Option("--bounds", help="Override a bound: NAME=LOWER:UPPER (repeatable).")] = None,
     model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE, e.g. n_operators=12 (repeatable).")] = None,
     opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE, e.g. stall_iter=50 (repeatable).")] = None,
-    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Write loop, time-series and convergence figures.")] = True,
-    json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no summary table.")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    plots: Plots = True,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+    force: Force = False,
+    figures_alias: FiguresAlias = None,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
     recursive: Recursive = False,
@@ -65,9 +67,9 @@ def identify(
                 for note in c.notes:
                     stderr.print(f"[dim]{c.name}: {note}[/dim]")
         with progress_bar(not quiet and not json_out, f"identify {model_cls.name} / {opt_cls.name}") as cb:
-            res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=global_fit,
+            res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=not per_condition,
                                bounds=bnds, progress=cb, model_options=mopts, jobs=jobs)
-        write_identify_outputs(res, stage, make_plots=plots)
+        write_identify_outputs(res, stage, make_plots=plots_flag(plots, figures_alias))
     if json_out:
         d = identify_to_dict(res)
         print_json({"out": str(out), "model": d["model"]["name"], "optimizer": d["optimizer"]["name"],

@@ -9,8 +9,8 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
-                     TimeCol, load_options, print_json, stdout)
+from .common import (Condition, DataArg, DropNonfinite, Force, Fs, InputCol, JsonOut, Method, NoHeader, OutputCol,
+                     OutputUnit, Plots, Quiet, Recursive, TimeCol, load_options, print_json, stderr, stdout)
 
 
 @app.command()
@@ -19,12 +19,12 @@ def simulate(
     params: Annotated[Path, typer.Argument(help="params.json written by 'hystfit identify'.", show_default=False)],
     data: DataArg,
     out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("hystfit-sim"),
-    method: Annotated[str, typer.Option("--method", help="Table cell choice: nearest or interpolate (bilinear blend).")] = "nearest",
+    method: Method = "interpolate",
     fmt: Annotated[str, typer.Option("--format", help="Prediction file format: csv or parquet.")] = "csv",
-    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Write loop and time-series figures.")] = True,
-    json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary table.")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    plots: Plots = True,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+    force: Force = False,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
     recursive: Recursive = False,
@@ -41,7 +41,7 @@ def simulate(
     from ..results import load_params
 
     if method not in ("nearest", "interpolate"):
-        raise ConfigError(f"--method {method!r}: choose nearest or interpolate")
+        raise ConfigError(f"--method {method!r}: choose interpolate or nearest")
     if fmt not in ("csv", "parquet"):
         raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
     pf = load_params(params)

@@ -1,0 +1,101 @@
+"""Everyday use (issue 14): the defects found by trying every command as a new user would."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from hystfit.cli import app
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = ROOT / "sample_data"
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def one_error_line(r) -> str:
+    """The result's stderr must be exactly one 'hystfit: error:' line (no box, no traceback)."""
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("hystfit: error: "), r.stderr
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exception
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def pi_params(tmp_path_factory):
+    d = tmp_path_factory.mktemp("pi")
+    r = run("identify", SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a40V_f10Hz.csv", "--out", d / "o", "--no-plots", "-q")
+    assert r.exit_code == 0, r.output
+    return d / "o" / "params.json"
+
+
+# -- item 8: seeds are validated once, like every other option ------------------------------------
+
+@pytest.mark.parametrize("argv", [
+    ("identify", SAMPLE / "a20V_f10Hz.csv"),
+    ("compare", SAMPLE / "a20V_f10Hz.csv", "--models", "pi"),
+    ("diagnose", SAMPLE / "a20V_f10Hz.csv"),
+    ("synth", "capture", "x.csv", "-a", "10", "-f", "10"),
+])
+def test_negative_seed_is_one_line_and_exit_2(argv, tmp_path):
+    r = run(*argv, "--seed", "-5", "--out", tmp_path / "o") if argv[0] != "synth" else run(*argv, "--seed", "-5")
+    assert r.exit_code == 2
+    assert "--seed" in one_error_line(r)
+    assert not (tmp_path / "o").exists()
+
+
+def test_negative_seed_in_track(pi_params, tmp_path):
+    r = run("track", pi_params, "--sine", "5,10", "--seed", "-5", "--out", tmp_path / "t")
+    assert r.exit_code == 2 and "--seed" in one_error_line(r)
+
+
+def test_usage_errors_have_the_same_style_as_other_errors(tmp_path):
+    for argv in (("identify", SAMPLE / "a20V_f10Hz.csv", "--no-such-option"), ("identify",),
+                 ("identify", SAMPLE / "a20V_f10Hz.csv", "--runs", "0")):
+        r = run(*argv)
+        assert r.exit_code == 2
+        line = one_error_line(r)
+        assert "╭" not in line and "hystfit identify --help" in line
+
+
+def test_version_option():
+    from hystfit import __version__
+
+    r = run("--version")
+    assert r.exit_code == 0 and r.stdout.strip() == f"hystfit {__version__}"
+
+
+# -- item 11: an unwritable output location is refused before any work ----------------------------
+
+def test_invert_unwritable_out_is_refused_before_the_inversion(pi_params, tmp_path, monkeypatch):
+    import hystfit.invert
+
+    def boom(*a, **k):
+        raise AssertionError("the inversion ran before the output location was checked")
+
+    monkeypatch.setattr(hystfit.invert, "invert_target", boom)
+    blocker = tmp_path / "afile"
+    blocker.write_text("x")
+    r = run("invert", pi_params, "--sine", "10,10", "--out", blocker / "v.csv", "--report-dir", tmp_path / "rep",
+            "--force")
+    assert r.exit_code == 2
+    assert "afile" in one_error_line(r)
+    assert not (tmp_path / "rep").exists()
+
+
+def test_synth_capture_unwritable_out_is_refused_before_simulating(tmp_path, monkeypatch):
+    import hystfit.synth
+
+    def boom(*a, **k):
+        raise AssertionError("the plant was simulated before the output location was checked")
+
+    monkeypatch.setattr(hystfit.synth, "simulate_plant", boom)
+    blocker = tmp_path / "afile"
+    blocker.write_text("x")
+    r = run("synth", "capture", blocker / "c.csv", "-a", "10", "-f", "10", "--force")
+    assert r.exit_code == 2 and "afile" in one_error_line(r)
