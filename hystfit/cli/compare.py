@@ -11,7 +11,7 @@ from rich.table import Table
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut, NoHeader,
                      OutputCol, OutputUnit, Plots, Pop, Quiet, Recursive, Runs, Seed, TimeCol, load_options, plots_flag,
-                     print_json, progress_bar, stdout)
+                     print_json, progress_bar, stderr, stdout)
 
 
 def _names(text: str, what: str) -> list[str]:
@@ -53,6 +53,7 @@ def compare(
     tables and a ranking) and OUT/figures/.
     """
     from ..compare import compare as run_compare
+    from ..errors import NoResultError
     from ..io import load_captures, staged_output_dir
     from ..registry import models as model_registry
     from ..registry import optimizers as optimizer_registry
@@ -79,6 +80,13 @@ def compare(
         write_compare_outputs(res, stage, make_figures=plots_flag(plots, figures_alias))
     df = compare_frame(res)
     u = res.unit
+    failed = [c for c in res.cells if not c.ok]
+    if failed and len(failed) == len(res.cells):
+        raise NoResultError(f"every cell failed ({len(failed)} of {len(failed)}); first error: {failed[0].model}/"
+                            f"{failed[0].optimizer}/{failed[0].label}: {failed[0].error} (all errors in {out}/compare.csv)")
+    if failed:
+        stderr.print(f"warning: {len(failed)} of {len(res.cells)} cells failed; their errors are in {out}/compare.csv",
+                     markup=False, highlight=False)
     if json_out:
         ok = df[df["error"] == ""] if "error" in df else df
         best = ok[ok["best_run"] == True] if "best_run" in ok else ok  # noqa: E712

@@ -99,3 +99,63 @@ def test_synth_capture_unwritable_out_is_refused_before_simulating(tmp_path, mon
     blocker.write_text("x")
     r = run("synth", "capture", blocker / "c.csv", "-a", "10", "-f", "10", "--force")
     assert r.exit_code == 2 and "afile" in one_error_line(r)
+
+
+# -- item 7: compare with every cell failed exits 3 with a message --------------------------------
+
+def _failing_fit(*a, **k):
+    from hystfit.errors import InputError
+
+    raise InputError("synthetic failure of this cell")
+
+
+def test_compare_every_cell_failed_exits_3_with_a_message(tmp_path, monkeypatch):
+    import hystfit.compare
+
+    monkeypatch.setattr(hystfit.compare, "fit_captures", _failing_fit)
+    out = tmp_path / "c"
+    r = run("compare", SAMPLE / "a20V_f10Hz.csv", "--models", "pi", "--out", out, "--jobs", "1", "--no-plots")
+    assert r.exit_code == 3
+    line = one_error_line(r)
+    assert "every cell failed" in line and "synthetic failure" in line
+    assert "synthetic failure" in (out / "compare.csv").read_text()  # the record is still written, complete
+    r = run("compare", SAMPLE / "a20V_f10Hz.csv", "--models", "pi", "--out", tmp_path / "j", "--jobs", "1",
+            "--no-plots", "--json")
+    assert r.exit_code == 3 and "every cell failed" in r.stderr
+
+
+# -- item 9: Ctrl-C during compare stops at once, exit 130, nothing half-written -------------------
+
+@pytest.mark.slow
+def test_ctrl_c_during_compare_stops_quickly(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    data = tmp_path / "data"
+    data.mkdir()
+    for name in ("a20V_f10Hz.csv", "a20V_f20Hz.csv", "a40V_f10Hz.csv", "a40V_f20Hz.csv"):
+        shutil.copy(SAMPLE / name, data / name)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-c", "from hystfit.cli import main; main()", "compare", str(data),
+                             "--models", "bw,lugre", "--opts", "pso,de", "--runs", "3", "--jobs", "2", "--out",
+                             str(tmp_path / "out"), "--no-plots"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path)
+    deadline = time.monotonic() + 60
+    while not list(tmp_path.glob(".out.tmp-*")) and time.monotonic() < deadline:  # the work has begun
+        time.sleep(0.1)
+    time.sleep(4.0)  # the workers are spawned and fitting
+    assert proc.poll() is None, proc.communicate()
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    elapsed = time.monotonic() - t0
+    assert proc.returncode == 130, err
+    assert elapsed < 3.0, f"took {elapsed:.1f} s to stop"
+    assert b"Traceback" not in err and b"interrupted" in err
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.tmp-*"))
