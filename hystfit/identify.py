@@ -22,7 +22,7 @@ from .objective import Objective, Series
 from .optimizers.base import OptimizeResult, Optimizer
 from .optimizers.lsq import polisher
 from .parallel import default_jobs, run_jobs
-from .params import DataScale, Param, apply_bound_overrides
+from .params import DataScale, Param, apply_bound_overrides, bound_side
 
 #: progress(event, info) — events: "start" (total units), "advance" (one run done), "note" (text).
 Progress = Optional[Callable[[str, dict], None]]
@@ -70,6 +70,11 @@ class ConditionFit:
     @property
     def evaluations(self) -> int:
         return int(sum(r.nfev for r in self.runs))
+
+    @property
+    def at_bound(self) -> tuple[str | None, ...]:
+        """Per parameter: ``"lower"``/``"upper"`` when the value is pinned at that bound (see :func:`bound_side`)."""
+        return tuple(bound_side(float(v), p.lower, p.upper) for p, v in zip(self.params, self.theta))
 
     @property
     def best(self) -> RunRecord:
@@ -232,8 +237,7 @@ def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: n
     if m <= d or not (np.all(np.isfinite(JtJ)) and np.isfinite(rr)):
         return np.full(theta.shape, np.nan)
     sigma2 = rr / (m - d)
-    width = upper - lower
-    free = (theta - lower > 1e-6 * width) & (upper - theta > 1e-6 * width)
+    free = np.array([bound_side(float(v), lo, hi) is None for v, lo, hi in zip(theta, lower, upper)], dtype=bool)
     out = np.full(theta.shape, np.nan)
     if free.any():
         cov = np.linalg.pinv(JtJ[np.ix_(free, free)]) * sigma2

@@ -59,10 +59,8 @@ def _clean(obj: Any) -> Any:
 
 def condition_to_dict(fit: ConditionFit) -> dict[str, Any]:
     u = fit.unit
-    width = np.array([p.upper - p.lower for p in fit.params])
     params = []
-    for p, v, se, w in zip(fit.params, fit.theta, fit.stderr, width):
-        at = "lower" if v - p.lower <= 1e-6 * w else "upper" if p.upper - v <= 1e-6 * w else None
+    for p, v, se, at in zip(fit.params, fit.theta, fit.stderr, fit.at_bound):
         params.append({"name": p.name, "unit": unit_param(p, u), "value": float(v), "stderr": float(se),
                        "lower": p.lower, "upper": p.upper, "at_bound": at, "description": p.description})
     runs = [{"run": r.run, "seed": r.seed, "fun": r.fun, f"rmse_{u}": r.rmse, "nfev": r.nfev,

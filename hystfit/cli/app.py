@@ -43,7 +43,7 @@ class OneLineErrors(TyperGroup):
             where = exc.ctx.command_path if getattr(exc, "ctx", None) is not None else "hystfit"
             error_line(f"{exc.format_message()} (see '{where} --help')")
             sys.exit(exc.exit_code)
-        except click_exceptions.Abort:
+        except typer.Abort:
             error_line("interrupted")
             sys.exit(130)
         sys.exit(code if isinstance(code, int) else 0)

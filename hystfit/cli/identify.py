@@ -48,7 +48,8 @@ def identify(
     from ..io import load_captures, staged_output_dir
     from ..params import parse_bound_overrides
     from ..registry import models, optimizers
-    from ..report.identify_report import summary_rows, write_identify_outputs
+    from ..report.identify_report import bound_notes, summary_rows, write_identify_outputs
+    from ..report.tables import fmt
     from ..results import identify_to_dict
     from ..setup import make_model, make_optimizer
 
@@ -70,6 +71,15 @@ def identify(
             res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=not per_condition,
                                bounds=bnds, progress=cb, model_options=mopts, jobs=jobs)
         write_identify_outputs(res, stage, make_plots=plots_flag(plots, figures_alias))
+    pinned = bound_notes(res)
+    if pinned and not quiet:
+        stderr.print(f"note: {len(pinned)} parameter set(s) have parameters at a search bound (no standard error; "
+                     "widen with --bounds NAME=LOWER:UPPER if the bound is not physical; see report.md):",
+                     markup=False, highlight=False, soft_wrap=True)
+        for line in pinned[:5]:
+            stderr.print(f"  {line}", markup=False, highlight=False, soft_wrap=True)
+        if len(pinned) > 5:
+            stderr.print(f"  … and {len(pinned) - 5} more in report.md", markup=False, highlight=False)
     if json_out:
         d = identify_to_dict(res)
         print_json({"out": str(out), "model": d["model"]["name"], "optimizer": d["optimizer"]["name"],
@@ -86,6 +96,6 @@ def identify(
     for col in ("condition", f"rmse_{u}", "nrmse_pct", "r2", f"max_error_{u}", "runtime_s"):
         table.add_column(col, justify="right")
     for row in summary_rows(res):
-        table.add_row(row["condition"], f"{row[f'rmse_{u}']:.4g}", f"{row['nrmse_pct']:.3g}", f"{row['r2']:.5f}",
+        table.add_row(row["condition"], f"{row[f'rmse_{u}']:.4g}", f"{row['nrmse_pct']:.3g}", fmt(row['r2'], 5),
                       f"{row[f'max_error_{u}']:.4g}", f"{row['runtime_s']:.2f}")
     stdout.print(table)

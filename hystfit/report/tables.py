@@ -18,11 +18,19 @@ def metric_columns(unit: str) -> list[str]:
 
 
 def fmt(x, digits: int = 4) -> str:
-    """Compact number formatting for Markdown tables."""
+    """Compact number formatting for Markdown tables.
+
+    Counts (integers) are written in full (``33720``, not ``3.372e+04``); a number that would round
+    to ±1 without being ±1 (an R² of 0.999996) gets the digits that show how far from 1 it is.
+    """
     if x is None:
         return "–"
     if isinstance(x, str):
         return x
+    if isinstance(x, (bool, np.bool_)):
+        return str(bool(x)).lower()
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
     x = float(x)
     if not np.isfinite(x):
         return "inf" if x > 0 else ("-inf" if x < 0 else "–")
@@ -30,15 +38,20 @@ def fmt(x, digits: int = 4) -> str:
         return "0"
     if abs(x) >= 1e5 or abs(x) < 1e-3:
         return f"{x:.{digits - 1}e}"
-    return f"{x:.{digits}g}"
+    text = f"{x:.{digits}g}"
+    while abs(float(text)) == 1.0 and abs(x) != 1.0 and digits < 12:
+        digits += 1
+        text = f"{x:.{digits}g}"
+    return text
 
 
 def markdown_table(df: pd.DataFrame, digits: int = 4) -> str:
     cols = list(df.columns)
     lines = ["| " + " | ".join(str(c) for c in cols) + " |",
              "|" + "|".join("---:" if pd.api.types.is_numeric_dtype(df[c]) else "---" for c in cols) + "|"]
-    for _, row in df.iterrows():
-        lines.append("| " + " | ".join(fmt(row[c], digits) if not isinstance(row[c], str) else row[c] for c in cols) + " |")
+    columns = [df[c].tolist() for c in cols]  # per column: integer counts stay integers (iterrows makes them floats)
+    for row in zip(*columns):
+        lines.append("| " + " | ".join(v if isinstance(v, str) else fmt(v, digits) for v in row) + " |")
     return "\n".join(lines)
 
 

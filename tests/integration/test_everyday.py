@@ -159,3 +159,37 @@ def test_ctrl_c_during_compare_stops_quickly(tmp_path):
     assert elapsed < 3.0, f"took {elapsed:.1f} s to stop"
     assert b"Traceback" not in err and b"interrupted" in err
     assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.tmp-*"))
+
+
+# -- item 5: parameters pinned at a bound are flagged ----------------------------------------------
+
+def test_bound_side_uses_a_relative_tolerance_that_catches_optimizer_landings():
+    from hystfit.params import bound_side
+
+    assert bound_side(-269.999, -270.0, 270.0) == "lower"  # was missed with 1e-6 × width
+    assert bound_side(1.999, 0.01, 2.0) == "upper"  # pi2's ζ
+    assert bound_side(0.0, 0.0, 1.0) == "lower" and bound_side(0.5, 0.0, 1.0) is None
+    assert bound_side(0.01, 0.0, 1.0) is None
+
+
+def test_identify_flags_a_pinned_parameter_in_params_report_and_console(tmp_path):
+    out = tmp_path / "o"
+    # y0 is about 0.25 µm on this capture: a lower bound of 0.3 pins it
+    r = run("identify", SAMPLE / "a20V_f10Hz.csv", "--bounds", "y0=0.3:1", "--out", out, "--no-plots")
+    assert r.exit_code == 0, r.output
+    p = json.loads((out / "params.json").read_text())
+    (y0,) = [q for q in p["conditions"][0]["parameters"] if q["name"] == "y0"]
+    assert y0["at_bound"] == "lower" and y0["stderr"] is None
+    report = (out / "report.md").read_text()
+    assert "| at bound |" in report and "| y0 |" in report and "**lower**" in report
+    assert "at a search bound" in r.stderr and "y0=0.3 (lower 0.3)" in r.stderr
+
+
+def test_report_numbers_show_enough_digits():
+    import pandas as pd
+
+    from hystfit.report.tables import fmt, markdown_table
+
+    assert fmt(0.9999961) == "0.999996" and fmt(1.0) == "1"
+    table = markdown_table(pd.DataFrame({"condition": ["a"], "samples": [33720], "r2": [0.99999]}))
+    assert "| a | 33720 | 0.99999 |" in table
