@@ -20,6 +20,9 @@ def simulate(
     data: DataArg,
     out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("hystfit-sim"),
     method: Method = "interpolate",
+    align_offset: Annotated[bool, typer.Option("--align-offset", help="Fit and add a constant offset per capture "
+                                               "(e.g. a sensor zero that moved between recording days); reported "
+                                               "in the table, report.md and the JSON.")] = False,
     fmt: Annotated[str, typer.Option("--format", help="Prediction file format: csv or parquet.")] = "csv",
     plots: Plots = True,
     json_out: JsonOut = False,
@@ -38,6 +41,8 @@ def simulate(
     from ..io import load_captures, staged_output_dir
     from ..report.simulate_report import write_simulate_outputs
     from ..predict import predict_capture
+    from ..report.tables import distinct_names
+    from ..report.tables import fmt as num
     from ..results import load_params
 
     if method not in ("nearest", "interpolate"):
@@ -49,8 +54,11 @@ def simulate(
                            require_output=False)
     with staged_output_dir(out, force) as stage:
         captures = load_captures(data, options, recursive=recursive)
-        preds = [predict_capture(pf, c, method) for c in captures]
+        preds = [predict_capture(pf, c, method, align_offset=align_offset) for c in captures]
         summary = write_simulate_outputs(pf, preds, stage, fmt=fmt, make_plots=plots)
+    for s in summary:
+        for note in s["notes"]:
+            stderr.print(f"note: {Path(s['capture']).name}: {note}", markup=False, highlight=False, soft_wrap=True)
     if json_out:
         print_json({"out": str(out), "params": str(params), "captures": summary})
         return
@@ -58,11 +66,13 @@ def simulate(
         return
     u = pf.unit
     t = Table(title=f"{pf.model_name}: predictions written to {out}")
-    for col in ("capture", "cells", f"rmse_{u}", "r2", f"max_error_{u}"):
-        t.add_column(col, justify="right")
-    for s in summary:
+    cols = ["capture", "cells", f"rmse_{u}", f"bias_{u}", "r2", f"max_error_{u}"] + ([f"offset_{u}"] if align_offset
+                                                                                   else [])
+    for i, col in enumerate(cols):
+        t.add_column(col, justify="right", no_wrap=i == 0, overflow="fold")
+    for s, name in zip(summary, distinct_names([x["capture"] for x in summary])):
         m = s.get("metrics") or {}
-        t.add_row(s["capture"], ", ".join(f"{lab}×{w:.2f}" for lab, w in s["cells"]),
-                  f"{m.get(f'rmse_{u}', float('nan')):.4g}", f"{m.get('r2', float('nan')):.5f}",
-                  f"{m.get(f'max_error_{u}', float('nan')):.4g}")
+        t.add_row(name, ", ".join(f"{lab}×{w:.2f}" for lab, w in s["cells"]), num(m.get(f"rmse_{u}")),
+                  num(m.get(f"bias_{u}")), num(m.get("r2"), 5), num(m.get(f"max_error_{u}")),
+                  *([num(s[f"offset_{u}"])] if align_offset else []))
     stdout.print(t)

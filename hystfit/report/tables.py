@@ -10,7 +10,7 @@ import pandas as pd
 from ..metrics import describe_metrics, metric_key
 
 #: metric columns shown in per-condition reports, in order
-REPORT_METRICS = ("rmse", "nrmse_pct", "mape", "smape", "r2", "re", "j", "max_error")
+REPORT_METRICS = ("rmse", "bias", "nrmse_pct", "mape", "smape", "r2", "re", "j", "max_error")
 
 
 def metric_columns(unit: str) -> list[str]:
@@ -61,3 +61,21 @@ def metric_legend(unit: str) -> str:
 
 def frame(rows: Sequence[dict]) -> pd.DataFrame:
     return pd.DataFrame(list(rows))
+
+
+def distinct_names(paths: Sequence[str]) -> list[str]:
+    """The shortest path suffix of each path that tells it from the others (for console tables).
+
+    ``["a/x/cap.csv", "b/x/cap.csv", "c.csv"]`` → ``["a/x/cap.csv", "b/x/cap.csv", "c.csv"]``;
+    ``["day1/cap.csv", "day2/cap.csv"]`` → ``["day1/cap.csv", "day2/cap.csv"]``.
+    """
+    from pathlib import PurePath
+
+    parts = [PurePath(p).parts for p in paths]
+    out = []
+    for i, pp in enumerate(parts):
+        k = 1
+        while k < len(pp) and any(j != i and qq[-k:] == pp[-k:] for j, qq in enumerate(parts)):
+            k += 1
+        out.append("/".join(pp[-k:]))
+    return out

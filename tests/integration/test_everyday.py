@@ -193,3 +193,60 @@ def test_report_numbers_show_enough_digits():
     assert fmt(0.9999961) == "0.999996" and fmt(1.0) == "1"
     table = markdown_table(pd.DataFrame({"condition": ["a"], "samples": [33720], "r2": [0.99999]}))
     assert "| a | 33720 | 0.99999 |" in table
+
+
+# -- items 2 and 4: simulate says when a capture lies outside the table; bias and --align-offset ----
+
+@pytest.fixture(scope="module")
+def grid_params(tmp_path_factory):
+    """A 2 × 2 table: 20/40 V × 10/20 Hz."""
+    d = tmp_path_factory.mktemp("grid")
+    names = ("a20V_f10Hz.csv", "a20V_f20Hz.csv", "a40V_f10Hz.csv", "a40V_f20Hz.csv")
+    r = run("identify", *(SAMPLE / n for n in names), "--out", d / "o", "--no-plots", "-q")
+    assert r.exit_code == 0, r.output
+    return d / "o" / "params.json"
+
+
+def test_simulate_notes_captures_outside_the_table(grid_params, tmp_path):
+    r = run("simulate", grid_params, SAMPLE / "broadband" / "prbs_60V.csv", SAMPLE / "a60V_f80Hz.csv",
+            SAMPLE / "a20V_f10Hz.csv", "--out", tmp_path / "s", "--no-plots", "--json")
+    assert r.exit_code == 0, r.output
+    caps = {Path(c["capture"]).name: c for c in json.loads(r.stdout)["captures"]}
+    prbs, a60, a20 = caps["prbs_60V.csv"]["notes"], caps["a60V_f80Hz.csv"]["notes"], caps["a20V_f10Hz.csv"]["notes"]
+    assert any("lies outside the table's grid; clamped to 40 V, 20 Hz" in n for n in prbs)
+    assert any("trimmed" in n and "idle input" in n for n in prbs)
+    assert any("identified on 0…40 V) is used on 0…59.99 V: extrapolated" in n for n in a60)
+    assert a20 == []
+    assert "prbs_60V.csv: condition 60 V, 150 Hz lies outside" in r.stderr
+    report = (tmp_path / "s" / "report.md").read_text()
+    assert "## Notes" in report and "extrapolated" in report
+
+
+def test_simulate_reports_bias_and_aligns_an_offset_on_request(grid_params, tmp_path):
+    import pandas as pd
+
+    df = pd.read_csv(SAMPLE / "a20V_f20Hz.csv")
+    ycol = [c for c in df.columns if c not in ("time_s", "voltage_V")][0]
+    df[ycol] += 3.0  # a sensor zero that moved by 3 µm between recording days
+    shifted = tmp_path / "shifted_20V_20Hz.csv"
+    df.to_csv(shifted, index=False)
+    r = run("simulate", grid_params, shifted, "--out", tmp_path / "a", "--no-plots", "--json",
+            "--condition", "20,20")
+    assert r.exit_code == 0, r.output
+    m = json.loads(r.stdout)["captures"][0]["metrics"]
+    assert m["bias_um"] == pytest.approx(-3.0, abs=0.05) and m["rmse_um"] > 2.9
+    r = run("simulate", grid_params, shifted, "--out", tmp_path / "b", "--no-plots", "--json", "--align-offset",
+            "--condition", "20,20")
+    assert r.exit_code == 0, r.output
+    c = json.loads(r.stdout)["captures"][0]
+    assert c["offset_um"] == pytest.approx(3.0, abs=0.05)
+    assert c["metrics"]["rmse_um"] < 0.1 and abs(c["metrics"]["bias_um"]) < 1e-9
+    assert "offset_um" in (tmp_path / "b" / "report.md").read_text()
+    assert "--align-offset" in r.stderr
+
+
+def test_console_tables_show_distinct_path_suffixes():
+    from hystfit.report.tables import distinct_names
+
+    assert distinct_names(["day1/cap.csv", "day2/cap.csv", "x/other.csv"]) == ["day1/cap.csv", "day2/cap.csv",
+                                                                               "other.csv"]
