@@ -142,7 +142,8 @@ class LoadOptions:
         auto-detects by name.
     no_header : the file has no header row (columns must then be given by index).
     fs : sample rate (Hz) for files without a time column.
-    drop_nonfinite : drop rows with NaN/inf/empty cells instead of refusing the file.
+    drop_nonfinite : repair rows with NaN/inf/empty cells instead of refusing the file: drop them at
+        the start and end, interpolate short runs inside the data (see :func:`_nonfinite`).
     condition : ``(amplitude_V, frequency_Hz)`` forced by ``--condition`` (V peak-to-peak, Hz).
     output_unit : output unit (nm, um, mm, m) when the output column name has no unit suffix.
     require_output : False for input-only / target files (the output column is then optional).
@@ -588,14 +589,26 @@ def _missing_column_error(table: _Table, role: str) -> InputError:
 # ----------------------------------------------------------------------------------------------
 
 
-def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: bool, has_time: bool,
-               notes: list[str]) -> np.ndarray | None:
-    """Row mask to keep (None: keep all). Refuses NaN/inf/empty cells unless ``drop``."""
+#: Longest run of consecutive non-finite rows inside the data that ``--drop-nonfinite`` repairs by
+#: linear interpolation (dropping them would make the sampling non-uniform).
+MAX_INTERPOLATED_RUN = 3
+
+
+def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: bool,
+               notes: list[str]) -> tuple[np.ndarray | None, dict[str, tuple[int, np.ndarray]]]:
+    """Handle NaN/inf/empty cells: refuse them, or (``drop``) repair them.
+
+    Returns the row mask to keep (None: keep all) and the arrays, repaired. With ``drop``, rows
+    before the first and after the last complete row are dropped (a ragged start or end), and
+    runs of up to :data:`MAX_INTERPOLATED_RUN` bad rows inside the data are filled by linear
+    interpolation of each column between its neighbours, so the sampling stays uniform. Longer
+    runs inside the data are refused: a gap that long is not a glitch.
+    """
     bad = np.zeros(table.rows.size, dtype=bool)
     for _, a in arrays.values():
         bad |= ~np.isfinite(a)
     if not bad.any():
-        return None
+        return None, arrays
     k = int(np.flatnonzero(bad)[0])
     if not drop:
         col = next(c for c, a in arrays.values() if not np.isfinite(a[k]))
@@ -604,15 +617,39 @@ def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: b
     if bad.all():
         raise InputError(f"{table.label}: every row has a NaN, inf or empty cell in the selected columns; "
                          f"check the column selection")
-    idx = np.flatnonzero(bad)
     good = np.flatnonzero(~bad)
-    interior = idx[(idx > good[0]) & (idx < good[-1])]
-    if not has_time and interior.size:
-        r = table.rows[int(interior[0])]
-        raise InputError(f"{table.label}: row {r}: cannot drop a non-finite row inside the data without a time "
-                         f"column (the samples after it would shift in time); fix the row or add a time column")
-    notes.append(f"dropped {idx.size} row(s) with NaN/inf/empty cells (first: row {table.rows[k]})")
-    return ~bad
+    first, last = int(good[0]), int(good[-1])
+    inner = bad.copy()
+    inner[:first] = False
+    inner[last + 1:] = False
+    if inner.any():
+        edges = np.diff(np.concatenate(([0], inner.astype(np.int8), [0])))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        longest = int(np.argmax(stops - starts))
+        if stops[longest] - starts[longest] > MAX_INTERPOLATED_RUN:
+            raise InputError(f"{table.label}: rows {table.rows[starts[longest]]}–{table.rows[stops[longest] - 1]}: "
+                             f"{stops[longest] - starts[longest]} consecutive rows with NaN/inf/empty cells inside "
+                             f"the data, more than the {MAX_INTERPOLATED_RUN} --drop-nonfinite interpolates; split "
+                             "the file at the gap into two captures")
+        repaired = {}
+        for role, (col, a) in arrays.items():
+            a = a.copy()
+            fix = inner & ~np.isfinite(a)
+            if fix.any():
+                ok = np.flatnonzero(np.isfinite(a))
+                a[fix] = np.interp(np.flatnonzero(fix), ok, a[ok])
+            repaired[role] = (col, a)
+        arrays = repaired
+        i0 = int(np.flatnonzero(inner)[0])
+        notes.append(f"interpolated {int(inner.sum())} isolated row(s) with NaN/inf/empty cells inside the data "
+                     f"linearly between their neighbours (first: row {table.rows[i0]})")
+    edge = bad & ~inner
+    if not edge.any():
+        return None, arrays
+    e0 = int(np.flatnonzero(edge)[0])
+    notes.append(f"dropped {int(edge.sum())} row(s) with NaN/inf/empty cells at the start or end "
+                 f"(first: row {table.rows[e0]})")
+    return ~edge, arrays
 
 
 def _check_time(table: _Table, col: int, t: np.ndarray, rows: np.ndarray) -> float:
@@ -775,7 +812,7 @@ def load_capture(path: str | os.PathLike, options: LoadOptions = LoadOptions()) 
     table = _read_table(p, label, opts.no_header)
     chosen = _select_columns(table, opts)
     arrays = {r: (chosen[r], _numeric(table, chosen[r])) for r in ("time", "input", "output") if chosen[r] is not None}
-    keep = _nonfinite(table, arrays, opts.drop_nonfinite, chosen["time"] is not None, notes)
+    keep, arrays = _nonfinite(table, arrays, opts.drop_nonfinite, notes)
     rows = table.rows if keep is None else table.rows[keep]
     data = {r: (a if keep is None else a[keep]) for r, (_, a) in arrays.items()}
     t = data["time"] * _scale(table, chosen["time"], "time") if "time" in data else None

@@ -24,7 +24,9 @@ InputCol = Annotated[Optional[str], typer.Option("--input-col", help="Input (vol
 OutputCol = Annotated[Optional[str], typer.Option("--output-col", help="Output (displacement) column: name or 0-based index.")]
 NoHeader = Annotated[bool, typer.Option("--no-header", help="The files have no header row.")]
 Fs = Annotated[Optional[float], typer.Option("--fs", help="Sample rate in Hz when there is no time column.")]
-DropNonfinite = Annotated[bool, typer.Option("--drop-nonfinite", help="Drop rows with NaN/inf instead of refusing the file.")]
+DropNonfinite = Annotated[bool, typer.Option("--drop-nonfinite", help="Repair rows with NaN/inf/empty cells instead of "
+                                             "refusing the file: drop them at the start and end, interpolate runs of "
+                                             "up to 3 inside the data (the sampling stays uniform); a note says which.")]
 Condition = Annotated[Optional[str], typer.Option("--condition", help="Force the operating condition 'AMPLITUDE_V,FREQUENCY_HZ'.")]
 OutputUnit = Annotated[Optional[str], typer.Option("--output-unit", help="Output unit when the column name has no suffix: nm, um, mm, m.")]
 Recursive = Annotated[bool, typer.Option("--recursive", "-r", help="Expand directories recursively.")]
