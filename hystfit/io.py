@@ -148,6 +148,8 @@ class LoadOptions:
     output_unit : output unit (nm, um, mm, m) when the output column name has no unit suffix.
     require_output : False for input-only / target files (the output column is then optional).
     min_cycles : minimum number of input cycles after trimming.
+    start_s, stop_s : keep only the window [start_s, stop_s) of the capture, in seconds from its
+        first row (``--start``/``--stop``); None = from the start / to the end.
     """
 
     time_col: str | int | None = None
@@ -160,6 +162,8 @@ class LoadOptions:
     output_unit: str | None = None
     require_output: bool = True
     min_cycles: float = 2.0
+    start_s: float | None = None
+    stop_s: float | None = None
 
 
 _SIDECAR_KEYS = ("no_header", "time_col", "input_col", "output_col", "fs", "output_unit", "condition",
@@ -820,11 +824,56 @@ def load_capture(path: str | os.PathLike, options: LoadOptions = LoadOptions()) 
     y = data.get("output")
     y_unit = _output_unit(table, chosen["output"], opts, notes) if y is not None else (opts.output_unit or "um")
     dt = _time_axis(table, chosen, t, rows, opts, notes)
-    return _finish(table, chosen, opts, notes, u, y, dt, y_unit)
+    u, y, rows, windowed = _window(table, opts, notes, u, y, rows, dt)
+    return _finish(table, chosen, opts, notes, u, y, dt, y_unit, rows, windowed)
+
+
+def _window(table: _Table, opts: LoadOptions, notes: list[str], u: np.ndarray, y: np.ndarray | None,
+            rows: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, bool]:
+    """Keep the samples with time (from the first row) in [start_s, stop_s)."""
+    if opts.start_s is None and opts.stop_s is None:
+        return u, y, rows, False
+    n = u.size
+    duration = n * dt
+    i0 = 0 if opts.start_s is None else int(math.ceil(opts.start_s / dt - 1e-9))
+    i1 = n if opts.stop_s is None else min(n, int(math.ceil(opts.stop_s / dt - 1e-9)))
+    if i1 - i0 < 4:
+        raise InputError(f"{table.label}: --start/--stop keep {max(i1 - i0, 0)} samples of this {duration:.6g} s "
+                         f"capture (window {opts.start_s or 0:g}…{opts.stop_s if opts.stop_s is not None else duration:.6g} "
+                         "s from its first row); choose a window inside the capture")
+    notes.append(f"kept {i0 * dt:.6g}…{i1 * dt:.6g} s of {duration:.6g} s (--start/--stop; rows {rows[i0]}–{rows[i1 - 1]})")
+    return u[i0:i1], (None if y is None else y[i0:i1]), rows[i0:i1], i0 > 0
+
+
+#: A first input step larger than this share of the input range (and than JUMP_MEDIAN_FACTOR ×
+#: the median step) is a one-sample jump: the capture starts mid-loop.
+JUMP_RANGE_FRACTION = 0.05
+JUMP_MEDIAN_FACTOR = 20.0
+
+
+def start_jump(u: np.ndarray) -> float:
+    """The first input step u[1] − u[0] (V) when it is a one-sample jump, else 0.
+
+    A jump is larger than :data:`JUMP_RANGE_FRACTION` of the input range and than
+    :data:`JUMP_MEDIAN_FACTOR` × the median non-zero step: the recording (or the window) began in
+    the middle of a loop, e.g. 0 → −87 V at the start of ``sample_data/real``.
+    """
+    if u.size < 3:
+        return 0.0
+    d = np.abs(np.diff(u))
+    moving = d[d > 0]
+    if moving.size == 0:
+        return 0.0
+    step = float(u[1] - u[0])
+    ptp = float(u.max() - u.min())
+    if abs(step) > JUMP_RANGE_FRACTION * ptp and abs(step) > JUMP_MEDIAN_FACTOR * float(np.median(moving)):
+        return step
+    return 0.0
 
 
 def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u: np.ndarray,
-            y: np.ndarray | None, dt: float, y_unit: str) -> Capture:
+            y: np.ndarray | None, dt: float, y_unit: str, rows: np.ndarray | None = None,
+            windowed: bool = False) -> Capture:
     """Trim the idle start, check excitation and length, settle the condition, build the Capture."""
     label = table.label
     ptp = float(u.max() - u.min()) if u.size else 0.0
@@ -839,6 +888,15 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     if u.size < 4:
         raise InputError(f"{label}: only {u.size} samples of excitation; a capture needs at least "
                          f"{opts.min_cycles:g} input cycles")
+    jump = start_jump(u)
+    where = f" (row {rows[start + 1]})" if rows is not None and rows.size > start + 1 else ""
+    if jump:
+        notes.append(f"starts mid-loop: the input jumps from {u[0]:.4g} to {u[1]:.4g} V in one sample{where}, so the "
+                     "actuator's hysteresis state at the start is unknown and the first samples carry the largest "
+                     "errors (rate-dependent models spike); --start SECONDS can skip them")
+    elif windowed and not start:
+        notes.append(f"starts mid-loop: the --start window begins while the input moves ({u[0]:.4g} V), so the "
+                     "actuator's hysteresis state at the start is unknown; start the window at a rest or turning point")
     amp, freq, source = _condition(table, chosen, opts, notes, u, dt)
     cycles = count_cycles(u, dt, freq)
     if cycles < opts.min_cycles:

@@ -30,6 +30,10 @@ DropNonfinite = Annotated[bool, typer.Option("--drop-nonfinite", help="Repair ro
 Condition = Annotated[Optional[str], typer.Option("--condition", help="Force the operating condition 'AMPLITUDE_V,FREQUENCY_HZ'.")]
 OutputUnit = Annotated[Optional[str], typer.Option("--output-unit", help="Output unit when the column name has no suffix: nm, um, mm, m.")]
 Recursive = Annotated[bool, typer.Option("--recursive", "-r", help="Expand directories recursively.")]
+Start = Annotated[Optional[float], typer.Option("--start", help="Use each capture from this time on (s from its "
+                                                                "first row), e.g. to skip a mid-loop start.")]
+Stop = Annotated[Optional[float], typer.Option("--stop", help="Use each capture up to this time (s from its first "
+                                                              "row).")]
 
 # Options several commands share: one name, one meaning, one default, one range (enforced by
 # tests/integration/test_option_names.py).
@@ -83,16 +87,21 @@ def parse_condition(value: Optional[str]) -> tuple[float, float] | None:
 
 
 def load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                 require_output: bool = True):
+                 require_output: bool = True, start: float | None = None, stop: float | None = None):
     from ..io import LoadOptions
 
+    if start is not None and not start >= 0:
+        raise ConfigError(f"--start {start:g}: must be >= 0 s (time from the capture's first row)")
+    if stop is not None and not stop > (start or 0.0):
+        raise ConfigError(f"--stop {stop:g}: must be after --start ({start or 0:g} s)")
     if fs is not None and not fs > 0:
         raise ConfigError(f"--fs {fs:g}: the sample rate must be positive (Hz)")
     if output_unit is not None and output_unit not in ("nm", "um", "mm", "m"):
         raise ConfigError(f"--output-unit {output_unit!r}: choose one of nm, um, mm, m")
     return LoadOptions(time_col=parse_col(time_col), input_col=parse_col(input_col), output_col=parse_col(output_col),
                        no_header=no_header, fs=fs, drop_nonfinite=drop_nonfinite,
-                       condition=parse_condition(condition), output_unit=output_unit, require_output=require_output)
+                       condition=parse_condition(condition), output_unit=output_unit, require_output=require_output,
+                       start_s=start, stop_s=stop)
 
 
 def parse_key_values(items: list[str], what: str) -> dict[str, object]:
@@ -131,6 +140,15 @@ def progress_bar(enabled: bool, description: str) -> Iterator:
 
     with prog:
         yield callback
+
+
+def print_capture_notes(captures) -> None:
+    """The loader's notes (trims, repairs, mid-loop starts, assumed units), one line each on stderr."""
+    from ..report.tables import distinct_names
+
+    for c, name in zip(captures, distinct_names([c.source for c in captures])):
+        for note in c.notes:
+            stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
 def print_json(data: dict) -> None:

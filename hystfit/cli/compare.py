@@ -10,8 +10,8 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut, NoHeader,
-                     OutputCol, OutputUnit, Plots, Pop, Quiet, Recursive, Runs, Seed, TimeCol, load_options, plots_flag,
-                     print_json, progress_bar, stderr, stdout)
+                     OutputCol, OutputUnit, Plots, Pop, Quiet, Recursive, Start, Stop, Runs, Seed, TimeCol, load_options, plots_flag,
+                     print_capture_notes, print_json, progress_bar, stderr, stdout)
 
 
 def _names(text: str, what: str) -> list[str]:
@@ -45,7 +45,7 @@ def compare(
     figures_alias: FiguresAlias = None,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False,
+    recursive: Recursive = False, start: Start = None, stop: Stop = None,
 ) -> None:
     """Compare models and optimizers on the captures: every model × optimizer × condition (× runs).
 
@@ -71,9 +71,12 @@ def compare(
                               iters=iters if iters is not None and "iters" in cls.__dataclass_fields__ else None)
         opt_options[o] = {k: v for k, v in inst.settings().items() if k in ("pop", "iters") and
                           ((k == "pop" and pop is not None) or (k == "iters" and iters is not None))}
-    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
+    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
+                           start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
         captures = load_captures(data, options, recursive=recursive)
+        if not quiet:
+            print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
                               optimizer_options=opt_options, progress=cb)

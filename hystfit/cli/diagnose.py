@@ -10,8 +10,8 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, JsonOut, NoHeader, OutputCol,
-                     OutputUnit, PerCondition, Plots, Quiet, Recursive, Seed, TimeCol, load_options, parse_key_values,
-                     plots_flag, print_json, progress_bar, stderr, stdout)
+                     OutputUnit, PerCondition, Plots, Quiet, Recursive, Start, Stop, Seed, TimeCol, load_options, parse_key_values,
+                     plots_flag, print_capture_notes, print_json, progress_bar, stderr, stdout)
 
 
 def _parse_effects(value: Optional[str]) -> list[str] | None:
@@ -47,7 +47,7 @@ def diagnose(
     figures_alias: FiguresAlias = None,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False,
+    recursive: Recursive = False, start: Start = None, stop: Stop = None,
 ) -> None:
     """Diagnose the gap between MODEL and the captures: noise floor, where it lies, which unmodelled
     effect (dynamics, creep, asymmetry, drift, delay) causes it, and how much of it each removes on
@@ -69,13 +69,12 @@ def diagnose(
     names = _parse_effects(effects)
     settings = DiagnoseSettings(fit_fraction=fit_fraction, threshold=threshold, max_effects=max_effects)
     check_seed(seed)
-    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
+    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
+                           start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
         captures = load_captures(data, options, recursive=recursive)
         if not quiet:
-            for c in captures:
-                for note in c.notes:
-                    stderr.print(f"[dim]{c.name}: {note}[/dim]")
+            print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, f"diagnose {model_cls.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb)

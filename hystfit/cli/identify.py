@@ -10,8 +10,8 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut, NoHeader,
-                     OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Runs, Seed, TimeCol, load_options,
-                     parse_key_values, plots_flag, print_json, progress_bar, stderr, stdout)
+                     OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Start, Stop, Runs, Seed, TimeCol, load_options,
+                     parse_key_values, plots_flag, print_capture_notes, print_json, progress_bar, stderr, stdout)
 
 
 @app.command()
@@ -38,7 +38,7 @@ def identify(
     figures_alias: FiguresAlias = None,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False,
+    recursive: Recursive = False, start: Start = None, stop: Stop = None,
 ) -> None:
     """Identify MODEL on the captures, one parameter set per operating condition (look-up table).
 
@@ -60,13 +60,12 @@ def identify(
     m = make_model(model_cls, mopts)
     o = make_optimizer(opt_cls, oopts, pop=pop, iters=iters)
     bnds = parse_bound_overrides(bounds or [])
-    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
+    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
+                           start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
         captures = load_captures(data, options, recursive=recursive)
         if not quiet:
-            for c in captures:
-                for note in c.notes:
-                    stderr.print(f"[dim]{c.name}: {note}[/dim]")
+            print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, f"identify {model_cls.name} / {opt_cls.name}") as cb:
             res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=not per_condition,
                                bounds=bnds, progress=cb, model_options=mopts, jobs=jobs)

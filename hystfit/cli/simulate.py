@@ -10,7 +10,7 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, Force, Fs, InputCol, JsonOut, Method, NoHeader, OutputCol,
-                     OutputUnit, Plots, Quiet, Recursive, TimeCol, load_options, print_json, stderr, stdout)
+                     OutputUnit, Plots, Quiet, Recursive, Start, Stop, TimeCol, load_options, print_json, stderr, stdout)
 
 
 @app.command()
@@ -30,7 +30,7 @@ def simulate(
     force: Force = False,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False,
+    recursive: Recursive = False, start: Start = None, stop: Stop = None,
 ) -> None:
     """Predict the output of captures with the identified look-up table (out-of-sample validation).
 
@@ -51,7 +51,7 @@ def simulate(
         raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
     pf = load_params(params)
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                           require_output=False)
+                           require_output=False, start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
         captures = load_captures(data, options, recursive=recursive)
         preds = [predict_capture(pf, c, method, align_offset=align_offset) for c in captures]

@@ -250,3 +250,43 @@ def test_console_tables_show_distinct_path_suffixes():
 
     assert distinct_names(["day1/cap.csv", "day2/cap.csv", "x/other.csv"]) == ["day1/cap.csv", "day2/cap.csv",
                                                                                "other.csv"]
+
+
+# -- item 6: a one-sample jump / mid-loop start is reported; --start/--stop window a capture --------
+
+REAL = SAMPLE / "real" / "hysteresis_v_150_1hz.csv"
+
+
+def test_real_capture_start_jump_is_reported():
+    from hystfit.io import load_capture
+
+    c = load_capture(REAL)
+    (note,) = [n for n in c.notes if "starts mid-loop" in n]
+    assert "jumps from 0 to -87.1 V in one sample (row 16287)" in note and "--start" in note
+
+
+def test_smooth_starts_are_not_flagged():
+    from hystfit.io import load_capture
+
+    for name in ("a20V_f10Hz.csv", "a60V_f80Hz.csv"):
+        assert not any("mid-loop" in n for n in load_capture(SAMPLE / name).notes)
+
+
+def test_start_stop_window_a_capture(tmp_path):
+    from hystfit.errors import InputError
+    from hystfit.io import LoadOptions, load_capture
+
+    c = load_capture(REAL, LoadOptions(start_s=4.5, stop_s=9.0))
+    assert c.n == pytest.approx(22500, abs=2) and c.trimmed_samples == 0
+    assert any("kept 4.5…9 s" in n for n in c.notes)
+    assert any("--start window begins while the input moves" in n for n in c.notes)
+    with pytest.raises(InputError, match="keep 0 samples"):
+        load_capture(REAL, LoadOptions(start_s=20.0))
+    r = run("identify", REAL, "--start", "5", "--stop", "2", "--out", tmp_path / "o")
+    assert r.exit_code == 2 and "--stop 2: must be after --start" in one_error_line(r)
+    r = run("identify", REAL, "--start", "4.5", "--out", tmp_path / "w", "--no-plots", "--json")
+    assert r.exit_code == 0, r.output
+    full = run("identify", REAL, "--out", tmp_path / "f", "--no-plots", "--json")
+    max_w = json.loads(r.stdout)["conditions"][0]["metrics"]["max_error_um"]
+    max_f = json.loads(full.stdout)["conditions"][0]["metrics"]["max_error_um"]
+    assert max_w < 0.2 * max_f  # the jump set the max error
