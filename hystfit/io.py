@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from .capture import Capture
-from .conditions import count_cycles, detect_condition
+from .conditions import count_cycles, detect_condition, nonstationary_notes
 from .errors import InputError, OutputError
 
 CAPTURE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".parquet", ".pq")
@@ -919,6 +919,7 @@ def _condition(table, chosen, opts, notes, u, dt) -> tuple[float, float, str]:
     if opts.condition is not None:
         return float(opts.condition[0]), float(opts.condition[1]), "option"
     a, f = detect_condition(u, dt)
+    notes += [f"warning: {w}" for w in nonstationary_notes(u, dt, (a, f))]
     return a, f, "detected"
 
 

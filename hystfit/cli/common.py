@@ -148,7 +148,10 @@ def print_capture_notes(captures) -> None:
 
     for c, name in zip(captures, distinct_names([c.source for c in captures])):
         for note in c.notes:
-            stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
+            if note.startswith("warning: "):
+                stderr.print(f"warning: {name}: {note[9:]}", markup=False, highlight=False, soft_wrap=True)
+            else:
+                stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
 def print_json(data: dict) -> None:

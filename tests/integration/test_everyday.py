@@ -290,3 +290,37 @@ def test_start_stop_window_a_capture(tmp_path):
     max_w = json.loads(r.stdout)["conditions"][0]["metrics"]["max_error_um"]
     max_f = json.loads(full.stdout)["conditions"][0]["metrics"]["max_error_um"]
     assert max_w < 0.2 * max_f  # the jump set the max error
+
+
+# -- item 3: captures whose amplitude or frequency changes are not called one condition ------------
+
+def _write(path, t, u, y):
+    import pandas as pd
+
+    pd.DataFrame({"time_s": t, "voltage_V": u, "displacement_um": y}).to_csv(path, index=False)
+    return path
+
+
+def test_rising_amplitude_and_sweep_are_warned(tmp_path):
+    import numpy as np
+
+    from hystfit.io import load_capture
+
+    dt = 1e-4
+    t = np.arange(0, 1, dt)
+    crest = (4 + 176 * t) * (0.5 - 0.5 * np.cos(2 * np.pi * 20 * t))
+    c = load_capture(_write(tmp_path / "crest.csv", t, crest, 0.1 * crest))
+    (w,) = [n for n in c.notes if n.startswith("warning: the amplitude changes")]
+    assert "label 180V_20Hz (the full range)" in w and "--start/--stop" in w
+    sweep = 10 * np.sin(2 * np.pi * (5 * t + 20 * t ** 2))
+    c = load_capture(_write(tmp_path / "sweep.csv", t, sweep, 0.1 * sweep))
+    assert any(n.startswith("warning: the frequency changes") for n in c.notes)
+    r = run("identify", tmp_path / "crest.csv", "--out", tmp_path / "o", "--no-plots")
+    assert r.exit_code == 0 and "warning: crest.csv: the amplitude changes" in r.stderr
+
+
+def test_stationary_captures_are_not_warned():
+    from hystfit.io import load_capture
+
+    for name in ("a20V_f10Hz.csv", "a60V_f80Hz.csv", "broadband/prbs_60V.csv", "real/hysteresis_v_150_1hz.csv"):
+        assert not any(n.startswith("warning:") for n in load_capture(SAMPLE / name).notes), name
