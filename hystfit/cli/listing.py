@@ -31,6 +31,16 @@ def list_models(json_out: Annotated[bool, typer.Option("--json", help="Machine-r
         stdout.print(f"  {m['equation']}")
         stdout.print(f"  bounds shown for a reference stage (0–100 V → 0–30 µm); they scale with the data. "
                      f"Structure options: {m['structure'] or 'none'}\n")
+    print_papers()
+
+
+def print_papers() -> None:
+    """The full citations of the papers the listings name as "paper 000" … "paper 004"."""
+    from ..references import PAPERS
+
+    stdout.print("Papers:", markup=False, highlight=False)
+    for pid, text in PAPERS.items():
+        stdout.print(f"  {pid}: {text}", markup=False, highlight=False)
 
 
 #: stop-rule settings shared by the optimizers (hystfit.optimizers.base.StopRules) and what they mean
@@ -95,3 +105,4 @@ def list_optimizers(json_out: Annotated[bool, typer.Option("--json", help="Machi
         stdout.print(t)
     stdout.print("Settings are changed with --pop, --iters and --opt-option KEY=VALUE; the docstrings "
                  "(python -m pydoc hystfit.optimizers.<name>) give the equations.")
+    print_papers()

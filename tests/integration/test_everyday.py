@@ -324,3 +324,16 @@ def test_stationary_captures_are_not_warned():
 
     for name in ("a20V_f10Hz.csv", "a60V_f80Hz.csv", "broadband/prbs_60V.csv", "real/hysteresis_v_150_1hz.csv"):
         assert not any(n.startswith("warning:") for n in load_capture(SAMPLE / name).notes), name
+
+
+# -- item 16: the papers are cited, not a file a clone does not have --------------------------------
+
+def test_models_listing_and_readme_cite_the_papers_not_an_internal_file():
+    r = run("models", "--json")
+    assert r.exit_code == 0 and "shared/papers" not in r.stdout
+    assert "Micromachines 2025" in r.stdout or "Actuators 2026" in r.stdout
+    r = run("optimizers", "--json")
+    assert r.exit_code == 0 and "shared/papers" not in r.stdout
+    readme = (ROOT / "README.md").read_text()
+    assert "shared/papers" not in readme and "## References" in readme and "doi:10.3390/mi16050492" in readme
+    assert "shared/papers" not in (ROOT / "docs" / "models.md").read_text()
