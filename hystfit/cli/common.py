@@ -118,11 +118,23 @@ def parse_key_values(items: list[str], what: str) -> dict[str, object]:
     return out
 
 
+#: On a pipe, at most one progress line per this many seconds (plus the first and the last).
+PLAIN_PROGRESS_INTERVAL_S = 1.0
+
+
 @contextmanager
 def progress_bar(enabled: bool, description: str) -> Iterator:
-    """A rich progress bar on stderr; yields a ``progress(event, info)`` callback for the library."""
+    """Progress on stderr; yields a ``progress(event, info)`` callback for the library.
+
+    On a terminal a rich bar; on a pipe or file (CI logs, ``2> log``) plain lines — the start, then
+    ``k/N`` with the last item and the elapsed time at most once a second, and the end — so a
+    long run is never silent.
+    """
     if not enabled:
         yield None
+        return
+    if not stderr.is_terminal:
+        yield _plain_progress(description)
         return
     prog = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                     TextColumn("{task.fields[last]}"), console=stderr, transient=True)
@@ -140,6 +152,48 @@ def progress_bar(enabled: bool, description: str) -> Iterator:
 
     with prog:
         yield callback
+
+
+def _plain_progress(description: str):
+    import time
+
+    state = {"total": None, "done": 0, "t0": time.monotonic(), "last": 0.0}
+
+    def line(text: str) -> None:
+        stderr.print(text, markup=False, highlight=False, soft_wrap=True)
+
+    def callback(event: str, info: dict) -> None:
+        now = time.monotonic()
+        if event == "start":
+            state.update(total=info.get("total"), done=0, t0=now, last=now)
+            line(f"{description}: started ({state['total']} step(s))" if state["total"] else f"{description}: started")
+        elif event == "advance":
+            state["done"] += 1
+            final = state["total"] is not None and state["done"] >= state["total"]
+            if final or now - state["last"] >= PLAIN_PROGRESS_INTERVAL_S:
+                state["last"] = now
+                of = f"/{state['total']}" if state["total"] else ""
+                label = f" {info['label']}" if info.get("label") else ""
+                line(f"{description}: {state['done']}{of}{label} ({now - state['t0']:.1f} s)")
+        elif event == "note":
+            line(str(info.get("text", "")))
+
+    return callback
+
+
+@contextmanager
+def phase(enabled: bool, text: str) -> Iterator[None]:
+    """Say what a step that may take a while is doing (loading files, writing figures) on stderr:
+    a spinner on a terminal, one line on a pipe."""
+    if not enabled:
+        yield
+        return
+    if not stderr.is_terminal:
+        stderr.print(f"{text} …", markup=False, highlight=False, soft_wrap=True)
+        yield
+        return
+    with stderr.status(text):
+        yield
 
 
 def print_capture_notes(captures) -> None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 from rich.table import Table
@@ -11,7 +11,7 @@ from rich.table import Table
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut, NoHeader,
                      OutputCol, OutputUnit, Plots, Pop, Quiet, Recursive, Start, Stop, Runs, Seed, TimeCol, load_options, plots_flag,
-                     print_capture_notes, print_json, progress_bar, stderr, stdout)
+                     print_capture_notes, phase, print_json, progress_bar, stderr, stdout)
 
 
 def _names(text: str, what: str) -> list[str]:
@@ -74,13 +74,16 @@ def compare(
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
-        captures = load_captures(data, options, recursive=recursive)
+        with phase(not quiet and not json_out, "loading the captures"):
+            captures = load_captures(data, options, recursive=recursive)
         if not quiet:
             print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
                               optimizer_options=opt_options, progress=cb)
-        write_compare_outputs(res, stage, make_figures=plots_flag(plots, figures_alias))
+        make_plots = plots_flag(plots, figures_alias)
+        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
+            write_compare_outputs(res, stage, make_figures=make_plots)
     df = compare_frame(res)
     u = res.unit
     failed = [c for c in res.cells if not c.ok]

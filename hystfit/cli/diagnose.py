@@ -11,7 +11,7 @@ from rich.table import Table
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, JsonOut, NoHeader, OutputCol,
                      OutputUnit, PerCondition, Plots, Quiet, Recursive, Start, Stop, Seed, TimeCol, load_options, parse_key_values,
-                     plots_flag, print_capture_notes, print_json, progress_bar, stderr, stdout)
+                     plots_flag, print_capture_notes, phase, print_json, progress_bar, stdout)
 
 
 def _parse_effects(value: Optional[str]) -> list[str] | None:
@@ -72,13 +72,16 @@ def diagnose(
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
-        captures = load_captures(data, options, recursive=recursive)
+        with phase(not quiet and not json_out, "loading the captures"):
+            captures = load_captures(data, options, recursive=recursive)
         if not quiet:
             print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, f"diagnose {model_cls.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb)
-        write_diagnose_outputs(d, stage, make_figures=plots_flag(plots, figures_alias))
+        make_plots = plots_flag(plots, figures_alias)
+        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
+            write_diagnose_outputs(d, stage, make_figures=make_plots)
     if json_out:
         print_json(d.to_dict())
         return

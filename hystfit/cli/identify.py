@@ -11,7 +11,7 @@ from rich.table import Table
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut, NoHeader,
                      OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Start, Stop, Runs, Seed, TimeCol, load_options,
-                     parse_key_values, plots_flag, print_capture_notes, print_json, progress_bar, stderr, stdout)
+                     parse_key_values, plots_flag, print_capture_notes, phase, print_json, progress_bar, stderr, stdout)
 
 
 @app.command()
@@ -63,13 +63,16 @@ def identify(
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
-        captures = load_captures(data, options, recursive=recursive)
+        with phase(not quiet and not json_out, "loading the captures"):
+            captures = load_captures(data, options, recursive=recursive)
         if not quiet:
             print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, f"identify {model_cls.name} / {opt_cls.name}") as cb:
             res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=not per_condition,
                                bounds=bnds, progress=cb, model_options=mopts, jobs=jobs)
-        write_identify_outputs(res, stage, make_plots=plots_flag(plots, figures_alias))
+        make_plots = plots_flag(plots, figures_alias)
+        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
+            write_identify_outputs(res, stage, make_plots=make_plots)
     pinned = bound_notes(res)
     if pinned and not quiet:
         stderr.print(f"note: {len(pinned)} parameter set(s) have parameters at a search bound (no standard error; "

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import shlex
 import shutil
-import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -17,8 +16,8 @@ from rich.table import Table
 
 from ..errors import ConfigError, OutputError
 from .app import app, guarded
-from .common import (Condition, Force, JsonOut, Method, OutputUnit, Plots, Quiet, TimeCol, parse_condition, print_json,
-                     progress_bar, stderr, stdout)
+from .common import (Condition, Force, JsonOut, Method, OutputUnit, Plots, Quiet, TimeCol, parse_condition, phase,
+                     print_json, progress_bar, stderr, stdout)
 
 TargetArg = Annotated[Optional[Path], typer.Argument(
     help="Target file (CSV/TXT/Parquet): time and desired displacement (target, reference, displacement_um, y, ...). "
@@ -185,10 +184,11 @@ def invert(
                            target_col=target_col, output_unit=output_unit)
     existed = rdir.exists()
     with staged_output_dir(rdir, force) as stage:
-        with progress_bar(not quiet and not json_out and sys.stderr.isatty(), "invert") as cb:
+        with progress_bar(not quiet and not json_out, "invert") as cb:
             res = invert_target(pf, tgt, method=method, condition=cond, initial_voltage=initial_voltage, vmin=vmin,
                                 vmax=vmax, max_slew=max_slew, progress=cb)
-        summary = write_invert_report(res, stage, make_plots=plots, command=command, output_file=str(out))
+        with phase(not quiet and not json_out, f"writing {rdir}" + (" (figures)" if plots else "")):
+            summary = write_invert_report(res, stage, make_plots=plots, command=command, output_file=str(out))
     try:
         write_table(out, res.to_frame())
     except BaseException:

@@ -10,7 +10,7 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, Force, Fs, InputCol, JsonOut, Method, NoHeader, OutputCol,
-                     OutputUnit, Plots, Quiet, Recursive, Start, Stop, TimeCol, load_options, print_json, stderr, stdout)
+                     OutputUnit, Plots, Quiet, Recursive, Start, Stop, TimeCol, load_options, phase, print_json, stderr, stdout)
 
 
 @app.command()
@@ -53,9 +53,12 @@ def simulate(
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            require_output=False, start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
-        captures = load_captures(data, options, recursive=recursive)
-        preds = [predict_capture(pf, c, method, align_offset=align_offset) for c in captures]
-        summary = write_simulate_outputs(pf, preds, stage, fmt=fmt, make_plots=plots)
+        with phase(not quiet and not json_out, "loading the captures"):
+            captures = load_captures(data, options, recursive=recursive)
+        with phase(not quiet and not json_out, f"predicting {len(captures)} capture(s)"):
+            preds = [predict_capture(pf, c, method, align_offset=align_offset) for c in captures]
+        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if plots else "")):
+            summary = write_simulate_outputs(pf, preds, stage, fmt=fmt, make_plots=plots)
     for s in summary:
         for note in s["notes"]:
             stderr.print(f"note: {Path(s['capture']).name}: {note}", markup=False, highlight=False, soft_wrap=True)

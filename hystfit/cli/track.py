@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -11,7 +10,7 @@ from rich.table import Table
 
 from ..errors import ConfigError
 from .app import app, guarded
-from .common import (Condition, Force, JsonOut, OutputUnit, Plots, Quiet, Seed, TimeCol, parse_condition, print_json,
+from .common import (Condition, Force, JsonOut, OutputUnit, Plots, Quiet, Seed, TimeCol, parse_condition, phase, print_json,
                      progress_bar, stderr, stdout)
 
 # --noise is in µm (as in 'hystfit synth'); the loop runs in the parameter file's unit.
@@ -90,12 +89,13 @@ def track(
                            method=method, initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
                            time_col=time_col, target_col=target_col, output_unit=output_unit, out=out)
     with staged_output_dir(out, force) as stage:
-        with progress_bar(not quiet and not json_out and sys.stderr.isatty(), "track") as cb:
+        with progress_bar(not quiet and not json_out, "track") as cb:
             res = run_track(pf, tgt, names, plant_pf=plant_pf, method=method, condition=cond,
                             initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
                             noise_std=noise * UM_PER_UNIT_INV[pf.unit], seed=seed, kp=kp, ki=ki, kd=kd, bandwidth_Hz=bandwidth,
                             anti_windup=anti_windup, progress=cb)
-        summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command)
+        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if plots else "")):
+            summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command)
     for run in res.runs:
         if run.limit_spans:
             n = sum(s.n for s in run.limit_spans)

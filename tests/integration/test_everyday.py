@@ -114,7 +114,7 @@ def test_compare_every_cell_failed_exits_3_with_a_message(tmp_path, monkeypatch)
 
     monkeypatch.setattr(hystfit.compare, "fit_captures", _failing_fit)
     out = tmp_path / "c"
-    r = run("compare", SAMPLE / "a20V_f10Hz.csv", "--models", "pi", "--out", out, "--jobs", "1", "--no-plots")
+    r = run("compare", SAMPLE / "a20V_f10Hz.csv", "--models", "pi", "--out", out, "--jobs", "1", "--no-plots", "-q")
     assert r.exit_code == 3
     line = one_error_line(r)
     assert "every cell failed" in line and "synthetic failure" in line
@@ -337,3 +337,17 @@ def test_models_listing_and_readme_cite_the_papers_not_an_internal_file():
     readme = (ROOT / "README.md").read_text()
     assert "shared/papers" not in readme and "## References" in readme and "doi:10.3390/mi16050492" in readme
     assert "shared/papers" not in (ROOT / "docs" / "models.md").read_text()
+
+
+# -- item 12: a piped stderr is never silent -------------------------------------------------------
+
+def test_progress_on_a_pipe_is_plain_lines(pi_params, tmp_path):
+    r = run("identify", SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a40V_f10Hz.csv", "--out", tmp_path / "o", "--no-plots")
+    assert r.exit_code == 0, r.output
+    err = r.stderr
+    assert "loading the captures …" in err and "identify pi / auto: started (2 step(s))" in err
+    assert "identify pi / auto: 2/2" in err and f"writing {tmp_path / 'o'} …" in err
+    assert "\x1b[" not in err  # no terminal control sequences in a log
+    r = run("invert", pi_params, "--sine", "10,10", "--out", tmp_path / "v.csv")
+    assert r.exit_code == 0, r.output
+    assert "invert: started" in r.stderr and "writing" in r.stderr
