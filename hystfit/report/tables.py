@@ -49,10 +49,19 @@ def markdown_table(df: pd.DataFrame, digits: int = 4) -> str:
     cols = list(df.columns)
     lines = ["| " + " | ".join(str(c) for c in cols) + " |",
              "|" + "|".join("---:" if pd.api.types.is_numeric_dtype(df[c]) else "---" for c in cols) + "|"]
-    columns = [df[c].tolist() for c in cols]  # per column: integer counts stay integers (iterrows makes them floats)
+    # per column: integer counts stay integers (iterrows makes them floats; a missing value makes a
+    # whole count column float in pandas, so count columns are recognised by name too)
+    columns = [[int(v) if _is_count(c) and isinstance(v, float) and v.is_integer() else v for v in df[c].tolist()]
+               for c in cols]
     for row in zip(*columns):
         lines.append("| " + " | ".join(v if isinstance(v, str) else fmt(v, digits) for v in row) + " |")
     return "\n".join(lines)
+
+
+def _is_count(column) -> bool:
+    name = str(column)
+    return name.startswith("n_") and not name.endswith("_pct") or name in ("evaluations", "nfev", "samples", "runs",
+                                                                           "iterations")
 
 
 def metric_legend(unit: str) -> str:

@@ -351,3 +351,12 @@ def test_progress_on_a_pipe_is_plain_lines(pi_params, tmp_path):
     r = run("invert", pi_params, "--sine", "10,10", "--out", tmp_path / "v.csv")
     assert r.exit_code == 0, r.output
     assert "invert: started" in r.stderr and "writing" in r.stderr
+
+
+def test_diagnose_report_leaves_out_a_hold_branch_of_a_few_samples():
+    from hystfit.report.diagnose_report import shown_branches
+
+    br = {"ascending": {"n_samples": 5000}, "descending": {"n_samples": 5000}, "hold": {"n_samples": 3}}
+    assert shown_branches(br) == ["ascending", "descending"]
+    br["hold"]["n_samples"] = 2000  # a step-and-hold capture
+    assert shown_branches(br) == ["ascending", "descending", "hold"]
