@@ -118,23 +118,29 @@ def parse_key_values(items: list[str], what: str) -> dict[str, object]:
     return out
 
 
-#: On a pipe, at most one progress line per this many seconds (plus the first and the last).
+#: On a pipe, at most one progress line per this many seconds (plus the last).
 PLAIN_PROGRESS_INTERVAL_S = 1.0
+#: A step says what it is doing once it has taken this long (quick steps and early errors stay quiet).
+PROGRESS_DELAY_S = 1.0
 
 
 @contextmanager
 def progress_bar(enabled: bool, description: str) -> Iterator:
     """Progress on stderr; yields a ``progress(event, info)`` callback for the library.
 
-    On a terminal a rich bar; on a pipe or file (CI logs, ``2> log``) plain lines — the start, then
-    ``k/N`` with the last item and the elapsed time at most once a second, and the end — so a
-    long run is never silent.
+    On a terminal a rich bar; on a pipe or file (CI logs, ``2> log``) plain lines once the work has
+    taken :data:`PROGRESS_DELAY_S` — the start, then ``k/N`` with the last item and the elapsed time
+    at most once a second, and the end — so a long run is never silent and a short one stays quiet.
     """
     if not enabled:
         yield None
         return
     if not stderr.is_terminal:
-        yield _plain_progress(description)
+        plain = _PlainProgress(description)
+        try:
+            yield plain
+        finally:
+            plain.close()
         return
     prog = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                     TextColumn("{task.fields[last]}"), console=stderr, transient=True)
@@ -154,43 +160,74 @@ def progress_bar(enabled: bool, description: str) -> Iterator:
         yield callback
 
 
-def _plain_progress(description: str):
-    import time
+def _line(text: str) -> None:
+    stderr.print(text, markup=False, highlight=False, soft_wrap=True)
 
-    state = {"total": None, "done": 0, "t0": time.monotonic(), "last": 0.0}
 
-    def line(text: str) -> None:
-        stderr.print(text, markup=False, highlight=False, soft_wrap=True)
+class _PlainProgress:
+    """The ``progress(event, info)`` callback for a pipe: plain lines, see :func:`progress_bar`."""
 
-    def callback(event: str, info: dict) -> None:
-        now = time.monotonic()
+    def __init__(self, description: str) -> None:
+        import threading
+        import time
+
+        self._time = time.monotonic
+        self.description = description
+        self.total = None
+        self.done = 0
+        self.t0 = self.last = self._time()
+        self.spoken = False
+        self._lock = threading.Lock()
+        self._timer = threading.Timer(PROGRESS_DELAY_S, self._started)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def _started(self) -> None:
+        with self._lock:
+            if not self.spoken:
+                self.spoken = True
+                self.last = self._time()
+                steps = f" ({self.done}/{self.total} done)" if self.total else ""
+                _line(f"{self.description}: running{steps}")
+
+    def __call__(self, event: str, info: dict) -> None:
+        now = self._time()
         if event == "start":
-            state.update(total=info.get("total"), done=0, t0=now, last=now)
-            line(f"{description}: started ({state['total']} step(s))" if state["total"] else f"{description}: started")
+            self.total = info.get("total")
         elif event == "advance":
-            state["done"] += 1
-            final = state["total"] is not None and state["done"] >= state["total"]
-            if final or now - state["last"] >= PLAIN_PROGRESS_INTERVAL_S:
-                state["last"] = now
-                of = f"/{state['total']}" if state["total"] else ""
-                label = f" {info['label']}" if info.get("label") else ""
-                line(f"{description}: {state['done']}{of}{label} ({now - state['t0']:.1f} s)")
+            self.done += 1
+            final = self.total is not None and self.done >= self.total
+            with self._lock:
+                due = now - self.t0 >= PROGRESS_DELAY_S and (final or now - self.last >= PLAIN_PROGRESS_INTERVAL_S)
+                if due:
+                    self.spoken, self.last = True, now
+                    of = f"/{self.total}" if self.total else ""
+                    label = f" {info['label']}" if info.get("label") else ""
+                    _line(f"{self.description}: {self.done}{of}{label} ({now - self.t0:.1f} s)")
         elif event == "note":
-            line(str(info.get("text", "")))
+            _line(str(info.get("text", "")))
 
-    return callback
+    def close(self) -> None:
+        self._timer.cancel()
 
 
 @contextmanager
 def phase(enabled: bool, text: str) -> Iterator[None]:
-    """Say what a step that may take a while is doing (loading files, writing figures) on stderr:
-    a spinner on a terminal, one line on a pipe."""
+    """Say what a step that may take a while is doing (loading files, writing figures) on stderr
+    once it has taken :data:`PROGRESS_DELAY_S`: a spinner on a terminal, one line on a pipe."""
     if not enabled:
         yield
         return
     if not stderr.is_terminal:
-        stderr.print(f"{text} …", markup=False, highlight=False, soft_wrap=True)
-        yield
+        import threading
+
+        timer = threading.Timer(PROGRESS_DELAY_S, _line, args=(f"{text} …",))
+        timer.daemon = True
+        timer.start()
+        try:
+            yield
+        finally:
+            timer.cancel()
         return
     with stderr.status(text):
         yield

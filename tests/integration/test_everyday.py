@@ -341,16 +341,19 @@ def test_models_listing_and_readme_cite_the_papers_not_an_internal_file():
 
 # -- item 12: a piped stderr is never silent -------------------------------------------------------
 
-def test_progress_on_a_pipe_is_plain_lines(pi_params, tmp_path):
+def test_progress_on_a_pipe_is_plain_lines(pi_params, tmp_path, monkeypatch):
+    import hystfit.cli.common as common
+
+    monkeypatch.setattr(common, "PROGRESS_DELAY_S", 0.0)  # every step "long"
     r = run("identify", SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a40V_f10Hz.csv", "--out", tmp_path / "o", "--no-plots")
     assert r.exit_code == 0, r.output
     err = r.stderr
-    assert "loading the captures …" in err and "identify pi / auto: started (2 step(s))" in err
+    assert "loading the captures …" in err and "identify pi / auto: running" in err
     assert "identify pi / auto: 2/2" in err and f"writing {tmp_path / 'o'} …" in err
     assert "\x1b[" not in err  # no terminal control sequences in a log
     r = run("invert", pi_params, "--sine", "10,10", "--out", tmp_path / "v.csv")
     assert r.exit_code == 0, r.output
-    assert "invert: started" in r.stderr and "writing" in r.stderr
+    assert "invert: running" in r.stderr and "writing" in r.stderr
 
 
 def test_diagnose_report_leaves_out_a_hold_branch_of_a_few_samples():
@@ -360,3 +363,8 @@ def test_diagnose_report_leaves_out_a_hold_branch_of_a_few_samples():
     assert shown_branches(br) == ["ascending", "descending"]
     br["hold"]["n_samples"] = 2000  # a step-and-hold capture
     assert shown_branches(br) == ["ascending", "descending", "hold"]
+
+
+def test_quick_steps_and_early_errors_stay_quiet_on_a_pipe(tmp_path):
+    r = run("identify", SAMPLE / "a20V_f10Hz.csv", "--bounds", "zz=0:1", "--out", tmp_path / "o")
+    assert r.exit_code == 2 and one_error_line(r)
