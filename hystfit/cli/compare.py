@@ -58,6 +58,7 @@ def compare(
     from ..registry import models as model_registry
     from ..registry import optimizers as optimizer_registry
     from ..report.compare_report import compare_frame, write_compare_outputs
+    from ..report.tables import fmt
     from ..setup import make_optimizer
 
     model_names = model_registry.names() if models.strip().lower() == "all" else _names(models, "models")
@@ -114,5 +115,5 @@ def compare(
             okc = [c for c in cells if c.ok]
             rm = sum(c.best.metrics[f"rmse_{u}"] for c in okc) / len(okc) if okc else float("nan")
             r2 = min((c.best.metrics["r2"] for c in okc), default=float("nan"))
-            t.add_row(m, o, f"{rm:.4g}", f"{r2:.5f}", str(len(cells) - len(okc)), f"{sum(c.runtime_s for c in cells):.2f}")
+            t.add_row(m, o, fmt(rm), fmt(r2, 5), str(len(cells) - len(okc)), f"{sum(c.runtime_s for c in cells):.2f}")
     stdout.print(t)
