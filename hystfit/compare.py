@@ -152,13 +152,14 @@ def run_cell(spec: CellSpec) -> CellResult:
         _warm_up(spec, model, opt)
         fit = fit_captures(spec.captures, model, opt, seed=spec.seed, cell=spec.index, runs=spec.runs,
                            polish=spec.polish, label=spec.label, condition=spec.key)
-        objective = Objective(fit.model, [Series(c.u, c.y, c.dt) for c in spec.captures])
-        sum_y2 = float(sum(np.dot(c.y, c.y) for c in spec.captures))
+        objective = Objective(fit.model, [Series(c.u, c.y, c.dt, c.warmup_samples) for c in spec.captures])
+        sum_y2 = float(sum(np.dot(c.y[c.warmup_samples:], c.y[c.warmup_samples:]) for c in spec.captures))
         to_j = objective.n_total / sum_y2 if sum_y2 > 0 else np.nan  # MSE → J = Σe²/Σy² (004 eq. 16)
         runs = []
         for r in fit.runs:
             preds = objective.predict(r.x)
-            m = compute_metrics_pooled([(c.y, p) for c, p in zip(spec.captures, preds)], fit.unit)
+            m = compute_metrics_pooled([(c.y[c.warmup_samples:], p[c.warmup_samples:])
+                                        for c, p in zip(spec.captures, preds)], fit.unit)
             runs.append(RunMetrics(r.run, r.seed, r.fun, r.fun * to_j, m, r.wall_time_s, r.nfev,
                                    np.asarray(r.result.history_best), float(r.result.fun), float(r.result.fun) * to_j))
         return CellResult(spec.model, spec.optimizer, a, f, spec.label, len(fit.params), tuple(runs), fit.best_run,

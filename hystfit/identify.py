@@ -141,7 +141,7 @@ class _Problem:
     unit: str
 
     def objective(self) -> Objective:
-        return Objective(self.model, [Series(c.u, c.y, c.dt) for c in self.captures])
+        return Objective(self.model, [Series(c.u, c.y, c.dt, c.warmup_samples) for c in self.captures])
 
 
 def _problem(captures: Sequence[Capture], model: Model,
@@ -191,8 +191,11 @@ def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | Non
     theta = records[best].x
     preds = objective.predict(theta)
     unit = problem.unit
-    metrics = compute_metrics_pooled([(c.y, p) for c, p in zip(captures, preds)], unit)
-    per = tuple({"source": c.source, **compute_metrics(c.y, p, unit)} for c, p in zip(captures, preds))
+    # metrics over the scored samples, as the objective (a --warmup is left out)
+    metrics = compute_metrics_pooled([(c.y[c.warmup_samples:], p[c.warmup_samples:]) for c, p in zip(captures, preds)],
+                                     unit)
+    per = tuple({"source": c.source, **compute_metrics(c.y[c.warmup_samples:], p[c.warmup_samples:], unit)}
+                for c, p in zip(captures, preds))
     stderr = _stderr(objective, theta, problem.lower, problem.upper)
     if condition is None:
         condition = (captures[0].amplitude_V, captures[0].frequency_Hz)

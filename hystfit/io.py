@@ -150,6 +150,8 @@ class LoadOptions:
     min_cycles : minimum number of input cycles after trimming.
     start_s, stop_s : keep only the window [start_s, stop_s) of the capture, in seconds from its
         first row (``--start``/``--stop``); None = from the start / to the end.
+    warmup_s : seconds at the start of each capture (after the idle trim and the window) that fits
+        simulate but do not score (``--warmup``): the actuator's unknown initial state settles.
     """
 
     time_col: str | int | None = None
@@ -164,6 +166,7 @@ class LoadOptions:
     min_cycles: float = 2.0
     start_s: float | None = None
     stop_s: float | None = None
+    warmup_s: float = 0.0
 
 
 _SIDECAR_KEYS = ("no_header", "time_col", "input_col", "output_col", "fs", "output_unit", "condition",
@@ -893,7 +896,8 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     if jump:
         notes.append(f"starts mid-loop: the input jumps from {u[0]:.4g} to {u[1]:.4g} V in one sample{where}, so the "
                      "actuator's hysteresis state at the start is unknown and the first samples carry the largest "
-                     "errors (rate-dependent models spike); --start SECONDS can skip them")
+                     "errors (rate-dependent models spike); --warmup SECONDS leaves them out of the fit while the model's "
+                     "state settles, --start SECONDS cuts them off")
     elif windowed and not start:
         notes.append(f"starts mid-loop: the --start window begins while the input moves ({u[0]:.4g} V), so the "
                      "actuator's hysteresis state at the start is unknown; start the window at a rest or turning point")
@@ -902,10 +906,16 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     if cycles < opts.min_cycles:
         raise InputError(f"{label}: only {cycles:.3g} input cycles of {freq:g} Hz after trimming, the minimum is "
                          f"{opts.min_cycles:g}; record a longer capture")
+    warm = int(round(opts.warmup_s / dt)) if opts.warmup_s else 0
+    if warm > u.size - max(4, u.size // 4):
+        raise InputError(f"{label}: --warmup {opts.warmup_s:g} s leaves {max(u.size - warm, 0)} of {u.size} samples "
+                         f"({u.size * dt:.6g} s) to fit; a warm-up may take at most three quarters of a capture")
+    if warm:
+        notes.append(f"warm-up: the first {warm * dt:.6g} s ({warm} samples) are simulated but not scored (--warmup)")
     return Capture(source=label, t=np.arange(u.size, dtype=np.float64) * dt, u=np.ascontiguousarray(u, np.float64),
                    y=None if y is None else np.ascontiguousarray(y, np.float64), dt=float(dt), y_unit=y_unit,
                    trimmed_s=start * dt, trimmed_samples=int(start), amplitude_V=float(amp), frequency_Hz=float(freq),
-                   condition_source=source, notes=tuple(notes))
+                   condition_source=source, notes=tuple(notes), warmup_samples=warm)
 
 
 def _condition(table, chosen, opts, notes, u, dt) -> tuple[float, float, str]:

@@ -19,11 +19,20 @@ BLOCK_ELEMENTS = 8_000_000
 
 @dataclass(frozen=True)
 class Series:
-    """One capture as the objective sees it: input (V), measured output, sample period (s)."""
+    """One capture as the objective sees it: input (V), measured output, sample period (s).
+
+    ``skip``: the first ``skip`` samples are simulated (they set the model's state) but not
+    scored — a warm-up for a capture whose actuator state at the start is unknown (``--warmup``).
+    """
 
     u: np.ndarray
     y: np.ndarray
     dt: float
+    skip: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0 <= int(self.skip) <= self.y.shape[0] - 2:
+            raise ValueError(f"Series.skip {self.skip} must leave at least 2 of the {self.y.shape[0]} samples scored")
 
 
 class Objective:
@@ -40,20 +49,26 @@ class Objective:
         self._sims = [model.simulator(s.u, s.dt) for s in self.series]
         # fused sums of squared errors where the model offers them (no (P, N) outputs in memory)
         self._sse_fns = [model.sse_evaluator(s.u, s.dt, s.y) for s in self.series]
-        self.n_total = int(sum(s.y.shape[0] for s in self.series))
+        # a warm-up is subtracted as the error of the prefix alone: exact for causal models (every
+        # registered model; tests/contract check it), so fused kernels need no change
+        self._prefix_sse = [model.sse_evaluator(s.u[:s.skip], s.dt, s.y[:s.skip]) if s.skip and fn is not None
+                            else None for s, fn in zip(self.series, self._sse_fns)]
+        self.n_total = int(sum(s.y.shape[0] - s.skip for s in self.series))
         self.nfev = 0
 
     def _sse(self, theta: np.ndarray) -> np.ndarray:
         total = np.zeros(theta.shape[0])
-        for sim, sse_fn, s in zip(self._sims, self._sse_fns, self.series):
+        for sim, sse_fn, prefix, s in zip(self._sims, self._sse_fns, self._prefix_sse, self.series):
             if sse_fn is not None:
                 with np.errstate(all="ignore"):
                     total += sse_fn(theta)
+                    if prefix is not None:
+                        total -= prefix(theta)
                 continue
             block = max(1, BLOCK_ELEMENTS // max(s.y.shape[0], 1))
             for i in range(0, theta.shape[0], block):
                 with np.errstate(all="ignore"):
-                    e = sim(theta[i:i + block]) - s.y[None, :]
+                    e = sim(theta[i:i + block])[:, s.skip:] - s.y[None, s.skip:]
                     total[i:i + block] += np.einsum("ij,ij->i", e, e)
         return total
 
@@ -67,7 +82,7 @@ class Objective:
         theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
         self.nfev += 1
         with np.errstate(all="ignore"):
-            return np.concatenate([sim(theta)[0] - s.y for sim, s in zip(self._sims, self.series)])
+            return np.concatenate([sim(theta)[0][s.skip:] - s.y[s.skip:] for sim, s in zip(self._sims, self.series)])
 
     def predict(self, theta: np.ndarray) -> list[np.ndarray]:
         theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
@@ -94,7 +109,7 @@ class Objective:
         call per capture (steps as :meth:`_fd_population`)."""
         h, pop = self._fd_population(theta, rel_step, upper)
         with np.errstate(all="ignore"):
-            ys = [sim(pop) for sim in self._sims]
+            ys = [sim(pop)[:, s.skip:] for sim, s in zip(self._sims, self.series)]
         y = np.concatenate(ys, axis=1)  # (d+1, M)
         self.nfev += h.size + 1
         return ((y[1:] - y[0]) / h[:, None]).T
@@ -120,9 +135,10 @@ class Objective:
         chunk = 1 << 16
         for sim, s in zip(self._sims, self.series):
             with np.errstate(all="ignore"):
-                Y = np.asarray(sim(pop), dtype=np.float64)  # (d+1, N)
+                Y = np.asarray(sim(pop), dtype=np.float64)[:, s.skip:]  # (d+1, N − skip)
+                y = s.y[s.skip:]
                 for a in range(0, Y.shape[1], chunk):  # differences over time chunks: O(d·chunk) extra memory
-                    r = Y[0, a:a + chunk] - s.y[a:a + chunk]
+                    r = Y[0, a:a + chunk] - y[a:a + chunk]
                     rr += float(r @ r)
                     D = (Y[1:, a:a + chunk] - Y[0, a:a + chunk]) / h[:, None]
                     JtJ += D @ D.T

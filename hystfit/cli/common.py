@@ -32,6 +32,9 @@ OutputUnit = Annotated[Optional[str], typer.Option("--output-unit", help="Output
 Recursive = Annotated[bool, typer.Option("--recursive", "-r", help="Expand directories recursively.")]
 Start = Annotated[Optional[float], typer.Option("--start", help="Use each capture from this time on (s from its "
                                                                 "first row), e.g. to skip a mid-loop start.")]
+Warmup = Annotated[float, typer.Option("--warmup", min=0.0, help="Seconds at the start of each capture that the fit "
+                                                                  "simulates but does not score (the actuator's "
+                                                                  "unknown initial state settles), e.g. one cycle.")]
 Stop = Annotated[Optional[float], typer.Option("--stop", help="Use each capture up to this time (s from its first "
                                                               "row).")]
 
@@ -87,7 +90,8 @@ def parse_condition(value: Optional[str]) -> tuple[float, float] | None:
 
 
 def load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                 require_output: bool = True, start: float | None = None, stop: float | None = None):
+                 require_output: bool = True, start: float | None = None, stop: float | None = None,
+                 warmup: float = 0.0):
     from ..io import LoadOptions
 
     if start is not None and not start >= 0:
@@ -101,7 +105,7 @@ def load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite,
     return LoadOptions(time_col=parse_col(time_col), input_col=parse_col(input_col), output_col=parse_col(output_col),
                        no_header=no_header, fs=fs, drop_nonfinite=drop_nonfinite,
                        condition=parse_condition(condition), output_unit=output_unit, require_output=require_output,
-                       start_s=start, stop_s=stop)
+                       start_s=start, stop_s=stop, warmup_s=warmup)
 
 
 def parse_key_values(items: list[str], what: str) -> dict[str, object]:

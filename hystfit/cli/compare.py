@@ -10,7 +10,7 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut, NoHeader,
-                     OutputCol, OutputUnit, Plots, Pop, Quiet, Recursive, Start, Stop, Runs, Seed, TimeCol, load_options, plots_flag,
+                     OutputCol, OutputUnit, Plots, Pop, Quiet, Recursive, Start, Stop, Warmup, Runs, Seed, TimeCol, load_options, plots_flag,
                      print_capture_notes, phase, print_json, progress_bar, stderr, stdout)
 
 
@@ -45,7 +45,7 @@ def compare(
     figures_alias: FiguresAlias = None,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False, start: Start = None, stop: Stop = None,
+    recursive: Recursive = False, start: Start = None, stop: Stop = None, warmup: Warmup = 0.0,
 ) -> None:
     """Compare models and optimizers on the captures: every model × optimizer × condition (× runs).
 
@@ -73,7 +73,7 @@ def compare(
         opt_options[o] = {k: v for k, v in inst.settings().items() if k in ("pop", "iters") and
                           ((k == "pop" and pop is not None) or (k == "iters" and iters is not None))}
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                           start=start, stop=stop)
+                           start=start, stop=stop, warmup=warmup)
     with staged_output_dir(out, force) as stage:
         with phase(not quiet and not json_out, "loading the captures"):
             captures = load_captures(data, options, recursive=recursive)

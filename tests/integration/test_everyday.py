@@ -368,3 +368,16 @@ def test_diagnose_report_leaves_out_a_hold_branch_of_a_few_samples():
 def test_quick_steps_and_early_errors_stay_quiet_on_a_pipe(tmp_path):
     r = run("identify", SAMPLE / "a20V_f10Hz.csv", "--bounds", "zz=0:1", "--out", tmp_path / "o")
     assert r.exit_code == 2 and one_error_line(r)
+
+
+def test_warmup_is_simulated_but_not_scored(tmp_path):
+    r = run("identify", REAL, "--warmup", "1", "--out", tmp_path / "w", "--no-plots", "--json")
+    assert r.exit_code == 0, r.output
+    full = run("identify", REAL, "--out", tmp_path / "f", "--no-plots", "--json")
+    mw = json.loads(r.stdout)["conditions"][0]["metrics"]
+    mf = json.loads(full.stdout)["conditions"][0]["metrics"]
+    assert mf["n_samples"] - mw["n_samples"] == 5000  # 1 s at 5 kHz left out of the objective and the metrics
+    assert mw["max_error_um"] < 0.2 * mf["max_error_um"]
+    assert "warm-up: the first 1 s (5000 samples) are simulated but not scored" in r.stderr
+    r = run("identify", REAL, "--warmup", "100", "--out", tmp_path / "x")
+    assert r.exit_code == 2 and "--warmup 100 s leaves" in one_error_line(r)
