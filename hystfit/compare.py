@@ -20,7 +20,7 @@ import numpy as np
 from .capture import Capture
 from .conditions import condition_label, group_by_condition
 from .errors import ConfigError, HystfitError
-from .identify import fit_captures
+from .identify import check_seed, fit_captures
 from .metrics import compute_metrics_pooled
 from .objective import Objective, Series
 from .parallel import default_jobs, run_jobs
@@ -178,6 +178,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
             model_options: Mapping[str, dict] | None = None, optimizer_options: Mapping[str, dict] | None = None,
             progress: Progress = None) -> CompareResult:
     """Run the cross product models × optimizers × conditions with ``runs`` runs per cell."""
+    check_seed(seed)
     if not model_names or not optimizer_names:
         raise ConfigError("compare needs at least one model and one optimizer")
     for m in model_names:

@@ -15,7 +15,7 @@ import numpy as np
 
 from .capture import Capture
 from .conditions import condition_label, group_by_condition
-from .errors import InputError
+from .errors import ConfigError, InputError
 from .metrics import compute_metrics, compute_metrics_pooled
 from .models.base import Model
 from .objective import Objective, Series
@@ -109,6 +109,17 @@ class IdentifyResult:
     fits: tuple[ConditionFit, ...]
     bounds_overrides: dict = field(default_factory=dict)
     model_options: dict = field(default_factory=dict)
+
+
+SEED_MAX = 2 ** 32 - 1
+
+
+def check_seed(seed) -> int:
+    """``seed`` as an int; :class:`ConfigError` unless it is an integer in [0, 2**32 − 1] (the CLI's
+    ``--seed`` range), so the library refuses what the command line refuses, with the same words."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) <= SEED_MAX:
+        raise ConfigError(f"seed must be an integer in [0, {SEED_MAX}]. Got {seed!r} instead.")
+    return int(seed)
 
 
 def run_seed(seed: int, cell: int, run: int) -> int:
@@ -258,6 +269,7 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     ``jobs`` > 1 spreads the (condition, run) pairs over a process pool (None: all cores); every
     run's seed depends only on (seed, condition index, run), so the numbers do not depend on ``jobs``.
     """
+    check_seed(seed)
     if not captures:
         raise InputError("no captures to identify")
     unit = _output_unit(captures)

@@ -381,3 +381,19 @@ def test_warmup_is_simulated_but_not_scored(tmp_path):
     assert "warm-up: the first 1 s (5000 samples) are simulated but not scored" in r.stderr
     r = run("identify", REAL, "--warmup", "100", "--out", tmp_path / "x")
     assert r.exit_code == 2 and "--warmup 100 s leaves" in one_error_line(r)
+
+
+def test_library_refuses_bad_seeds_like_the_cli():
+    from hystfit.compare import compare
+    from hystfit.errors import ConfigError
+    from hystfit.identify import identify
+    from hystfit.io import load_capture
+    from hystfit.models.pi import PI
+    from hystfit.optimizers.auto import Auto
+
+    caps = [load_capture(SAMPLE / "a20V_f10Hz.csv")]
+    for bad in (-5, 2 ** 32, 1.5, True):
+        with pytest.raises(ConfigError, match="seed must be an integer"):
+            identify(caps, PI(), Auto(), seed=bad)
+        with pytest.raises(ConfigError, match="seed must be an integer"):
+            compare(caps, ["pi"], ["auto"], seed=bad)
