@@ -841,10 +841,12 @@ def _window(table: _Table, opts: LoadOptions, notes: list[str], u: np.ndarray, y
     i0 = 0 if opts.start_s is None else int(math.ceil(opts.start_s / dt - 1e-9))
     i1 = n if opts.stop_s is None else min(n, int(math.ceil(opts.stop_s / dt - 1e-9)))
     if i1 - i0 < 4:
+        stop = opts.stop_s if opts.stop_s is not None else duration
         raise InputError(f"{table.label}: --start/--stop keep {max(i1 - i0, 0)} samples of this {duration:.6g} s "
-                         f"capture (window {opts.start_s or 0:g}…{opts.stop_s if opts.stop_s is not None else duration:.6g} "
-                         "s from its first row); choose a window inside the capture")
-    notes.append(f"kept {i0 * dt:.6g}…{i1 * dt:.6g} s of {duration:.6g} s (--start/--stop; rows {rows[i0]}–{rows[i1 - 1]})")
+                         f"capture (window {opts.start_s or 0:g}…{stop:.6g} s from its first row); choose a window "
+                         "inside the capture")
+    notes.append(f"kept {i0 * dt:.6g}…{i1 * dt:.6g} s of {duration:.6g} s (--start/--stop; rows {rows[i0]}–"
+                 f"{rows[i1 - 1]})")
     return u[i0:i1], (None if y is None else y[i0:i1]), rows[i0:i1], i0 > 0
 
 

@@ -9,9 +9,10 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut, NoHeader,
-                     OutputCol, OutputUnit, Plots, Pop, Quiet, Recursive, Start, Stop, Warmup, Runs, Seed, TimeCol, load_options, plots_flag,
-                     print_capture_notes, phase, print_json, progress_bar, stderr, stdout)
+from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut,
+                     NoHeader, OutputCol, OutputUnit, Plots, Pop, Quiet, Recursive, Start, Stop, Warmup, Runs, Seed,
+                     TimeCol, load_options, plots_flag, print_capture_notes, phase, print_json, progress_bar, stderr,
+                     stdout)
 
 
 def _names(text: str, what: str) -> list[str]:

@@ -10,8 +10,8 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, JsonOut, NoHeader, OutputCol,
-                     OutputUnit, PerCondition, Plots, Quiet, Recursive, Start, Stop, Seed, TimeCol, load_options, parse_key_values,
-                     plots_flag, print_capture_notes, phase, print_json, progress_bar, stdout)
+                     OutputUnit, PerCondition, Plots, Quiet, Recursive, Start, Stop, Seed, TimeCol, load_options,
+                     parse_key_values, plots_flag, print_capture_notes, phase, print_json, progress_bar, stdout)
 
 
 def _parse_effects(value: Optional[str]) -> list[str] | None:

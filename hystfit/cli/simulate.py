@@ -10,7 +10,8 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, Force, Fs, InputCol, JsonOut, Method, NoHeader, OutputCol,
-                     OutputUnit, Plots, Quiet, Recursive, Start, Stop, TimeCol, load_options, phase, print_json, stderr, stdout)
+                     OutputUnit, Plots, Quiet, Recursive, Start, Stop, TimeCol, load_options, phase, print_json, stderr,
+                     stdout)
 
 
 @app.command()

@@ -10,8 +10,8 @@ from rich.table import Table
 
 from ..errors import ConfigError
 from .app import app, guarded
-from .common import (Condition, Force, JsonOut, OutputUnit, Plots, Quiet, Seed, TimeCol, parse_condition, phase, print_json,
-                     progress_bar, stderr, stdout)
+from .common import (Condition, Force, JsonOut, OutputUnit, Plots, Quiet, Seed, TimeCol, parse_condition, phase,
+                     print_json, progress_bar, stderr, stdout)
 
 # --noise is in µm (as in 'hystfit synth'); the loop runs in the parameter file's unit.
 UM_PER_UNIT_INV = {"nm": 1e3, "um": 1.0, "mm": 1e-3, "m": 1e-6}
