@@ -24,10 +24,6 @@ DEFAULT_DIFFERS = {
 #: Spellings retired in favour of one name: they may only exist as hidden aliases.
 RETIRED = {"--figures": "--plots"}
 
-#: Different flags that must never name the same concept again.
-ONE_NAME = [("--plots", "--figures"), ("--global", "--global-fit")]
-
-
 def _commands():
     root = typer.main.get_command(app)
 
@@ -67,6 +63,21 @@ def test_shared_options_have_one_spelling_default_and_range():
                                                                       getattr(first, "max", None)):
                 problems.append(f"{flag}: range differs between {cmd} and {first_cmd}")
     assert not problems, "\n".join(problems)
+
+
+def test_a_flag_is_always_spelled_the_same_way():
+    """A flag that appears in several commands comes with the same other spellings everywhere
+    (``--global`` is always the other half of ``--per-condition/--global``, never a lone flag)."""
+    spellings = defaultdict(set)
+    for name, cmd in _commands().items():
+        for p in cmd.params:
+            if p.param_type_name != "option" or p.hidden:
+                continue
+            full = tuple(sorted(p.opts + p.secondary_opts))
+            for flag in full:
+                spellings[flag].add(full)
+    clashes = {flag: sorted(v) for flag, v in spellings.items() if len(v) > 1}
+    assert not clashes, clashes
 
 
 def test_retired_spellings_are_hidden_aliases_only():
