@@ -12,7 +12,7 @@ from ..io import atomic_write_text, write_table
 from ..predict import Prediction
 from ..results import ParamsFile, _clean, dumps
 from . import plots
-from .tables import frame, markdown_table, metric_columns, metric_legend
+from .tables import distinct_names, frame, markdown_table, metric_columns, metric_legend
 
 
 def _stem(pred: Prediction, seen: dict[str, int]) -> str:
@@ -50,8 +50,9 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
                                         title=f"{pf.model_name} prediction – {c.name}")
         summary.append(_clean(entry))
     rows = []
-    for s in summary:
-        row = {"capture": Path(s["capture"]).name, "amplitude_V": s["amplitude_V"], "frequency_Hz": s["frequency_Hz"],
+    names = distinct_names([s["capture"] for s in summary])
+    for s, name in zip(summary, names):
+        row = {"capture": name, "amplitude_V": s["amplitude_V"], "frequency_Hz": s["frequency_Hz"],
                "cells": ", ".join(f"{lab}×{w:.2f}" for lab, w in s["cells"])}
         if any(x[f"offset_{u}"] is not None for x in summary):
             row[f"offset_{u}"] = s[f"offset_{u}"]
@@ -63,7 +64,7 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
     if any(s[f"offset_{u}"] is not None for s in summary):
         lines += [f"`offset_{u}`: a constant fitted per capture (mean of measured − predicted) and added to the "
                   "prediction before the metrics (--align-offset); without it the offset shows as the bias.", ""]
-    noted = [(Path(s["capture"]).name, n) for s in summary for n in s["notes"]]
+    noted = [(name, n) for s, name in zip(summary, names) for n in s["notes"]]
     if noted:
         lines += ["## Notes", ""] + [f"- {name}: {n}" for name, n in noted] + [""]
     text = "\n".join(lines + ["Formulas:", "", metric_legend(u), ""])

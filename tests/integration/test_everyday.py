@@ -397,3 +397,15 @@ def test_library_refuses_bad_seeds_like_the_cli():
             identify(caps, PI(), Auto(), seed=bad)
         with pytest.raises(ConfigError, match="seed must be an integer"):
             compare(caps, ["pi"], ["auto"], seed=bad)
+
+
+def test_simulate_tells_captures_with_the_same_name_apart(grid_params, tmp_path):
+    for day in ("day1", "day2"):
+        (tmp_path / day).mkdir()
+        shutil.copy(SAMPLE / "a20V_f10Hz.csv", tmp_path / day / "cap.csv")
+    r = run("simulate", grid_params, tmp_path / "day1" / "cap.csv", tmp_path / "day2" / "cap.csv", "--out",
+            tmp_path / "s", "--no-plots")
+    assert r.exit_code == 0, r.output
+    assert "day1/cap.csv" in r.stdout and "day2/cap.csv" in r.stdout
+    report = (tmp_path / "s" / "report.md").read_text()
+    assert "| day1/cap.csv |" in report and "| day2/cap.csv |" in report
