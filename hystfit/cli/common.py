@@ -41,7 +41,19 @@ Stop = Annotated[Optional[float], typer.Option("--stop", help="Use each capture 
 # Options several commands share: one name, one meaning, one default, one range (enforced by
 # tests/integration/test_option_names.py).
 SEED_MAX = 2 ** 32 - 1
-Seed = Annotated[int, typer.Option("--seed", min=0, max=SEED_MAX,
+
+
+def seed_callback(value: int) -> int:
+    """Validate ``--seed`` with the library's own rule and words (:func:`hystfit.identify.check_seed`)."""
+    from ..identify import check_seed
+
+    try:
+        return check_seed(value)
+    except ConfigError as exc:
+        raise typer.BadParameter(str(exc)) from None
+
+
+Seed = Annotated[int, typer.Option("--seed", callback=seed_callback,
                                    help="Seed of every random choice (0 … 4294967295); each run derives its own.")]
 Pop = Annotated[Optional[int], typer.Option("--pop", min=1, show_default="the optimizer's own, see 'hystfit "
                                             "optimizers'", help="Population size of population-based optimizers "

@@ -10,7 +10,7 @@ import typer
 
 from ..errors import ConfigError, OutputError
 from .app import app, guarded
-from .common import SEED_MAX
+from .common import seed_callback
 
 synth_app = typer.Typer(
     help="Write synthetic captures of a virtual piezo stage (PI hysteresis + switchable effects).",
@@ -26,8 +26,9 @@ _EFFECTS_HELP = (
 Seed = Annotated[
     int,
     typer.Option(
-        "--seed", min=0, max=SEED_MAX,
-        help="Seed: the sensor noise uses it, random excitations seed+500; campaign file i uses seed*1000+i.",
+        "--seed", callback=seed_callback,
+        help="Seed (0 … 4294967295): the sensor noise uses it, random excitations seed+500; campaign file i uses "
+             "seed*1000+i.",
     ),
 ]
 EffectsOpt = Annotated[str, typer.Option("--effects", help=_EFFECTS_HELP)]

@@ -92,4 +92,7 @@ def test_numeric_options_state_their_range(flag):
     for name, cmd in _commands().items():
         for p in cmd.params:
             if flag in p.opts:
-                assert getattr(p, "min", None) is not None, f"{name} {flag}: no lower limit"
+                checked = getattr(p, "min", None) is not None or p.callback is not None
+                assert checked, f"{name} {flag}: no lower limit"
+                if flag == "--seed":
+                    assert p.callback is not None and "4294967295" in p.help, f"{name} --seed: not the shared check"
