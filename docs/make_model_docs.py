@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hystfit.io import atomic_write_text  # noqa: E402
 from hystfit.params import DataScale  # noqa: E402
+from hystfit.references import PAPERS, cite  # noqa: E402
 from hystfit.registry import models  # noqa: E402
 from hystfit.report.plots import loop_figure  # noqa: E402
 
@@ -35,7 +36,7 @@ def reference_input() -> tuple[np.ndarray, np.ndarray]:
 
 def docstring_summary(cls) -> str:
     doc = (cls.__doc__ or "").strip()
-    return doc.split("\n\n")[0].replace("\n", " ").strip()
+    return cite(doc.split("\n\n")[0].replace("\n", " ").strip())
 
 
 def main(argv: list[str] | None = None) -> list[Path]:
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> list[Path]:
         fig = loop_figure(out / "figures" / f"model_{name}.png", u, y, None, unit="um",
                           title=f"{name} (default parameters)", labels=("model", ""))
         written.append(fig)
-        lines += [f"## `{name}` — {cls.title}", "", f"Reference: {cls.reference}.", "",
+        lines += [f"## `{name}` — {cls.title}", "", f"Reference: {cite(cls.reference)}.", "",
                   f"Equation: `{cls.equation}`", "", docstring_summary(cls), "",
                   "| parameter | unit | lower | upper | default | meaning |", "|---|---|---:|---:|---:|---|"]
         for p in params:
@@ -74,6 +75,7 @@ def main(argv: list[str] | None = None) -> list[Path]:
                       "structure is identified from the captures.", ""]
         lines += [f"![{name} loop](figures/model_{name}.png)", ""]
     md = out / "models.md"
+    lines += ["## Papers", ""] + [f"- **{pid}** — {text}" for pid, text in PAPERS.items()] + [""]
     atomic_write_text(md, "\n".join(lines))
     written.append(md)
     return written

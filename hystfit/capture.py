@@ -24,6 +24,7 @@ class Capture:
     amplitude_V, frequency_Hz : the operating condition (tidy values, see :mod:`hystfit.conditions`).
     condition_source : ``"detected"``, ``"column"`` or ``"option"``.
     notes : human-readable remarks made while loading (trim, dropped rows, assumed unit, ...).
+    warmup_samples : leading samples simulated but left out of fits and their metrics (``--warmup``).
     """
 
     source: str
@@ -38,6 +39,7 @@ class Capture:
     frequency_Hz: float = float("nan")
     condition_source: str = "detected"
     notes: tuple[str, ...] = field(default_factory=tuple)
+    warmup_samples: int = 0
 
     @property
     def n(self) -> int:

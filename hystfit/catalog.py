@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from .params import DataScale
+from .references import cite
 from .registry import blocks, models, optimizers
 
 #: the reference data scale used to show default bounds: 0–100 V → 0–30 µm at 10 kHz
@@ -19,9 +20,9 @@ def model_catalog() -> list[dict]:
         params = [{"name": p.name, "unit": p.unit.replace("out", "um"), "lower": p.lower, "upper": p.upper,
                    "default": p.default, "description": p.description} for p in m.params(REFERENCE_SCALE)]
         structure = {f.name: f.default for f in dataclasses.fields(cls)}
-        out.append({"name": name, "title": cls.title, "reference": cls.reference, "equation": cls.equation,
+        out.append({"name": name, "title": cls.title, "reference": cite(cls.reference), "equation": cls.equation,
                     "rate_dependent": cls.rate_dependent, "has_inverse": _has_inverse(cls), "structure": structure, "parameters": params,
-                    "doc": (cls.__doc__ or "").strip().splitlines()[0]})
+                    "doc": cite((cls.__doc__ or "").strip().splitlines()[0])})
     return out
 
 
@@ -52,6 +53,6 @@ def optimizer_catalog() -> list[dict]:
     for name in optimizers.names():
         cls = optimizers.get(name)
         settings = dict(cls.setting_docs())
-        out.append({"name": name, "title": cls.title, "reference": cls.reference, "settings": settings,
-                    "doc": (cls.__doc__ or "").strip().splitlines()[0]})
+        out.append({"name": name, "title": cls.title, "reference": cite(cls.reference), "settings": settings,
+                    "doc": cite((cls.__doc__ or "").strip().splitlines()[0])})
     return out

@@ -20,7 +20,7 @@ import numpy as np
 from .capture import Capture
 from .conditions import condition_label, group_by_condition
 from .errors import ConfigError, HystfitError
-from .identify import fit_captures
+from .identify import check_seed, fit_captures
 from .metrics import compute_metrics_pooled
 from .objective import Objective, Series
 from .parallel import default_jobs, run_jobs
@@ -158,13 +158,14 @@ def run_cell(spec: CellSpec) -> CellResult:
         _warm_up(spec, model, opt)
         fit = fit_captures(spec.captures, model, opt, seed=spec.seed, cell=spec.index, runs=spec.runs,
                            polish=spec.polish, label=spec.label, condition=spec.key, bounds=spec.bounds)
-        objective = Objective(fit.model, [Series(c.u, c.y, c.dt) for c in spec.captures])
-        sum_y2 = float(sum(np.dot(c.y, c.y) for c in spec.captures))
+        objective = Objective(fit.model, [Series(c.u, c.y, c.dt, c.warmup_samples) for c in spec.captures])
+        sum_y2 = float(sum(np.dot(c.y[c.warmup_samples:], c.y[c.warmup_samples:]) for c in spec.captures))
         to_j = objective.n_total / sum_y2 if sum_y2 > 0 else np.nan  # MSE → J = Σe²/Σy² (004 eq. 16)
         runs = []
         for r in fit.runs:
             preds = objective.predict(r.x)
-            m = compute_metrics_pooled([(c.y, p) for c, p in zip(spec.captures, preds)], fit.unit)
+            m = compute_metrics_pooled([(c.y[c.warmup_samples:], p[c.warmup_samples:])
+                                        for c, p in zip(spec.captures, preds)], fit.unit)
             runs.append(RunMetrics(r.run, r.seed, r.fun, r.fun * to_j, m, r.wall_time_s, r.nfev,
                                    np.asarray(r.result.history_best), float(r.result.fun), float(r.result.fun) * to_j,
                                    int(r.result.nfev)))
@@ -222,6 +223,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     options validated) before any fit; its settings, which fix its budget, are recorded in the
     result. ``global_fit`` fits one parameter set to all captures instead of one per condition.
     """
+    check_seed(seed)
     if not model_names or not optimizer_names:
         raise ConfigError("compare needs at least one model and one optimizer")
     for m in model_names:

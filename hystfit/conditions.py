@@ -126,6 +126,49 @@ def detect_condition(u: np.ndarray, dt: float) -> ConditionKey:
     return amplitude, tidy(_refine_Hz(u, dt, f0))
 
 
+#: Ratio between the input's peak-to-peak (or zero-crossing rate) in the first and the last third
+#: of a capture above which its amplitude (or frequency) is called non-stationary.
+STATIONARY_RATIO = 1.3
+
+
+def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str]:
+    """Warnings for a capture whose amplitude or frequency changes along it (rising sines, sweeps).
+
+    One condition (a look-up-table cell) stands for one stationary drive. The input's
+    peak-to-peak and its rate of mean crossings are compared between the first and the last third
+    of the capture; a ratio above :data:`STATIONARY_RATIO` means the capture mixes conditions.
+    Stationary broadband inputs (PRBS) have the same range and crossing rate in every third and
+    are not flagged.
+
+    Returns
+    -------
+    list of str
+        Empty for a stationary capture; else one line per changing quantity, with the values.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    n = u.size
+    if n < 30:
+        return []
+    thirds = (u[: n // 3], u[n - n // 3:])
+    out = []
+    pp = [float(x.max() - x.min()) for x in thirds]
+    label = condition_label(key)
+    if min(pp) > 0 and max(pp) / min(pp) > STATIONARY_RATIO or min(pp) == 0 < max(pp):
+        out.append(f"the amplitude changes along the capture (peak-to-peak {pp[0]:.3g} V in the first third, "
+                   f"{pp[1]:.3g} V in the last): it is not one operating condition, and its label {label} (the full "
+                   "range) holds only where the drive is largest; cut a stationary part with --start/--stop or name "
+                   "it with --condition")
+    mean = float(u.mean())
+    rates = [np.count_nonzero(np.diff(np.signbit(x - mean))) / (x.size * dt) for x in thirds]
+    crossings = [np.count_nonzero(np.diff(np.signbit(x - mean))) for x in thirds]
+    if min(crossings) >= 4 and max(rates) / max(min(rates), 1e-300) > STATIONARY_RATIO:
+        out.append(f"the frequency changes along the capture (about {rates[0] / 2:.3g} Hz in the first third, "
+                   f"{rates[1] / 2:.3g} Hz in the last, from mean crossings): it is not one operating condition, "
+                   f"and its label {label} is only the strongest spectral line; cut a stationary part with "
+                   "--start/--stop or name it with --condition")
+    return out
+
+
 def count_cycles(u: np.ndarray, dt: float, frequency_Hz: float) -> float:
     """Number of input cycles in a capture: duration ``len(u)·dt`` (s) times ``frequency_Hz`` (Hz)."""
     return float(np.asarray(u).shape[0] * dt * frequency_Hz)

@@ -25,3 +25,12 @@ class ConfigError(HystfitError, ValueError):
 
 class OutputError(HystfitError, OSError):
     """An output location cannot be written (exists and is not empty, no permission, ...)."""
+
+
+class NoResultError(HystfitError):
+    """A command ran but produced no usable result (e.g. every cell of ``compare`` failed).
+
+    Exit code 3, so scripts can tell "nothing to use" from bad input (2) and Ctrl-C (130).
+    """
+
+    exit_code = 3

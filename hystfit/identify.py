@@ -15,14 +15,14 @@ import numpy as np
 
 from .capture import Capture
 from .conditions import condition_label, group_by_condition
-from .errors import InputError
+from .errors import ConfigError, InputError
 from .metrics import compute_metrics, compute_metrics_pooled
 from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import OptimizeResult, Optimizer
 from .optimizers.lsq import polisher
 from .parallel import default_jobs, run_jobs
-from .params import DataScale, Param, apply_bound_overrides
+from .params import DataScale, Param, apply_bound_overrides, bound_side
 
 #: progress(event, info) — events: "start" (total units), "advance" (one run done), "note" (text).
 Progress = Optional[Callable[[str, dict], None]]
@@ -72,6 +72,11 @@ class ConditionFit:
         return int(sum(r.nfev for r in self.runs))
 
     @property
+    def at_bound(self) -> tuple[str | None, ...]:
+        """Per parameter: ``"lower"``/``"upper"`` when the value is pinned at that bound (see :func:`bound_side`)."""
+        return tuple(bound_side(float(v), p.lower, p.upper) for p, v in zip(self.params, self.theta))
+
+    @property
     def best(self) -> RunRecord:
         return self.runs[self.best_run]
 
@@ -106,6 +111,17 @@ class IdentifyResult:
     model_options: dict = field(default_factory=dict)
 
 
+SEED_MAX = 2 ** 32 - 1
+
+
+def check_seed(seed) -> int:
+    """``seed`` as an int; :class:`ConfigError` unless it is an integer in [0, 2**32 − 1] (the CLI's
+    ``--seed`` range), so the library refuses what the command line refuses, with the same words."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) <= SEED_MAX:
+        raise ConfigError(f"seed must be an integer in [0, {SEED_MAX}]. Got {seed!r} instead.")
+    return int(seed)
+
+
 def run_seed(seed: int, cell: int, run: int) -> int:
     """Derived seed of run ``run`` of cell ``cell``: reproducible and independent across runs."""
     return int(np.random.SeedSequence([int(seed), int(cell), int(run)]).generate_state(1, dtype=np.uint32)[0])
@@ -136,7 +152,7 @@ class _Problem:
     unit: str
 
     def objective(self) -> Objective:
-        return Objective(self.model, [Series(c.u, c.y, c.dt) for c in self.captures])
+        return Objective(self.model, [Series(c.u, c.y, c.dt, c.warmup_samples) for c in self.captures])
 
 
 def _problem(captures: Sequence[Capture], model: Model,
@@ -185,8 +201,11 @@ def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | Non
     theta = records[best].x
     preds = objective.predict(theta)
     unit = problem.unit
-    metrics = compute_metrics_pooled([(c.y, p) for c, p in zip(captures, preds)], unit)
-    per = tuple({"source": c.source, **compute_metrics(c.y, p, unit), **_nuisance_fields(a, unit)}
+    # metrics over the scored samples, as the objective (a --warmup is left out)
+    metrics = compute_metrics_pooled([(c.y[c.warmup_samples:], p[c.warmup_samples:]) for c, p in zip(captures, preds)],
+                                     unit)
+    per = tuple({"source": c.source, **compute_metrics(c.y[c.warmup_samples:], p[c.warmup_samples:], unit),
+                 **_nuisance_fields(a, unit)}
                 for c, p, a in zip(captures, preds, objective.nuisance_coefficients(theta)))
     stderr = _stderr(objective, theta, problem.lower, problem.upper)
     if condition is None:
@@ -239,8 +258,7 @@ def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: n
     if m <= d or not (np.all(np.isfinite(JtJ)) and np.isfinite(rr)):
         return np.full(theta.shape, np.nan)
     sigma2 = rr / (m - d)
-    width = upper - lower
-    free = (theta - lower > 1e-6 * width) & (upper - theta > 1e-6 * width)
+    free = np.array([bound_side(float(v), lo, hi) is None for v, lo, hi in zip(theta, lower, upper)], dtype=bool)
     out = np.full(theta.shape, np.nan)
     if free.any():
         cov = np.linalg.pinv(JtJ[np.ix_(free, free)]) * sigma2
@@ -258,6 +276,7 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     ``jobs`` > 1 spreads the (condition, run) pairs over a process pool (None: all cores); every
     run's seed depends only on (seed, condition index, run), so the numbers do not depend on ``jobs``.
     """
+    check_seed(seed)
     if not captures:
         raise InputError("no captures to identify")
     unit = _output_unit(captures)

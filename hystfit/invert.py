@@ -1179,12 +1179,9 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
         if ch.note:
             notes.append(f"segment {ch.segment.label}: {ch.note}")
         if ch.clamped:
-            notes.append(f"segment {ch.segment.label}: condition {ch.condition[0]:.4g} V, {ch.condition[1]:.4g} Hz "
-                         f"lies outside the table's grid; clamped to {ch.query[0]:.4g} V, {ch.query[1]:.4g} Hz")
+            notes.append(f"segment {ch.segment.label}: {clamp_note(ch.condition, ch.query)}")
     extrap = _extrapolation(pf, choices, u_app)
-    for x in extrap:
-        notes.append(f"cell {x['cell']} (identified on {x['identified_V'][0]:.4g}…{x['identified_V'][1]:.4g} V) is "
-                     f"used on {x['used_V'][0]:.4g}…{x['used_V'][1]:.4g} V: extrapolated")
+    notes += [extrapolation_note(x) for x in extrap]
     limits = {"vmin_V": lo, "vmax_V": hi, "vmin_source": "default" if vmin is None else "given",
               "vmax_source": "default" if vmax is None else "given",
               "default_rule": f"identification voltage range {min(c.scale.u_min for c in pf.cells):g}…"
@@ -1195,17 +1192,36 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
                            tuple(slew_spans), tuple(extrap), tuple(notes), time.perf_counter() - t0)
 
 
+def clamp_note(condition: tuple[float, float], query: tuple[float, float]) -> str:
+    """The note for a condition outside the table's grid (shared by invert, track and simulate)."""
+    return (f"condition {condition[0]:.4g} V, {condition[1]:.4g} Hz lies outside the table's grid; clamped to "
+            f"{query[0]:.4g} V, {query[1]:.4g} Hz")
+
+
+def extrapolation_note(x: dict) -> str:
+    """The note for one entry of :func:`extrapolated_cells` (shared by invert, track and simulate)."""
+    return (f"cell {x['cell']} (identified on {x['identified_V'][0]:.4g}…{x['identified_V'][1]:.4g} V) is used on "
+            f"{x['used_V'][0]:.4g}…{x['used_V'][1]:.4g} V: extrapolated")
+
+
 def _extrapolation(pf: ParamsFile, choices: Sequence[SegmentChoice], u: np.ndarray) -> list[dict]:
     """Used cells driven outside their identification voltage range by more than 2 % of it.
 
     One entry per cell with the voltage range it is used on (over all segments using it).
     """
+    return extrapolated_cells(pf, ((c.index, u[ch.segment.start:ch.segment.stop]) for ch in choices for c in ch.cells))
+
+
+def extrapolated_cells(pf: ParamsFile, uses) -> list[dict]:
+    """Cells driven outside their identification voltage range by more than 2 % of it.
+
+    ``uses``: (cell index, voltages it is applied to) pairs. One entry per cell with the voltage
+    range it is used on over all its uses.
+    """
     used: dict[int, list[float]] = {}
-    for ch in choices:
-        seg = u[ch.segment.start:ch.segment.stop]
-        for c in ch.cells:
-            r = used.setdefault(c.index, [float("inf"), float("-inf")])
-            r[0], r[1] = min(r[0], float(seg.min())), max(r[1], float(seg.max()))
+    for index, seg in uses:
+        r = used.setdefault(index, [float("inf"), float("-inf")])
+        r[0], r[1] = min(r[0], float(np.min(seg))), max(r[1], float(np.max(seg)))
     out = []
     for i, (ulo, uhi) in sorted(used.items()):
         s = pf.cells[i].scale

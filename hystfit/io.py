@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from .capture import Capture
-from .conditions import count_cycles, detect_condition
+from .conditions import count_cycles, detect_condition, nonstationary_notes
 from .errors import InputError, OutputError
 
 CAPTURE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".parquet", ".pq")
@@ -142,11 +142,16 @@ class LoadOptions:
         auto-detects by name.
     no_header : the file has no header row (columns must then be given by index).
     fs : sample rate (Hz) for files without a time column.
-    drop_nonfinite : drop rows with NaN/inf/empty cells instead of refusing the file.
+    drop_nonfinite : repair rows with NaN/inf/empty cells instead of refusing the file: drop them at
+        the start and end, interpolate short runs inside the data (see :func:`_nonfinite`).
     condition : ``(amplitude_V, frequency_Hz)`` forced by ``--condition`` (V peak-to-peak, Hz).
     output_unit : output unit (nm, um, mm, m) when the output column name has no unit suffix.
     require_output : False for input-only / target files (the output column is then optional).
     min_cycles : minimum number of input cycles after trimming.
+    start_s, stop_s : keep only the window [start_s, stop_s) of the capture, in seconds from its
+        first row (``--start``/``--stop``); None = from the start / to the end.
+    warmup_s : seconds at the start of each capture (after the idle trim and the window) that fits
+        simulate but do not score (``--warmup``): the actuator's unknown initial state settles.
     """
 
     time_col: str | int | None = None
@@ -159,6 +164,9 @@ class LoadOptions:
     output_unit: str | None = None
     require_output: bool = True
     min_cycles: float = 2.0
+    start_s: float | None = None
+    stop_s: float | None = None
+    warmup_s: float = 0.0
 
 
 _SIDECAR_KEYS = ("no_header", "time_col", "input_col", "output_col", "fs", "output_unit", "condition",
@@ -588,14 +596,26 @@ def _missing_column_error(table: _Table, role: str) -> InputError:
 # ----------------------------------------------------------------------------------------------
 
 
-def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: bool, has_time: bool,
-               notes: list[str]) -> np.ndarray | None:
-    """Row mask to keep (None: keep all). Refuses NaN/inf/empty cells unless ``drop``."""
+#: Longest run of consecutive non-finite rows inside the data that ``--drop-nonfinite`` repairs by
+#: linear interpolation (dropping them would make the sampling non-uniform).
+MAX_INTERPOLATED_RUN = 3
+
+
+def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: bool,
+               notes: list[str]) -> tuple[np.ndarray | None, dict[str, tuple[int, np.ndarray]]]:
+    """Handle NaN/inf/empty cells: refuse them, or (``drop``) repair them.
+
+    Returns the row mask to keep (None: keep all) and the arrays, repaired. With ``drop``, rows
+    before the first and after the last complete row are dropped (a ragged start or end), and
+    runs of up to :data:`MAX_INTERPOLATED_RUN` bad rows inside the data are filled by linear
+    interpolation of each column between its neighbours, so the sampling stays uniform. Longer
+    runs inside the data are refused: a gap that long is not a glitch.
+    """
     bad = np.zeros(table.rows.size, dtype=bool)
     for _, a in arrays.values():
         bad |= ~np.isfinite(a)
     if not bad.any():
-        return None
+        return None, arrays
     k = int(np.flatnonzero(bad)[0])
     if not drop:
         col = next(c for c, a in arrays.values() if not np.isfinite(a[k]))
@@ -604,15 +624,39 @@ def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: b
     if bad.all():
         raise InputError(f"{table.label}: every row has a NaN, inf or empty cell in the selected columns; "
                          f"check the column selection")
-    idx = np.flatnonzero(bad)
     good = np.flatnonzero(~bad)
-    interior = idx[(idx > good[0]) & (idx < good[-1])]
-    if not has_time and interior.size:
-        r = table.rows[int(interior[0])]
-        raise InputError(f"{table.label}: row {r}: cannot drop a non-finite row inside the data without a time "
-                         f"column (the samples after it would shift in time); fix the row or add a time column")
-    notes.append(f"dropped {idx.size} row(s) with NaN/inf/empty cells (first: row {table.rows[k]})")
-    return ~bad
+    first, last = int(good[0]), int(good[-1])
+    inner = bad.copy()
+    inner[:first] = False
+    inner[last + 1:] = False
+    if inner.any():
+        edges = np.diff(np.concatenate(([0], inner.astype(np.int8), [0])))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        longest = int(np.argmax(stops - starts))
+        if stops[longest] - starts[longest] > MAX_INTERPOLATED_RUN:
+            raise InputError(f"{table.label}: rows {table.rows[starts[longest]]}–{table.rows[stops[longest] - 1]}: "
+                             f"{stops[longest] - starts[longest]} consecutive rows with NaN/inf/empty cells inside "
+                             f"the data, more than the {MAX_INTERPOLATED_RUN} --drop-nonfinite interpolates; split "
+                             "the file at the gap into two captures")
+        repaired = {}
+        for role, (col, a) in arrays.items():
+            a = a.copy()
+            fix = inner & ~np.isfinite(a)
+            if fix.any():
+                ok = np.flatnonzero(np.isfinite(a))
+                a[fix] = np.interp(np.flatnonzero(fix), ok, a[ok])
+            repaired[role] = (col, a)
+        arrays = repaired
+        i0 = int(np.flatnonzero(inner)[0])
+        notes.append(f"interpolated {int(inner.sum())} isolated row(s) with NaN/inf/empty cells inside the data "
+                     f"linearly between their neighbours (first: row {table.rows[i0]})")
+    edge = bad & ~inner
+    if not edge.any():
+        return None, arrays
+    e0 = int(np.flatnonzero(edge)[0])
+    notes.append(f"dropped {int(edge.sum())} row(s) with NaN/inf/empty cells at the start or end "
+                 f"(first: row {table.rows[e0]})")
+    return ~edge, arrays
 
 
 def _check_time(table: _Table, col: int, t: np.ndarray, rows: np.ndarray) -> float:
@@ -775,7 +819,7 @@ def load_capture(path: str | os.PathLike, options: LoadOptions = LoadOptions()) 
     table = _read_table(p, label, opts.no_header)
     chosen = _select_columns(table, opts)
     arrays = {r: (chosen[r], _numeric(table, chosen[r])) for r in ("time", "input", "output") if chosen[r] is not None}
-    keep = _nonfinite(table, arrays, opts.drop_nonfinite, chosen["time"] is not None, notes)
+    keep, arrays = _nonfinite(table, arrays, opts.drop_nonfinite, notes)
     rows = table.rows if keep is None else table.rows[keep]
     data = {r: (a if keep is None else a[keep]) for r, (_, a) in arrays.items()}
     t = data["time"] * _scale(table, chosen["time"], "time") if "time" in data else None
@@ -783,11 +827,58 @@ def load_capture(path: str | os.PathLike, options: LoadOptions = LoadOptions()) 
     y = data.get("output")
     y_unit = _output_unit(table, chosen["output"], opts, notes) if y is not None else (opts.output_unit or "um")
     dt = _time_axis(table, chosen, t, rows, opts, notes)
-    return _finish(table, chosen, opts, notes, u, y, dt, y_unit)
+    u, y, rows, windowed = _window(table, opts, notes, u, y, rows, dt)
+    return _finish(table, chosen, opts, notes, u, y, dt, y_unit, rows, windowed)
+
+
+def _window(table: _Table, opts: LoadOptions, notes: list[str], u: np.ndarray, y: np.ndarray | None,
+            rows: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, bool]:
+    """Keep the samples with time (from the first row) in [start_s, stop_s)."""
+    if opts.start_s is None and opts.stop_s is None:
+        return u, y, rows, False
+    n = u.size
+    duration = n * dt
+    i0 = 0 if opts.start_s is None else int(math.ceil(opts.start_s / dt - 1e-9))
+    i1 = n if opts.stop_s is None else min(n, int(math.ceil(opts.stop_s / dt - 1e-9)))
+    if i1 - i0 < 4:
+        stop = opts.stop_s if opts.stop_s is not None else duration
+        raise InputError(f"{table.label}: --start/--stop keep {max(i1 - i0, 0)} samples of this {duration:.6g} s "
+                         f"capture (window {opts.start_s or 0:g}…{stop:.6g} s from its first row); choose a window "
+                         "inside the capture")
+    notes.append(f"kept {i0 * dt:.6g}…{i1 * dt:.6g} s of {duration:.6g} s (--start/--stop; rows {rows[i0]}–"
+                 f"{rows[i1 - 1]})")
+    return u[i0:i1], (None if y is None else y[i0:i1]), rows[i0:i1], i0 > 0
+
+
+#: A first input step larger than this share of the input range (and than JUMP_MEDIAN_FACTOR ×
+#: the median step) is a one-sample jump: the capture starts mid-loop.
+JUMP_RANGE_FRACTION = 0.05
+JUMP_MEDIAN_FACTOR = 20.0
+
+
+def start_jump(u: np.ndarray) -> float:
+    """The first input step u[1] − u[0] (V) when it is a one-sample jump, else 0.
+
+    A jump is larger than :data:`JUMP_RANGE_FRACTION` of the input range and than
+    :data:`JUMP_MEDIAN_FACTOR` × the median non-zero step: the recording (or the window) began in
+    the middle of a loop, e.g. 0 → −87 V at the start of ``sample_data/real``.
+    """
+    if u.size < 3:
+        return 0.0
+    d = np.abs(np.diff(u))
+    moving = d[d > 0]
+    if moving.size == 0:
+        return 0.0
+    step = float(u[1] - u[0])
+    ptp = float(u.max() - u.min())
+    if abs(step) > JUMP_RANGE_FRACTION * ptp and abs(step) > JUMP_MEDIAN_FACTOR * float(np.median(moving)):
+        return step
+    return 0.0
 
 
 def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u: np.ndarray,
-            y: np.ndarray | None, dt: float, y_unit: str) -> Capture:
+            y: np.ndarray | None, dt: float, y_unit: str, rows: np.ndarray | None = None,
+            windowed: bool = False) -> Capture:
     """Trim the idle start, check excitation and length, settle the condition, build the Capture."""
     label = table.label
     ptp = float(u.max() - u.min()) if u.size else 0.0
@@ -802,15 +893,31 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     if u.size < 4:
         raise InputError(f"{label}: only {u.size} samples of excitation; a capture needs at least "
                          f"{opts.min_cycles:g} input cycles")
+    jump = start_jump(u)
+    where = f" (row {rows[start + 1]})" if rows is not None and rows.size > start + 1 else ""
+    if jump:
+        notes.append(f"starts mid-loop: the input jumps from {u[0]:.4g} to {u[1]:.4g} V in one sample{where}, so the "
+                     "actuator's hysteresis state at the start is unknown and the first samples carry the largest "
+                     "errors (rate-dependent models spike); --warmup SECONDS leaves them out of the fit while the model's "
+                     "state settles, --start SECONDS cuts them off")
+    elif windowed and not start:
+        notes.append(f"starts mid-loop: the --start window begins while the input moves ({u[0]:.4g} V), so the "
+                     "actuator's hysteresis state at the start is unknown; start the window at a rest or turning point")
     amp, freq, source = _condition(table, chosen, opts, notes, u, dt)
     cycles = count_cycles(u, dt, freq)
     if cycles < opts.min_cycles:
         raise InputError(f"{label}: only {cycles:.3g} input cycles of {freq:g} Hz after trimming, the minimum is "
                          f"{opts.min_cycles:g}; record a longer capture")
+    warm = int(round(opts.warmup_s / dt)) if opts.warmup_s else 0
+    if warm > u.size - max(4, u.size // 4):
+        raise InputError(f"{label}: --warmup {opts.warmup_s:g} s leaves {max(u.size - warm, 0)} of {u.size} samples "
+                         f"({u.size * dt:.6g} s) to fit; a warm-up may take at most three quarters of a capture")
+    if warm:
+        notes.append(f"warm-up: the first {warm * dt:.6g} s ({warm} samples) are simulated but not scored (--warmup)")
     return Capture(source=label, t=np.arange(u.size, dtype=np.float64) * dt, u=np.ascontiguousarray(u, np.float64),
                    y=None if y is None else np.ascontiguousarray(y, np.float64), dt=float(dt), y_unit=y_unit,
                    trimmed_s=start * dt, trimmed_samples=int(start), amplitude_V=float(amp), frequency_Hz=float(freq),
-                   condition_source=source, notes=tuple(notes))
+                   condition_source=source, notes=tuple(notes), warmup_samples=warm)
 
 
 def _condition(table, chosen, opts, notes, u, dt) -> tuple[float, float, str]:
@@ -824,6 +931,7 @@ def _condition(table, chosen, opts, notes, u, dt) -> tuple[float, float, str]:
     if opts.condition is not None:
         return float(opts.condition[0]), float(opts.condition[1]), "option"
     a, f = detect_condition(u, dt)
+    notes += [f"warning: {w}" for w in nonstationary_notes(u, dt, (a, f))]
     return a, f, "detected"
 
 
@@ -874,6 +982,34 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
                 os.unlink(tmp)
             except OSError:
                 pass
+
+
+def check_writable_file(path: str | os.PathLike) -> None:
+    """Refuse, before any work, a file location that :func:`atomic_write_bytes` could not write.
+
+    Probes the nearest existing ancestor directory of ``path`` by creating and removing a temporary
+    file there (permissions alone do not tell: root, read-only mounts). Creates nothing that stays.
+
+    Raises
+    ------
+    OutputError
+        ``path`` is a directory, an ancestor is not a directory, or the directory is not writable.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise OutputError(f"{p}: is a directory; choose a file name")
+    parent = p.parent if str(p.parent) else Path(".")
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(f"{p}: {parent} is not a directory; choose another location")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".probe", dir=parent)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot write here ({exc.strerror or exc}); check the directory and permissions, "
+                          "or choose another location") from None
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

@@ -38,6 +38,7 @@ Conventions
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
@@ -78,6 +79,8 @@ class MetricSpec(NamedTuple):
 #: every metric :func:`compute_metrics` returns, in report order
 METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("rmse", "RMSE = sqrt(mean(e²)), e = y_model − y_meas (003 eq. 15)", "output"),
+    MetricSpec("bias", "bias = mean(e), the constant part of the error (e.g. a sensor offset between recording "
+                       "days); RMSE² = bias² + variance of e", "output"),
     MetricSpec("nrmse_pct", "NRMSE = 100·RMSE / (max y_meas − min y_meas)", "%"),
     MetricSpec("mape", "MAPE = mean(|e| / |y_meas|) over samples with |y_meas| ≥ 1 % of stroke (002)",
                "fraction"),
@@ -240,11 +243,13 @@ def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
     with np.errstate(all="ignore"):  # huge-but-finite outputs may overflow; handled below
         e = yp - ym
         sse = float(np.dot(e, e))
+        bias = float(np.mean(e))
     if not np.isfinite(sse):
         # NaN/inf in the model output, or an output so large that Σe² overflows: infinitely bad
         inf = float("inf")
         rmse = nrmse = mape = smape = re = j = max_err = inf
         r2 = -inf
+        bias = bias if math.isfinite(bias) else float("nan")
     else:
         rmse = float(np.sqrt(sse / n))
         abs_e = np.abs(e)
@@ -263,6 +268,7 @@ def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
 
     out: dict[str, float] = {}
     out[metric_key("rmse", unit)] = rmse
+    out[metric_key("bias", unit)] = bias
     out["nrmse_pct"] = nrmse
     out["mape"] = mape
     out["smape"] = smape

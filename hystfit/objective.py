@@ -19,20 +19,33 @@ BLOCK_ELEMENTS = 8_000_000
 
 @dataclass(frozen=True)
 class Series:
-    """One capture as the objective sees it: input (V), measured output, sample period (s)."""
+    """One capture as the objective sees it: input (V), measured output, sample period (s).
+
+    ``skip``: the first ``skip`` samples are simulated (they set the model's state) but not
+    scored — a warm-up for a capture whose actuator state at the start is unknown (``--warmup``).
+    """
 
     u: np.ndarray
     y: np.ndarray
     dt: float
+    skip: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0 <= int(self.skip) <= self.y.shape[0] - 2:
+            raise ValueError(f"Series.skip {self.skip} must leave at least 2 of the {self.y.shape[0]} samples scored")
 
 
-def _project(Y: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """The rows of Y (P, N) with their components in span(Q) removed (Q (N, k) orthonormal)."""
-    return Y - (Y @ Q) @ Q.T
+def _project(Y: np.ndarray, Q: np.ndarray, skip: int) -> np.ndarray:
+    """The rows of Y (P, N) with the components of their scored part Y[:, skip:] in span(Q)
+    removed (Q (N − skip, k) orthonormal); the warm-up part is left as it is."""
+    Y = np.array(Y, dtype=np.float64, copy=True)
+    S = Y[:, skip:]
+    Y[:, skip:] = S - (S @ Q) @ Q.T
+    return Y
 
 
-def _projected(sim, Q: np.ndarray):
-    return lambda theta: _project(np.asarray(sim(theta), dtype=np.float64), Q)
+def _projected(sim, Q: np.ndarray, skip: int):
+    return lambda theta: _project(np.asarray(sim(theta), dtype=np.float64), Q, skip)
 
 
 class Objective:
@@ -44,7 +57,7 @@ class Objective:
 
     Nuisance regressors: when the model declares per-capture regressors R_c
     (:meth:`hystfit.models.base.Model.nuisance_basis`, e.g. the ``drift`` block's offset and rate),
-    every residual is projected onto the orthogonal complement of span(R_c) — the exact
+    every scored residual is projected onto the orthogonal complement of span(R_c) — the exact
     least-squares nuisance coefficients of each capture, for every candidate — so the objective is
     min_a Σ‖ŷ_c(θ) + R_c a_c − y_c‖². :meth:`predict` returns ŷ_c + R_c a_c with those coefficients.
     """
@@ -52,31 +65,39 @@ class Objective:
     def __init__(self, model: Model, series: Sequence[Series]) -> None:
         self.model = model
         self.series = list(series)
-        self._Q = []
+        raw = [model.simulator(s.u, s.dt) for s in self.series]
+        self._raw_sims = raw
+        self._Q: list[np.ndarray | None] = []
         for s in self.series:
             R = model.nuisance_basis(s.y.shape[0], s.dt)
-            self._Q.append(None if R is None else np.linalg.qr(np.asarray(R, dtype=np.float64))[0])
-        raw = [model.simulator(s.u, s.dt) for s in self.series]
-        self._sims = [sim if Q is None else _projected(sim, Q) for sim, Q in zip(raw, self._Q)]
-        self._raw_sims = raw
-        self._targets = [s.y if Q is None else _project(s.y[None, :], Q)[0] for s, Q in zip(self.series, self._Q)]
+            self._Q.append(None if R is None else np.linalg.qr(np.asarray(R, dtype=np.float64)[s.skip:])[0])
+        self._sims = [sim if Q is None else _projected(sim, Q, s.skip) for sim, Q, s in zip(raw, self._Q, self.series)]
+        # what the projected simulations are compared with (the original series without nuisance)
+        self._scored = [s if Q is None else Series(s.u, _project(s.y[None, :], Q, s.skip)[0], s.dt, s.skip)
+                        for s, Q in zip(self.series, self._Q)]
         # fused sums of squared errors where the model offers them (no (P, N) outputs in memory)
         self._sse_fns = [model.sse_evaluator(s.u, s.dt, s.y) if Q is None else None
                          for s, Q in zip(self.series, self._Q)]
-        self.n_total = int(sum(s.y.shape[0] for s in self.series))
+        # a warm-up is subtracted as the error of the prefix alone: exact for causal models (every
+        # registered model; tests/contract check it), so fused kernels need no change
+        self._prefix_sse = [model.sse_evaluator(s.u[:s.skip], s.dt, s.y[:s.skip]) if s.skip and fn is not None
+                            else None for s, fn in zip(self.series, self._sse_fns)]
+        self.n_total = int(sum(s.y.shape[0] - s.skip for s in self.series))
         self.nfev = 0
 
     def _sse(self, theta: np.ndarray) -> np.ndarray:
         total = np.zeros(theta.shape[0])
-        for sim, sse_fn, s in zip(self._sims, self._sse_fns, self._targets_as_series()):
+        for sim, sse_fn, prefix, s in zip(self._sims, self._sse_fns, self._prefix_sse, self._scored):
             if sse_fn is not None:
                 with np.errstate(all="ignore"):
                     total += sse_fn(theta)
+                    if prefix is not None:
+                        total -= prefix(theta)
                 continue
             block = max(1, BLOCK_ELEMENTS // max(s.y.shape[0], 1))
             for i in range(0, theta.shape[0], block):
                 with np.errstate(all="ignore"):
-                    e = sim(theta[i:i + block]) - s.y[None, :]
+                    e = sim(theta[i:i + block])[:, s.skip:] - s.y[None, s.skip:]
                     total[i:i + block] += np.einsum("ij,ij->i", e, e)
         return total
 
@@ -90,10 +111,7 @@ class Objective:
         theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
         self.nfev += 1
         with np.errstate(all="ignore"):
-            return np.concatenate([sim(theta)[0] - y for sim, y in zip(self._sims, self._targets)])
-
-    def _targets_as_series(self) -> list[Series]:
-        return [Series(s.u, y, s.dt) for s, y in zip(self.series, self._targets)]
+            return np.concatenate([sim(theta)[0][s.skip:] - s.y[s.skip:] for sim, s in zip(self._sims, self._scored)])
 
     def predict(self, theta: np.ndarray) -> list[np.ndarray]:
         """Per capture the prediction of ``theta`` (d,) — with the fitted nuisance terms, if any."""
@@ -101,11 +119,15 @@ class Objective:
         out = []
         for sim, s, Q in zip(self._raw_sims, self.series, self._Q):
             p = np.asarray(sim(theta)[0], dtype=np.float64)
-            out.append(p if Q is None else p + Q @ (Q.T @ (s.y - p)))
+            if Q is not None:
+                p = p.copy()
+                p[s.skip:] += Q @ (Q.T @ (s.y[s.skip:] - p[s.skip:]))
+            out.append(p)
         return out
 
     def nuisance_coefficients(self, theta: np.ndarray) -> list[np.ndarray | None]:
-        """Per capture the least-squares nuisance coefficients a_c (None without nuisance)."""
+        """Per capture the least-squares nuisance coefficients a_c over the scored samples (None
+        without nuisance)."""
         theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
         out = []
         for sim, s in zip(self._raw_sims, self.series):
@@ -114,7 +136,7 @@ class Objective:
                 out.append(None)
                 continue
             r = s.y - np.asarray(sim(theta)[0], dtype=np.float64)
-            out.append(np.linalg.lstsq(R, r, rcond=None)[0])
+            out.append(np.linalg.lstsq(R[s.skip:], r[s.skip:], rcond=None)[0])
         return out
 
     @staticmethod
@@ -138,7 +160,7 @@ class Objective:
         call per capture (steps as :meth:`_fd_population`)."""
         h, pop = self._fd_population(theta, rel_step, upper)
         with np.errstate(all="ignore"):
-            ys = [sim(pop) for sim in self._sims]
+            ys = [sim(pop)[:, s.skip:] for sim, s in zip(self._sims, self._scored)]
         y = np.concatenate(ys, axis=1)  # (d+1, M)
         self.nfev += h.size + 1
         return ((y[1:] - y[0]) / h[:, None]).T
@@ -162,11 +184,12 @@ class Objective:
         Jtr = np.zeros(d)
         rr = 0.0
         chunk = 1 << 16
-        for sim, s in zip(self._sims, self._targets_as_series()):
+        for sim, s in zip(self._sims, self._scored):
             with np.errstate(all="ignore"):
-                Y = np.asarray(sim(pop), dtype=np.float64)  # (d+1, N)
+                Y = np.asarray(sim(pop), dtype=np.float64)[:, s.skip:]  # (d+1, N − skip)
+                y = s.y[s.skip:]
                 for a in range(0, Y.shape[1], chunk):  # differences over time chunks: O(d·chunk) extra memory
-                    r = Y[0, a:a + chunk] - s.y[a:a + chunk]
+                    r = Y[0, a:a + chunk] - y[a:a + chunk]
                     rr += float(r @ r)
                     D = (Y[1:, a:a + chunk] - Y[0, a:a + chunk]) / h[:, None]
                     JtJ += D @ D.T

@@ -102,6 +102,22 @@ class DataScale:
                    float(min(dts)), max(rate, 1e-12), -1.0 if cov < 0 else 1.0, float(duration))
 
 
+#: A value within this fraction of its search width from a bound is "at the bound": the search
+#: stopped there (optimizers that clip or reflect land a few 1e-4 of the width inside), so the
+#: data did not determine it, it has no standard error, and the bound may need widening.
+AT_BOUND_RTOL = 1e-3
+
+
+def bound_side(value: float, lower: float, upper: float, rtol: float = AT_BOUND_RTOL) -> str | None:
+    """``"lower"``/``"upper"`` when ``value`` lies within ``rtol × (upper − lower)`` of that bound, else None."""
+    tol = rtol * (upper - lower)
+    if value - lower <= tol:
+        return "lower"
+    if upper - value <= tol:
+        return "upper"
+    return None
+
+
 def parse_bound_overrides(items: Sequence[str]) -> dict[str, tuple[float, float]]:
     """Parse ``["alpha=0.1:10", "w0=0:2"]`` into ``{"alpha": (0.1, 10.0), ...}``."""
     out: dict[str, tuple[float, float]] = {}

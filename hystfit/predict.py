@@ -1,10 +1,21 @@
 """Predictions for new captures from a saved look-up table (out-of-sample validation).
 
-For a capture at condition (A, f) the table cell is chosen by :class:`~hystfit.conditions.LookupTable`:
-``nearest`` takes the closest cell; ``interpolate`` blends the *outputs* of the (up to four)
-surrounding cells' models bilinearly. Blending outputs rather than parameter vectors is exact
-for models that are linear in their parameters and well defined for all others, even when
-cells have different structures (e.g. PI thresholds adapted to each amplitude).
+For a capture at condition (A, f) the table cells are chosen by
+:func:`hystfit.invert.select_cells` — the same selector ``invert`` and ``track`` use: ``nearest``
+takes the closest cell; ``interpolate`` blends the *outputs* of the (up to four) surrounding
+cells' models bilinearly, a condition outside the grid first clamped onto it. Blending outputs
+rather than parameter vectors is exact for models that are linear in their parameters and well
+defined for all others, even when cells have different structures (e.g. PI thresholds adapted to
+each amplitude).
+
+Every prediction carries notes on what a reader must know to trust it, in the words ``invert``
+uses: a condition outside the table's grid (clamped), cells driven outside the voltage range
+they were identified on (extrapolated).
+
+``align_offset``: a constant offset between the recording days of the identification and of the
+validation captures (sensor zero, mount) dominates the RMSE although the model is right. With it,
+the offset c = mean(y_meas − y_model) is fitted per capture and added to the prediction (the
+least-squares optimum of a constant); it is reported, never silent.
 """
 
 from __future__ import annotations
@@ -14,41 +25,60 @@ from dataclasses import dataclass
 import numpy as np
 
 from .capture import Capture
-from .conditions import LookupTable
+from .invert import clamp_note, extrapolated_cells, extrapolation_note, select_cells
 from .metrics import compute_metrics
-from .results import Cell, ParamsFile
+from .results import ParamsFile
 
 
 @dataclass(frozen=True)
 class Prediction:
+    """The prediction of one capture.
+
+    cells : (cell label, weight) pairs used.
+    metrics : against the measured output (None for an input-only capture).
+    offset : the fitted constant added to the model output (output unit), None without ``align_offset``.
+    notes : clamped condition, extrapolated cells (one line each).
+    """
+
     capture: Capture
     y_model: np.ndarray
     cells: tuple[tuple[str, float], ...]  # (cell label, weight)
     metrics: dict | None
+    offset: float | None = None
+    notes: tuple[str, ...] = ()
 
 
-def _table(pf: ParamsFile) -> LookupTable:
-    keys = [(c.amplitude_V, c.frequency_Hz) for c in pf.cells]
-    return LookupTable(keys, [np.array([i], float) for i in range(len(pf.cells))])
-
-
-def choose_cells(pf: ParamsFile, condition: tuple[float, float], method: str = "nearest") -> list[tuple[Cell, float]]:
-    """Cells and weights used for ``condition`` (a global fit has one cell, weight 1)."""
-    usable = [c for c in pf.cells if np.isfinite(c.amplitude_V) and np.isfinite(c.frequency_Hz)]
-    if len(pf.cells) == 1 or not usable:
-        return [(pf.cells[0], 1.0)]
-    table = _table(ParamsFile(pf.path, pf.model_name, pf.unit, pf.mode, tuple(usable), pf.raw))
-    if method == "interpolate":
-        _, used = table.interpolate(condition)
+def predict_capture(pf: ParamsFile, capture: Capture, method: str = "interpolate", *,
+                    align_offset: bool = False) -> Prediction:
+    """Predict ``capture``'s output with the table ``pf``; see the module docstring."""
+    if _has_condition(capture):
+        cells, query, clamped = select_cells(pf, capture.condition, method)
     else:
-        key, _ = table.nearest(condition)
-        used = [(key, 1.0)]
-    by_key = {(c.amplitude_V, c.frequency_Hz): c for c in usable}
-    return [(by_key[tuple(k)], float(w)) for k, w in used if w > 0]
-
-
-def predict_capture(pf: ParamsFile, capture: Capture, method: str = "nearest") -> Prediction:
-    cells = choose_cells(pf, capture.condition, method)
-    y = sum(w * cell.predict(capture.u, capture.dt) for cell, w in cells)
+        cells, query, clamped = _no_condition(pf)
+    y = sum(c.weight * pf.cells[c.index].predict(capture.u, capture.dt) for c in cells)
+    y = np.asarray(y, float)
+    notes = []
+    if clamped:
+        notes.append(clamp_note(capture.condition, query))
+    notes += [extrapolation_note(x) for x in extrapolated_cells(pf, ((c.index, capture.u) for c in cells))]
+    offset = None
+    if align_offset and capture.y is not None:
+        offset = float(np.mean(capture.y - y))
+        y = y + offset
+        notes.append(f"offset {offset:+.4g} {pf.unit} fitted to this capture and added to the prediction "
+                     "(--align-offset)")
     metrics = compute_metrics(capture.y, y, pf.unit) if capture.y is not None else None
-    return Prediction(capture, np.asarray(y, float), tuple((c.label, w) for c, w in cells), metrics)
+    return Prediction(capture, y, tuple((c.label, c.weight) for c in cells), metrics, offset, tuple(notes))
+
+
+def _has_condition(capture: Capture) -> bool:
+    a, f = capture.condition
+    return bool(np.isfinite(a) and np.isfinite(f) and f > 0)
+
+
+def _no_condition(pf: ParamsFile):
+    """A capture without an operating condition (e.g. broadband): the table's first cell, as before."""
+    from .invert import CellUse
+
+    c = pf.cells[0]
+    return (CellUse(0, c.label, c.amplitude_V, c.frequency_Hz, 1.0),), (c.amplitude_V, c.frequency_Hz), False

@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 
 from . import __version__
-from .errors import InputError
+from .errors import HystfitError, InputError
+from .io import OUTPUT_UNITS
 from .identify import ConditionFit, IdentifyResult, unit_param
 from .models.base import Model
 from .models.composite import model_from_structure
@@ -62,10 +63,8 @@ def _clean(obj: Any) -> Any:
 
 def condition_to_dict(fit: ConditionFit) -> dict[str, Any]:
     u = fit.unit
-    width = np.array([p.upper - p.lower for p in fit.params])
     params = []
-    for p, v, se, w in zip(fit.params, fit.theta, fit.stderr, width):
-        at = "lower" if v - p.lower <= 1e-6 * w else "upper" if p.upper - v <= 1e-6 * w else None
+    for p, v, se, at in zip(fit.params, fit.theta, fit.stderr, fit.at_bound):
         params.append({"name": p.name, "unit": unit_param(p, u), "value": float(v), "stderr": float(se),
                        "lower": p.lower, "upper": p.upper, "at_bound": at, "description": p.description})
     runs = [{"run": r.run, "seed": r.seed, "fun": r.fun, f"rmse_{u}": r.rmse, "nfev": r.nfev,
@@ -134,6 +133,33 @@ class ParamsFile:
     raw: dict
 
 
+def _read_cell(expr: str, c: dict, i: int) -> Cell:
+    """Cell ``i`` of a parameter file, checked to be usable: parameters of the model's count, finite,
+    and a trial simulation that runs (so a damaged file fails here, naming the field, not later)."""
+    where = f"conditions[{i}]"
+    model = model_from_structure(expr, c["model_structure"])
+    theta = np.array([float(q["value"]) for q in c["parameters"]], dtype=np.float64)
+    scale = DataScale(**c["data_scale"])
+    if not all(math.isfinite(float(getattr(scale, f))) for f in ("u_min", "u_max", "y_min", "y_max", "dt")) \
+            or not scale.dt > 0:
+        raise ValueError(f"{where}.data_scale must hold finite numbers and dt > 0")
+    n = len(model.params(scale))
+    if theta.shape != (n,):
+        raise ValueError(f"{where}.parameters has {theta.size} values; model {model.name!r} with this structure has {n}")
+    if not np.isfinite(theta).all():
+        raise ValueError(f"{where}.parameters: value {theta[~np.isfinite(theta)][0]!r} is not a finite number")
+    label = c["label"]
+    if not isinstance(label, str):
+        raise ValueError(f"{where}.label must be text, got {label!r}")
+    a, f = c["amplitude_V"], c["frequency_Hz"]
+    cell = Cell(label, float("nan") if a is None else float(a), float("nan") if f is None else float(f), model,
+                theta, scale)
+    u = np.linspace(scale.u_min, scale.u_max, 8)
+    with np.errstate(all="ignore"):
+        cell.predict(u, scale.dt)  # raises on a structure/parameter mismatch the checks above missed
+    return cell
+
+
 def load_params(path: str | Path) -> ParamsFile:
     """Read a ``params.json`` written by ``hystfit identify`` (validated; errors name the field)."""
     p = Path(path)
@@ -152,18 +178,17 @@ def load_params(path: str | Path) -> ParamsFile:
                          f"{', '.join(map(str, READABLE_VERSIONS))}")
     try:
         expr = data["model"]["name"]
-        cells = []
-        for i, c in enumerate(data["conditions"]):
-            model = model_from_structure(expr, c["model_structure"])
-            theta = np.array([float(q["value"]) for q in c["parameters"]])
-            scale = DataScale(**c["data_scale"])
-            a = c["amplitude_V"]
-            f = c["frequency_Hz"]
-            cells.append(Cell(c["label"], float("nan") if a is None else float(a),
-                              float("nan") if f is None else float(f), model, theta, scale))
+        if not isinstance(expr, str):
+            raise ValueError(f"model.name must be text, got {expr!r}")
         unit = data["units"]["output"]
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{p}: malformed parameter file ({exc.__class__.__name__}: {exc}); regenerate it with 'hystfit identify'") from None
+        if unit not in OUTPUT_UNITS:
+            raise ValueError(f"units.output {unit!r} is not one of {', '.join(OUTPUT_UNITS)}")
+        cells = [_read_cell(expr, c, i) for i, c in enumerate(data["conditions"])]
+    except HystfitError as exc:
+        raise InputError(f"{p}: {exc}; regenerate it with 'hystfit identify'") from None
+    except Exception as exc:  # noqa: BLE001 - an untrusted file: any malformation is the user's input error
+        raise InputError(f"{p}: malformed parameter file ({exc.__class__.__name__}: {exc}); regenerate it with "
+                         "'hystfit identify'") from None
     if not cells:
         raise InputError(f"{p}: field 'conditions' is empty; regenerate it with 'hystfit identify'")
     return ParamsFile(str(p), data["model"]["name"], unit, data.get("mode", "per-condition"), tuple(cells), data)

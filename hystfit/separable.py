@@ -228,11 +228,15 @@ class ProjectedObjective:
         self.bases = [sep.basis_factory(s.u, s.dt) for s in self.series]
         self.grams = ([sep.gram_factory(s.u, s.dt, s.y) for s in self.series]
                       if sep.gram_factory is not None else None)
+        # a warm-up (Series.skip) leaves the first samples out: their normal equations are
+        # subtracted (exact for causal models), the explicit bases are sliced
+        self.prefix_grams = ([sep.gram_factory(s.u[:s.skip], s.dt, s.y[:s.skip]) for s in self.series if s.skip]
+                             if sep.gram_factory is not None else [])
         self.lin = np.asarray(sep.linear, dtype=int)
         self.nl = np.asarray(sep.nonlinear, dtype=int)
         self.lo_lin, self.hi_lin = lower[self.lin], upper[self.lin]
         self.d = len(self.lin) + len(self.nl)
-        self.n_total = int(sum(s.y.shape[0] for s in self.series))
+        self.n_total = int(sum(s.y.shape[0] - s.skip for s in self.series))
         self.nfev = 0
 
     def solve(self, theta_nl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -268,13 +272,20 @@ class ProjectedObjective:
                 G += g_p
                 c += c_p
                 yy += yy_p
+            for gram in (self.prefix_grams if self.grams is not None else ()):
+                g_p, c_p, yy_p = gram(theta_nl)
+                G -= g_p
+                c -= c_p
+                yy -= yy_p
             for basis, s in zip(self.bases if self.grams is None else (), self.series):
                 B = basis(theta_nl)  # (P, N, L) or ((P, N, L), (P, N))
                 C = None
                 if isinstance(B, tuple):
                     B, C = B
+                    C = C[:, s.skip:]
+                B = B[:, s.skip:, :]
                 kept.append((B, C))
-                target = s.y[None, :] if C is None else s.y[None, :] - C
+                target = s.y[None, s.skip:] if C is None else s.y[None, s.skip:] - C
                 target = np.broadcast_to(target, (B.shape[0], B.shape[1]))
                 Bt = B.transpose(0, 2, 1)
                 G += Bt @ B
@@ -292,7 +303,7 @@ class ProjectedObjective:
         sse = np.zeros(P)
         with np.errstate(all="ignore"):
             for (B, C), s in zip(kept, self.series):
-                e = (B @ theta_lin[:, :, None])[:, :, 0] - s.y[None, :]
+                e = (B @ theta_lin[:, :, None])[:, :, 0] - s.y[None, s.skip:]
                 if C is not None:
                     e += C
                 sse += np.einsum("pn,pn->p", e, e)

@@ -88,6 +88,7 @@ from typing import Sequence
 import numpy as np
 from ._lazy import lazy_module
 from .errors import ConfigError
+from .identify import check_seed
 from .invert import (CellUse, InversionResult, SegmentChoice, Span, Target, blend_segments, find_spans,
                      invert_target, preroll_voltage, select_cells, tracking_metrics)
 from .models.pi import PI
@@ -858,6 +859,7 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
         raise ConfigError(f"anti-windup {anti_windup!r}: choose backcalc or clamp")
     if not (math.isfinite(noise_std) and noise_std >= 0):
         raise ConfigError(f"--noise {noise_std!r}: the noise σ must be a finite number >= 0")
+    check_seed(seed)
     if max_slew is not None and not (math.isfinite(float(max_slew)) and float(max_slew) > 0):
         raise ConfigError(f"--max-slew {max_slew!r}: the slew-rate limit must be a finite number > 0 (V/s)")
     for flag, g in (("--kp", kp), ("--ki", ki), ("--kd", kd)):

@@ -13,13 +13,45 @@ import sys
 from typing import Callable, TypeVar
 
 import typer
+from typer.core import TyperGroup
 
 from ..errors import HystfitError
 
+try:  # recent typer vendors click (its exceptions are not the click package's)
+    from typer._click import exceptions as click_exceptions
+except ImportError:  # pragma: no cover - older typer
+    from click import exceptions as click_exceptions
+
 F = TypeVar("F", bound=Callable)
+
+class OneLineErrors(TyperGroup):
+    """The command group: usage errors (bad option value, unknown option, missing argument) are
+    printed like every other error — one ``hystfit: error:`` line on stderr, exit code 2 — instead of
+    typer's framed box."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        if not standalone_mode:
+            return super().main(args=args, prog_name=prog_name, complete_var=complete_var,
+                                standalone_mode=False, **extra)
+        try:
+            code = super().main(args=args, prog_name=prog_name, complete_var=complete_var,
+                                standalone_mode=False, **extra)
+        except click_exceptions.NoArgsIsHelpError as exc:
+            typer.echo(exc.ctx.get_help() if exc.ctx is not None else str(exc), err=True)
+            sys.exit(2)
+        except click_exceptions.ClickException as exc:
+            where = exc.ctx.command_path if getattr(exc, "ctx", None) is not None else "hystfit"
+            error_line(f"{exc.format_message()} (see '{where} --help')")
+            sys.exit(exc.exit_code)
+        except typer.Abort:
+            error_line("interrupted")
+            sys.exit(130)
+        sys.exit(code if isinstance(code, int) else 0)
+
 
 app = typer.Typer(
     name="hystfit",
+    cls=OneLineErrors,
     help="Identify, compare, invert and diagnose hysteresis models of piezo actuators.",
     no_args_is_help=True,
     add_completion=False,
@@ -47,6 +79,20 @@ def guarded(fn: F) -> F:
             raise typer.Exit(130) from None
 
     return wrapper  # type: ignore[return-value]
+
+
+def _show_version(value: bool) -> None:
+    if value:
+        from .. import __version__
+
+        typer.echo(f"hystfit {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", is_eager=True, callback=_show_version,
+                                       help="Print the version and exit.")) -> None:
+    """Identify, compare, invert and diagnose hysteresis models of piezo actuators."""
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -24,10 +24,62 @@ InputCol = Annotated[Optional[str], typer.Option("--input-col", help="Input (vol
 OutputCol = Annotated[Optional[str], typer.Option("--output-col", help="Output (displacement) column: name or 0-based index.")]
 NoHeader = Annotated[bool, typer.Option("--no-header", help="The files have no header row.")]
 Fs = Annotated[Optional[float], typer.Option("--fs", help="Sample rate in Hz when there is no time column.")]
-DropNonfinite = Annotated[bool, typer.Option("--drop-nonfinite", help="Drop rows with NaN/inf instead of refusing the file.")]
+DropNonfinite = Annotated[bool, typer.Option("--drop-nonfinite", help="Repair rows with NaN/inf/empty cells instead of "
+                                             "refusing the file: drop them at the start and end, interpolate runs of "
+                                             "up to 3 inside the data (the sampling stays uniform); a note says which.")]
 Condition = Annotated[Optional[str], typer.Option("--condition", help="Force the operating condition 'AMPLITUDE_V,FREQUENCY_HZ'.")]
 OutputUnit = Annotated[Optional[str], typer.Option("--output-unit", help="Output unit when the column name has no suffix: nm, um, mm, m.")]
 Recursive = Annotated[bool, typer.Option("--recursive", "-r", help="Expand directories recursively.")]
+Start = Annotated[Optional[float], typer.Option("--start", help="Use each capture from this time on (s from its "
+                                                                "first row), e.g. to skip a mid-loop start.")]
+Warmup = Annotated[float, typer.Option("--warmup", min=0.0, help="Seconds at the start of each capture that the fit "
+                                                                  "simulates but does not score (the actuator's "
+                                                                  "unknown initial state settles), e.g. one cycle.")]
+Stop = Annotated[Optional[float], typer.Option("--stop", help="Use each capture up to this time (s from its first "
+                                                              "row).")]
+
+# Options several commands share: one name, one meaning, one default, one range (enforced by
+# tests/integration/test_option_names.py).
+SEED_MAX = 2 ** 32 - 1
+
+
+def seed_callback(value: int) -> int:
+    """Validate ``--seed`` with the library's own rule and words (:func:`hystfit.identify.check_seed`)."""
+    from ..identify import check_seed
+
+    try:
+        return check_seed(value)
+    except ConfigError as exc:
+        raise typer.BadParameter(str(exc)) from None
+
+
+Seed = Annotated[int, typer.Option("--seed", callback=seed_callback,
+                                   help="Seed of every random choice (0 … 4294967295); each run derives its own.")]
+Pop = Annotated[Optional[int], typer.Option("--pop", min=1, show_default="the optimizer's own, see 'hystfit "
+                                            "optimizers'", help="Population size of population-based optimizers "
+                                                                "(>= 1).")]
+Iters = Annotated[Optional[int], typer.Option("--iters", min=1, show_default="the optimizer's own, see 'hystfit "
+                                              "optimizers'", help="Iterations of iterative optimizers (>= 1).")]
+Jobs = Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default="all cores",
+                                             help="Parallel processes (the numbers do not depend on it).")]
+Runs = Annotated[int, typer.Option("--runs", min=1, help="Independent seeded runs per condition; the best is kept "
+                                                         "(>= 1).")]
+Plots = Annotated[bool, typer.Option("--plots/--no-plots", help="Write the figures.")]
+FiguresAlias = Annotated[Optional[bool], typer.Option("--figures/--no-figures", hidden=True,
+                                                      help="Deprecated spelling of --plots/--no-plots.")]
+JsonOut = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress and no summary table.")]
+Force = Annotated[bool, typer.Option("--force", help="Replace an existing output (checked before any work).")]
+PerCondition = Annotated[bool, typer.Option("--per-condition/--global",
+                                            help="One parameter set per operating condition (look-up table) or "
+                                                 "one for all captures.")]
+Method = Annotated[str, typer.Option("--method", help="Look-up-table cells: interpolate (bilinear blend of the "
+                                                      "nearest cells) or nearest.")]
+
+
+def plots_flag(plots: bool, figures_alias: Optional[bool]) -> bool:
+    """``--plots``, unless the deprecated ``--figures/--no-figures`` spelling was given."""
+    return plots if figures_alias is None else figures_alias
 
 
 def parse_col(value: Optional[str]) -> str | int | None:
@@ -50,16 +102,22 @@ def parse_condition(value: Optional[str]) -> tuple[float, float] | None:
 
 
 def load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                 require_output: bool = True):
+                 require_output: bool = True, start: float | None = None, stop: float | None = None,
+                 warmup: float = 0.0):
     from ..io import LoadOptions
 
+    if start is not None and not start >= 0:
+        raise ConfigError(f"--start {start:g}: must be >= 0 s (time from the capture's first row)")
+    if stop is not None and not stop > (start or 0.0):
+        raise ConfigError(f"--stop {stop:g}: must be after --start ({start or 0:g} s)")
     if fs is not None and not fs > 0:
         raise ConfigError(f"--fs {fs:g}: the sample rate must be positive (Hz)")
     if output_unit is not None and output_unit not in ("nm", "um", "mm", "m"):
         raise ConfigError(f"--output-unit {output_unit!r}: choose one of nm, um, mm, m")
     return LoadOptions(time_col=parse_col(time_col), input_col=parse_col(input_col), output_col=parse_col(output_col),
                        no_header=no_header, fs=fs, drop_nonfinite=drop_nonfinite,
-                       condition=parse_condition(condition), output_unit=output_unit, require_output=require_output)
+                       condition=parse_condition(condition), output_unit=output_unit, require_output=require_output,
+                       start_s=start, stop_s=stop, warmup_s=warmup)
 
 
 def parse_key_values(items: list[str], what: str) -> dict[str, object]:
@@ -76,11 +134,29 @@ def parse_key_values(items: list[str], what: str) -> dict[str, object]:
     return out
 
 
+#: On a pipe, at most one progress line per this many seconds (plus the last).
+PLAIN_PROGRESS_INTERVAL_S = 1.0
+#: A step says what it is doing once it has taken this long (quick steps and early errors stay quiet).
+PROGRESS_DELAY_S = 1.0
+
+
 @contextmanager
 def progress_bar(enabled: bool, description: str) -> Iterator:
-    """A rich progress bar on stderr; yields a ``progress(event, info)`` callback for the library."""
+    """Progress on stderr; yields a ``progress(event, info)`` callback for the library.
+
+    On a terminal a rich bar; on a pipe or file (CI logs, ``2> log``) plain lines once the work has
+    taken :data:`PROGRESS_DELAY_S` — the start, then ``k/N`` with the last item and the elapsed time
+    at most once a second, and the end — so a long run is never silent and a short one stays quiet.
+    """
     if not enabled:
         yield None
+        return
+    if not stderr.is_terminal:
+        plain = _PlainProgress(description)
+        try:
+            yield plain
+        finally:
+            plain.close()
         return
     prog = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                     TextColumn("{task.fields[last]}"), console=stderr, transient=True)
@@ -98,6 +174,91 @@ def progress_bar(enabled: bool, description: str) -> Iterator:
 
     with prog:
         yield callback
+
+
+def _line(text: str) -> None:
+    stderr.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
+class _PlainProgress:
+    """The ``progress(event, info)`` callback for a pipe: plain lines, see :func:`progress_bar`."""
+
+    def __init__(self, description: str) -> None:
+        import threading
+        import time
+
+        self._time = time.monotonic
+        self.description = description
+        self.total = None
+        self.done = 0
+        self.t0 = self.last = self._time()
+        self.spoken = False
+        self._lock = threading.Lock()
+        self._timer = threading.Timer(PROGRESS_DELAY_S, self._started)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def _started(self) -> None:
+        with self._lock:
+            if not self.spoken:
+                self.spoken = True
+                self.last = self._time()
+                steps = f" ({self.done}/{self.total} done)" if self.total else ""
+                _line(f"{self.description}: running{steps}")
+
+    def __call__(self, event: str, info: dict) -> None:
+        now = self._time()
+        if event == "start":
+            self.total = info.get("total")
+        elif event == "advance":
+            self.done += 1
+            final = self.total is not None and self.done >= self.total
+            with self._lock:
+                due = now - self.t0 >= PROGRESS_DELAY_S and (final or now - self.last >= PLAIN_PROGRESS_INTERVAL_S)
+                if due:
+                    self.spoken, self.last = True, now
+                    of = f"/{self.total}" if self.total else ""
+                    label = f" {info['label']}" if info.get("label") else ""
+                    _line(f"{self.description}: {self.done}{of}{label} ({now - self.t0:.1f} s)")
+        elif event == "note":
+            _line(str(info.get("text", "")))
+
+    def close(self) -> None:
+        self._timer.cancel()
+
+
+@contextmanager
+def phase(enabled: bool, text: str) -> Iterator[None]:
+    """Say what a step that may take a while is doing (loading files, writing figures) on stderr
+    once it has taken :data:`PROGRESS_DELAY_S`: a spinner on a terminal, one line on a pipe."""
+    if not enabled:
+        yield
+        return
+    if not stderr.is_terminal:
+        import threading
+
+        timer = threading.Timer(PROGRESS_DELAY_S, _line, args=(f"{text} …",))
+        timer.daemon = True
+        timer.start()
+        try:
+            yield
+        finally:
+            timer.cancel()
+        return
+    with stderr.status(text):
+        yield
+
+
+def print_capture_notes(captures) -> None:
+    """The loader's notes (trims, repairs, mid-loop starts, assumed units), one line each on stderr."""
+    from ..report.tables import distinct_names
+
+    for c, name in zip(captures, distinct_names([c.source for c in captures])):
+        for note in c.notes:
+            if note.startswith("warning: "):
+                stderr.print(f"warning: {name}: {note[9:]}", markup=False, highlight=False, soft_wrap=True)
+            else:
+                stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
 def print_json(data: dict) -> None:

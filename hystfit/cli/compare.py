@@ -9,8 +9,10 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
-                     TimeCol, load_options, parse_key_values, print_json, progress_bar, stdout)
+from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut,
+                     NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Start, Stop, Warmup,
+                     Runs, Seed, TimeCol, load_options, parse_key_values, plots_flag, print_capture_notes, phase,
+                     print_json, progress_bar, stderr, stdout)
 
 
 def _names(text: str, what: str) -> list[str]:
@@ -30,24 +32,25 @@ def compare(
     data: DataArg,
     models: Annotated[str, typer.Option("--models", help="Comma-separated model names or expressions (pi,pi+creep+delay), or 'all'.")] = "pi,bw",
     opts: Annotated[str, typer.Option("--opts", help="Comma-separated optimizer names.")] = "auto",
-    runs: Annotated[int, typer.Option("--runs", help="Independent seeded runs per cell.", min=1)] = 1,
-    out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("hystfit-compare"),
-    seed: Annotated[int, typer.Option("--seed", help="Base seed; every run derives its own.")] = 0,
-    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", help="Parallel processes (default: all cores).", min=1)] = None,
-    pop: Annotated[Optional[int], typer.Option("--pop", help="Population size of every population search.")] = None,
-    iters: Annotated[Optional[int], typer.Option("--iters", help="Iterations of every population search (ipso, which has no iteration count: max_evals = pop·iters).")] = None,
-    polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after global searches.")] = True,
-    global_fit: Annotated[bool, typer.Option("--global", help="One parameter set for all captures instead of one per condition.")] = False,
+    runs: Runs = 1,
+    out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-compare"),
+    seed: Seed = 0,
+    jobs: Jobs = None,
+    pop: Pop = None,
+    iters: Iters = None,
+    polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after the global search.")] = True,
+    per_condition: PerCondition = True,
     bounds: Annotated[Optional[list[str]], typer.Option("--bounds", help="Override a bound: NAME=LOWER:UPPER, or MODEL.NAME=LOWER:UPPER for one model (repeatable).")] = None,
     model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE for every model, or MODEL.KEY=VALUE for one (repeatable).")] = None,
     opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE for every optimizer, e.g. max_evals=3000, or OPT.KEY=VALUE for one (repeatable).")] = None,
-    figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write the figures.")] = True,
-    json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no summary table.")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    plots: Plots = True,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+    force: Force = False,
+    figures_alias: FiguresAlias = None,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False,
+    recursive: Recursive = False, start: Start = None, stop: Stop = None, warmup: Warmup = 0.0,
 ) -> None:
     """Compare models and optimizers on the captures: every model × optimizer × condition (× runs).
 
@@ -56,11 +59,13 @@ def compare(
     """
     from ..compare import compare as run_compare
     from ..compare import scoped_options
+    from ..errors import NoResultError
     from ..io import load_captures, staged_output_dir
     from ..registry import models as model_registry
     from ..registry import optimizers as optimizer_registry
     from ..report.compare_report import compare_frame, write_compare_outputs
     from ..params import parse_bound_overrides
+    from ..report.tables import fmt
     from ..setup import budget_options, make_model, model_option_names, model_param_names
 
     model_names = model_registry.names() if models.strip().lower() == "all" else _names(models, "models")
@@ -77,16 +82,29 @@ def compare(
             opt_options[o].update(budget_options(c, pop=pop, iters=iters, max_evals=opt_options[o].get("max_evals")))
     bnds = parse_bound_overrides(bounds or [])
     bnds = scoped_options(bnds, {m: model_param_names(m) for m in model_names}, "--bounds")
-    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
+    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
+                           start=start, stop=stop, warmup=warmup)
     with staged_output_dir(out, force) as stage:
-        captures = load_captures(data, options, recursive=recursive)
+        with phase(not quiet and not json_out, "loading the captures"):
+            captures = load_captures(data, options, recursive=recursive)
+        if not quiet:
+            print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
-                              model_options=mopts, optimizer_options=opt_options, bounds=bnds, global_fit=global_fit,
-                              progress=cb)
-        write_compare_outputs(res, stage, make_figures=figures)
+                              model_options=mopts, optimizer_options=opt_options, bounds=bnds,
+                              global_fit=not per_condition, progress=cb)
+        make_plots = plots_flag(plots, figures_alias)
+        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
+            write_compare_outputs(res, stage, make_figures=make_plots)
     df = compare_frame(res)
     u = res.unit
+    failed = [c for c in res.cells if not c.ok]
+    if failed and len(failed) == len(res.cells):
+        raise NoResultError(f"every cell failed ({len(failed)} of {len(failed)}); first error: {failed[0].model}/"
+                            f"{failed[0].optimizer}/{failed[0].label}: {failed[0].error} (all errors in {out}/compare.csv)")
+    if failed:
+        stderr.print(f"warning: {len(failed)} of {len(res.cells)} cells failed; their errors are in {out}/compare.csv",
+                     markup=False, highlight=False)
     if json_out:
         ok = df[df["error"] == ""] if "error" in df else df
         best = ok[ok["best_run"] == True] if "best_run" in ok else ok  # noqa: E712
@@ -108,5 +126,5 @@ def compare(
             okc = [c for c in cells if c.ok]
             rm = sum(c.best.metrics[f"rmse_{u}"] for c in okc) / len(okc) if okc else float("nan")
             r2 = min((c.best.metrics["r2"] for c in okc), default=float("nan"))
-            t.add_row(m, o, f"{rm:.4g}", f"{r2:.5f}", str(len(cells) - len(okc)), f"{sum(c.runtime_s for c in cells):.2f}")
+            t.add_row(m, o, fmt(rm), fmt(r2, 5), str(len(cells) - len(okc)), f"{sum(c.runtime_s for c in cells):.2f}")
     stdout.print(t)

@@ -9,8 +9,9 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
-                     TimeCol, load_options, parse_key_values, print_json, progress_bar, stderr, stdout)
+from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, JsonOut, NoHeader, OutputCol,
+                     OutputUnit, PerCondition, Plots, Quiet, Recursive, Start, Stop, Seed, TimeCol, load_options,
+                     parse_key_values, plots_flag, print_capture_notes, phase, print_json, progress_bar, stdout)
 
 
 def _parse_effects(value: Optional[str]) -> list[str] | None:
@@ -31,21 +32,22 @@ def diagnose(
     model: Annotated[str, typer.Option("--model", "-m", help="Base model: a name or BASE+BLOCK+... (see 'hystfit models').")] = "pi",
     opt: Annotated[str, typer.Option("--opt", "-o", help="Optimizer of the base fits (see 'hystfit optimizers').")] = "auto",
     out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-diagnose"),
-    per_condition: Annotated[bool, typer.Option("--per-condition", help="One base parameter set per condition (look-up table) instead of one for all captures.")] = False,
+    per_condition: PerCondition = False,
     effects: Annotated[Optional[str], typer.Option("--effects", help="Candidate effects, comma-separated (default: dynamics,creep,asymmetry,drift,delay).")] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the base fits and of the placebo draws (>= 0).")] = 0,
+    seed: Seed = 0,
     fit_fraction: Annotated[float, typer.Option("--fit-fraction", help="Share of every capture used to fit; the rest is held out.")] = 0.6,
     threshold: Annotated[float, typer.Option("--threshold", help="Minimum held-out reduction for naming an effect.")] = 0.3,
     max_effects: Annotated[int, typer.Option("--max-effects", help="How many effects may be named, in order (>= 1).")] = 3,
     model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE (repeatable).")] = None,
     opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE (repeatable).")] = None,
-    figures: Annotated[bool, typer.Option("--figures/--no-figures", help="Write the figures.")] = True,
-    json_out: Annotated[bool, typer.Option("--json", help="Print diagnosis.json on stdout.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no summary table.")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    plots: Plots = True,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+    force: Force = False,
+    figures_alias: FiguresAlias = None,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False,
+    recursive: Recursive = False, start: Start = None, stop: Stop = None,
 ) -> None:
     """Diagnose the gap between MODEL and the captures: noise floor, where it lies, which unmodelled
     effect (dynamics, creep, asymmetry, drift, delay) causes it, and how much of it each removes on
@@ -67,20 +69,22 @@ def diagnose(
     names = _parse_effects(effects)
     settings = DiagnoseSettings(fit_fraction=fit_fraction, threshold=threshold, max_effects=max_effects)
     check_seed(seed)
-    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
+    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
+                           start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
-        captures = load_captures(data, options, recursive=recursive)
+        with phase(not quiet and not json_out, "loading the captures"):
+            captures = load_captures(data, options, recursive=recursive)
         if not quiet:
-            for c in captures:
-                for note in c.notes:
-                    stderr.print(f"[dim]{c.name}: {note}[/dim]")
+            print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, f"diagnose {m.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb)
         with progress_bar(not quiet and not json_out and bool(d.explained_by),
                           f"identify {d.recommended_model} on all the data") as cb:
             rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb)
-        write_diagnose_outputs(d, stage, make_figures=figures, recommended=rec)
+        make_plots = plots_flag(plots, figures_alias)
+        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
+            write_diagnose_outputs(d, stage, make_figures=make_plots, recommended=rec)
     if json_out:
         print_json({**d.to_dict(), "params": str(out / "params.json") if d.explained_by else None})
         return

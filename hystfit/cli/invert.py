@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import shlex
 import shutil
-import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -17,7 +16,8 @@ from rich.table import Table
 
 from ..errors import ConfigError, OutputError
 from .app import app, guarded
-from .common import Condition, OutputUnit, TimeCol, parse_condition, print_json, progress_bar, stderr, stdout
+from .common import (Condition, Force, JsonOut, Method, OutputUnit, Plots, Quiet, TimeCol, parse_condition, phase,
+                     print_json, progress_bar, stderr, stdout)
 
 TargetArg = Annotated[Optional[Path], typer.Argument(
     help="Target file (CSV/TXT/Parquet): time and desired displacement (target, reference, displacement_um, y, ...). "
@@ -39,7 +39,6 @@ TargetFs = Annotated[Optional[float], typer.Option(
     "--fs", help="Sample rate (Hz) of a built-in trajectory (default: the identification data's) or of a target file "
                  "without a time column.")]
 TargetCol = Annotated[Optional[str], typer.Option("--target-col", help="Target column of a file: name or 0-based index.")]
-Method = Annotated[str, typer.Option("--method", help="Table cells: interpolate (bilinear blend) or nearest.")]
 InitialVoltage = Annotated[Optional[float], typer.Option(
     "--initial-voltage", help="Voltage (V) the stage rests at before the target (default: the rest voltage of the "
                               "target's first sample).")]
@@ -145,10 +144,10 @@ def invert(
     report_dir: Annotated[Optional[Path], typer.Option("--report-dir", help="Report directory (default: "
                                                        "<out stem>_report next to the output).")] = None,
     time_col: TimeCol = None, target_col: TargetCol = None, output_unit: OutputUnit = None,
-    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Write the figures.")] = True,
-    json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress and no summary table (warnings stay).")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing output file and report directory.")] = False,
+    plots: Plots = True,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+    force: Force = False,
 ) -> None:
     """Voltages that make the identified model follow TARGET, and the tracking error they predict.
 
@@ -157,7 +156,7 @@ def invert(
     limiting are reported with their time spans. Method and options: docs/invert.md.
     """
     from ..invert import invert_target
-    from ..io import staged_output_dir, write_table
+    from ..io import check_writable_file, staged_output_dir, write_table
     from ..report.invert_report import write_invert_report
     from ..results import load_params
 
@@ -169,6 +168,7 @@ def invert(
         raise OutputError(f"{out}: is a directory; --out takes a file name such as voltages.csv")
     if out.exists() and not force:
         raise OutputError(f"{out}: exists; pass --force to replace it or choose another --out")
+    check_writable_file(out)
     if method not in ("interpolate", "nearest"):
         raise ConfigError(f"--method {method!r}: choose interpolate or nearest")
     rdir = Path(report_dir) if report_dir is not None else out.parent / f"{out.stem}_report"
@@ -184,10 +184,11 @@ def invert(
                            target_col=target_col, output_unit=output_unit)
     existed = rdir.exists()
     with staged_output_dir(rdir, force) as stage:
-        with progress_bar(not quiet and not json_out and sys.stderr.isatty(), "invert") as cb:
+        with progress_bar(not quiet and not json_out, "invert") as cb:
             res = invert_target(pf, tgt, method=method, condition=cond, initial_voltage=initial_voltage, vmin=vmin,
                                 vmax=vmax, max_slew=max_slew, progress=cb)
-        summary = write_invert_report(res, stage, make_plots=plots, command=command, output_file=str(out))
+        with phase(not quiet and not json_out, f"writing {rdir}" + (" (figures)" if plots else "")):
+            summary = write_invert_report(res, stage, make_plots=plots, command=command, output_file=str(out))
     try:
         write_table(out, res.to_frame())
     except BaseException:

@@ -44,6 +44,16 @@ def list_models(json_out: Annotated[bool, typer.Option("--json", help="Machine-r
             t.add_row("(none)", "", "", "", "per-capture offset and rate, projected out of the residual")
         stdout.print(t)
         stdout.print(f"  {b['equation']}   structure options: {b['structure'] or 'none'}\n")
+    print_papers()
+
+
+def print_papers() -> None:
+    """The full citations of the papers the listings name as "paper 000" … "paper 004"."""
+    from ..references import PAPERS
+
+    stdout.print("Papers:", markup=False, highlight=False)
+    for pid, text in PAPERS.items():
+        stdout.print(f"  {pid}: {text}", markup=False, highlight=False)
 
 
 #: stop-rule settings shared by the optimizers (hystfit.optimizers.base.StopRules) and what they mean
@@ -106,3 +116,4 @@ def list_optimizers(json_out: Annotated[bool, typer.Option("--json", help="Machi
         stdout.print(t)
     stdout.print("Settings are changed with --pop, --iters and --opt-option KEY=VALUE; the docstrings "
                  "(python -m pydoc hystfit.optimizers.<name>) give the equations.")
+    print_papers()

@@ -9,8 +9,9 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, Fs, InputCol, NoHeader, OutputCol, OutputUnit, Recursive,
-                     TimeCol, load_options, print_json, stdout)
+from .common import (Condition, DataArg, DropNonfinite, Force, Fs, InputCol, JsonOut, Method, NoHeader, OutputCol,
+                     OutputUnit, Plots, Quiet, Recursive, Start, Stop, TimeCol, load_options, phase, print_json, stderr,
+                     stdout)
 
 
 @app.command()
@@ -19,15 +20,18 @@ def simulate(
     params: Annotated[Path, typer.Argument(help="params.json written by 'hystfit identify'.", show_default=False)],
     data: DataArg,
     out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("hystfit-sim"),
-    method: Annotated[str, typer.Option("--method", help="Table cell choice: nearest or interpolate (bilinear blend).")] = "nearest",
+    method: Method = "interpolate",
+    align_offset: Annotated[bool, typer.Option("--align-offset", help="Fit and add a constant offset per capture "
+                                               "(e.g. a sensor zero that moved between recording days); reported "
+                                               "in the table, report.md and the JSON.")] = False,
     fmt: Annotated[str, typer.Option("--format", help="Prediction file format: csv or parquet.")] = "csv",
-    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Write loop and time-series figures.")] = True,
-    json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary table.")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    plots: Plots = True,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+    force: Force = False,
     time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
     fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False,
+    recursive: Recursive = False, start: Start = None, stop: Stop = None,
 ) -> None:
     """Predict the output of captures with the identified look-up table (out-of-sample validation).
 
@@ -38,19 +42,27 @@ def simulate(
     from ..io import load_captures, staged_output_dir
     from ..report.simulate_report import write_simulate_outputs
     from ..predict import predict_capture
+    from ..report.tables import distinct_names
+    from ..report.tables import fmt as num
     from ..results import load_params
 
     if method not in ("nearest", "interpolate"):
-        raise ConfigError(f"--method {method!r}: choose nearest or interpolate")
+        raise ConfigError(f"--method {method!r}: choose interpolate or nearest")
     if fmt not in ("csv", "parquet"):
         raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
     pf = load_params(params)
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                           require_output=False)
+                           require_output=False, start=start, stop=stop)
     with staged_output_dir(out, force) as stage:
-        captures = load_captures(data, options, recursive=recursive)
-        preds = [predict_capture(pf, c, method) for c in captures]
-        summary = write_simulate_outputs(pf, preds, stage, fmt=fmt, make_plots=plots)
+        with phase(not quiet and not json_out, "loading the captures"):
+            captures = load_captures(data, options, recursive=recursive)
+        with phase(not quiet and not json_out, f"predicting {len(captures)} capture(s)"):
+            preds = [predict_capture(pf, c, method, align_offset=align_offset) for c in captures]
+        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if plots else "")):
+            summary = write_simulate_outputs(pf, preds, stage, fmt=fmt, make_plots=plots)
+    for s in summary:
+        for note in s["notes"]:
+            stderr.print(f"note: {Path(s['capture']).name}: {note}", markup=False, highlight=False, soft_wrap=True)
     if json_out:
         print_json({"out": str(out), "params": str(params), "captures": summary})
         return
@@ -58,11 +70,13 @@ def simulate(
         return
     u = pf.unit
     t = Table(title=f"{pf.model_name}: predictions written to {out}")
-    for col in ("capture", "cells", f"rmse_{u}", "r2", f"max_error_{u}"):
-        t.add_column(col, justify="right")
-    for s in summary:
+    cols = ["capture", "cells", f"rmse_{u}", f"bias_{u}", "r2", f"max_error_{u}"] + ([f"offset_{u}"] if align_offset
+                                                                                   else [])
+    for i, col in enumerate(cols):
+        t.add_column(col, justify="right", no_wrap=i == 0, overflow="fold")
+    for s, name in zip(summary, distinct_names([x["capture"] for x in summary])):
         m = s.get("metrics") or {}
-        t.add_row(s["capture"], ", ".join(f"{lab}×{w:.2f}" for lab, w in s["cells"]),
-                  f"{m.get(f'rmse_{u}', float('nan')):.4g}", f"{m.get('r2', float('nan')):.5f}",
-                  f"{m.get(f'max_error_{u}', float('nan')):.4g}")
+        t.add_row(name, ", ".join(f"{lab}×{w:.2f}" for lab, w in s["cells"]), num(m.get(f"rmse_{u}")),
+                  num(m.get(f"bias_{u}")), num(m.get("r2"), 5), num(m.get(f"max_error_{u}")),
+                  *([num(s[f"offset_{u}"])] if align_offset else []))
     stdout.print(t)

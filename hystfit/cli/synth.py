@@ -10,6 +10,7 @@ import typer
 
 from ..errors import ConfigError, OutputError
 from .app import app, guarded
+from .common import seed_callback
 
 synth_app = typer.Typer(
     help="Write synthetic captures of a virtual piezo stage (PI hysteresis + switchable effects).",
@@ -25,8 +26,9 @@ _EFFECTS_HELP = (
 Seed = Annotated[
     int,
     typer.Option(
-        "--seed", min=0,
-        help="Seed: the sensor noise uses it, random excitations seed+500; campaign file i uses seed*1000+i.",
+        "--seed", callback=seed_callback,
+        help="Seed (0 … 4294967295): the sensor noise uses it, random excitations seed+500; campaign file i uses "
+             "seed*1000+i.",
     ),
 ]
 EffectsOpt = Annotated[str, typer.Option("--effects", help=_EFFECTS_HELP)]
@@ -77,6 +79,9 @@ def campaign(
         raise OutputError(f"--out {out}: exists and is not a folder.")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise OutputError(f"--out {out}: the folder is not empty; choose another or pass --force.")
+    from ..io import check_writable_file
+
+    check_writable_file(out / "a20V_f10Hz.csv")
     plant = _plant(effects, strength)
     for path in synth.make_campaign(out, plant, seed):
         typer.echo(str(path))
@@ -127,6 +132,9 @@ def capture(
         raise OutputError(f"{output}: exists; choose another name or pass --force.")
     if output.exists() and output.is_dir():
         raise OutputError(f"{output}: is a folder.")
+    from ..io import check_writable_file
+
+    check_writable_file(output)
     if not amplitude >= 0:
         raise ConfigError(f"--amplitude {amplitude:g}: must be >= 0 V.")
     for option, value in (("--frequency", frequency), ("--cycles", cycles), ("--fs", fs), ("--duration", duration)):

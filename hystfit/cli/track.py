@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -11,7 +10,11 @@ from rich.table import Table
 
 from ..errors import ConfigError
 from .app import app, guarded
-from .common import Condition, OutputUnit, TimeCol, parse_condition, print_json, progress_bar, stderr, stdout
+from .common import (Condition, Force, JsonOut, OutputUnit, Plots, Quiet, Seed, TimeCol, parse_condition, phase,
+                     print_json, progress_bar, stderr, stdout)
+
+# --noise is in µm (as in 'hystfit synth'); the loop runs in the parameter file's unit.
+UM_PER_UNIT_INV = {"nm": 1e3, "um": 1.0, "mm": 1e-3, "m": 1e-6}
 from .invert import (InitialVoltage, MaxSlew, Method, Multi, Offset, Sine, Steps, TargetArg, TargetCol, TargetFs,
                      Triangle, Vmax, Vmin, build_target, command_text)
 
@@ -27,9 +30,9 @@ def track(
     plant: Annotated[Optional[Path], typer.Option("--plant", help="params.json of the plant (default: PARAMS "
                                                                   "itself); another model tests the inverse "
                                                                   "realistically.")] = None,
-    noise: Annotated[float, typer.Option("--noise", help="Measurement noise σ in the parameter file's unit "
-                                                         "(Gaussian).")] = 0.0,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the measurement noise.")] = 0,
+    noise: Annotated[float, typer.Option("--noise", help="Measurement noise σ in µm (Gaussian), as in 'hystfit synth'; "
+                                                         "converted to the parameter file's unit.")] = 0.0,
+    seed: Seed = 0,
     kp: Annotated[Optional[float], typer.Option("--kp", help="Proportional gain (V per unit); with --ki/--kd "
                                                              "replaces the automatic tuning.")] = None,
     ki: Annotated[Optional[float], typer.Option("--ki", help="Integral gain (V per unit·s).")] = None,
@@ -46,10 +49,10 @@ def track(
     out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, "
                                                     "unless --force).")] = Path("hystfit-track"),
     fmt: Annotated[str, typer.Option("--format", help="Time-series file format: csv or parquet.")] = "csv",
-    plots: Annotated[bool, typer.Option("--plots/--no-plots", help="Write figures.")] = True,
-    json_out: Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress and no summary table.")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing non-empty output directory.")] = False,
+    plots: Plots = True,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+    force: Force = False,
 ) -> None:
     """Simulate the closed loop around an identified plant and compare controllers (paper 002 Tables 4–6).
 
@@ -69,7 +72,7 @@ def track(
     if method not in ("interpolate", "nearest"):
         raise ConfigError(f"--method {method!r}: choose interpolate or nearest")
     if not noise >= 0:
-        raise ConfigError(f"--noise {noise:g}: the noise σ must be >= 0")
+        raise ConfigError(f"--noise {noise:g}: the noise σ must be >= 0 (µm)")
     if bandwidth is not None and not bandwidth > 0:
         raise ConfigError(f"--bandwidth {bandwidth:g}: must be > 0 Hz")
     if any(g is not None for g in (kp, ki, kd)) and not any(n in ("pid", "ff+pid") for n in names):
@@ -86,12 +89,13 @@ def track(
                            method=method, initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
                            time_col=time_col, target_col=target_col, output_unit=output_unit, out=out)
     with staged_output_dir(out, force) as stage:
-        with progress_bar(not quiet and not json_out and sys.stderr.isatty(), "track") as cb:
+        with progress_bar(not quiet and not json_out, "track") as cb:
             res = run_track(pf, tgt, names, plant_pf=plant_pf, method=method, condition=cond,
                             initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
-                            noise_std=noise, seed=seed, kp=kp, ki=ki, kd=kd, bandwidth_Hz=bandwidth,
+                            noise_std=noise * UM_PER_UNIT_INV[pf.unit], seed=seed, kp=kp, ki=ki, kd=kd, bandwidth_Hz=bandwidth,
                             anti_windup=anti_windup, progress=cb)
-        summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command)
+        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if plots else "")):
+            summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command)
     for run in res.runs:
         if run.limit_spans:
             n = sum(s.n for s in run.limit_spans)

@@ -378,6 +378,19 @@ def _safe(name: str) -> str:
 # ----------------------------------------------------------------------------------------------
 
 
+#: A "hold" branch (constant input) gets its own row only with at least this share of the samples:
+#: below it, it is the few samples at the turning points of a periodic drive, and a row of
+#: statistics over 3 samples reads like a finding.
+HOLD_MIN_FRACTION = 0.01
+
+
+def shown_branches(by_branch: dict) -> list[str]:
+    """Branch names worth a row: ascending, descending, and hold when it is a real hold."""
+    total = sum(by_branch[n]["n_samples"] for n in ("ascending", "descending", "hold"))
+    hold = by_branch["hold"]["n_samples"] >= HOLD_MIN_FRACTION * total
+    return ["ascending", "descending"] + (["hold"] if hold else [])
+
+
 def _table(header: Sequence[str], rows: Sequence[Sequence]) -> list[str]:
     out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     for r in rows:
@@ -586,10 +599,14 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
         L += [f"![gap per condition]({figs['conditions']})", ""]
     L += ["### By branch, loop position and level", ""]
     br = w["by_branch"]
+    shown = shown_branches(br)
     L += _table(["branch", f"RMSE ({u})", f"mean of model − measured ({u})", "samples"],
                 [[{"ascending": "ascending (input rising)", "descending": "descending (input falling)",
                    "hold": "hold (input constant)"}[n], br[n]["rmse_out"], br[n]["mean_out"], str(br[n]["n_samples"])]
-                 for n in ("ascending", "descending", "hold")])
+                 for n in shown])
+    if "hold" not in shown and br["hold"]["n_samples"]:
+        L += ["", f"({br['hold']['n_samples']} samples with a constant input — the turning points of a periodic drive, "
+                  "not a hold — are left out of this table.)"]
     lp = w["by_loop_position"]
     L += ["", f"Near turning points (within 10 % of the half-cycle stroke): RMSE {lp['near_turning_points']['rmse_out']:.4g} {u}; "
               f"mid-stroke: {lp['mid_stroke']['rmse_out']:.4g} {u}."]

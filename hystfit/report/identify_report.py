@@ -11,6 +11,7 @@ from ..identify import IdentifyResult, unit_param
 from ..io import atomic_write_text, write_table
 from ..results import dumps, identify_to_dict
 from . import plots
+from ..params import AT_BOUND_RTOL
 from .tables import fmt, frame, markdown_table, metric_columns, metric_legend
 
 UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m"}
@@ -73,7 +74,8 @@ def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> st
         if notes:
             lines += ["Loading notes: " + "; ".join(notes), ""]
         prow = [{"parameter": p.name, "unit": unit_param(p, u), "value": v, "stderr": se,
-                 "lower": p.lower, "upper": p.upper} for p, v, se in zip(f.params, f.theta, f.stderr)]
+                 "lower": p.lower, "upper": p.upper, "at bound": f"**{at}**" if at else ""}
+                for p, v, se, at in zip(f.params, f.theta, f.stderr, f.at_bound)]
         lines += [markdown_table(frame(prow)), ""]
         if len(f.runs) > 1:
             sp = f.spread()
@@ -82,9 +84,22 @@ def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> st
         for p in plot_files.get(f.label, []):
             lines.append(f"![{Path(p).stem}]({p})")
         lines.append("")
-    lines += ["Standard errors are asymptotic (σ²(JᵀJ)⁻¹ at the optimum); parameters on a bound have none. "
+    lines += ["Standard errors are asymptotic (σ²(JᵀJ)⁻¹ at the optimum). A parameter \"at bound\" lies within "
+              f"{AT_BOUND_RTOL:g} × its search width of that bound: the search stopped there, so it has no standard "
+              "error (–); if the bound is not physical, widen it with --bounds NAME=LOWER:UPPER. "
               "A large standard error means the data do not determine that parameter well.", ""]
     return "\n".join(lines)
+
+
+def bound_notes(res: IdentifyResult) -> list[str]:
+    """One line per parameter set with parameters pinned at a search bound (for the console)."""
+    out = []
+    for f in res.fits:
+        pinned = [f"{p.name}={fmt(float(v))} ({at} {fmt(getattr(p, at))})"
+                  for p, v, at in zip(f.params, f.theta, f.at_bound) if at]
+        if pinned:
+            out.append(f"{f.label}: at a search bound: {', '.join(pinned)}")
+    return out
 
 
 def write_identify_outputs(res: IdentifyResult, out_dir: Path, *, make_plots: bool = True) -> dict[str, Path]:

@@ -12,7 +12,7 @@ from ..io import atomic_write_text, write_table
 from ..predict import Prediction
 from ..results import ParamsFile, _clean, dumps
 from . import plots
-from .tables import frame, markdown_table, metric_columns, metric_legend
+from .tables import distinct_names, frame, markdown_table, metric_columns, metric_legend
 
 
 def _stem(pred: Prediction, seen: dict[str, int]) -> str:
@@ -39,8 +39,8 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
             cols[f"residual_{u}"] = p.y_model - c.y
         write_table(out_dir / f"{stem}_prediction.{fmt}", pd.DataFrame(cols))
         entry = {"capture": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
-                 "cells": [list(x) for x in p.cells], "metrics": p.metrics,
-                 "prediction_file": f"{stem}_prediction.{fmt}"}
+                 "cells": [list(x) for x in p.cells], "metrics": p.metrics, f"offset_{u}": p.offset,
+                 "notes": list(c.notes) + list(p.notes), "prediction_file": f"{stem}_prediction.{fmt}"}
         if p.metrics is not None:
             atomic_write_text(out_dir / f"{stem}_metrics.json", dumps(_clean(entry)))
             if make_plots:
@@ -50,13 +50,23 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
                                         title=f"{pf.model_name} prediction – {c.name}")
         summary.append(_clean(entry))
     rows = []
-    for s in summary:
-        row = {"capture": Path(s["capture"]).name, "amplitude_V": s["amplitude_V"], "frequency_Hz": s["frequency_Hz"],
+    names = distinct_names([s["capture"] for s in summary])
+    for s, name in zip(summary, names):
+        row = {"capture": name, "amplitude_V": s["amplitude_V"], "frequency_Hz": s["frequency_Hz"],
                "cells": ", ".join(f"{lab}×{w:.2f}" for lab, w in s["cells"])}
+        if any(x[f"offset_{u}"] is not None for x in summary):
+            row[f"offset_{u}"] = s[f"offset_{u}"]
         for k in metric_columns(u):
             row[k] = (s["metrics"] or {}).get(k, np.nan)
         rows.append(row)
-    text = "\n".join([f"# hystfit simulate report", "", f"- parameters: `{pf.path}` (model `{pf.model_name}`, {pf.mode})",
-                      f"- output unit: {u}", "", markdown_table(frame(rows)), "", "Formulas:", "", metric_legend(u), ""])
+    lines = [f"# hystfit simulate report", "", f"- parameters: `{pf.path}` (model `{pf.model_name}`, {pf.mode})",
+             f"- output unit: {u}", "", markdown_table(frame(rows)), ""]
+    if any(s[f"offset_{u}"] is not None for s in summary):
+        lines += [f"`offset_{u}`: a constant fitted per capture (mean of measured − predicted) and added to the "
+                  "prediction before the metrics (--align-offset); without it the offset shows as the bias.", ""]
+    noted = [(name, n) for s, name in zip(summary, names) for n in s["notes"]]
+    if noted:
+        lines += ["## Notes", ""] + [f"- {name}: {n}" for name, n in noted] + [""]
+    text = "\n".join(lines + ["Formulas:", "", metric_legend(u), ""])
     atomic_write_text(out_dir / "report.md", text)
     return summary

@@ -10,7 +10,7 @@ import pandas as pd
 from ..metrics import describe_metrics, metric_key
 
 #: metric columns shown in per-condition reports, in order
-REPORT_METRICS = ("rmse", "nrmse_pct", "mape", "smape", "r2", "re", "j", "max_error")
+REPORT_METRICS = ("rmse", "bias", "nrmse_pct", "mape", "smape", "r2", "re", "j", "max_error")
 
 
 def metric_columns(unit: str) -> list[str]:
@@ -18,11 +18,19 @@ def metric_columns(unit: str) -> list[str]:
 
 
 def fmt(x, digits: int = 4) -> str:
-    """Compact number formatting for Markdown tables."""
+    """Compact number formatting for Markdown tables.
+
+    Counts (integers) are written in full (``33720``, not ``3.372e+04``); a number that would round
+    to ±1 without being ±1 (an R² of 0.999996) gets the digits that show how far from 1 it is.
+    """
     if x is None:
         return "–"
     if isinstance(x, str):
         return x
+    if isinstance(x, (bool, np.bool_)):
+        return str(bool(x)).lower()
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
     x = float(x)
     if not np.isfinite(x):
         return "inf" if x > 0 else ("-inf" if x < 0 else "–")
@@ -30,16 +38,30 @@ def fmt(x, digits: int = 4) -> str:
         return "0"
     if abs(x) >= 1e5 or abs(x) < 1e-3:
         return f"{x:.{digits - 1}e}"
-    return f"{x:.{digits}g}"
+    text = f"{x:.{digits}g}"
+    while abs(float(text)) == 1.0 and abs(x) != 1.0 and digits < 12:
+        digits += 1
+        text = f"{x:.{digits}g}"
+    return text
 
 
 def markdown_table(df: pd.DataFrame, digits: int = 4) -> str:
     cols = list(df.columns)
     lines = ["| " + " | ".join(str(c) for c in cols) + " |",
              "|" + "|".join("---:" if pd.api.types.is_numeric_dtype(df[c]) else "---" for c in cols) + "|"]
-    for _, row in df.iterrows():
-        lines.append("| " + " | ".join(fmt(row[c], digits) if not isinstance(row[c], str) else row[c] for c in cols) + " |")
+    # per column: integer counts stay integers (iterrows makes them floats; a missing value makes a
+    # whole count column float in pandas, so count columns are recognised by name too)
+    columns = [[int(v) if _is_count(c) and isinstance(v, float) and v.is_integer() else v for v in df[c].tolist()]
+               for c in cols]
+    for row in zip(*columns):
+        lines.append("| " + " | ".join(v if isinstance(v, str) else fmt(v, digits) for v in row) + " |")
     return "\n".join(lines)
+
+
+def _is_count(column) -> bool:
+    name = str(column)
+    return name.startswith("n_") and not name.endswith("_pct") or name in ("evaluations", "nfev", "samples", "runs",
+                                                                           "iterations")
 
 
 def metric_legend(unit: str) -> str:
@@ -48,3 +70,21 @@ def metric_legend(unit: str) -> str:
 
 def frame(rows: Sequence[dict]) -> pd.DataFrame:
     return pd.DataFrame(list(rows))
+
+
+def distinct_names(paths: Sequence[str]) -> list[str]:
+    """The shortest path suffix of each path that tells it from the others (for console tables).
+
+    ``["a/x/cap.csv", "b/x/cap.csv", "c.csv"]`` → ``["a/x/cap.csv", "b/x/cap.csv", "c.csv"]``;
+    ``["day1/cap.csv", "day2/cap.csv"]`` → ``["day1/cap.csv", "day2/cap.csv"]``.
+    """
+    from pathlib import PurePath
+
+    parts = [PurePath(p).parts for p in paths]
+    out = []
+    for i, pp in enumerate(parts):
+        k = 1
+        while k < len(pp) and any(j != i and qq[-k:] == pp[-k:] for j, qq in enumerate(parts)):
+            k += 1
+        out.append("/".join(pp[-k:]))
+    return out

@@ -17,13 +17,16 @@ def load_script():
     return mod
 
 
+from hystfit.references import cite  # noqa: E402
+
+
 def test_model_docs_script_covers_every_registered_model(tmp_path):
     load_script().main(["--out", str(tmp_path)])
     md = (tmp_path / "models.md").read_text()
     for name in models.names():
         cls = models.get(name)
         assert f"## `{name}` — {cls.title}" in md
-        assert cls.reference in md
+        assert cite(cls.reference) in md  # papers cited in full, never an internal file (issue 14 item 16)
         img = mpimg.imread(tmp_path / "figures" / f"model_{name}.png")
         assert img.shape[0] > 100 and img.shape[1] > 100
     # the committed page is what the script makes today (figures are binary and depend on the

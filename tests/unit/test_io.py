@@ -279,19 +279,33 @@ def test_drop_nonfinite_trailing_rows_are_dropped(tmp_path):
     assert c.n == t.size and any("dropped 2 row(s)" in n for n in c.notes)
 
 
-def test_drop_nonfinite_still_validates_sampling(tmp_path):
+def test_drop_nonfinite_interpolates_isolated_interior_rows(tmp_path):
+    """Dropping an interior row made the sampling non-uniform and the file was refused again (issue 14 item 10)."""
     path, (t, u, y) = std_file(tmp_path)
     set_line(path, 101, f"{t[99]:.12g},nan,{y[99]:.12g}")
-    msg = error_of(path, LoadOptions(drop_nonfinite=True))
-    assert "row 102" in msg and "not uniform" in msg
+    set_line(path, 201, f"{t[199]:.12g},{u[199]:.12g},")
+    set_line(path, 202, f"{t[200]:.12g},{u[200]:.12g},inf")
+    c = load_capture(path, LoadOptions(drop_nonfinite=True))
+    assert c.n == t.size
+    assert c.u[99] == pytest.approx(0.5 * (u[98] + u[100]), rel=1e-9)
+    assert c.y[199] == pytest.approx(y[198] + (y[201] - y[198]) / 3, rel=1e-9)
+    assert any("interpolated 3 isolated row(s)" in n and "row 101" in n for n in c.notes)
 
 
-def test_drop_nonfinite_without_time_column_refuses_interior_rows(tmp_path):
+def test_drop_nonfinite_without_time_column_interpolates_interior_rows(tmp_path):
     t, u, y = sine()
     u[50] = np.nan
     path = write_csv(tmp_path / "nt.csv", ("voltage_V", "displacement_um"), [u, y])
-    msg = error_of(path, LoadOptions(fs=FS, drop_nonfinite=True))
-    assert "row 52" in msg and "time column" in msg
+    c = load_capture(path, LoadOptions(fs=FS, drop_nonfinite=True))
+    assert c.n == t.size and np.isfinite(c.u).all() and any("row 52" in n for n in c.notes)
+
+
+def test_drop_nonfinite_refuses_a_long_interior_gap_with_the_fix(tmp_path):
+    path, (t, u, y) = std_file(tmp_path)
+    for line in range(101, 106):
+        set_line(path, line, f"{t[line - 2]:.12g},nan,{y[line - 2]:.12g}")
+    msg = error_of(path, LoadOptions(drop_nonfinite=True))
+    assert "rows 101–105" in msg and "5 consecutive rows" in msg and "split the file" in msg
 
 
 def test_time_not_increasing(tmp_path):
