@@ -180,6 +180,7 @@ def load_params(path: str | Path) -> ParamsFile:
         expr = data["model"]["name"]
         if not isinstance(expr, str):
             raise ValueError(f"model.name must be text, got {expr!r}")
+        make_model(expr)  # an unknown model or block is named before anything else
         unit = data["units"]["output"]
         if unit not in OUTPUT_UNITS:
             raise ValueError(f"units.output {unit!r} is not one of {', '.join(OUTPUT_UNITS)}")
