@@ -7,7 +7,8 @@ model (``--global``: one parameter set for every condition); ``hystfit invert PA
 10,F,5`` gives the voltages for a 10 µm sine at F = 1, 10, 80 Hz, which drive the plant; the
 tracking error is reported as RMSE in % of the 10 µm stroke.
 
-    python benchmarks/composite_feedforward.py [--models pi,pi2,pi+asymmetry+creep+dynamics] [--keep DIR]
+    python benchmarks/composite_feedforward.py [--models pi,pi2,pi+asymmetry+creep+dynamics:n_operators=30]
+                                               [--keep DIR]
 """
 
 from __future__ import annotations
@@ -27,7 +28,9 @@ from hystfit.invert import sine_target
 
 FREQS = (1.0, 10.0, 80.0)
 AMP_UM = 10.0
-DEFAULT_MODELS = ("pi", "pi2", "pi+creep+dynamics", "pi+asymmetry+creep+dynamics")
+#: MODEL or MODEL:KEY=VALUE[;KEY=VALUE] (structure options, as --model-option)
+DEFAULT_MODELS = ("pi", "pi2", "pi+creep+dynamics", "pi+asymmetry+creep+dynamics",
+                  "pi+asymmetry+creep+dynamics:n_operators=30")
 
 
 def plant() -> synth.Plant:
@@ -54,11 +57,13 @@ def main() -> None:
         data = root / "campaign"
         synth.make_campaign(data, p, 0)
         print("RMSE of the plant's tracking error, % of the 10 µm stroke (voltages from `hystfit invert`)")
-        print(f"{'model':34s} " + " ".join(f"{f:>8g} Hz" for f in FREQS))
-        for m in args.models.split(","):
+        print(f"{'model[:options]':46s} " + " ".join(f"{f:>8g} Hz" for f in FREQS))
+        for spec in args.models.split(","):
+            m, _, opts = spec.partition(":")
+            mo = [a for kv in opts.split(";") if kv for a in ("--model-option", kv)]
             out = root / f"id_{m.replace('+', '_')}"
             run(exe + ["identify", str(data), "--model", m, "--global", "--out", str(out), "--force", "--no-plots",
-                       "--quiet"])
+                       "--quiet"] + mo)
             row = []
             for i, f in enumerate(FREQS):
                 v = root / f"v_{m.replace('+', '_')}_{f:g}.csv"
@@ -71,7 +76,7 @@ def main() -> None:
                 y = synth.simulate_plant(p, t, u, seed=100 + i)
                 e = y - target
                 row.append(100.0 * np.sqrt(np.mean(e ** 2)) / AMP_UM)
-            print(f"{m:34s} " + " ".join(f"{r:10.3f} %" for r in row))
+            print(f"{spec:46s} " + " ".join(f"{r:10.3f} %" for r in row))
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)

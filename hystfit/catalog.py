@@ -36,7 +36,7 @@ def block_catalog() -> list[dict]:
         params = [{"name": f"{name}.{p.name}", "unit": p.unit.replace("out", "um"), "lower": p.lower, "upper": p.upper,
                    "default": p.default, "description": p.description} for p in b.params(REFERENCE_SCALE)]
         structure = {f.name: f.default for f in dataclasses.fields(cls)}
-        out.append({"name": name, "title": cls.title, "reference": cls.reference, "equation": cls.equation,
+        out.append({"name": name, "title": cls.title, "reference": cite(cls.reference), "equation": cls.equation,
                     "nuisance": cls.nuisance, "structure": structure, "parameters": params,
                     "doc": (cls.__doc__ or "").strip().splitlines()[0]})
     return out

@@ -23,28 +23,30 @@ def list_models(json_out: Annotated[bool, typer.Option("--json", help="Machine-r
         print_json({"models": cat, "blocks": blk})
         return
     for m in cat:
-        t = Table(title=f"[bold]{m['name']}[/bold] — {m['title']}  ({m['reference']})", title_justify="left")
-        for col in ("parameter", "unit", "lower", "upper", "meaning"):
-            t.add_column(col)
-        for p in m["parameters"]:
-            t.add_row(p["name"], p["unit"], f"{p['lower']:.4g}", f"{p['upper']:.4g}", p["description"])
-        stdout.print(t)
+        stdout.print(_param_table(f"[bold]{m['name']}[/bold] — {m['title']}  ({m['reference']})", m["parameters"]))
         stdout.print(f"  {m['equation']}")
         stdout.print(f"  bounds shown for a reference stage (0–100 V → 0–30 µm); they scale with the data. "
                      f"Structure options: {m['structure'] or 'none'}\n")
     stdout.print("[bold]Blocks[/bold]: follow any model in an expression BASE+BLOCK+... (e.g. pi+creep+delay), "
                  "in the written order; options as --model-option BLOCK.KEY=VALUE, bounds as --bounds BLOCK.NAME=LO:HI\n")
     for b in blk:
-        t = Table(title=f"[bold]+{b['name']}[/bold] — {b['title']}  ({b['reference']})", title_justify="left")
-        for col in ("parameter", "unit", "lower", "upper", "meaning"):
-            t.add_column(col)
-        for p in b["parameters"]:
-            t.add_row(p["name"], p["unit"], f"{p['lower']:.4g}", f"{p['upper']:.4g}", p["description"])
-        if not b["parameters"]:
-            t.add_row("(none)", "", "", "", "per-capture offset and rate, projected out of the residual")
-        stdout.print(t)
+        empty = ("per-capture offset and rate, projected out of the residual" if b["nuisance"]
+                 else "structure only, identified from the data")
+        stdout.print(_param_table(f"[bold]+{b['name']}[/bold] — {b['title']}  ({b['reference']})", b["parameters"], empty))
         stdout.print(f"  {b['equation']}   structure options: {b['structure'] or 'none'}\n")
     print_papers()
+
+
+def _param_table(title: str, params: list[dict], empty: str | None = None) -> Table:
+    """One parameter table (name, unit, bounds on the reference scale, meaning)."""
+    t = Table(title=title, title_justify="left")
+    for col in ("parameter", "unit", "lower", "upper", "meaning"):
+        t.add_column(col)
+    for p in params:
+        t.add_row(p["name"], p["unit"], f"{p['lower']:.4g}", f"{p['upper']:.4g}", p["description"])
+    if not params and empty:
+        t.add_row("(none)", "", "", "", empty)
+    return t
 
 
 def print_papers() -> None:

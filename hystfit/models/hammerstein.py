@@ -7,7 +7,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 from .._lazy import lazy_module
-from ..blocks.lti import (DT_RTOL as _DT_RTOL, LinearSS, _as_list, _fundamental, _zoh_second_order,  # noqa: F401
+from ..blocks.lti import (DT_RTOL as _DT_RTOL, LinearSS, Lti, _as_list, _fundamental, _zoh_second_order,  # noqa: F401
                           fit_linear_to_sine,
                           identify_linear_era, is_broadband, measure_gain_phase, ss_columns)
 from ..errors import ConfigError, InputError
@@ -125,15 +125,15 @@ class Hammerstein(Model):
         return PI(self.n_operators, self.placement, self.thresholds_V, self.nonnegative)
 
     @property
+    def lti(self) -> Lti:
+        """The linear part as the ``lti`` block (same state space; its simulation, stepping and inverse)."""
+        return Lti(order=self.order, A=self.A, B=self.B, C=self.C, D=self.D, dt_s=self.dt_s, method=self.linear_method,
+                   singular_values=self.singular_values)
+
+    @property
     def linear(self) -> LinearSS:
         """The linear part as a :class:`LinearSS`."""
-        r = self.order
-        if r == 0:
-            return LinearSS.identity(self.dt_s)
-        return LinearSS(np.asarray(self.A, float).reshape(r, r), np.asarray(self.B, float),
-                        np.asarray(self.C, float), float(self.dt_s), r,
-                        singular_values=np.asarray(self.singular_values, float), method=self.linear_method,
-                        D=float(self.D))
+        return self.lti.linear
 
     def with_linear(self, lin: LinearSS) -> "Hammerstein":
         """This structure with the linear part ``lin`` (stored as given; normalize it first)."""
@@ -257,30 +257,20 @@ class Hammerstein(Model):
         return np.r_[plays, np.zeros(self.order), plays @ t[: self.n_operators]]
 
     def step(self, theta, state, u_prev, u_new, dt):
-        """One sample for candidate inputs u_new (C,): outputs (C,) and states (C, n + r + 1).
+        """One sample for candidate inputs u_new (C,): outputs (C,) and states (C, n + r + 1): the
+        plays, then the ``lti`` block's step (state deviations and the first PI output v0).
 
         With D = 0 the output at the new sample does not depend on u_new (one-sample delay), so
         the generic per-sample numerical inverse does not apply; :meth:`invert` is analytic.
         """
         t = np.asarray(theta, dtype=np.float64).ravel()
-        n, ro = self.n_operators, self.order
+        n = self.n_operators
         state = np.asarray(state, dtype=np.float64)
         u_new = np.atleast_1d(np.asarray(u_new, dtype=np.float64))
         r = self.pi.r
         plays = np.maximum(u_new[:, None] - r[None, :], np.minimum(u_new[:, None] + r[None, :], state[None, :n]))
-        v = plays @ t[:n]
-        v0 = state[n + ro]
-        lin = self.linear
-        d = v - v0
-        s = state[n:n + ro]
-        if ro:
-            y = lin.dc_gain() * v0 + lin.C @ s + lin.D * d
-            s_new = (lin.A @ s)[None, :] + d[:, None] * lin.B[None, :]
-        else:
-            y = v
-            s_new = np.zeros((u_new.shape[0], 0))
-        out = np.hstack([plays, s_new, np.full((u_new.shape[0], 1), v0)])
-        return y + t[n], out
+        y, lin_state = self.lti.step(np.empty(0), state[n:], plays @ t[:n], dt)
+        return y + t[n], np.hstack([plays, lin_state])
 
     # ------------------------------------------------------------------ inverse
     def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
