@@ -290,7 +290,7 @@ def _fig_explained(path: Path, d: Diagnosis, i: int) -> Path:
     ax.plot(c.t[::k], base[::k], color="tab:red", lw=0.9, label=f"{d.base_model}")
     if chosen:
         ax.plot(c.t[::k], expl[::k], color="tab:green", lw=0.9, label=f"{d.base_model} + {' + '.join(chosen)}")
-    t_split = c.t[v.fit_end - 1]
+    t_split = c.t[v.fit_end - 1] if v.fit_end else c.t[0]
     for a in (ax, axr):
         a.axvspan(t_split, c.t[-1], color="0.92", zorder=0)
         a.grid(True, alpha=0.3)
@@ -540,9 +540,14 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
           "4. **Which.** Each candidate effect was added to the model and the model refitted *together with it* "
           "(the hysteresis parameters may move too). Effects in the library: "
           + "; ".join(f"`{n}` — {PLAIN[n]}" for n in EFFECTS) + ".",
-          "5. **How far, honestly.** Every fit used only the first part of each capture: the first "
-          f"round({s.fit_fraction:g} × number of cycles) whole cycles of a periodic capture, the first "
-          f"{100 * s.fit_fraction:.0f} % of the samples of any other. The rest (*held-out* data) was never used to "
+          (("5. **How far, honestly.** Every fit used only the captures at the lowest and highest drive frequencies; "
+            "the captures in between (" + ", ".join(f"`{Path(x).name}`" for x in d.split.get("held_out", [])) + ") were "
+            f"held out whole — {d.split.get('why', '')}. ")
+           if d.split.get("kind") == "capture" else
+           ("5. **How far, honestly.** Every fit used only the first part of each capture: the first "
+            f"round({s.fit_fraction:g} × number of cycles) whole cycles of a periodic capture, the first "
+            f"{100 * s.fit_fraction:.0f} % of the samples of any other. "))
+          + "The rest (*held-out* data) was never used to "
           "fit anything and is where every effect is scored. The score is the *reduction*: "
           "(held-out RMSE before − after) / (before − noise floor), the share of the gap above the noise that the "
           "effect removes on data it never saw, between 0 (nothing) and 1 (everything down to the noise).",
@@ -554,6 +559,14 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
           f"reduction wins, unless one with fewer parameters comes within {s.occam_tolerance:g} of it (the simpler "
           "explanation). The winner is added to the model and the others are tested again on top of it, up to "
           f"{s.max_effects} effects: that is the order in which the effects are named.", ""]
+    other = d.split.get("other_scheme")
+    if other is not None:
+        L += [f"The {other['kind']} split (first part of each capture fitted, the rest held out) names "
+              f"{', '.join(other['explained_by']) or 'nothing'}: "
+              + ("the two hold-outs agree." if other["agrees"] else
+                 "the hold-outs disagree; the verdict above comes from the hold-out that interpolates "
+                 "(held-out frequencies inside the fitted ones at every amplitude), the temporal one tests an "
+                 "amplitude extrapolation on these captures."), ""]
 
     L += ["## 1. The gap and the noise floor", ""]
     g = d.gap

@@ -1,0 +1,69 @@
+"""The diagnosis' hold-out on captures whose amplitude changes within them (rising-amplitude sines)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hystfit import synth
+from hystfit.capture import Capture
+from hystfit.diagnose import DiagnoseSettings, choose_split, diagnose, is_swept
+from hystfit.errors import ConfigError
+from hystfit.registry import optimizers
+from hystfit.setup import make_model, make_optimizer
+
+DT = 1e-4
+
+
+def _rising(eff: synth.Effects, freqs=(20.0, 40.0, 100.0), cycles=30, seed=0, rising=True):
+    plant = synth.Plant.default().with_effects(eff)
+    caps = []
+    for i, f in enumerate(freqs):
+        t, u = (synth.rising_sine if rising else synth.raised_cosine)(60.0, f, cycles, 10_000)
+        y = synth.simulate_plant(plant, t, u, seed=seed + i)
+        caps.append(Capture(source=f"rs_{f:g}Hz.csv", t=t, u=u, y=y, dt=DT, amplitude_V=float(np.ptp(u)),
+                            frequency_Hz=f))
+    return caps
+
+
+def test_rising_amplitude_is_detected_and_stationary_drive_is_not():
+    t, u = synth.rising_sine(60.0, 20.0, 30, 10_000)
+    assert is_swept(u, DT, 20.0)
+    t, u = synth.raised_cosine(60.0, 20.0, 30, 10_000)
+    assert not is_swept(u, DT, 20.0)
+    assert not is_swept(u[:1000], DT, 20.0)  # too few cycles to tell
+
+
+def test_auto_split_holds_out_interior_frequencies_only_when_the_drive_changes():
+    caps = _rising(synth.Effects(noise=True), cycles=8)
+    swept = [is_swept(c.u, c.dt, c.frequency_Hz) for c in caps]
+    kind, held, why = choose_split(caps, swept, DiagnoseSettings(), per_condition=False)
+    assert kind == "capture" and held == [False, True, False] and "changes within the capture" in why
+    assert choose_split(caps, swept, DiagnoseSettings(), per_condition=True)[0] == "temporal"
+    assert choose_split(caps, [False] * 3, DiagnoseSettings(), per_condition=False)[0] == "temporal"
+    with pytest.raises(ConfigError, match="three or more drive"):
+        choose_split(caps[:2], swept[:2], DiagnoseSettings(split="capture"), per_condition=False)
+    with pytest.raises(ConfigError, match="split must be one of"):
+        DiagnoseSettings(split="random")
+
+
+@pytest.mark.slow
+def test_rising_sines_with_a_delay_name_it_from_an_interpolating_hold_out():
+    caps = _rising(synth.Effects(delay=True, delay_s=4e-4, noise=True, noise_sigma_um=0.01))
+    d = diagnose(caps, make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)}),
+                 make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=2))
+    assert d.split["kind"] == "capture" and d.split["held_out"] == ["rs_40Hz.csv"]
+    assert d.explained_by and d.explained_by[0] in ("delay", "dynamics")
+    other = d.split["other_scheme"]
+    assert other["kind"] == "temporal" and isinstance(other["agrees"], bool)
+    assert d.recommended_model.startswith("pi+")
+
+
+@pytest.mark.slow
+def test_rising_sines_without_effects_name_nothing():
+    caps = _rising(synth.Effects(noise=True, noise_sigma_um=0.01))
+    d = diagnose(caps, make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)}),
+                 make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=2))
+    assert d.split["kind"] == "capture"
+    assert d.explained_by == () and d.verdict == "none"
+    assert not any("later time" in p for p in d.where["pointers"])
