@@ -50,7 +50,7 @@ def main() -> None:
             if r.returncode:
                 sys.exit(r.stderr.strip().splitlines()[-1])
             d = json.loads(r.stdout)
-            held = [Path(x).name for x in d["split"].get("held_out", [])]
+            held = [Path(x).name for x in d["split"].get("heldout_captures", [])]
             other = d["split"].get("other_scheme", {})
             print(f"truth {name}: split {d['split']['kind']} (held out {', '.join(held) or '-'}); named "
                   f"{', '.join(d['explained_by']) or 'none'}; other scheme names "

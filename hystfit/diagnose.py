@@ -1066,6 +1066,21 @@ def choose_effect(results: Sequence[EffectResult], settings: DiagnoseSettings) -
 # ----------------------------------------------------------------------------------------------
 
 
+def creep_character(tau_s: Sequence[float], gain: Sequence[float], drive_Hz: float | None) -> str:
+    """What the fitted creep chain *is*, from where its gain sits: a relaxation within about one
+    drive period is rate dependence (the loop widens with frequency); one over many periods is slow
+    creep (the output keeps moving after a move)."""
+    g = np.asarray(gain, float)
+    t = np.asarray(tau_s, float)
+    if g.size == 0 or not np.any(g > 0):
+        return "no creep gain fitted"
+    tau = float(np.exp(np.sum(g * np.log(t)) / np.sum(g)))  # gain-weighted (geometric) mean time constant
+    if drive_Hz is not None and np.isfinite(drive_Hz) and drive_Hz > 0 and tau <= 2.0 / drive_Hz:
+        return (f"most of the gain relaxes within τ ≈ {1e3 * tau:.3g} ms, about {tau * drive_Hz:.2g} drive period(s): "
+                "a relaxation on the scale of the drive period — rate dependence of the loop rather than slow creep")
+    return f"most of the gain relaxes over τ ≈ {tau:.3g} s: slow creep (the output keeps moving after a move)"
+
+
 def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
     """Plain-language evidence of one effect: signature, where-pointer, parameters, held-out numbers."""
     unit = _display(unit)
@@ -1095,6 +1110,7 @@ def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
             parts.append(f"the gap grows {s['heldout_to_fit_ratio']:.2f}× into later time")
         parts.append("fitted gains " + ", ".join(f"{100 * g:.2g} % at τ = {t:g} s" for t, g in zip(p["tau_s"], p["gain"]))
                      + f" (total {100 * p['total_gain']:.2g} %)")
+        parts.append(creep_character(p["tau_s"], p["gain"], s.get("drive_frequency_Hz")))
     elif name == "asymmetry":
         parts.append(f"{sig} (residual ∝ ŷ², ŷ³)")
         if s["amplitude_exponent"] is not None:
@@ -1251,6 +1267,8 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         ex_fit = _excess(fit_before0, sigma)
         where["summary"]["heldout_to_fit_ratio"] = _excess(before0, sigma) / ex_fit if ex_fit > 0 else None
         where["summary"]["split"] = split_kind
+        freqs = [c.frequency_Hz for c in caps if np.isfinite(c.frequency_Hz) and c.frequency_Hz > 0]
+        where["summary"]["drive_frequency_Hz"] = float(np.median(freqs)) if freqs else None
         where["summary"]["amplitude_changes_within_capture"] = bool(any(swept))
         where["pointers"] = _pointers(where["summary"], where["by_branch"], where["by_loop_position"], sigma, unit)
 
@@ -1368,12 +1386,12 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
            "heldout_reduction_explained": float(np.clip((before0 - final_after) / (before0 - sigma), 0, 1))
            if before0 > sigma else 0.0}
     per_cap = [{"source": c.source, "fit_samples": int(v.fit.sum()), "heldout_samples": int((~v.fit).sum()),
-                "amplitude_changes": bool(sw), "held_out": bool(h),
+                "amplitude_changes": bool(sw), "heldout_whole": bool(h),
                 "split_time_s": float(c.t[v.fit_end - 1]) if v.fit_end else None}
                for c, v, sw, h in zip(caps, views, swept, held_out)]
     if split_kind == "capture":
         split = {"kind": "capture", "why": split_why,
-                 "held_out": [c.source for c, h in zip(caps, held_out) if h],
+                 "heldout_captures": [c.source for c, h in zip(caps, held_out) if h],
                  "description": ("every fit (base, base + effect, placebo) uses the captures at the lowest and highest "
                                  "drive frequencies; the captures at the frequencies in between are held out whole and "
                                  "only they score 'heldout_*' (an interpolation in frequency, at every amplitude)"),

@@ -433,15 +433,16 @@ SEPARATE = {
 
 #: What an engineer can do about each effect once it is named.
 NEXT = {
-    "dynamics": "use a model with the stage dynamics (`pi2`: hysteresis followed by a second-order stage, or "
-                "`hammerstein`), or keep the drive well below the resonance",
-    "creep": "add a creep model (the fitted time constants and gains above are a starting point) or identify "
-             "with captures of the same duration as the application",
-    "asymmetry": "use a hysteresis model with asymmetric branches (e.g. `gpi`, the generalized PI)",
-    "drift": "re-zero the sensor before each capture, let the set-up reach thermal equilibrium, or remove a "
-             "per-capture offset and trend before identification",
-    "delay": "shift the feedforward command earlier by the fitted delay, or find the delay in the amplifier, "
-             "DAQ or sensor filter",
+    "dynamics": "identify with the `dynamics` block (`--model BASE+dynamics`: the second-order stage after the "
+                "hysteresis; `+lti` with broadband captures), or keep the drive well below the resonance",
+    "creep": "identify with the `creep` block (`--model BASE+creep`; the fitted time constants and gains above are "
+             "its structure and a starting point); the feedforward then inverts it",
+    "asymmetry": "identify with the `asymmetry` block (`--model BASE+asymmetry`, a static output bow), or use a "
+                 "hysteresis model with asymmetric branches (`gpi`)",
+    "drift": "identify with the `drift` block (`--model BASE+drift`: a per-capture offset and rate, reported, "
+             "never predicted), re-zero the sensor before each capture, or let the set-up reach thermal equilibrium",
+    "delay": "identify with the `delay` block (`--model BASE+delay`); the feedforward then shifts the command "
+             "earlier by the fitted delay",
 }
 
 
@@ -541,7 +542,7 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
           "(the hysteresis parameters may move too). Effects in the library: "
           + "; ".join(f"`{n}` — {PLAIN[n]}" for n in EFFECTS) + ".",
           (("5. **How far, honestly.** Every fit used only the captures at the lowest and highest drive frequencies; "
-            "the captures in between (" + ", ".join(f"`{Path(x).name}`" for x in d.split.get("held_out", [])) + ") were "
+            "the captures in between (" + ", ".join(f"`{Path(x).name}`" for x in d.split.get("heldout_captures", [])) + ") were "
             f"held out whole — {d.split.get('why', '')}. ")
            if d.split.get("kind") == "capture" else
            ("5. **How far, honestly.** Every fit used only the first part of each capture: the first "

@@ -52,7 +52,7 @@ def test_rising_sines_with_a_delay_name_it_from_an_interpolating_hold_out():
     caps = _rising(synth.Effects(delay=True, delay_s=4e-4, noise=True, noise_sigma_um=0.01))
     d = diagnose(caps, make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)}),
                  make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=2))
-    assert d.split["kind"] == "capture" and d.split["held_out"] == ["rs_40Hz.csv"]
+    assert d.split["kind"] == "capture" and d.split["heldout_captures"] == ["rs_40Hz.csv"]
     assert d.explained_by and d.explained_by[0] in ("delay", "dynamics")
     other = d.split["other_scheme"]
     assert other["kind"] == "temporal" and isinstance(other["agrees"], bool)
