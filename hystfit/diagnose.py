@@ -36,7 +36,7 @@ from .conditions import condition_label, group_by_condition
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Linearization, Placebo, make_effect,
                       signature_share, solve_coefficients)
 from .errors import ConfigError, InputError
-from .identify import fit_captures
+from .identify import fit_captures, prepare_shared
 from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
@@ -1190,6 +1190,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     if len(set(names)) != len(names):
         raise ConfigError(f"diagnose: an effect is listed twice in {', '.join(names)}")
     C = len(caps)
+    model = prepare_shared(model, caps)  # shared structure from all captures, once (not per fit subset)
     periodic = [is_periodic(c.u, c.dt, c.frequency_Hz) for c in caps]
     swept = [is_swept(c.u, c.dt, c.frequency_Hz) for c in caps]
     split_kind, held_out, split_why = choose_split(caps, swept, settings, per_condition)

@@ -162,7 +162,7 @@ def _problem(captures: Sequence[Capture], model: Model,
             raise InputError(f"{c.source}: no measured output column; identification needs one (see --output-col)")
     unit = _output_unit(captures)
     scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
-    model = model.prepare(captures).adapt(scale)
+    model = model.adapt(scale)  # shared structure is prepared once by the caller (prepare_shared)
     params = apply_bound_overrides(model.params(scale), bounds or {})
     return _Problem(tuple(captures), model, scale, params, np.array([p.lower for p in params]),
                     np.array([p.upper for p in params]), unit)
@@ -226,6 +226,13 @@ def _nuisance_fields(coef: np.ndarray | None, unit: str) -> dict[str, float]:
     return {f"drift_offset_{unit}": float(coef[0]), f"drift_rate_{unit}_per_s": float(coef[1])}
 
 
+def prepare_shared(model: Model, captures: Sequence[Capture]) -> Model:
+    """The one step that identifies structure shared by every condition (a Hammerstein model's or an
+    ``lti`` block's linear stage) from *all* the captures; identify, compare and diagnose call it
+    once, before any per-condition or per-subset fit (a no-op for a model already prepared)."""
+    return model.prepare(captures)
+
+
 def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int, cell: int = 0,
                  runs: int = 1, polish: bool = True, bounds: Mapping[str, tuple[float, float]] | None = None,
                  progress: Progress = None, label: str | None = None,
@@ -234,7 +241,7 @@ def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer
 
     Run r uses the seed :func:`run_seed` (seed, cell, r), recorded in the result.
     """
-    problem = _problem(captures, model, bounds)
+    problem = _problem(captures, prepare_shared(model, captures), bounds)
     objective = problem.objective()
     records = []
     for r in range(runs):
@@ -286,7 +293,7 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         groups = group_by_condition(captures)
     if progress:
         progress("start", {"total": len(groups) * runs})
-    model = model.prepare(captures)  # structure shared by all conditions (e.g. stage dynamics)
+    model = prepare_shared(model, captures)  # structure shared by all conditions (e.g. stage dynamics)
     summary = getattr(model, "structure_summary", None)
     if progress and summary is not None:  # say how the shared structure was found (e.g. which route)
         progress("note", {"text": f"{model.name}: {summary()}"})

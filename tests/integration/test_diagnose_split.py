@@ -67,3 +67,12 @@ def test_rising_sines_without_effects_name_nothing():
     assert d.split["kind"] == "capture"
     assert d.explained_by == () and d.verdict == "none"
     assert not any("later time" in p for p in d.where["pointers"])
+
+
+def test_hammerstein_is_prepared_once_from_all_captures():
+    """The shared linear part is identified from every capture before the fit-part subsets are fitted
+    (it used to be identified per subset: 'all sine captures have the same frequency')."""
+    caps = _rising(synth.Effects(dynamics=True, noise=True), freqs=(10.0, 40.0, 80.0), cycles=5, rising=False)
+    d = diagnose(caps, make_model("hammerstein"), make_optimizer(optimizers.get("auto")),
+                 settings=DiagnoseSettings(max_effects=1, placebo_draws=1))
+    assert d.base_model == "hammerstein" and d.split["kind"] == "temporal"
