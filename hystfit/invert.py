@@ -77,7 +77,6 @@ Units: time s, voltage V, displacement in the parameter file's output unit (``um
 
 from __future__ import annotations
 
-import inspect
 import math
 import os
 from dataclasses import dataclass, field
@@ -648,19 +647,6 @@ def default_voltage_limits(pf: ParamsFile, margin: float = LIMIT_MARGIN) -> tupl
 # Inverting one cell
 # ----------------------------------------------------------------------------------------------
 
-_ACCEPTS_RANGE: dict[type, bool] = {}
-
-
-def _accepts_u_range(model) -> bool:
-    cls = type(model)
-    if cls not in _ACCEPTS_RANGE:
-        try:
-            _ACCEPTS_RANGE[cls] = "u_range" in inspect.signature(model.invert).parameters
-        except (TypeError, ValueError):
-            _ACCEPTS_RANGE[cls] = False
-    return _ACCEPTS_RANGE[cls]
-
-
 def search_range(pf: ParamsFile, vmin: float, vmax: float) -> tuple[float, float]:
     """Search interval (V) for numerical inverses: [vmin, vmax] and the table's data range, ± their width.
 
@@ -740,10 +726,9 @@ def invert_cell(cell: Cell, y: np.ndarray, dt: float, initial_voltage: float,
     if history is not None and len(history):
         pre = np.concatenate([pre, np.asarray(history, dtype=np.float64)])
     y_ext = np.concatenate([model.simulate_one(theta, pre, dt), np.asarray(y, dtype=np.float64)])
-    kwargs = {"u_range": u_range} if _accepts_u_range(model) else {}
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # non-finite results are caught below
-            u = np.asarray(model.invert(theta, y_ext, dt, **kwargs), dtype=np.float64)
+            u = np.asarray(model.invert(theta, y_ext, dt, u_range=u_range), dtype=np.float64)
     except (ValueError, ZeroDivisionError, FloatingPointError) as exc:
         if isinstance(exc, ConfigError):
             raise ConfigError(f"cell {cell.label}: {exc}") from None

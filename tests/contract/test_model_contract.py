@@ -242,3 +242,12 @@ def test_diverging_parameters_score_infinite_not_crash(name):
     assert f.shape == (extreme.shape[0],)
     assert not np.any(np.isnan(f)) and np.all(f >= 0)
     assert f[-1] == pytest.approx(0.0, abs=1e-20)  # the defaults reproduce their own output
+
+
+@pytest.mark.parametrize("name", models.names())
+def test_every_model_has_the_one_invert_signature(name):
+    """invert(theta, y_target, dt, u_range=None) for every model: orchestration never inspects signatures."""
+    import inspect
+
+    params = list(inspect.signature(models.get(name).invert).parameters)
+    assert params[:5] == ["self", "theta", "y_target", "dt", "u_range"]
