@@ -25,9 +25,10 @@ an optional callback ``progress(event, info)`` (events ``start``, ``advance``, `
 from __future__ import annotations
 
 import math
+from pathlib import Path
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable, Optional, Sequence
+from typing import Callable, ClassVar, Optional, Sequence
 
 import numpy as np
 
@@ -227,7 +228,7 @@ class Diagnosis:
             "rule": {"threshold": self.settings.threshold, "occam_tolerance": self.settings.occam_tolerance,
                      "min_excess_ratio": self.settings.min_excess_ratio,
                      "placebo_draws": self.settings.placebo_draws, "max_effects": self.settings.max_effects},
-            "captures": list(self.captures),
+            "captures": [_unit_names(c, u) for c in self.captures],
             "runtime_s": self.runtime_s,
             "recommended_model": self.recommended_model,
             f"heldout_rmse_with_named_effects_{u}": _num(self.heldout_rmse_named),
@@ -428,6 +429,60 @@ def choose_split(captures: Sequence[Capture], swept: Sequence[bool], settings: "
         ("a capture is non-stationary but no interior frequency can be held out (temporal split: the held-out "
          "part extrapolates in amplitude as well as in time)")
     return "temporal", [False] * len(captures), why
+
+
+@dataclass(frozen=True)
+class _Calibration(Effect):
+    """Per-capture offset and gain against the first capture: y_c = ŷ_c + o_c + g_c·ŷ_c (c ≥ 1).
+
+    Not a candidate effect of the actuator: when the captures disagree by a re-zeroed or re-scaled
+    sensor (:func:`capture_calibration`), it is part of the base before any effect is tested, so an
+    effect is never named for what a calibration explains."""
+
+    name: ClassVar[str] = "calibration"
+    title: ClassVar[str] = "per-capture sensor offset and gain"
+    equation: ClassVar[str] = "y_c = ŷ_c + o_c + g_c·ŷ_c (first capture the reference)"
+
+    def layout(self):
+        return 0, 2
+
+    def regressors(self, yhat, view, phi):
+        yh = np.asarray(yhat, float)
+        n = yh.shape[0]
+        if view.index == 0:
+            return np.zeros((n, 0)), np.zeros((n, 2))
+        return np.zeros((n, 0)), np.column_stack([np.ones(n), yh])
+
+    def tangent(self, x, yhat, view, phi, shared, local):
+        g = 0.0 if view.index == 0 else float(local[1])
+        return x * (1.0 + g)
+
+    def describe(self, phi, shared, local, views, sources=None):
+        local = np.asarray(local, float).reshape(-1, 2)
+        names = list(sources) if sources is not None else [f"capture{i}" for i in range(local.shape[0])]
+        return {"per_capture": [{"source": s, "offset_out": float(o), "gain": 1.0 + float(g)}
+                                for s, (o, g) in zip(names, local)]}
+
+
+def capture_calibration(captures: Sequence[Capture], predictions: Sequence[np.ndarray], sigma: float) -> list[dict]:
+    """Per capture, the offset and gain that map the common fit onto it (y ≈ o + g·ŷ, least squares),
+    and whether they differ from (0, 1) by more than the data can explain: an offset above 5 noise
+    floors or a gain more than 1 % from 1, when the capture's RMSE improves by more than 20 % with
+    them. A sensor re-zeroed or re-calibrated between recordings shows up here, as such, instead
+    of being read as an effect of the actuator."""
+    out = []
+    for c, p in zip(captures, predictions):
+        p = np.asarray(p, float)
+        A = np.column_stack([np.ones_like(p), p - p.mean()])
+        coef = np.linalg.lstsq(A, c.y - p.mean(), rcond=None)[0]
+        offset = float(coef[0])  # at the capture's mean prediction
+        gain = float(coef[1])
+        r0 = float(np.sqrt(np.mean((c.y - p) ** 2)))
+        r1 = float(np.sqrt(np.mean((c.y - p.mean() - A @ coef) ** 2)))
+        differs = bool(r1 < 0.8 * r0 and (abs(offset) > 5.0 * sigma or abs(gain - 1.0) > 0.01))
+        out.append({"offset_out": offset, "gain": gain, "rmse_with_calibration_out": r1,
+                    "calibration_differs": differs})
+    return out
 
 
 def _truncate(c: Capture, n: int) -> Capture:
@@ -1260,6 +1315,10 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                              np.array([p.lower for p in f.params]), np.array([p.upper for p in f.params]), idx))
         advance(f"base fit (fit part) {labels[gi]}")
     state0 = _State(groups, [], tuple(group_of))
+    calib = capture_calibration(caps, full_pred, sigma)
+    calibrated = len(caps) > 1 and any(c["calibration_differs"] for c in calib)
+    if calibrated:  # the sensor's per-capture offset and gain are part of the base, never an effect
+        state0, _ = _augment(state0, _Calibration(), caps, views, _linearize(state0, caps, views), settings.iterations)
     pred0 = _predictions(state0, caps, views)
     before0 = _rmse(pred0, views, "test")
     fit_before0 = _rmse(pred0, views, "fit")
@@ -1413,8 +1472,17 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                                  "agrees": tuple(sorted(other.explained_by)) == tuple(sorted(chosen)),
                                  "reductions": {r.effect: r.reduction for r in other.effects}}
     cap_info = tuple({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
-                      "samples": c.n, "dt_s": c.dt, "duration_s": c.duration_s, "periodic": bool(p)}
-                     for c, p in zip(caps, periodic))
+                      "samples": c.n, "dt_s": c.dt, "duration_s": c.duration_s, "periodic": bool(p),
+                      "amplitude_changes": bool(sw), **cal}
+                     for c, p, sw, cal in zip(caps, periodic, swept, calib))
+    if calibrated:
+        where.setdefault("pointers", []).append(
+            "per-capture calibration: " + "; ".join(
+                f"{Path(c.source).name} offset {cal['offset_out']:+.3g} {_display(unit)}, gain {cal['gain']:.4f}"
+                for c, cal in zip(caps, calib) if cal["calibration_differs"])
+            + " against the common fit — a sensor re-zeroed or re-scaled between recordings, not an effect of the "
+              "actuator: fitted per capture as part of the base before any effect was tested; identify with the "
+              "`drift` block (offsets) or align offsets (`simulate --align-offset`)")
     figures_data = {"captures": caps, "views": views, "full_predictions": full_pred, "residuals": residuals,
                     "base_predictions": pred0, "explained_predictions": preds_state, "chosen": list(chosen),
                     "spectra": fig_where["spectra"], "group_labels": labels}

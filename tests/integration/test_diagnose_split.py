@@ -76,3 +76,22 @@ def test_hammerstein_is_prepared_once_from_all_captures():
     d = diagnose(caps, make_model("hammerstein"), make_optimizer(optimizers.get("auto")),
                  settings=DiagnoseSettings(max_effects=1, placebo_draws=1))
     assert d.base_model == "hammerstein" and d.split["kind"] == "temporal"
+
+
+@pytest.mark.slow
+def test_a_re_zeroed_and_re_scaled_sensor_is_calibration_not_an_effect():
+    """Two recording days of one clean stage; the second with the sensor re-zeroed (+0.95 µm) and
+    re-scaled (+3 %): reported as per-capture offset and gain, no effect named."""
+    caps = []
+    for day, (g, o) in enumerate([(1.0, 0.0), (1.03, 0.95)]):
+        for c in _rising(synth.Effects(noise=True), freqs=(10.0, 40.0, 80.0), cycles=5, seed=10 * day, rising=False):
+            caps.append(Capture(source=f"day{day}_{c.source}", t=c.t, u=c.u, y=c.y * g + o, dt=c.dt,
+                                amplitude_V=c.amplitude_V, frequency_Hz=c.frequency_Hz))
+    d = diagnose(caps, make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)}),
+                 make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=2))
+    assert d.explained_by == ()
+    assert all(c["calibration_differs"] for c in d.captures)
+    gains = [c["gain"] for c in d.captures]
+    assert max(gains) / min(gains) == pytest.approx(1.03, rel=0.005)
+    assert any("per-capture calibration" in p for p in d.where["pointers"])
+    assert "offset_um" in d.to_dict()["captures"][0]
