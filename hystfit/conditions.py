@@ -241,6 +241,36 @@ class LookupTable:
             raise ConfigError(f"condition ({a:g} V, {f:g} Hz): needs a finite amplitude and a positive frequency")
         return math.log10(f), a / self._amax
 
+    def select(self, key: ConditionKey, method: str = "interpolate"
+               ) -> tuple[list[tuple[ConditionKey, float]], ConditionKey, bool]:
+        """The one rule that chooses table cells for an operating condition (simulate, invert, track).
+
+        ``interpolate``: the condition is first clamped onto the grid (amplitude and frequency
+        separately, so the weights are continuous in the condition), then bilinear in
+        (amplitude, log10 frequency) between the surrounding cells; where a needed corner is
+        missing the nearest cell is used. ``nearest``: the closest cell in (log10 f, A/A_max).
+        Any other method is a :class:`ConfigError` (never a silent fallback).
+
+        Returns
+        -------
+        (used, query, clamped)
+            ``used``: (key, weight) pairs, weights > 0 summing to 1; ``query``: the point looked
+            up; ``clamped``: whether the condition lay outside the grid.
+        """
+        if method not in ("interpolate", "nearest"):
+            raise ConfigError(f"method {method!r}: choose interpolate or nearest")
+        a, f = float(key[0]), float(key[1])
+        self._coords((a, f))  # validates the condition
+        qa = min(max(a, self._amps[0]), self._amps[-1])
+        qf = min(max(f, self._freqs[0]), self._freqs[-1])
+        clamped = (qa != a) or (qf != f)
+        if method == "interpolate":
+            _, used = self.interpolate((qa, qf))
+        else:
+            k, _ = self.nearest((a, f))
+            used = [(k, 1.0)]
+        return [(k, float(w)) for k, w in used], (qa, qf), clamped
+
     def nearest(self, key: ConditionKey) -> tuple[ConditionKey, np.ndarray]:
         """The table's closest key to ``key`` (V, Hz) and its value; ties go to the first key."""
         x, y = self._coords(key)

@@ -581,13 +581,9 @@ def _usable(pf: ParamsFile) -> list[int]:
 
 def select_cells(pf: ParamsFile, condition: tuple[float, float], method: str = "interpolate"
                  ) -> tuple[tuple[CellUse, ...], tuple[float, float], bool]:
-    """Cells and weights for ``condition`` = (amplitude_V peak-to-peak, frequency_Hz).
-
-    ``interpolate``: bilinear in (amplitude, log10 frequency) between the surrounding cells; a
-    condition outside the grid is first clamped onto it (amplitude and frequency separately),
-    so the weights are continuous in the condition. Where a needed corner is missing the
-    nearest cell is used. ``nearest``: the closest cell in (log10 f, A/A_max). A table
-    without usable conditions (a global fit) always gives its first cell.
+    """Cells and weights for ``condition`` = (amplitude_V peak-to-peak, frequency_Hz): the rule of
+    :meth:`hystfit.conditions.LookupTable.select` on the table's cells. A table without usable
+    conditions (a global fit) always gives its first cell.
 
     Returns
     -------
@@ -595,34 +591,25 @@ def select_cells(pf: ParamsFile, condition: tuple[float, float], method: str = "
         The used cells (weights > 0 summing to 1), the point looked up, and whether the
         condition was clamped.
     """
-    if method not in ("interpolate", "nearest"):
-        raise ConfigError(f"method {method!r}: choose interpolate or nearest")
     a, f = float(condition[0]), float(condition[1])
-    if not (math.isfinite(a) and math.isfinite(f) and f > 0):
-        raise ConfigError(f"condition ({a:g} V, {f:g} Hz): needs a finite amplitude and a positive frequency")
     idx = _usable(pf)
     if len(pf.cells) == 1 or not idx:
+        if method not in ("interpolate", "nearest"):
+            raise ConfigError(f"method {method!r}: choose interpolate or nearest")
+        if not (math.isfinite(a) and math.isfinite(f) and f > 0):
+            raise ConfigError(f"condition ({a:g} V, {f:g} Hz): needs a finite amplitude and a positive frequency")
         c = pf.cells[0]
         return (CellUse(0, c.label, c.amplitude_V, c.frequency_Hz, 1.0),), (a, f), False
     keys = [(pf.cells[i].amplitude_V, pf.cells[i].frequency_Hz) for i in idx]
     table = LookupTable(keys, [np.array([float(i)]) for i in idx])
     by_key = dict(zip(table.keys, idx))
-    amps = sorted({k[0] for k in table.keys})
-    freqs = sorted({k[1] for k in table.keys})
-    qa = min(max(a, amps[0]), amps[-1])
-    qf = min(max(f, freqs[0]), freqs[-1])
-    clamped = (qa != a) or (qf != f)
-    if method == "interpolate":
-        _, used = table.interpolate((qa, qf))
-    else:
-        key, _ = table.nearest((a, f))
-        used = [(key, 1.0)]
+    used, query, clamped = table.select((a, f), method)
     cells = []
     for k, w in used:
         i = by_key[(float(k[0]), float(k[1]))]
         c = pf.cells[i]
         cells.append(CellUse(i, c.label, c.amplitude_V, c.frequency_Hz, float(w)))
-    return tuple(cells), (qa, qf), clamped
+    return tuple(cells), query, clamped
 
 
 def table_gain(pf: ParamsFile) -> float:

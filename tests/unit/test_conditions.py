@@ -184,3 +184,24 @@ def test_table_validation():
         LookupTable([(1.0, 0.0)], [np.zeros(1)])
     with pytest.raises(ConfigError):
         LookupTable([(1.0, 1.0)], [np.zeros(1)]).nearest((1.0, -1.0))
+
+
+def test_lookup_table_select_is_the_one_rule_for_simulate_invert_and_track():
+    """(100 V, 35 Hz) on a 20/40/60 V × 10…80 Hz table: clamped to 60 V and blended between 30 and
+    40 Hz — the same cells for every command (they all call this rule)."""
+    import pytest as _pytest
+
+    from hystfit.conditions import LookupTable
+    from hystfit.errors import ConfigError
+
+    keys = [(a, f) for a in (20.0, 40.0, 60.0) for f in (10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0)]
+    table = LookupTable(keys, [np.zeros(1)] * len(keys))
+    used, query, clamped = table.select((100.0, 35.0), "interpolate")
+    assert clamped and query == (60.0, 35.0)
+    w = {k: wt for k, wt in used}
+    assert set(w) == {(60.0, 30.0), (60.0, 40.0)}
+    assert sum(w.values()) == _pytest.approx(1.0)
+    assert w[(60.0, 40.0)] == _pytest.approx(np.log10(35 / 30) / np.log10(40 / 30))
+    assert table.select((100.0, 35.0), "nearest")[0] == [((60.0, 40.0), 1.0)]
+    with _pytest.raises(ConfigError, match="choose interpolate or nearest"):
+        table.select((40.0, 35.0), "cubic")
