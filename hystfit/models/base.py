@@ -124,7 +124,7 @@ class Model(ABC):
 
     # ----------------------------------------------------------------- structure for exact solves
     def separable(self):
-        """The model's separable structure (:class:`hystfit.separable.Separable`) or None.
+        """The model's separable structure (:class:`hystfit.models.separable.Separable`) or None.
 
         Models whose output is linear in some parameters for fixed others declare it here, so
         the ``auto`` optimizer solves those exactly and searches only the rest.

@@ -11,6 +11,7 @@ from ..registry import models
 from ._kernels import bouc_wen_moments, bouc_wen_output, bouc_wen_population, bouc_wen_sse, bouc_wen_step
 from ._kernels_extra import bouc_wen_n_population, bouc_wen_n_step
 from .base import Model
+from .separable import Separable
 
 
 @models.register
@@ -133,8 +134,6 @@ class BoucWen(Model):
         The normal equations of (Kv, α, y0) come straight from the fused kernel
         :func:`~hystfit.models._kernels.bouc_wen_moments` (Σg², Σg·u, Σg, Σg·y per candidate),
         so a search never stores g."""
-        from ..separable import Separable
-
         if self.free_exponent:
             return None  # with a free n, α no longer scales h: no exact split
 

@@ -12,6 +12,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from ._kernels_extra import ch_branches, ch_inverse, ch_population
 from .base import Model
+from .separable import Separable
 
 
 @models.register
@@ -138,8 +139,6 @@ class ColemanHodgdon(Model):
     def separable(self):
         """A1, A4 and A6 enter linearly for fixed (A2, A3, A5) (:meth:`linear_design`, with the known
         part −A2·e^{−A3·V_R}·u): the search runs over (A2, A3, A5), of which only A5 shapes the fit."""
-        from ..separable import Separable
-
         def factory(u, dt):
             u = np.ascontiguousarray(u, dtype=np.float64)
             vm, vM = self._range()

@@ -26,6 +26,7 @@ from ..blocks.base import Block
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from .base import Model
+from .separable import Separable
 
 SEPARATOR = "+"
 
@@ -174,8 +175,6 @@ class Composite(Model):
         sep = self.base.separable()
         if sep is None:
             return None
-        from ..separable import Separable
-
         def factory(u, dt):
             inner = sep.basis_factory(u, dt)
             Q = np.linalg.qr(self.nuisance_basis(len(u), dt))[0]

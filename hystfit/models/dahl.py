@@ -10,6 +10,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from ._kernels_extra import dahl_population, dahl_step
 from .base import Model
+from .separable import separable_by_simulation
 
 
 @models.register
@@ -85,8 +86,6 @@ class Dahl(Model):
 
     def separable(self):
         """k and d0 enter linearly; σ, Fc and a (the friction state's shape) are searched."""
-        from ..separable import separable_by_simulation
-
         return separable_by_simulation(self, (0, 4), 5)
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:

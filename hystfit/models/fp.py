@@ -12,6 +12,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from ._kernels_extra import gl_filter_population, gl_weights
 from .base import Model
+from .separable import separable_by_simulation
 
 sfft = lazy_module("scipy.fft")  # imported on first use: keeps start-up fast
 
@@ -128,8 +129,6 @@ class FractionalZener(Model):
     def separable(self):
         """E0, E∞ (and y0) enter linearly for fixed (τ, a): the fractional operator is linear, so
         y = E0·L⁻¹[u] + E∞·L⁻¹[τ^a D^a u] + y0 with L = 1 + τ^a D^a. Only τ and a are searched."""
-        from ..separable import separable_by_simulation
-
         return separable_by_simulation(self, (0, 1, 4) if self.offset else (0, 1), 5 if self.offset else 4)
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:

@@ -13,6 +13,7 @@ from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
 from .base import Model
+from .separable import Separable
 
 #: |tanh argument| at which an envelope counts as saturated (tanh(6) = 1 − 1.2e-5): the default
 #: search range of the numerical inverse ends there.
@@ -208,8 +209,6 @@ class GPI(Model):
 
     def separable(self):
         """ρ and y0 enter linearly: y = ρ·z(a, b, τ, α_r) + y0; the other ten are searched."""
-        from ..separable import Separable
-
         lin = (8, 11)
         nl = (0, 1, 2, 3, 4, 5, 6, 7, 9, 10)
 

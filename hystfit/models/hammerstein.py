@@ -15,6 +15,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from ._kernels import play_matrix
 from .base import Model
+from .separable import Separable
 from .pi import PI
 
 # scipy submodules are imported on first use: keeps start-up fast
@@ -227,8 +228,6 @@ class Hammerstein(Model):
 
     def separable(self):
         """Every parameter is linear (thresholds and linear part fixed): one bounded least-squares solve."""
-        from ..separable import Separable
-
         d = self.n_operators + 1
 
         def factory(u, dt):

@@ -11,6 +11,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from ._kernels_extra import lugre_population, lugre_step
 from .base import Model
+from .separable import separable_by_simulation
 
 
 @models.register
@@ -116,8 +117,6 @@ class LuGre(Model):
 
     def separable(self):
         """k, σ1, σ2 (and y0) enter linearly for a fixed bristle state z(σ0, Fc, Fs, vs): only those four are searched."""
-        from ..separable import separable_by_simulation
-
         return separable_by_simulation(self, (0, 2, 3, 7) if self.offset else (0, 2, 3), 8 if self.offset else 7)
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:

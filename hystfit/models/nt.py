@@ -12,6 +12,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from ._kernels_extra import nt_inverse_backward, nt_inverse_causal, nt_population, nt_root
 from .base import Model
+from .separable import Separable
 
 INVERSE_METHODS = ("auto", "causal", "noncausal")
 
@@ -127,8 +128,6 @@ class NT(Model):
 
     def separable(self):
         """k0, c0, k1 (and y0) enter linearly for fixed k2 (:meth:`linear_design`): only k2 is searched."""
-        from ..separable import Separable
-
         lin = (0, 1, 2, 4) if self.offset else (0, 1, 2)
 
         def factory(u, dt):

@@ -12,6 +12,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from ._kernels import play_matrix, play_matrix_from
 from .base import Model
+from .separable import Separable
 
 THRESHOLD_PLACEMENTS = ("uniform", "quadratic")
 
@@ -133,8 +134,6 @@ class PI(Model):
 
     def separable(self):
         """Every parameter is linear (thresholds fixed): the optimum is one bounded least-squares solve."""
-        from ..separable import Separable
-
         d = self.n_operators + 1
 
         def factory(u, dt):

@@ -17,6 +17,7 @@ from ..registry import models
 from ..blocks.dynamics import bilinear_biquad, biquad_columns, invert_second_order
 from ._kernels import PARALLEL_MIN_POP, play_matrix, thread_blocks
 from .base import Model
+from .separable import Separable
 from .pi import PI
 
 
@@ -472,8 +473,6 @@ class PI2(Model):
         b_k = [filtered plays, 1] straight from the fused kernel :func:`pi2_gram` (O(P·n²) memory,
         ``gram_fused=True``). ``basis_factory``: the basis itself, (P, N, n + 1), for callers that
         need it (filtered candidate by candidate; the play matrix is fetched on first use)."""
-        from ..separable import Separable
-
         n = self.n_operators
 
         def gram_factory(u, dt, y):

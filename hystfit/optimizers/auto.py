@@ -11,6 +11,7 @@ from ..errors import ConfigError
 from ..registry import optimizers
 from .base import Callback, IteratedSearch, Objective, OptimizeResult, StopRules, Tracker, check_box, stop_field
 from .lsq import polisher
+from .projection import ProjectedObjective
 from .pso import PSO
 
 
@@ -20,7 +21,7 @@ class Auto(IteratedSearch):
     """Exact solves for linear parameters, a global search only over the nonlinear ones, then a polish.
 
     1. If the objective is a hystfit identification objective whose model declares a separable
-       structure (:mod:`hystfit.separable`), the parameters that enter linearly are solved
+       structure (:mod:`hystfit.models.separable`), the parameters that enter linearly are solved
        exactly (bounded linear least squares) inside every evaluation (variable projection).
        A model with no nonlinear parameter (PI with fixed thresholds, Hammerstein with a fixed
        linear part) is solved in one step: the exact optimum.
@@ -90,8 +91,6 @@ class Auto(IteratedSearch):
             g = pso.minimize(objective, lower, upper, rng=rng, x0=x0, callback=callback)
             start, hist_b, hist_m, nfev = g.x, list(g.history_best), list(g.history_mean), g.nfev
         else:
-            from ..separable import ProjectedObjective
-
             proj = ProjectedObjective(sep, series, lower, upper)
             nl = np.asarray(sep.nonlinear, dtype=int)
             hist_b, hist_m, nfev = [], [], 0

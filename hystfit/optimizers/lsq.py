@@ -9,6 +9,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..registry import optimizers
 from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box, stop_field
+from .projection import solve_box_qp
 
 #: residual count × parameter count above which the polish takes the memory-bounded
 #: normal-equation route (when the objective offers ``normal_equations``): 4·10⁶ elements is a
@@ -43,7 +44,7 @@ class LSQ(Optimizer):
       capture in time chunks), so a 10⁶-sample capture polishes in O(d·N) memory for one
       capture's population simulation. Each iteration: at θ, one Jacobian (d + 1 evaluations),
       then trial steps δ = argmin ½δᵀ(JᵀJ + λD)δ + (Jᵀr)ᵀδ subject to lower ≤ θ + δ ≤ upper,
-      solved exactly as a box-constrained QP (:func:`hystfit.separable.solve_box_qp`, in
+      solved exactly as a box-constrained QP (:func:`hystfit.optimizers.projection.solve_box_qp`, in
       variables scaled by √D). D is Marquardt's diag(JᵀJ), kept as its running maximum over the
       iterations (as MINPACK does) and floored at 10⁻¹² of its largest entry; λ starts at 10⁻³.
       A trial is scored by the true cost (the MSE of ``objective(theta[None, :])``, one
@@ -146,7 +147,6 @@ class LSQ(Optimizer):
         """The memory-bounded route: bounded Levenberg–Marquardt on (JᵀJ, Jᵀr, rᵀr) (see the class
         docstring). Costs are MSE (rᵀr / M); the quadratic model of the cost at θ is
         (rᵀr + 2(Jᵀr)ᵀδ + δᵀJᵀJδ) / M."""
-        from ..separable import solve_box_qp  # deferred: keeps start-up fast
 
         d = start.size
         route = f"normal-equation Levenberg-Marquardt ({m_total} residuals x {d} parameters)"

@@ -46,7 +46,7 @@ def test_warmup_objective_equals_the_definition(name):
     assert np.allclose(got[ok], expected[ok], rtol=1e-6, atol=1e-12 * max(1.0, float(np.max(y ** 2))))
     assert obj.residuals(thetas[0]).shape == (u.size - skip,)
     if hasattr(model, "separable") and model.separable() is not None:
-        from hystfit.separable import ProjectedObjective
+        from hystfit.optimizers.projection import ProjectedObjective
 
         sep = model.separable()
         proj = ProjectedObjective(sep, [Series(u, y, 1 / FS, skip)], lo, hi)

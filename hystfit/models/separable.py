@@ -1,0 +1,105 @@
+"""Variable projection: solve the parameters that enter linearly, search only the others.
+
+Many hysteresis models are *separable*: y = B(θ_nl; u) · θ_lin, where B is a small basis
+(PI: the play-operator outputs and a column of ones; Bouc–Wen: u, the unit-gain hysteretic
+state and ones; NT: u, u̇, softsign(k2 u) and ones). For a candidate θ_nl the best θ_lin is a
+linear least-squares problem, solved exactly here (within θ_lin's bounds), so an optimizer only
+searches θ_nl — often 0–2 dimensions instead of 5–12 (Golub & Pereyra 1973).
+
+A model declares its separable structure by returning a :class:`Separable` from
+``model.separable()``; ``None`` (the default) means no exploitable structure. This module is the
+model side (the declaration); the optimizer side — the projected objective and the box-constrained
+solves — is :mod:`hystfit.optimizers.projection`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+
+#: basis_factory(u, dt) → basis(theta_nl (P, m)) → B (P, N, L)  (for m = 0, P may be 1)
+BasisFactory = Callable[[np.ndarray, float], Callable[[np.ndarray], np.ndarray]]
+#: gram_factory(u, dt, y) → gram(theta_nl (P, m)) → (BᵀB (P, L, L), Bᵀt (P, L), tᵀt (scalar or (P,)))
+#: with t = y − C the target of the linear part (C the known part, if any)
+GramFactory = Callable[[np.ndarray, float, np.ndarray], Callable[[np.ndarray], tuple]]
+
+
+@dataclass(frozen=True)
+class Separable:
+    """Which entries of θ enter linearly, and the basis that multiplies them.
+
+    ``linear`` and ``nonlinear`` are index arrays into θ (together a permutation of range(d));
+    ``basis_factory(u, dt)`` returns a function of θ_nl (P, m) giving B (P, N, L) with
+    L = len(linear), so that simulate(θ) = B(θ_nl) @ θ_lin exactly — or a pair (B, C) with a
+    known part C (P, N): simulate(θ) = C(θ_nl) + B(θ_nl) @ θ_lin.
+    """
+
+    linear: tuple[int, ...]
+    nonlinear: tuple[int, ...]
+    basis_factory: BasisFactory
+    #: optional: the normal equations directly (when every capture has one,
+    #: :class:`ProjectedObjective` never materialises B as (P, N, L))
+    gram_factory: GramFactory | None = None
+    #: True when ``gram_factory`` needs O(P) memory only (a fused kernel that never stores the
+    #: (N, P) trajectories); otherwise candidates are processed in blocks bounded by
+    #: :data:`hystfit.objective.BLOCK_ELEMENTS`
+    gram_fused: bool = False
+
+
+def separable_by_simulation(model, linear: Sequence[int], d: int) -> Separable:
+    """A :class:`Separable` for a model whose output is affine in θ[linear] for fixed other entries.
+
+    The basis is obtained from the model's own simulator: for each candidate, one simulation with
+    θ_lin = 0 (the known part C) and one per unit vector e_j (columns B_j = y(e_j) − C), all in
+    one population call of P·(L+1) candidates. Exact whenever the model is affine in those
+    parameters (checked for every model by the contract tests).
+    """
+    linear = tuple(int(i) for i in linear)
+    nonlinear = tuple(i for i in range(d) if i not in linear)
+    L = len(linear)
+
+    def simulate_unit(sim, theta_nl):
+        """Y (P, L+1, N): the outputs for θ_lin = 0 and for each unit vector e_j."""
+        P = theta_nl.shape[0]
+        th = np.zeros((P * (L + 1), d))
+        th[:, list(nonlinear)] = np.repeat(theta_nl, L + 1, axis=0)
+        for j, idx in enumerate(linear):
+            th[j + 1::L + 1, idx] = 1.0
+        with np.errstate(all="ignore"):
+            return np.asarray(sim(th)).reshape(P, L + 1, -1)
+
+    def factory(u, dt):
+        sim = model.simulator(u, dt)
+
+        def basis(theta_nl):
+            Y = simulate_unit(sim, theta_nl)
+            with np.errstate(all="ignore"):
+                C = Y[:, 0, :]
+                B = np.ascontiguousarray((Y[:, 1:, :] - C[:, None, :]).transpose(0, 2, 1))
+            return B, C
+
+        return basis
+
+    def gram_factory(u, dt, y):
+        """The normal equations straight from the (P, L, N) layout of the simulations: batched
+        matrix products, no transposed copy of the basis."""
+        sim = model.simulator(u, dt)
+        y = np.asarray(y, dtype=np.float64)
+
+        def gram(theta_nl):
+            Y = simulate_unit(sim, theta_nl)
+            with np.errstate(all="ignore"):
+                C = Y[:, 0, :]
+                D = Y[:, 1:, :] - C[:, None, :]  # (P, L, N): the basis, transposed
+                t = y[None, :] - C  # (P, N)
+                G = D @ D.transpose(0, 2, 1)
+                c = (D @ t[:, :, None])[:, :, 0]
+                tt = np.einsum("pn,pn->p", t, t)
+            return G, c, tt
+
+        return gram
+
+    return Separable(linear, nonlinear, factory, gram_factory)
