@@ -87,7 +87,7 @@ import numpy as np
 import pandas as pd
 from ._jit import njit
 
-from .conditions import LookupTable, condition_label, detect_condition
+from .conditions import LookupTable, detect_condition
 from .errors import ConfigError, InputError
 from .results import Cell, ParamsFile
 
@@ -1207,9 +1207,3 @@ def condition_text(ch: SegmentChoice) -> str:
     """One-line description of the cells used for a segment, e.g. ``40V_10Hz×0.77 + 20V_10Hz×0.23``."""
     return " + ".join(f"{c.label}×{c.weight:.2f}" for c in sorted(ch.cells, key=lambda c: -c.weight))
 
-
-def condition_key_label(condition: tuple[float, float]) -> str:
-    a, f = condition
-    if not (math.isfinite(a) and math.isfinite(f)):
-        return "–"
-    return condition_label((round(a, 3), round(f, 3)))

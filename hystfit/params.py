@@ -79,10 +79,6 @@ class DataScale:
         return max(abs(self.u_min), abs(self.u_max), 1e-12)
 
     @property
-    def y_abs_max(self) -> float:
-        return max(abs(self.y_min), abs(self.y_max), 1e-12)
-
-    @property
     def gain(self) -> float:
         """Output range / input range: the natural gain scale (e.g. µm/V)."""
         return self.y_range / self.u_range

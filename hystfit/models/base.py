@@ -8,14 +8,14 @@ outputs at once::
     theta (P, d), u (N,) [V], dt [s]  →  y (P, N) [output unit]
 
 The state is reset at the start of every call (one call per capture). Fitted values never live
-on the model: see :class:`FittedModel`.
+on the model: an identification returns them (:class:`hystfit.identify.ConditionFit`), a parameter
+file reads them back (:class:`hystfit.results.Cell`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
 from typing import Any, Callable, ClassVar
 
 import numpy as np
@@ -78,9 +78,6 @@ class Model(ABC):
     @abstractmethod
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         """Parameter table with bounds derived from ``scale``."""
-
-    def param_names(self, scale: DataScale) -> list[str]:
-        return [p.name for p in self.params(scale)]
 
     # ----------------------------------------------------------------- simulation
     @abstractmethod
@@ -212,22 +209,3 @@ def linear_sse_evaluator(model: Model, u: np.ndarray, dt: float, y: np.ndarray):
             return sse_min - 2.0 * (delta @ g) + np.einsum("pi,ij,pj->p", delta, G, delta)
 
     return sse
-
-
-@dataclass(frozen=True)
-class FittedModel:
-    """A model structure with one identified parameter vector."""
-
-    model: Model
-    theta: np.ndarray
-    scale: DataScale
-
-    @property
-    def params(self) -> tuple[Param, ...]:
-        return self.model.params(self.scale)
-
-    def as_dict(self) -> dict[str, float]:
-        return {p.name: float(v) for p, v in zip(self.params, self.theta)}
-
-    def predict(self, u: np.ndarray, dt: float) -> np.ndarray:
-        return self.model.simulate_one(self.theta, u, dt)
