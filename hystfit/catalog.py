@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .params import DataScale
+from .params import DataScale, with_output_unit
 from .references import cite
 from .registry import blocks, models, optimizers
 
@@ -17,7 +17,7 @@ def model_catalog() -> list[dict]:
     for name in models.names():
         cls = models.get(name)
         m = cls().adapt(REFERENCE_SCALE)
-        params = [{"name": p.name, "unit": p.unit.replace("out", "um"), "lower": p.lower, "upper": p.upper,
+        params = [{"name": p.name, "unit": with_output_unit(p.unit, "um"), "lower": p.lower, "upper": p.upper,
                    "default": p.default, "description": p.description} for p in m.params(REFERENCE_SCALE)]
         structure = {f.name: f.default for f in dataclasses.fields(cls)}
         out.append({"name": name, "title": cls.title, "reference": cite(cls.reference), "equation": cls.equation,
@@ -33,7 +33,7 @@ def block_catalog() -> list[dict]:
     for name in blocks.names():
         cls = blocks.get(name)
         b = cls().adapt(REFERENCE_SCALE)
-        params = [{"name": f"{name}.{p.name}", "unit": p.unit.replace("out", "um"), "lower": p.lower, "upper": p.upper,
+        params = [{"name": f"{name}.{p.name}", "unit": with_output_unit(p.unit, "um"), "lower": p.lower, "upper": p.upper,
                    "default": p.default, "description": p.description} for p in b.params(REFERENCE_SCALE)]
         structure = {f.name: f.default for f in dataclasses.fields(cls)}
         out.append({"name": name, "title": cls.title, "reference": cite(cls.reference), "equation": cls.equation,

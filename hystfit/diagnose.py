@@ -40,6 +40,7 @@ from .errors import ConfigError, InputError
 from .identify import fit_captures, prepare_shared
 from .models.base import Model
 from .objective import Objective, Series
+from .results import json_safe, unit_keys
 from .optimizers.base import Optimizer
 
 __all__ = [
@@ -207,17 +208,17 @@ class Diagnosis:
                     "n_parameters": r.n_parameters,
                     "signature_share": _num(r.signature_share),
                     "evidence": r.evidence,
-                    "params": _clean(_unit_names(r.params, u)),
+                    "params": json_safe(unit_keys(r.params, u)),
                     "passes": dict(r.passes), "eligible": r.eligible}
 
-        return _clean({
+        return json_safe({
             "schema": "hystfit.diagnosis", "schema_version": 1,
             "base_model": self.base_model, "optimizer": self.optimizer, "mode": self.mode,
             "seed": self.seed, "units": {"input": "V", "output": u, "time": "s"},
             f"noise_floor_{u}": self.noise["sigma"],
-            "noise": _unit_names(self.noise, u),
-            "gap": _unit_names(self.gap, u),
-            "where": _unit_names(self.where, u),
+            "noise": unit_keys(self.noise, u),
+            "gap": unit_keys(self.gap, u),
+            "where": unit_keys(self.where, u),
             "effects": [eff(r) for r in self.effects],
             "verdict": self.verdict,
             "explained_by": list(self.explained_by),
@@ -228,7 +229,7 @@ class Diagnosis:
             "rule": {"threshold": self.settings.threshold, "occam_tolerance": self.settings.occam_tolerance,
                      "min_excess_ratio": self.settings.min_excess_ratio,
                      "placebo_draws": self.settings.placebo_draws, "max_effects": self.settings.max_effects},
-            "captures": [_unit_names(c, u) for c in self.captures],
+            "captures": [unit_keys(c, u) for c in self.captures],
             "runtime_s": self.runtime_s,
             "recommended_model": self.recommended_model,
             f"heldout_rmse_with_named_effects_{u}": _num(self.heldout_rmse_named),
@@ -296,43 +297,6 @@ def check_seed(seed) -> int:
 def _num(x):
     x = float(x)
     return x if math.isfinite(x) else None
-
-
-def _unit_names(d, unit: str):
-    """Rename keys ending in ``_out`` (and ``out`` inside unit strings) to the output unit."""
-    if isinstance(d, dict):
-        out = {}
-        for k, v in d.items():
-            key = k
-            if isinstance(k, str):
-                if k == "sigma":
-                    key = f"sigma_{unit}"
-                elif k.endswith("_out"):
-                    key = k[:-4] + f"_{unit}"
-                elif "_out_" in k:
-                    key = k.replace("_out_", f"_{unit}_")
-            out[key] = _unit_names(v, unit)
-        return out
-    if isinstance(d, (list, tuple)):
-        return [_unit_names(v, unit) for v in d]
-    return d
-
-
-def _clean(x):
-    """JSON-safe: numpy scalars to Python, NaN/inf to None, tuples to lists."""
-    if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return _num(x)
-    if isinstance(x, np.ndarray):
-        return _clean(x.tolist())
-    return x
 
 
 # ----------------------------------------------------------------------------------------------

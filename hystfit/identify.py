@@ -22,7 +22,7 @@ from .objective import Objective, Series
 from .optimizers.base import OptimizeResult, Optimizer
 from .optimizers.lsq import polisher
 from .parallel import default_jobs, run_jobs
-from .params import DataScale, Param, apply_bound_overrides, bound_side
+from .params import DataScale, Param, apply_bound_overrides, bound_side, with_output_unit
 
 #: progress(event, info) — events: "start" (total units), "advance" (one run done), "note" (text).
 Progress = Optional[Callable[[str, dict], None]]
@@ -136,7 +136,7 @@ def _output_unit(captures: Sequence[Capture]) -> str:
 
 
 def unit_param(p: Param, unit: str) -> str:
-    return p.unit.replace("out", unit)
+    return with_output_unit(p.unit, unit)
 
 
 @dataclass(frozen=True)

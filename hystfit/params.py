@@ -114,6 +114,15 @@ def bound_side(value: float, lower: float, upper: float, rtol: float = AT_BOUND_
     return None
 
 
+#: the placeholder for the capture's output unit in parameter units (``"out/V"``) and result keys
+OUTPUT_UNIT_PLACEHOLDER = "out"
+
+
+def with_output_unit(text: str, unit: str) -> str:
+    """A unit text with the placeholder replaced: ``with_output_unit("out/V", "um")`` → ``"um/V"``."""
+    return text.replace(OUTPUT_UNIT_PLACEHOLDER, unit)
+
+
 def parse_bound_overrides(items: Sequence[str]) -> dict[str, tuple[float, float]]:
     """Parse ``["alpha=0.1:10", "w0=0:2"]`` into ``{"alpha": (0.1, 10.0), ...}``."""
     out: dict[str, tuple[float, float]] = {}

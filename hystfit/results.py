@@ -41,24 +41,44 @@ SCHEMA_VERSION = 2
 READABLE_VERSIONS = (1, 2)
 
 
-def _num(x: Any) -> Any:
-    """JSON-safe number: NaN/inf become None."""
+def json_safe(x: Any) -> Any:
+    """JSON-safe copy: numpy scalars to Python, NaN/inf to None, tuples and arrays to lists."""
+    if isinstance(x, dict):
+        return {str(k): json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [json_safe(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
     if isinstance(x, (float, np.floating)):
         x = float(x)
         return x if math.isfinite(x) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
+    if isinstance(x, np.ndarray):
+        return json_safe(x.tolist())
     return x
 
 
-def _clean(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [_clean(v) for v in obj.tolist()]
-    return _num(obj)
+def unit_keys(d: Any, unit: str) -> Any:
+    """Keys ending in ``_out`` (or holding ``_out_``) renamed to the output unit (``rmse_out`` →
+    ``rmse_um``); ``sigma`` → ``sigma_<unit>``. The one renaming of the output-unit placeholder in
+    result keys (:func:`hystfit.params.with_output_unit` for unit texts)."""
+    if isinstance(d, dict):
+        out = {}
+        for k, v in d.items():
+            key = k
+            if isinstance(k, str):
+                if k == "sigma":
+                    key = f"sigma_{unit}"
+                elif k.endswith("_out"):
+                    key = k[:-4] + f"_{unit}"
+                elif "_out_" in k:
+                    key = k.replace("_out_", f"_{unit}_")
+            out[key] = unit_keys(v, unit)
+        return out
+    if isinstance(d, (list, tuple)):
+        return [unit_keys(v, unit) for v in d]
+    return d
 
 
 def condition_to_dict(fit: ConditionFit) -> dict[str, Any]:
@@ -89,7 +109,7 @@ def condition_to_dict(fit: ConditionFit) -> dict[str, Any]:
 def identify_to_dict(res: IdentifyResult) -> dict[str, Any]:
     m = res.fits[0].model if res.fits else make_model(res.model_name)
     base, blocks = m.composition if m.composition is not None else (m, ())
-    return _clean({
+    return json_safe({
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION,
         "tool": {"name": "hystfit", "version": __version__},
         "model": {"name": m.name, "title": m.title, "reference": m.reference, "equation": m.equation,

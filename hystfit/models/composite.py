@@ -24,7 +24,7 @@ import numpy as np
 
 from ..blocks.base import Block
 from ..errors import ConfigError
-from ..params import DataScale, Param
+from ..params import DataScale, Param, with_output_unit
 from .base import Model
 from .separable import Separable
 
@@ -104,7 +104,7 @@ class Composite(Model):
         for b, th in zip(self.blocks, parts):
             ps = b.params(_UNIT_SCALE)
             out.append({"name": b.name, "title": b.title, "equation": b.equation, "structure": b.structure(),
-                        "parameters": {f"{p.name}_{p.unit.replace('out', unit)}" if p.unit not in ("1", "")
+                        "parameters": {f"{p.name}_{with_output_unit(p.unit, unit)}" if p.unit not in ("1", "")
                                        and not p.name.endswith(("_s", "_Hz")) else p.name: float(v)
                                        for p, v in zip(ps, th[0])}})
         return out

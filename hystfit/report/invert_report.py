@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 
 from ..invert import InversionResult, Span, condition_text
 from ..io import atomic_write_bytes, atomic_write_text
-from ..results import _clean, dumps
+from ..results import dumps, json_safe
 from .plots import MAX_POINTS, display_unit
 from .tables import fmt
 
@@ -222,7 +222,7 @@ def invert_summary(res: InversionResult) -> dict:
                                      "result_pp_V": it.result_pp_V} for it in ch.iterations],
                      "metrics": m})
     v = res.voltage_V
-    return _clean({
+    return json_safe({
         "schema": "hystfit.invert", "schema_version": 1,
         "params": res.params_path, "model": res.model_name, "units": {"output": u, "input": "V", "time": "s"},
         "target": {"description": tg.description, "kind": tg.kind, "samples": tg.n, "fs_Hz": tg.fs,
@@ -334,6 +334,6 @@ def write_invert_report(res: InversionResult, report_dir: Path, *, make_plots: b
     summary = invert_summary(res)
     summary["command"] = command
     summary["output_file"] = output_file
-    atomic_write_text(report_dir / "report.json", dumps(_clean(summary)))
+    atomic_write_text(report_dir / "report.json", dumps(json_safe(summary)))
     atomic_write_text(report_dir / "report.md", invert_markdown(res, figures, command, output_file))
     return summary

@@ -10,7 +10,7 @@ import pandas as pd
 
 from ..io import atomic_write_text, write_table
 from ..predict import Prediction
-from ..results import ParamsFile, _clean, dumps
+from ..results import ParamsFile, dumps, json_safe
 from . import plots
 from .tables import distinct_names, frame, markdown_table, metric_columns, metric_legend
 
@@ -42,13 +42,13 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
                  "cells": [list(x) for x in p.cells], "metrics": p.metrics, f"offset_{u}": p.offset,
                  "notes": list(c.notes) + list(p.notes), "prediction_file": f"{stem}_prediction.{fmt}"}
         if p.metrics is not None:
-            atomic_write_text(out_dir / f"{stem}_metrics.json", dumps(_clean(entry)))
+            atomic_write_text(out_dir / f"{stem}_metrics.json", dumps(json_safe(entry)))
             if make_plots:
                 plots.loop_figure(out_dir / "plots" / f"loop_{stem}.png", c.u, c.y, p.y_model, unit=u,
                                   title=f"{pf.model_name} prediction – {c.name}")
                 plots.timeseries_figure(out_dir / "plots" / f"timeseries_{stem}.png", c.t, c.y, p.y_model, unit=u,
                                         title=f"{pf.model_name} prediction – {c.name}")
-        summary.append(_clean(entry))
+        summary.append(json_safe(entry))
     rows = []
     names = distinct_names([s["capture"] for s in summary])
     for s, name in zip(summary, names):

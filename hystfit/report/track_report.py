@@ -8,7 +8,7 @@ import pandas as pd
 
 from ..invert import condition_text
 from ..io import atomic_write_text, write_table
-from ..results import _clean, dumps
+from ..results import dumps, json_safe
 from ..track import TrackResult
 from .invert_report import (detail_windows, error_comparison_figure, invert_summary, span_dicts, span_table,
                             tracking_detail_figure, tracking_figure)
@@ -33,7 +33,7 @@ def track_summary(res: TrackResult) -> dict:
                      "runtime_s": run.runtime_s, "us_per_sample": 1e6 * run.runtime_s / max(1, res.target.n),
                      "details": run.details})
     nom = res.nominal
-    return _clean({
+    return json_safe({
         "schema": "hystfit.track", "schema_version": 1,
         "params": res.params_path, "plant": res.plant_path, "model": res.model_name,
         "plant_model": res.plant_model_name, "units": {"output": u, "input": "V", "time": "s"},
@@ -136,7 +136,7 @@ def write_track_outputs(res: TrackResult, out_dir: Path, *, make_plots: bool = T
         figures.insert(0, "plots/errors.png")
     summary = track_summary(res)
     summary["command"] = command
-    atomic_write_text(out_dir / "summary.json", dumps(_clean(summary)))
+    atomic_write_text(out_dir / "summary.json", dumps(json_safe(summary)))
     atomic_write_text(out_dir / "report.md", track_markdown(res, figures, command))
     return summary
 
