@@ -58,6 +58,10 @@ def identify(
     o = make_optimizer(opt_cls, oopts, pop=pop, iters=iters)
     bnds = parse_bound_overrides(bounds or [])
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
+    if plots:
+        from ..report.render import preload
+
+        preload()  # import matplotlib in a thread while the captures load and the fit runs
     with staged_output_dir(out, force) as stage:
         captures = load_captures(data, options, recursive=recursive)
         if not quiet:
@@ -67,7 +71,7 @@ def identify(
         with progress_bar(not quiet and not json_out, f"identify {model_cls.name} / {opt_cls.name}") as cb:
             res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=global_fit,
                                bounds=bnds, progress=cb, model_options=mopts, jobs=jobs)
-        write_identify_outputs(res, stage, make_plots=plots)
+        write_identify_outputs(res, stage, make_plots=plots, n_jobs=jobs)
     if json_out:
         d = identify_to_dict(res)
         print_json({"out": str(out), "model": d["model"]["name"], "optimizer": d["optimizer"]["name"],
