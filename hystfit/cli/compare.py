@@ -69,12 +69,16 @@ def compare(
         opt_options[o] = {k: v for k, v in inst.settings().items() if k in ("pop", "iters") and
                           ((k == "pop" and pop is not None) or (k == "iters" and iters is not None))}
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit)
+    if figures:
+        from ..report.render import preload
+
+        preload()  # import matplotlib in a thread while the captures load and the fits run
     with staged_output_dir(out, force) as stage:
         captures = load_captures(data, options, recursive=recursive)
         with progress_bar(not quiet and not json_out, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
                               optimizer_options=opt_options, progress=cb)
-        write_compare_outputs(res, stage, make_figures=figures)
+        write_compare_outputs(res, stage, make_figures=figures, n_jobs=jobs)
     df = compare_frame(res)
     u = res.unit
     if json_out:

@@ -699,7 +699,7 @@ def _cell_text(v: float, fmt: str) -> str:
 
 def heatmap_figure(path, matrix, row_labels: Sequence[str], col_labels: Sequence[str], *,
                    title: str = "", fmt: str = "{:.3g}", cmap: str = "viridis",
-                   colorbar_label: str = "", dpi: int = DPI) -> Path:
+                   colorbar_label: str = "", log: bool = False, color_matrix=None, dpi: int = DPI) -> Path:
     """Annotated heat map of a 2-D table (e.g. RMSE per model × condition).
 
     Parameters
@@ -714,6 +714,12 @@ def heatmap_figure(path, matrix, row_labels: Sequence[str], col_labels: Sequence
         Format of the cell annotations (annotations are skipped above 600 cells).
     cmap : str, default "viridis"
     colorbar_label : str
+    log : bool, default False
+        Logarithmic colour scale (over the positive finite values; others are drawn blank): one
+        bad cell then no longer flattens every other cell into one colour.
+    color_matrix : array_like, shape (R, C), optional
+        Values that set the colours, when they differ from the annotated ones (e.g. colour by
+        1 − R² on a log scale, annotate R²).
     dpi : int, default 110
 
     Returns
@@ -732,15 +738,35 @@ def heatmap_figure(path, matrix, row_labels: Sequence[str], col_labels: Sequence
     if len(row_labels) != R or len(col_labels) != C:
         raise ValueError(f"matrix has shape {m.shape} but {len(row_labels)} row labels and "
                          f"{len(col_labels)} column labels")
-    masked = np.ma.masked_invalid(m)
-    fig = _new_figure(min(20.0, max(4.5, 0.85 * C + 2.8)), min(16.0, max(3.0, 0.42 * R + 1.6)))
+    cm = m if color_matrix is None else np.asarray(color_matrix, dtype=float)
+    if cm.shape != m.shape:
+        raise ValueError(f"color_matrix has shape {cm.shape}, matrix {m.shape}")
+    masked = np.ma.masked_invalid(np.where(cm > 0, cm, np.nan) if log else cm)
+    # a fixed layout from the label lengths (constrained layout cost ≈ 1 s per heat map of 240 cells)
+    rotate = C > 6 or max((len(str(c)) for c in col_labels), default=0) > 8
+    char = 0.075  # inches per character at the tick label size
+    left = 0.35 + char * max((len(str(r)) for r in row_labels), default=1)
+    bottom = 0.3 + char * max((len(str(c)) for c in col_labels), default=1) * (0.75 if rotate else 0.0) + 0.2
+    right, top = 1.35, 0.25 + (0.35 if title else 0.0)
+    width = min(20.0, max(4.5, 0.85 * C + 2.8))
+    height = min(16.0, max(3.0, 0.42 * R + 1.6))
+    width = max(width, left + right + 1.5)
+    height = max(height, bottom + top + 1.0)
+    fig = _new_figure(width, height, (left, right, bottom, top), dpi=dpi)
     ax = fig.add_subplot()
-    im = ax.imshow(masked, aspect="auto", cmap=cmap, interpolation="nearest")
+    cax = fig.add_axes((1 - (right - 0.2) / width, bottom / height, 0.16 / width, 1 - (bottom + top) / height))
+    norm = None
+    if log and masked.count():
+        from matplotlib.colors import LogNorm
+
+        lo, hi = float(masked.min()), float(masked.max())
+        norm = LogNorm(lo, hi if hi > lo else lo * 10)
+    im = ax.imshow(masked, aspect="auto", cmap=cmap, interpolation="nearest", norm=norm)
     if masked.count() == 0:
         im.set_clim(0.0, 1.0)
     ax.set_xticks(np.arange(C), [str(c) for c in col_labels])
     ax.set_yticks(np.arange(R), [str(r) for r in row_labels])
-    if C > 6 or max((len(str(c)) for c in col_labels), default=0) > 8:
+    if rotate:
         ax.tick_params(axis="x", labelrotation=45)
         for lab in ax.get_xticklabels():
             lab.set_horizontalalignment("right")
@@ -749,13 +775,13 @@ def heatmap_figure(path, matrix, row_labels: Sequence[str], col_labels: Sequence
     if R * C <= 600:
         size = 8 if R * C <= 150 else 6
         for (i, j), v in np.ndenumerate(m):
-            if np.isfinite(v):
-                r, g, b, _ = im.cmap(im.norm(v))
+            if not np.ma.is_masked(masked[i, j]):
+                r, g, b, _ = im.cmap(im.norm(masked[i, j]))
                 colour = "white" if 0.299 * r + 0.587 * g + 0.114 * b < 0.5 else "black"
             else:
                 colour = "0.3"
             ax.text(j, i, _cell_text(v, fmt), ha="center", va="center", fontsize=size, color=colour)
-    cb = fig.colorbar(im, ax=ax)
+    cb = fig.colorbar(im, cax=cax)
     if colorbar_label:
         cb.set_label(colorbar_label)
     if title:
