@@ -31,8 +31,9 @@ from __future__ import annotations
 
 import io
 import math
+import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping, Sequence
+from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -296,7 +297,7 @@ def pixel_path(x, y, nx: int, ny: int) -> tuple[np.ndarray, np.ndarray]:
     return xs, ys
 
 
-def _save(fig: Figure, path, dpi: int) -> Path:
+def _save(fig: Figure, path, dpi: int, *, keep: bool = False) -> Path:
     """Render ``fig`` as PNG and write it to ``path`` atomically; return the path.
 
     The PNG is rendered in memory and written by :func:`hystfit.io.atomic_write_bytes` (temporary
@@ -313,7 +314,8 @@ def _save(fig: Figure, path, dpi: int) -> Path:
     try:
         fig.savefig(buf, format="png", dpi=dpi, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     finally:
-        fig.clear()
+        if not keep:  # a template (:func:`_template`) is cleared on its next use instead
+            fig.clear()
     atomic_write_bytes(path, buf.getvalue())
     return path
 
@@ -334,6 +336,54 @@ def _new_figure(width: float, height: float, margins: tuple[float, float, float,
     left, right, bottom, top = margins
     fig.subplots_adjust(left=left / width, right=1 - right / width, bottom=bottom / height, top=1 - top / height,
                         hspace=hspace, wspace=wspace)
+    return fig
+
+
+_templates = threading.local()
+
+
+def _template(key: tuple, build: Callable[[], Figure]) -> Figure:
+    """A figure laid out once per thread and reused for every later figure of the same ``key``.
+
+    Creating a figure's axes, ticks and tick labels costs ≈ 20 % of drawing a small figure; a
+    report draws dozens of identical layouts. Reuse removes the previous figure's artists and data
+    limits (:func:`_reset`); the bytes written equal those of a fresh figure (tested).
+    """
+    cache = getattr(_templates, "figures", None)
+    if cache is None:
+        cache = _templates.figures = {}
+    fig = cache.get(key)
+    if fig is None:
+        fig = cache[key] = build()
+    else:
+        _reset(fig)
+    return fig
+
+
+def _reset(fig: Figure) -> None:
+    """Remove what the previous use of a template drew: artists, legends, titles, scales, limits."""
+    from matplotlib.transforms import Bbox
+
+    for ax in fig.axes:
+        for artist in [*ax.lines, *ax.patches, *ax.collections, *ax.texts, *ax.images]:
+            artist.remove()
+        if ax.legend_ is not None:
+            ax.legend_.remove()
+        ax.set_title("", y=1.0)
+        ax.set_xlabel("")
+        ax.set_ylabel("")
+        ax.set_xscale("linear")
+        ax.set_yscale("linear")
+        ax.dataLim.set_points(Bbox.null().get_points())
+        ax.ignore_existing_data_limits = True
+        ax.set_autoscale_on(True)
+        ax.set_prop_cycle(None)
+    for leg in list(fig.legends):
+        leg.remove()
+
+
+def _with_axes(fig: Figure) -> Figure:
+    fig.add_subplot()
     return fig
 
 
@@ -403,8 +453,9 @@ def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str
     Path
     """
     caps = _captures({"u": u_V, "y_meas": y_meas, "y_model": y_model})
-    fig = _new_figure(6.4, 4.8, _margins(0.75, 0.15, 0.55, 0.12, title), dpi=dpi)
-    ax = fig.add_subplot()
+    margins = _margins(0.75, 0.15, 0.55, 0.12, title)
+    fig = _template(("loop", dpi, margins), lambda: _with_axes(_new_figure(6.4, 4.8, margins, dpi=dpi)))
+    ax = fig.axes[0]
     _draw_loops(ax, caps, labels)
     ax.set_xlabel("Voltage (V)")
     ax.set_ylabel(_output_label(unit))
@@ -412,7 +463,7 @@ def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper left")
-    return _save(fig, path, dpi)
+    return _save(fig, path, dpi, keep=True)
 
 
 def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: str = "",
@@ -447,8 +498,15 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
     finite = np.isfinite(resid)
     rmse = float(np.sqrt(np.mean(resid[finite] ** 2))) if finite.any() else float("nan")
 
-    fig = _new_figure(8.0, 5.6, _margins(0.8, 0.15, 0.55, 0.12, title), dpi=dpi, hspace=0.08)
-    ax, axr = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1.0]})
+    margins = _margins(0.8, 0.15, 0.55, 0.12, title)
+
+    def build() -> Figure:
+        f = _new_figure(8.0, 5.6, margins, dpi=dpi, hspace=0.08)
+        f.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1.0]})
+        return f
+
+    fig = _template(("timeseries", dpi, margins), build)
+    ax, axr = fig.axes
     _plot_series(ax, t, ym, _MEAS_STYLE, "measured")
     _plot_series(ax, t, yp, _MODEL_STYLE, "model")
     ax.set_ylabel(_output_label(unit))
@@ -467,7 +525,7 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
     axr.set_xlabel("Time (s)" if t_s is not None else "Sample")
     axr.grid(True, alpha=0.3)
     axr.legend(loc="upper right", fontsize="small")
-    return _save(fig, path, dpi)
+    return _save(fig, path, dpi, keep=True)
 
 
 def convergence_figure(path, history_best, history_mean=None, *, title: str = "",
@@ -500,8 +558,9 @@ def convergence_figure(path, history_best, history_mean=None, *, title: str = ""
     one-point history (an exact solve) should rather say so in words (see
     :func:`has_convergence_history`).
     """
-    fig = _new_figure(6.4, 4.2, _margins(0.85, 0.15, 0.55, 0.12, title), dpi=dpi)
-    ax = fig.add_subplot()
+    margins = _margins(0.85, 0.15, 0.55, 0.12, title)
+    fig = _template(("convergence", dpi, margins), lambda: _with_axes(_new_figure(6.4, 4.2, margins, dpi=dpi)))
+    ax = fig.axes[0]
     plotted: list[np.ndarray] = []
 
     def draw(h, **kw):
@@ -538,7 +597,7 @@ def convergence_figure(path, history_best, history_mean=None, *, title: str = ""
     ax.grid(True, which="both", alpha=0.3)
     if title:
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
-    return _save(fig, path, dpi)
+    return _save(fig, path, dpi, keep=True)
 
 
 def has_convergence_history(history_best) -> bool:

@@ -136,3 +136,24 @@ def test_rendering_error_reaches_the_caller(tmp_path, rng):
     jobs.insert(3, FigureJob("loop_figure", blocker / "x.png", (np.arange(10.0), np.arange(10.0)), {}))
     with pytest.raises(OutputError):
         render_figures(jobs, n_jobs=2)
+
+
+def test_reused_figure_templates_write_the_same_bytes_as_fresh_figures(tmp_path, rng):
+    t, u, y = _periodic(30_000, 7, rng, noise=0.01)
+    h = np.geomspace(1.0, 1e-4, 200)
+
+    def draw_all(tag):
+        return [plots.loop_figure(tmp_path / f"l_{tag}.png", u, y, y + 0.01, title="a"),
+                plots.timeseries_figure(tmp_path / f"t_{tag}.png", t, y, y + 0.01, title="a"),
+                plots.convergence_figure(tmp_path / f"c_{tag}.png", h, h * 2, title="a")]
+
+    plots._templates.figures = {}  # fresh figures
+    fresh = [p.read_bytes() for p in draw_all("fresh")]
+    # other data, units and scales in between (a linear convergence axis, non-finite model values)
+    yp = y + 0.5
+    yp[100:200] = np.nan
+    plots.loop_figure(tmp_path / "x1.png", u * 2, y, yp, unit="nm", title="a")
+    plots.timeseries_figure(tmp_path / "x2.png", None, y[:500], yp[:500], title="a")
+    plots.convergence_figure(tmp_path / "x3.png", h - h[-1], None, title="a")
+    reused = [p.read_bytes() for p in draw_all("reused")]
+    assert reused == fresh
