@@ -78,7 +78,8 @@ def main() -> None:
     import os
 
     print(f"Machine: {platform.machine()}, {os.cpu_count()} cores, numba {numba.__version__} "
-          f"({numba.get_num_threads()} threads), Python {platform.python_version()}\n")
+          f"({numba.get_num_threads()} threads), Python {platform.python_version()}; load average at the start "
+          f"{os.getloadavg()[0]:.1f} (above 0.5 the machine is shared: compare ratios within one run)\n")
     krows = kern.measure()
     print("### Population evaluation (P = 200, N = 5,000)\n")
     print(kern.table(krows, markdown=True))
@@ -177,6 +178,7 @@ def main() -> None:
          or "not measured (run with --long)",
          ok(bool(longm) and all(v is not None and v <= 60 for v in longm.values())) if longm else "–"),
     ]
+    print(f"\nLoad average at the end: {os.getloadavg()[0]:.1f}")
     print("\n### Targets\n")
     print("| target | measured | met |\n|---|---|---|")
     for t in targets:
