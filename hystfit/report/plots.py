@@ -175,6 +175,16 @@ def _first_per_run(keys: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
 
 
+def _first_occurrences(keys: np.ndarray) -> np.ndarray:
+    """Mask of the first occurrence of each value of ``keys``, in one hashing pass.
+
+    pandas hashes (O(N)); ``np.unique(return_index=True)`` sorts and was ≈ 5× slower on 10⁷ keys.
+    """
+    import pandas as pd
+
+    return ~pd.Series(keys, copy=False).duplicated(keep="first").to_numpy()
+
+
 def column_envelope(x, y, columns: int) -> np.ndarray | None:
     """Indices of the samples that draw ``y`` against a monotonic ``x`` exactly at ``columns`` pixels.
 
@@ -277,8 +287,7 @@ def pixel_path(x, y, nx: int, ny: int) -> tuple[np.ndarray, np.ndarray]:
     if pos.size == 0:
         pts = keep[c >= 0]
         return x[pts], y[pts]
-    _, first = np.unique(key[pos], return_index=True)
-    pos = np.sort(pos[first])
+    pos = pos[_first_occurrences(key[pos])]
     s, e = keep[pos], keep[pos + 1]
     new = np.r_[True, s[1:] != e[:-1]]  # a segment that does not continue the previous one
     cnt = 1 + new.astype(np.int64) + (new & (np.arange(s.size) > 0))  # [NaN] [start] end
@@ -729,8 +738,7 @@ def parity_figure(path, y_meas, y_model, *, unit: str = "um", title: str = "", d
     if xs.size > cells:
         scale = cells / (lim[1] - lim[0])
         code = ((xs - lim[0]) * scale).astype(np.int64) * (cells + 1) + ((ys - lim[0]) * scale).astype(np.int64)
-        _, first = np.unique(code, return_index=True)
-        first.sort()
+        first = _first_occurrences(code)
         xs, ys = xs[first], ys[first]
     ax.scatter(xs, ys, s=3, alpha=0.35, color="tab:blue", lw=0, rasterized=True, label="samples")
     ax.plot(lim, lim, color="0.2", lw=0.9, ls="--", label="1:1")
