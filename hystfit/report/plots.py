@@ -602,6 +602,7 @@ def convergence_figure(path, history_best, history_mean=None, *, title: str = ""
     else:
         if log and np.all(values > 0):
             ax.set_yscale("log")
+            _plain_log_labels(ax.yaxis, values)
         ax.legend(loc="best")
     ax.set_xlabel("iteration")
     ax.set_ylabel(ylabel)
@@ -617,6 +618,21 @@ def has_convergence_history(history_best) -> bool:
         return False
     h = np.ravel(np.asarray(history_best, dtype=float))
     return int(np.isfinite(h).sum()) >= 2
+
+
+def _plain_log_labels(axis, values: np.ndarray) -> None:
+    """Label a log axis with plain numbers (0.0025, not 2.5×10⁻³; no mathtext to lay out).
+
+    Minor ticks are labelled only when the finite positive ``values`` span less than a decade
+    (otherwise the decade labels suffice).
+    """
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    plain = FuncFormatter(lambda v, _: f"{v:.3g}")
+    axis.set_major_formatter(plain)
+    v = values[np.isfinite(values) & (values > 0)]
+    narrow = v.size > 0 and v.max() < 10.0 * v.min()
+    axis.set_minor_formatter(FuncFormatter(lambda x, _: f"{x:.3g}") if narrow else NullFormatter())
 
 
 def _grid_shape(n: int) -> tuple[int, int]:
@@ -973,6 +989,8 @@ def convergence_compare_figure(path, histories: Mapping[str, Sequence[Sequence[f
             ax.plot(np.arange(1, n + 1), np.median(padded, axis=0), color=color, lw=1.8, label=str(name))
     if log and not any_nonpos:
         ax.set_yscale("log")
+        drawn = [np.asarray(h, float) for runs in histories.values() for h in runs if len(h)]
+        _plain_log_labels(ax.yaxis, np.concatenate(drawn) if drawn else np.empty(0))
     ax.set_xlabel("iteration")
     ax.set_ylabel(ylabel)
     ax.grid(True, which="both", alpha=0.3)
