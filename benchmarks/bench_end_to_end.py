@@ -10,6 +10,9 @@ the fit itself is the ``runtime_s`` that ``hystfit identify --json`` reports, gi
 Measured:
 
 - ``hystfit models --json`` (start-up of a second CLI call: imports + cached kernels),
+- the Quickstart ``hystfit identify sample_data`` with every figure and with ``--no-plots``,
+- ``hystfit identify`` of one condition with PSO 200 × 300 ``--no-polish``, with and without
+  figures, and ``hystfit diagnose sample_data --model pi``,
 - ``hystfit identify`` of one condition (N = 5,001) with PSO 200 × 300 for ``pi`` and ``bw``
   (the papers' budget: 60,000 evaluations, plus the least-squares polish),
 - ``hystfit identify`` of one condition with ``--opt auto`` for ``pi`` and ``bw``, and ``auto``
@@ -35,6 +38,14 @@ FAST = ["--no-plots", "--quiet", "--jobs", "1"]
 
 COMMANDS = [
     ("second CLI call (`hystfit models --json`)", ["models", "--json"]),
+    ("Quickstart: identify sample_data (24 conditions), every figure", ["identify", "sample_data", "--quiet"]),
+    ("Quickstart: identify sample_data (24 conditions), --no-plots", ["identify", "sample_data", "--quiet",
+                                                                      "--no-plots"]),
+    ("identify pi, PSO 200 × 300, --no-polish, 1 condition, with figures",
+     ["identify", ONE, "--model", "pi", *PSO, "--no-polish", "--quiet"]),
+    ("identify pi, PSO 200 × 300, --no-polish, 1 condition, --no-plots",
+     ["identify", ONE, "--model", "pi", *PSO, "--no-polish", "--quiet", "--no-plots"]),
+    ("diagnose sample_data --model pi", ["diagnose", "sample_data", "--model", "pi", "--quiet"]),
     ("identify pi, PSO 200 × 300, 1 condition", ["identify", ONE, "--model", "pi", *PSO, *FAST]),
     ("identify bw, PSO 200 × 300, 1 condition", ["identify", ONE, "--model", "bw", *PSO, *FAST]),
     ("identify pi, auto, 1 condition", ["identify", ONE, "--model", "pi", *FAST]),
@@ -53,7 +64,7 @@ COMMANDS = [
 def run(args: list[str], out: Path) -> tuple[float, dict | None]:
     """Wall time of one command and, for identify, its JSON summary."""
     cmd = [sys.executable, "-c", "from hystfit.cli import main; main()", *args]
-    if args[0] in ("identify", "compare"):
+    if args[0] in ("identify", "compare", "diagnose"):
         cmd += ["--out", str(out), "--force"]
     if args[0] == "identify":
         cmd += ["--json"]
@@ -69,7 +80,7 @@ def measure(repeat: int = 3) -> list[dict]:
         for label, cmd in COMMANDS:
             out = Path(tmp) / "out"
             run(cmd, out)  # warm the JIT cache
-            rep = 1 if (cmd[0] == "compare" or "runs" in " ".join(cmd)) else repeat
+            rep = 1 if (cmd[0] in ("compare", "diagnose") or "runs" in " ".join(cmd)) else repeat
             best = min((run(cmd, out) for _ in range(rep)), key=lambda r: r[0])
             row = {"label": label, "wall_s": best[0], "fit_s": None, "rmse_um": None, "evaluations": None}
             if best[1] is not None:

@@ -1,42 +1,115 @@
 """hystfit's speed, measured in one run, and the targets of the speed issue checked.
 
-Run:  python benchmarks/speed.py [--repeat 3]          (≈ 4 min on 2 cores)
+Run:  python benchmarks/speed.py [--repeat 3] [--long]     (≈ 8 min on 2 cores; --long adds ≈ 20 min)
 
 1. Population evaluation (``bench_kernels.py``): straightforward, NumPy, hystfit's simulation
    and objective for ``pi``, ``bw`` (and ``pi2``) at P = 200, N = 5,000.
-2. End-to-end wall times (``bench_end_to_end.py``): start-up, identify with PSO 200 × 300 and
-   with ``auto``, ``auto`` against the best of 15 PSO runs, compare of all ten models.
-3. The targets, each with the measured value and whether it is met. Prints Markdown.
+2. End-to-end wall times (``bench_end_to_end.py``): start-up, the Quickstart with and without
+   figures, one condition with PSO 200 × 300 with and without figures, identify with ``auto``,
+   ``auto`` against the best of 15 PSO runs, compare of all ten models, diagnose.
+3. What the one-condition command imports (``python -X importtime``), figures against the
+   straightforward way (``bench_figures.py``), a 10⁷-row CSV load (``bench_load.py``) and, with
+   ``--long``, ``fp`` and ``gpi`` on a 10⁶-sample capture (``memory.py``).
+4. The targets, each with the measured value and whether it is met. Prints Markdown.
 """
 
 from __future__ import annotations
 
 import argparse
 import platform
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_end_to_end as e2e  # noqa: E402
+import bench_figures as figs  # noqa: E402
 import bench_kernels as kern  # noqa: E402
+import bench_load as load  # noqa: E402
+
+
+def import_breakdown(args: list[str]) -> tuple[float, list[tuple[str, float]]]:
+    """Total import time of a CLI command and its most expensive top-level packages (``-X importtime``)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-X", "importtime", "-c", "from hystfit.cli import main; main()", *args,
+               "--out", str(Path(tmp) / "out")]
+        r = subprocess.run(cmd, cwd=e2e.ROOT, capture_output=True, text=True, check=True)
+    per_pkg: dict[str, float] = {}
+    total = 0.0
+    for line in r.stderr.splitlines():
+        if not line.startswith("import time:") or "|" not in line:
+            continue
+        parts = line[len("import time:"):].split("|")
+        try:
+            cumulative = int(parts[1]) / 1e6
+        except ValueError:
+            continue
+        name = parts[2]
+        if name.startswith(" ") and not name.startswith("  "):  # depth 0 (one space after the bar)
+            total += cumulative
+            pkg = name.strip().split(".")[0]
+            per_pkg[pkg] = per_pkg.get(pkg, 0.0) + cumulative
+    return total, sorted(per_pkg.items(), key=lambda kv: -kv[1])[:8]
+
+
+def long_models(models: tuple[str, ...] = ("fp", "gpi"), samples: int = 1_000_000) -> dict[str, float | None]:
+    """Wall time of ``identify`` (auto, no figures) on a 10⁶-sample capture of the virtual actuator."""
+    out: dict[str, float | None] = {}
+    r = subprocess.run([sys.executable, str(Path(__file__).parent / "memory.py"), "--models", ",".join(models),
+                        "--samples", str(samples), "--timeout", "1800"], cwd=e2e.ROOT, capture_output=True, text=True)
+    for line in r.stdout.splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) >= 2 and cells[0] in models:
+            try:
+                out[cells[0]] = float(cells[1])
+            except ValueError:
+                out[cells[0]] = None
+    return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--long", action="store_true", help="also fp and gpi on a 10^6-sample capture (≈ 20 min)")
     args = ap.parse_args()
     import numba
     import os
 
     print(f"Machine: {platform.machine()}, {os.cpu_count()} cores, numba {numba.__version__} "
-          f"({numba.get_num_threads()} threads), Python {platform.python_version()}\n")
+          f"({numba.get_num_threads()} threads), Python {platform.python_version()}; load average at the start "
+          f"{os.getloadavg()[0]:.1f} (above 0.5 the machine is shared: compare ratios within one run)\n")
     krows = kern.measure()
     print("### Population evaluation (P = 200, N = 5,000)\n")
     print(kern.table(krows, markdown=True))
     erows = e2e.measure(args.repeat)
     print("\n### End to end (best of the repeats; wall time includes ≈ 1 s of Python start-up and imports)\n")
     print(e2e.table(erows, markdown=True))
+
+    one = ["identify", e2e.ONE, "--model", "pi", *e2e.PSO, "--no-polish", "--quiet"]
+    imp_total, imp_top = import_breakdown(one)
+    print(f"\n### Imports of `identify` (1 condition, figures): {imp_total:.2f} s\n")
+    print("| package | import (s) |\n|---|---:|")
+    for pkg, sec in imp_top:
+        print(f"| {pkg} | {sec:.2f} |")
+    fq = figs.quickstart_figures()
+    fl = [figs.long_loop(n) for n in (10**6, 10**7)]
+    print("\n### Figures (same fits; hystfit: parallel, per-pixel; straightforward: serial, every k-th sample)\n")
+    print("| figures | hystfit | straightforward | ratio |\n|---|---:|---:|---:|")
+    print(f"| Quickstart: {fq['hystfit_figures']} figures (straightforward draws {fq['straightforward_figures']}) | "
+          f"{fq['hystfit_s']:.2f} s | {fq['straightforward_s']:.2f} s | {fq['straightforward_s'] / fq['hystfit_s']:.1f}× |")
+    for r in fl:
+        print(f"| loop of a periodic capture, {r['samples']:.0e} samples: time, points drawn, drawn/true voltage span | "
+              f"{r['hystfit_s']:.2f} s, {r['hystfit_points']:,}, {r['hystfit_span']:.2f} | "
+              f"{r['straightforward_s']:.2f} s, {r['straightforward_points']:,}, {r['straightforward_span']:.2f} | "
+              f"{r['straightforward_s'] / r['hystfit_s']:.2f}× |")
+    lrows = {r["reader"]: r for r in load.measure()}
+    print("\n### Loading a 10⁷-row CSV (fresh process each)\n")
+    print("| reader | load (s) | peak RSS (MB) |\n|---|---:|---:|")
+    for r in lrows.values():
+        print(f"| {r['reader']} | {r['wall_s']:.1f} | {r['peak_MB']:.0f} |")
+    longm = long_models() if args.long else {}
 
     k = {r["model"].split()[0]: r for r in krows}
     e = {r["label"]: r for r in erows}
@@ -55,6 +128,12 @@ def main() -> None:
     cmp_nofig = e["compare sample_data, all 10 models, auto, no figures"]
     cmp_fig = e["compare sample_data, all 10 models, auto, with figures"]
     second = e["second CLI call (`hystfit models --json`)"]
+    qs = e["Quickstart: identify sample_data (24 conditions), every figure"]
+    qs_np = e["Quickstart: identify sample_data (24 conditions), --no-plots"]
+    one_fig = e["identify pi, PSO 200 × 300, --no-polish, 1 condition, with figures"]
+    one_np = e["identify pi, PSO 200 × 300, --no-polish, 1 condition, --no-plots"]
+    diag = e["diagnose sample_data --model pi"]
+    hl, pl = lrows["hystfit"], lrows["pandas.read_csv"]
 
     def ok(flag: bool) -> str:
         return "yes" if flag else "**no**"
@@ -77,7 +156,29 @@ def main() -> None:
          f"{cmp_fig['wall_s']:.1f} s with figures, {cmp_nofig['wall_s']:.1f} s without",
          ok(cmp_fig["wall_s"] < 60)),
         ("a second CLI call starts in under 1 s", f"{second['wall_s']:.2f} s", ok(second["wall_s"] < 1.0)),
+        ("Quickstart identify (24 conditions, every figure) ≤ 3 s",
+         f"{qs['wall_s']:.2f} s ({qs_np['wall_s']:.2f} s with --no-plots)", ok(qs["wall_s"] <= 3.0)),
+        ("figures cost at most load + fit", f"figures {qs['wall_s'] - qs_np['wall_s']:.2f} s, load + fit "
+         f"{qs_np['wall_s']:.2f} s; {fq['straightforward_s'] / fq['hystfit_s']:.1f}× the straightforward figures",
+         ok(qs["wall_s"] - qs_np["wall_s"] <= qs_np["wall_s"])),
+        ("loop figure of a long periodic capture spans the data (no aliasing)",
+         ", ".join(f"{r['samples']:.0e}: {r['hystfit_span']:.2f} (stride {r['straightforward_span']:.2f})" for r in fl),
+         ok(all(abs(r["hystfit_span"] - 1) < 1e-9 for r in fl))),
+        ("one condition, PSO 200 × 300, with figures ≤ 1.0 s",
+         f"{one_fig['wall_s']:.2f} s ({one_np['wall_s']:.2f} s without; imports {imp_total:.2f} s)",
+         ok(one_fig["wall_s"] <= 1.0)),
+        ("compare sample_data, all models, auto, with figures ≤ 20 s", f"{cmp_fig['wall_s']:.1f} s",
+         ok(cmp_fig["wall_s"] <= 20)),
+        ("diagnose sample_data --model pi ≤ 3 s", f"{diag['wall_s']:.2f} s", ok(diag["wall_s"] <= 3.0)),
+        ("10⁷-row CSV loads in ≤ 15 s with ≤ 2 GB peak",
+         f"{hl['wall_s']:.1f} s, {hl['peak_MB']:.0f} MB (pandas.read_csv alone {pl['wall_s']:.1f} s, {pl['peak_MB']:.0f} MB)",
+         ok(hl["wall_s"] <= 15 and hl["peak_MB"] <= 2000)),
+        ("fp and gpi on a 10⁶-sample capture ≤ 60 s each",
+         ", ".join(f"{m} {v:.0f} s" if v is not None else f"{m} failed" for m, v in longm.items())
+         or "not measured (run with --long)",
+         ok(bool(longm) and all(v is not None and v <= 60 for v in longm.values())) if longm else "–"),
     ]
+    print(f"\nLoad average at the end: {os.getloadavg()[0]:.1f}")
     print("\n### Targets\n")
     print("| target | measured | met |\n|---|---|---|")
     for t in targets:

@@ -380,7 +380,87 @@ def _is_number_or_empty(cell: str) -> bool:
     return True
 
 
+#: text captures at least this large are first read by pyarrow's multi-threaded CSV parser, straight
+#: to float64 (:func:`_read_text_fast`); smaller ones, and any file it declines, by the general reader
+FAST_READ_BYTES = 1 << 20
+#: cells read as missing by the fast reader: :data:`_MISSING_CELLS` in the spellings files use
+_FAST_NULLS = sorted({v for c in _MISSING_CELLS for v in (c, c.upper(), c.title(), c.capitalize())} | {"NaN", "N/A"})
+
+
+def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
+    """The table of a large, plain, all-numeric delimited file, read by pyarrow; None to use the general reader.
+
+    Reads only what the general reader would read the same way: a UTF-8 file without byte-order
+    mark, one ``,``/``;``/tab delimiter, no blank or comment line, every cell a number or a
+    missing-value word (:data:`_MISSING_CELLS`), no trailing empty row. Anything else (text
+    cells, padded cells, ragged rows, decimal commas) makes pyarrow fail and the general reader
+    run, which words every error: behaviour and messages do not depend on this path, only the
+    time (10⁷ rows: ≈ 3 s instead of ≈ 130 s) and memory (float64 columns instead of strings).
+    """
+    try:
+        if path.stat().st_size < FAST_READ_BYTES:
+            return None
+        with open(path, "rb") as fh:
+            head = fh.read(1 << 16)
+    except OSError:
+        return None
+    if head.startswith((b"\xef\xbb\xbf", b"\xff\xfe", b"\xfe\xff")) or b"\x00" in head or head.lstrip()[:1] == b"#":
+        return None
+    if b"\r" in head.replace(b"\r\n", b""):
+        return None
+    try:
+        lines = head.decode("utf-8").split("\n")[:-1][:51]  # the last piece may be cut
+    except UnicodeDecodeError:
+        return None
+    lines = [ln.rstrip("\r") for ln in lines]
+    if len(lines) < 2 or any(not ln.strip() for ln in lines):
+        return None
+    delim = _sniff(lines[:50])
+    if delim is None:
+        return None
+    import csv
+
+    first = next(csv.reader([lines[0]], delimiter=delim))
+    ncols = len(first)
+    header = not no_header and not all(_is_number_or_empty(c) for c in first)
+    if ncols < 2:
+        return None
+    try:
+        import pyarrow as pa
+        from pyarrow import csv as pcsv
+
+        names = [f"c{i}" for i in range(ncols)]
+        # blank lines are kept as rows of missing cells (declined below), so row numbers stay line
+        # numbers; a comment line fails as a ragged row or as a cell that is not a number
+        tab = pcsv.read_csv(path, read_options=pcsv.ReadOptions(column_names=names, skip_rows=1 if header else 0,
+                                                                 block_size=1 << 24),
+                            parse_options=pcsv.ParseOptions(delimiter=delim, ignore_empty_lines=False),
+                            convert_options=pcsv.ConvertOptions(column_types={n: pa.float64() for n in names},
+                                                                null_values=_FAST_NULLS, strings_can_be_null=False))
+    except Exception:  # pyarrow.ArrowInvalid and kin: not plain numeric text, the general reader decides
+        return None
+    n = tab.num_rows
+    if n == 0:
+        return None
+    if tab.column(0).null_count:
+        import pyarrow.compute as pc
+
+        all_null = pc.is_null(tab.column(0))
+        for i in range(1, ncols):
+            all_null = pc.and_(all_null, pc.is_null(tab.column(i)))
+        if pc.any(all_null).as_py():
+            return None  # a blank line or an empty row: the general reader skips, trims or reports it
+    cols = [pd.Series(tab.column(i).to_numpy(zero_copy_only=False), copy=False) for i in range(ncols)]
+    del tab
+    rows = np.arange(1, n + 1, dtype=np.int64) + (1 if header else 0)
+    return _Table(label, [c.strip() for c in first] if header else None, cols, rows,
+                  header_auto=not no_header and not header, comma_decimal_ok=delim != ",")
+
+
 def _read_text(path: Path, label: str, no_header: bool) -> _Table:
+    fast = _read_text_fast(path, label, no_header)
+    if fast is not None:
+        return fast
     try:
         raw = path.read_bytes()
     except OSError as exc:

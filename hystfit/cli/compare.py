@@ -84,6 +84,10 @@ def compare(
     bnds = scoped_options(bnds, {m: model_param_names(m) for m in model_names}, "--bounds")
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            start=start, stop=stop, warmup=warmup)
+    if plots_flag(plots, figures_alias):
+        from ..report.render import preload
+
+        preload()  # import matplotlib in a thread while the captures load and the fits run
     with staged_output_dir(out, force) as stage:
         with phase(not quiet and not json_out, "loading the captures"):
             captures = load_captures(data, options, recursive=recursive)
@@ -95,7 +99,7 @@ def compare(
                               global_fit=not per_condition, progress=cb)
         make_plots = plots_flag(plots, figures_alias)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
-            write_compare_outputs(res, stage, make_figures=make_plots)
+            write_compare_outputs(res, stage, make_figures=make_plots, n_jobs=jobs)
     df = compare_frame(res)
     u = res.unit
     failed = [c for c in res.cells if not c.ok]

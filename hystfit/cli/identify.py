@@ -62,6 +62,10 @@ def identify(
     bnds = parse_bound_overrides(bounds or [])
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            start=start, stop=stop, warmup=warmup)
+    if plots_flag(plots, figures_alias):
+        from ..report.render import preload
+
+        preload()  # import matplotlib in a thread while the captures load and the fit runs
     with staged_output_dir(out, force) as stage:
         with phase(not quiet and not json_out, "loading the captures"):
             captures = load_captures(data, options, recursive=recursive)
@@ -72,7 +76,7 @@ def identify(
                                bounds=bnds, progress=cb, model_options=mopts, jobs=jobs)
         make_plots = plots_flag(plots, figures_alias)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
-            write_identify_outputs(res, stage, make_plots=make_plots)
+            write_identify_outputs(res, stage, make_plots=make_plots, n_jobs=jobs)
     pinned = bound_notes(res)
     if pinned and not quiet:
         stderr.print(f"note: {len(pinned)} parameter set(s) have parameters at a search bound (no standard error; "

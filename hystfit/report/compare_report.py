@@ -19,6 +19,7 @@ from ..compare import CellResult, CompareResult
 from ..io import atomic_write_text, write_table
 from ..optimizers.base import STOP_RULE_NAMES
 from . import plots
+from .render import FigureJob, render_figures
 from .tables import fmt, markdown_table, metric_columns, metric_legend
 
 HEATMAP_METRICS = (("rmse", "RMSE"), ("mape", "MAPE"), ("smape", "SMAPE"), ("r2", "R²"))
@@ -293,9 +294,17 @@ def ranking(res: CompareResult) -> list[str]:
     return out
 
 
-def _figures(res: CompareResult, fig_dir: Path) -> list[str]:
+def _figures(res: CompareResult, fig_dir: Path, n_jobs: int | None = None) -> list[str]:
+    """Draw the comparison's figures in parallel; return their paths relative to the report.
+
+    Heat maps colour on a log scale (RMSE, MAPE, SMAPE; R² by 1 − R²) with the values written in
+    the cells, so one diverged model does not flatten the others into one colour; the R²
+    distribution is drawn as 1 − R² on a log axis (R² of good fits all sit at 0.999…). Figures
+    that would show nothing are left out: distributions over conditions with a single condition,
+    convergence lines of optimizers that left no iteration history (``auto`` solving exactly).
+    """
     fig_dir.mkdir(exist_ok=True)
-    made = []
+    jobs: list[FigureJob] = []
     u = res.unit
     labels = [lab for _, lab in res.conditions]
     for o in res.optimizers:
@@ -304,44 +313,53 @@ def _figures(res: CompareResult, fig_dir: Path) -> list[str]:
             mat = np.array([[(res.cell(m, o, lab).best.metrics.get(k, np.nan)
                               if res.cell(m, o, lab) and res.cell(m, o, lab).ok else np.nan) for lab in labels]
                             for m in res.models])
-            made.append(plots.heatmap_figure(fig_dir / f"heatmap_{key}_{o}.png", mat, list(res.models), labels,
-                                             title=f"{title} per model and condition ({o})",
-                                             colorbar_label=f"{title} ({u})" if key == "rmse" else title,
-                                             cmap="viridis_r" if key == "r2" else "viridis"))
-        groups = {m: [c.best.metrics.get("r2", np.nan) for c in res.cells if c.model == m and c.optimizer == o and c.ok]
-                  for m in res.models}
-        made.append(plots.boxplot_figure(fig_dir / f"r2_distribution_{o}.png", groups,
-                                         title=f"R² over conditions ({o})", ylabel="R²"))
+            if key == "r2":
+                extra = {"color_matrix": 1.0 - mat, "fmt": "{:.5g}", "colorbar_label": "1 − R² (log scale)"}
+            else:
+                extra = {"colorbar_label": f"{title} ({plots.display_unit(u)}, log scale)" if key == "rmse"
+                         else f"{title} (log scale)"}
+            jobs.append(FigureJob("heatmap_figure", fig_dir / f"heatmap_{key}_{o}.png",
+                                  (mat, list(res.models), labels),
+                                  {"title": f"{title} per model and condition ({o})", "log": True, **extra}))
+        if len(labels) > 1:
+            groups = {m: [1.0 - c.best.metrics.get("r2", np.nan) for c in res.cells
+                          if c.model == m and c.optimizer == o and c.ok] for m in res.models}
+            jobs.append(FigureJob("boxplot_figure", fig_dir / f"r2_distribution_{o}.png", (groups,),
+                                  {"title": f"1 − R² over conditions ({o}); lower is better",
+                                   "ylabel": "1 − R² (log scale)", "log": True}))
         for m in res.models:
             cells = [c for c in res.cells if c.model == m and c.optimizer == o and c.ok]
             if not cells:
                 continue
             worst = max(cells, key=lambda c: c.best.metrics.get(f"rmse_{u}", np.inf))
             caps = res.captures[worst.label]
-            made.append(plots.parity_figure(fig_dir / f"parity_worst_{m}_{o}.png",
-                                            np.concatenate([c.y for c in caps]), np.concatenate(worst.predictions),
-                                            unit=u, title=f"{m} worst case: {worst.label} ({o})"))
+            jobs.append(FigureJob("parity_figure", fig_dir / f"parity_worst_{m}_{o}.png",
+                                  (np.concatenate([c.y for c in caps]), np.concatenate(worst.predictions)),
+                                  {"unit": u, "title": f"{m} worst case: {worst.label} ({o})"}))
     for _, lab in res.conditions:
         caps = res.captures[lab]
         o = res.optimizers[0]
         models = {m: res.cell(m, o, lab).predictions[0] for m in res.models
                   if res.cell(m, o, lab) and res.cell(m, o, lab).ok}
-        made.append(plots.loop_overlay_figure(fig_dir / f"loops_{lab}.png", caps[0].u, caps[0].y, models, unit=u,
-                                              title=f"all models at {lab} ({o})"))
+        jobs.append(FigureJob("loop_overlay_figure", fig_dir / f"loops_{lab}.png", (caps[0].u, caps[0].y, models),
+                              {"unit": u, "title": f"all models at {lab} ({o})"}))
     focus = labels[0]
     for m in res.models:
-        hist = {o: [r.history_best for r in res.cell(m, o, focus).runs] for o in res.optimizers
-                if res.cell(m, o, focus) and res.cell(m, o, focus).ok}
+        hist = {o: [r.history_best for r in res.cell(m, o, focus).runs if plots.has_convergence_history(r.history_best)]
+                for o in res.optimizers if res.cell(m, o, focus) and res.cell(m, o, focus).ok}
+        hist = {o: h for o, h in hist.items() if h}
         if hist:
-            made.append(plots.convergence_compare_figure(fig_dir / f"convergence_{m}_{focus}.png", hist,
-                                                         title=f"{m} at {focus}: convergence of each optimizer"))
+            jobs.append(FigureJob("convergence_compare_figure", fig_dir / f"convergence_{m}_{focus}.png", (hist,),
+                                  {"title": f"{m} at {focus}: convergence of each optimizer"}))
         if res.runs > 1:
             for lab in labels:
                 groups = {o: [r.search_j for r in res.cell(m, o, lab).runs] for o in res.optimizers
                           if res.cell(m, o, lab) and res.cell(m, o, lab).ok}
                 what = "J of the search (before the polish)" if res.polish else "final J"
-                made.append(plots.boxplot_figure(fig_dir / f"fitness_box_{m}_{lab}.png", groups, log=True,
-                                                 title=f"{what} over {res.runs} runs: {m} at {lab}", ylabel="J"))
+                jobs.append(FigureJob("boxplot_figure", fig_dir / f"fitness_box_{m}_{lab}.png", (groups,),
+                                      {"log": True, "title": f"{what} over {res.runs} runs: {m} at {lab}",
+                                       "ylabel": "J"}))
+    made = render_figures(jobs, n_jobs)
     return [str(Path("figures") / Path(p).name) for p in made]
 
 
@@ -405,10 +423,12 @@ def markdown(res: CompareResult, figures: list[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_compare_outputs(res: CompareResult, out_dir: Path, *, make_figures: bool = True) -> dict[str, Path]:
+def write_compare_outputs(res: CompareResult, out_dir: Path, *, make_figures: bool = True,
+                          n_jobs: int | None = None) -> dict[str, Path]:
+    """Write compare.csv, compare.md and (with ``make_figures``) figures/, drawn by ``n_jobs`` processes."""
     out_dir = Path(out_dir)
     paths = {"csv": out_dir / "compare.csv", "md": out_dir / "compare.md"}
     write_table(paths["csv"], compare_frame(res))
-    figs = _figures(res, out_dir / "figures") if make_figures else []
+    figs = _figures(res, out_dir / "figures", n_jobs) if make_figures else []
     atomic_write_text(paths["md"], markdown(res, figs))
     return paths

@@ -55,8 +55,9 @@ def _fig_conditions(path: Path, d: Diagnosis) -> Path:
     if "by_condition_alone" in w:
         panels.append(("each condition fitted on its own", w["by_condition_alone"]))
     fig = _new_figure(5.2 * len(panels) + 0.6, 4.4)
-    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    axes = fig.subplots(1, len(panels), squeeze=False, sharey=True)[0]  # one scale: the panels compare
     sigma = d.noise["sigma"]
+    freqs = sorted({r["frequency_Hz"] for _, rows in panels for r in rows if np.isfinite(r["frequency_Hz"])})
     for ax, (title, rows) in zip(axes, panels):
         per = [r for r in rows if r["periodic"]]
         amps = sorted({r["amplitude_V"] for r in per})
@@ -72,6 +73,7 @@ def _fig_conditions(path: Path, d: Diagnosis) -> Path:
         ax.axhline(sigma, color="tab:red", ls="--", lw=1, label=f"noise floor {sigma:.3g} {_u(unit)}")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        _plain_log_ticks(ax, freqs)
         ax.set_xlabel("Excitation frequency (Hz)")
         ax.set_ylabel(f"RMSE ({_u(unit)})")
         ax.set_title(title, fontsize=10)
@@ -79,6 +81,20 @@ def _fig_conditions(path: Path, d: Diagnosis) -> Path:
         ax.legend(fontsize="small")
     fig.suptitle("Where: gap per condition (squares: non-periodic captures)")
     return _save(fig, path, plots.DPI)
+
+
+def _plain_log_ticks(ax, x_ticks: Sequence[float]) -> None:
+    """Log axes labelled with plain numbers: x ticks at the measured values (10, 20, … Hz, not 2×10¹), y as %g."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter
+
+    plain = FuncFormatter(lambda v, _: f"{v:g}")
+    if 0 < len(x_ticks) <= 12:
+        ax.xaxis.set_major_locator(FixedLocator(list(x_ticks)))
+        ax.xaxis.set_major_formatter(plain)
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.yaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    ax.yaxis.set_major_formatter(plain)
+    ax.yaxis.set_minor_formatter(NullFormatter())
 
 
 def _fig_branch_position(path: Path, d: Diagnosis) -> Path:

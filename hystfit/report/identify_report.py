@@ -12,6 +12,7 @@ from ..io import atomic_write_text, write_table
 from ..results import dumps, identify_to_dict
 from . import plots
 from ..params import AT_BOUND_RTOL
+from .render import FigureJob, render_figures
 from .tables import fmt, frame, markdown_table, metric_columns, metric_legend
 
 UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m"}
@@ -33,29 +34,50 @@ def summary_rows(res: IdentifyResult) -> list[dict]:
     return rows
 
 
-def _plots(res: IdentifyResult, plot_dir: Path) -> dict[str, list[str]]:
+def _plots(res: IdentifyResult, plot_dir: Path, n_jobs: int | None = None) -> dict[str, list[str]]:
+    """Draw every figure of the report in parallel; return the files per condition (relative to the report).
+
+    A condition whose optimizer left no iteration history worth drawing (``auto`` on a model with no
+    nonlinear parameter solves exactly: one point) gets no convergence figure; the report says why.
+    """
+    jobs: list[FigureJob] = []
     out: dict[str, list[str]] = {}
     panels = []
     for f in res.fits:
         us = [c.u for c in f.captures]
         ys = [c.y for c in f.captures]
         title = f"{res.model_name} – {f.label}"
-        files = [
-            plots.loop_figure(plot_dir / f"loop_{f.label}.png", us, ys, list(f.predictions), unit=res.unit, title=title),
-            plots.timeseries_figure(plot_dir / f"timeseries_{f.label}.png", f.captures[0].t, f.captures[0].y,
-                                    f.predictions[0], unit=res.unit, title=f"{title} ({f.captures[0].name})"),
-            plots.convergence_figure(plot_dir / f"convergence_{f.label}.png", f.best.result.history_best,
-                                     f.best.result.history_mean, title=f"{title}: {res.optimizer_name}",
-                                     runs=[r.result.history_best for r in f.runs] if len(f.runs) > 1 else None),
+        mine = [
+            FigureJob("loop_figure", plot_dir / f"loop_{f.label}.png", (us, ys, list(f.predictions)),
+                      {"unit": res.unit, "title": title}),
+            FigureJob("timeseries_figure", plot_dir / f"timeseries_{f.label}.png",
+                      (f.captures[0].t, f.captures[0].y, f.predictions[0]),
+                      {"unit": res.unit, "title": f"{title} ({f.captures[0].name})"}),
         ]
-        out[f.label] = [str(Path("plots") / Path(p).name) for p in files]
+        if plots.has_convergence_history(f.best.result.history_best):
+            mine.append(FigureJob("convergence_figure", plot_dir / f"convergence_{f.label}.png",
+                                  (f.best.result.history_best, f.best.result.history_mean),
+                                  {"title": f"{title}: {res.optimizer_name}",
+                                   "runs": [r.result.history_best for r in f.runs] if len(f.runs) > 1 else None}))
+        jobs += mine
+        out[f.label] = [str(Path("plots") / j.path.name) for j in mine]
         r2 = f.metrics.get("r2", np.nan)
         rmse = f.metrics.get(f"rmse_{res.unit}", np.nan)
         panels.append({"title": f.label, "u": us, "y_meas": ys, "y_model": list(f.predictions),
                        "subtitle": f"R²={fmt(r2)} RMSE={fmt(rmse, 3)} {UNIT_DISPLAY.get(res.unit, res.unit)}"})
-    plots.overview_figure(plot_dir / "overview.png", panels, unit=res.unit,
-                          title=f"{res.model_name} identified with {res.optimizer_name}")
+    jobs.append(FigureJob("overview_figure", plot_dir / "overview.png", (panels,),
+                          {"unit": res.unit, "title": f"{res.model_name} identified with {res.optimizer_name}"}))
+    render_figures(jobs, n_jobs)
     return out
+
+
+def _no_convergence_note(f) -> str | None:
+    """Why a condition has no convergence figure (None when it has one)."""
+    if plots.has_convergence_history(f.best.result.history_best):
+        return None
+    r = f.best.result
+    return (f"No convergence figure: the optimizer left no iteration history to draw ({r.message}; "
+            f"{r.nfev} objective evaluation{'s' if r.nfev != 1 else ''}).")
 
 
 def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> str:
@@ -83,6 +105,9 @@ def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> st
                       f"mean {fmt(sp['fun_mean'])}, std {fmt(sp['fun_std'])}; median time {fmt(sp['time_median_s'])} s", ""]
         for p in plot_files.get(f.label, []):
             lines.append(f"![{Path(p).stem}]({p})")
+        note = _no_convergence_note(f) if f.label in plot_files else None
+        if note:
+            lines += ["", note]
         lines.append("")
     lines += ["Standard errors are asymptotic (σ²(JᵀJ)⁻¹ at the optimum). A parameter \"at bound\" lies within "
               f"{AT_BOUND_RTOL:g} × its search width of that bound: the search stopped there, so it has no standard "
@@ -102,8 +127,13 @@ def bound_notes(res: IdentifyResult) -> list[str]:
     return out
 
 
-def write_identify_outputs(res: IdentifyResult, out_dir: Path, *, make_plots: bool = True) -> dict[str, Path]:
-    """Write every output of an identification into ``out_dir`` (which must exist)."""
+def write_identify_outputs(res: IdentifyResult, out_dir: Path, *, make_plots: bool = True,
+                           n_jobs: int | None = None) -> dict[str, Path]:
+    """Write every output of an identification into ``out_dir`` (which must exist).
+
+    Figures are drawn by ``n_jobs`` processes (default all cores, :func:`~hystfit.report.render.render_figures`);
+    the files do not depend on it.
+    """
     out_dir = Path(out_dir)
     paths = {"params": out_dir / "params.json", "report_csv": out_dir / "report.csv",
              "report_md": out_dir / "report.md"}
@@ -113,7 +143,7 @@ def write_identify_outputs(res: IdentifyResult, out_dir: Path, *, make_plots: bo
     if make_plots:
         plot_dir = out_dir / "plots"
         plot_dir.mkdir(exist_ok=True)
-        plot_files = _plots(res, plot_dir)
+        plot_files = _plots(res, plot_dir, n_jobs)
         paths["plots"] = plot_dir
     atomic_write_text(paths["report_md"], markdown_report(res, plot_files))
     return paths

@@ -1,0 +1,117 @@
+"""Figures: hystfit's per-pixel reduction and parallel rendering against the straightforward way.
+
+Run:  python benchmarks/bench_figures.py
+
+1. The Quickstart's figures (``identify sample_data``: 24 conditions, a loop, time series and
+   convergence figure each, and the overview), drawn by hystfit (``render_figures``: a process per
+   core, fixed layouts, per-pixel reduction, no figure for a one-point convergence history) and
+   the straightforward way (``straightforward.sf_*``: one after another, constrained layout, every
+   k-th sample, every convergence figure). Same fits, same process, so only the drawing differs.
+2. One loop figure of a long periodic capture (10⁶ and 10⁷ samples, 20,000 cycles): time, points
+   drawn, and the voltage span of what is drawn against the data's span (stride: aliasing).
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _quickstart_fit():
+    from hystfit.identify import identify
+    from hystfit.io import LoadOptions, load_captures
+    from hystfit.registry import models, optimizers
+
+    caps = load_captures([ROOT / "sample_data"], LoadOptions())
+    return identify(caps, models.get("pi")(), optimizers.get("auto")(), seed=0, jobs=1)
+
+
+def quickstart_figures() -> dict:
+    """Wall time of the Quickstart's figures, hystfit against straightforward (same fits)."""
+    import straightforward as sf
+
+    from hystfit.report.identify_report import _plots
+    from hystfit.report.render import _import_plotting
+
+    res = _quickstart_fit()
+    _import_plotting()
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        t0 = time.perf_counter()
+        files = _plots(res, d / "h")
+        t_h = time.perf_counter() - t0
+        n_h = len(list((d / "h").glob("*.png")))
+        (d / "s").mkdir()
+        t0 = time.perf_counter()
+        panels = []
+        for f in res.fits:
+            us, ys, yps = [c.u for c in f.captures], [c.y for c in f.captures], list(f.predictions)
+            sf.sf_loop(d / "s" / f"loop_{f.label}.png", us, ys, yps, f.label)
+            sf.sf_timeseries(d / "s" / f"ts_{f.label}.png", f.captures[0].t, f.captures[0].y, f.predictions[0], f.label)
+            sf.sf_convergence(d / "s" / f"conv_{f.label}.png", f.best.result.history_best,
+                              f.best.result.history_mean, f.label)
+            panels.append({"title": f.label, "u": us, "y_meas": ys, "y_model": yps})
+        sf.sf_overview(d / "s" / "overview.png", panels, "overview")
+        t_s = time.perf_counter() - t0
+        n_s = len(list((d / "s").glob("*.png")))
+    del files
+    return {"hystfit_s": t_h, "hystfit_figures": n_h, "straightforward_s": t_s, "straightforward_figures": n_s}
+
+
+def long_loop(n: int, cycles: int = 20_000) -> dict:
+    """One loop figure of an n-sample periodic capture: hystfit against every k-th sample."""
+    import matplotlib.axes
+
+    import straightforward as sf
+    from hystfit.report import plots
+
+    t = np.arange(n) / n
+    u = 30.0 * (1 - np.cos(2 * np.pi * cycles * t))
+    y = 0.1 * u + 0.8 * np.sin(2 * np.pi * cycles * t)
+    yp = y + 0.01
+    drawn: list[np.ndarray] = []
+    original = matplotlib.axes.Axes.plot
+
+    def spy(self, *args, **kwargs):
+        drawn.append(np.asarray(args[0], float))
+        return original(self, *args, **kwargs)
+
+    out = {"samples": n}
+    with tempfile.TemporaryDirectory() as tmp:
+        matplotlib.axes.Axes.plot = spy
+        try:
+            for name, draw in (("hystfit", lambda p: plots.loop_figure(p, u, y, yp)),
+                               ("straightforward", lambda p: sf.sf_loop(p, [u], [y], [yp]))):
+                drawn.clear()
+                t0 = time.perf_counter()
+                draw(Path(tmp) / f"{name}.png")
+                out[f"{name}_s"] = time.perf_counter() - t0
+                out[f"{name}_points"] = int(drawn[0].size)
+                out[f"{name}_span"] = float(np.nanmax(drawn[0]) - np.nanmin(drawn[0])) / float(np.ptp(u))
+        finally:
+            matplotlib.axes.Axes.plot = original
+    return out
+
+
+def main() -> None:
+    q = quickstart_figures()
+    print("| figures | hystfit (s) | straightforward (s) | ratio |\n|---|---:|---:|---:|")
+    print(f"| Quickstart identify, {q['hystfit_figures']} figures (straightforward: {q['straightforward_figures']}) | "
+          f"{q['hystfit_s']:.2f} | {q['straightforward_s']:.2f} | {q['straightforward_s'] / q['hystfit_s']:.1f}× |")
+    for n in (10**6, 10**7):
+        r = long_loop(n)
+        print(f"| loop figure, {n:.0e} samples: time / points / drawn voltage span ÷ data span | "
+              f"{r['hystfit_s']:.2f} / {r['hystfit_points']:,} / {r['hystfit_span']:.3f} | "
+              f"{r['straightforward_s']:.2f} / {r['straightforward_points']:,} / {r['straightforward_span']:.3f} | "
+              f"{r['straightforward_s'] / r['hystfit_s']:.1f}× |")
+
+
+if __name__ == "__main__":
+    main()

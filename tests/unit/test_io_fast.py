@@ -1,0 +1,68 @@
+"""The fast reader of large numeric text captures gives exactly what the general reader gives, or declines."""
+
+import numpy as np
+import pytest
+
+import hystfit.io as hio
+from hystfit.errors import InputError
+
+
+def _text(n=3000, sep=",", header=True):
+    t = np.arange(n) * 1e-4
+    u = 30 - 30 * np.cos(2 * np.pi * 10 * t)
+    y = 0.1 * u + 0.8 * np.sin(2 * np.pi * 10 * t)
+    body = "".join(f"{a:.4f}{sep}{b:.6f}{sep}{c:.6f}\n" for a, b, c in zip(t, u, y))
+    return (f"time_s{sep}voltage_V{sep}displacement_um\n" if header else "") + body
+
+
+def _load_both(path, monkeypatch):
+    out = []
+    for threshold in (1, 1 << 62):  # fast path tried on every file, then never
+        monkeypatch.setattr(hio, "FAST_READ_BYTES", threshold)
+        try:
+            c = hio.load_capture(path)
+            out.append(("ok", c.t.tobytes(), c.u.tobytes(), c.y.tobytes(), c.notes, c.amplitude_V, c.frequency_Hz))
+        except InputError as exc:
+            out.append(("error", str(exc)))
+    return out
+
+
+CASES = {
+    "plain": lambda s: s,
+    "crlf": lambda s: s.replace("\n", "\r\n"),
+    "semicolon": lambda s: s.replace(",", ";"),
+    "missing words": lambda s: s.replace("\n0.0100,0.", "\n0.0100,NaN", 1).replace("\n0.0200,0.", "\n0.0200,null", 1),
+    "empty cell": lambda s: s.replace("\n0.0100,0.", "\n0.0100,", 1),
+    "blank line": lambda s: s.replace("\n0.0100,", "\n\n0.0100,", 1),
+    "comment line": lambda s: s.replace("\n0.0100,", "\n# note\n0.0100,", 1),
+    "empty row": lambda s: s.replace("\n0.0100,", "\n,,\n0.0100,", 1),
+    "trailing empty row": lambda s: s + ",,\n",
+    "text cell": lambda s: s.replace("\n0.0100,", "\n0.0100x,", 1),
+    "ragged row": lambda s: s.replace("\n0.0100,", "\n0.0100,1,", 1),
+    "decimal commas": lambda s: s.replace(",", ";").replace(".", ","),
+    "padded cells": lambda s: s.replace(",", ", "),
+    "no header": lambda s: s.split("\n", 1)[1],
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_fast_reader_matches_the_general_reader(case, tmp_path, monkeypatch):
+    path = tmp_path / "cap.csv"
+    path.write_text(CASES[case](_text()))
+    fast, general = _load_both(path, monkeypatch)
+    assert fast == general
+
+
+def test_fast_reader_is_used_on_large_plain_files_and_declines_otherwise(tmp_path, monkeypatch):
+    monkeypatch.setattr(hio, "FAST_READ_BYTES", 1)
+    plain = tmp_path / "plain.csv"
+    plain.write_text(_text())
+    table = hio._read_text_fast(plain, "plain.csv", False)
+    assert table is not None and table.names == ["time_s", "voltage_V", "displacement_um"]
+    assert all(c.dtype == np.float64 for c in table.cols) and table.rows[0] == 2
+    for case in ("comment line", "text cell", "ragged row", "blank line", "decimal commas"):
+        p = tmp_path / "x.csv"
+        p.write_text(CASES[case](_text()))
+        assert hio._read_text_fast(p, "x.csv", False) is None, case
+    monkeypatch.setattr(hio, "FAST_READ_BYTES", 1 << 20)
+    assert hio._read_text_fast(plain, "plain.csv", False) is None  # small: the general reader
