@@ -2,17 +2,184 @@
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from .._jit import njit
 
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels_extra import ch_branches, ch_inverse, ch_population
 from .base import Model
 from .separable import Separable
+
+
+# ----------------------------------------------------------------------------------------------
+# Compiled recurrences of this model (Coleman–Hodgdon (paper 001 eq. 1)). numba, cache=True, error_model="numpy": a
+# diverging candidate gives inf/nan (the objective scores it +inf), never an exception; the time
+# loop is outermost and the population innermost (shared/PERFORMANCE.md).
+# ----------------------------------------------------------------------------------------------
+
+@njit(cache=True, error_model="numpy")
+def ch_branches(u, s0):
+    """Branch signs of an input: +1 where u̇ > 0, −1 where u̇ < 0, the previous branch where u̇ = 0.
+
+    Parameters
+    ----------
+    u : (N,) float64 input (V).
+    s0 : branch of the first sample (+1.0 ascending, −1.0 descending).
+
+    Returns
+    -------
+    (N,) float64 of ±1.
+    """
+    N = u.shape[0]
+    s = np.empty(N)
+    cur = s0
+    for k in range(N):
+        if k > 0:
+            du = u[k] - u[k - 1]
+            if du > 0.0:
+                cur = 1.0
+            elif du < 0.0:
+                cur = -1.0
+        s[k] = cur
+    return s
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _ch_value(u, s, K, A4, A5, A6, vm, vM):
+    """Coleman–Hodgdon output on branch s at input u (exponents written relative to V_m, V_M)."""
+    a = s * A5
+    phi = 1.0 - 2.0 / (math.exp(a * (u - vm)) + math.exp(a * (u - vM)))
+    return K * u - s * A4 * phi + A6
+
+
+@njit(cache=True, error_model="numpy")
+def ch_population(u, s, K, A4, A5, A6, vm, vM):
+    """Coleman–Hodgdon output for a population (paper 001 eq. 1).
+
+    y = K u − s A4 (1 − 2 e^{−s A5 u}/(e^{−s A5 V_m} + e^{−s A5 V_M})) + A6,  K = A1 − A2 e^{−A3 V_R},
+
+    evaluated as 1 − 2/(e^{sA5(u−V_m)} + e^{sA5(u−V_M)}) so that no exponent grows with |u|.
+
+    Parameters
+    ----------
+    u : (N,) input (V).  s : (N,) branch signs from :func:`ch_branches`.
+    K, A4, A5, A6 : (P,) slope (out/V), loop amplitude (out), loop shape (1/V), offset (out).
+    vm, vM : input range of the identification data (V).
+
+    Returns
+    -------
+    (N, P) output.
+    """
+    N = u.shape[0]
+    P = K.shape[0]
+    out = np.empty((N, P))
+    for k in range(N):
+        uk = u[k]
+        sk = s[k]
+        for p in range(P):
+            out[k, p] = _ch_value(uk, sk, K[p], A4[p], A5[p], A6[p], vm, vM)
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _ch_scan(target, s, x0, d, lo, hi, step, K, A4, A5, A6, vm, vM):
+    """Walk from x0 in direction d (±1) in steps ``step`` until the branch crosses ``target``.
+
+    Returns (found, root, best_x, best_abs_err); the root is refined by bisection.
+    """
+    x = min(max(x0, lo), hi)
+    e = _ch_value(x, s, K, A4, A5, A6, vm, vM) - target
+    best_x, best_e = x, abs(e)
+    if e == 0.0:
+        return True, x, x, 0.0
+    while True:
+        x1 = x + d * step
+        at_bound = False
+        if x1 >= hi:
+            x1, at_bound = hi, True
+        elif x1 <= lo:
+            x1, at_bound = lo, True
+        if x1 == x:
+            break
+        e1 = _ch_value(x1, s, K, A4, A5, A6, vm, vM) - target
+        if abs(e1) < best_e:
+            best_x, best_e = x1, abs(e1)
+        if e * e1 <= 0.0:
+            a, b, ea = x, x1, e
+            for _ in range(200):
+                m = 0.5 * (a + b)
+                if m == a or m == b:
+                    break
+                em = _ch_value(m, s, K, A4, A5, A6, vm, vM) - target
+                if em == 0.0:
+                    a = b = m
+                    break
+                if (em > 0.0) == (ea > 0.0):
+                    a, ea = m, em
+                else:
+                    b = m
+            r = 0.5 * (a + b)
+            return True, r, r, 0.0
+        if at_bound or not np.isfinite(e1):
+            break
+        x, e = x1, e1
+    return False, best_x, best_x, best_e
+
+
+@njit(cache=True, error_model="numpy")
+def ch_inverse(y, s, K, A4, A5, A6, vm, vM, lo, hi, u_start, n_grid):
+    """Per-branch numerical inverse of Coleman–Hodgdon for one parameter vector.
+
+    At sample k the branch s_k is given (it follows the sign of the target's derivative). The
+    root of f_{s_k}(u) = y_k is searched from u_{k−1} in the branch's direction (u increases on
+    the ascending branch), so the input's own derivative selects the same branch when the result
+    is simulated; the first crossing is refined by bisection to machine precision. If there is
+    none in that direction the other direction is tried; if the target is unreachable inside
+    [lo, hi] the closest-output input is returned (saturation). The first sample searches both
+    directions from ``u_start`` and takes the nearer root.
+
+    Parameters
+    ----------
+    y : (N,) target output.  s : (N,) branch per sample (±1).
+    K, A4, A5, A6, vm, vM : scalars as in :func:`ch_population`.
+    lo, hi : search interval (V).  u_start : reference input for the first sample (V).
+    n_grid : the scan step is (hi − lo)/n_grid.
+
+    Returns
+    -------
+    (N,) input (V).
+    """
+    N = y.shape[0]
+    out = np.empty(N)
+    step = (hi - lo) / n_grid
+    prev = min(max(u_start, lo), hi)
+    for k in range(N):
+        sk = s[k]
+        if k == 0:
+            f1, r1, b1, e1 = _ch_scan(y[k], sk, prev, 1.0, lo, hi, step, K, A4, A5, A6, vm, vM)
+            f2, r2, b2, e2 = _ch_scan(y[k], sk, prev, -1.0, lo, hi, step, K, A4, A5, A6, vm, vM)
+        else:
+            f1, r1, b1, e1 = _ch_scan(y[k], sk, prev, sk, lo, hi, step, K, A4, A5, A6, vm, vM)
+            f2, r2, b2, e2 = False, prev, prev, np.inf
+            if not f1:
+                f2, r2, b2, e2 = _ch_scan(y[k], sk, prev, -sk, lo, hi, step, K, A4, A5, A6, vm, vM)
+        if f1 and f2:
+            u = r1 if abs(r1 - prev) <= abs(r2 - prev) else r2
+        elif f1:
+            u = r1
+        elif f2:
+            u = r2
+        else:
+            u = b1 if e1 <= e2 else b2
+        out[k] = u
+        prev = u
+    return out
 
 
 @models.register
@@ -64,7 +231,7 @@ class ColemanHodgdon(Model):
     Inverse: per branch. The branch of each target sample follows the sign of the target's
     derivative (times the orientation of the ascending branch; zero keeps the previous branch),
     and the input is the root of the active branch found by a scan from the previous input in the
-    branch's direction plus bisection (:func:`hystfit.models._kernels_extra.ch_inverse`).
+    branch's direction plus bisection (:func:`hystfit.models.ch.ch_inverse`).
     """
 
     name = "ch"

@@ -2,15 +2,97 @@
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
+from .._jit import njit
 
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels_extra import dahl_population, dahl_step
 from .base import Model
 from .separable import separable_by_simulation
+
+
+# ----------------------------------------------------------------------------------------------
+# Compiled recurrences of this model (Dahl (exact solution along each input segment)). numba, cache=True, error_model="numpy": a
+# diverging candidate gives inf/nan (the objective scores it +inf), never an exception; the time
+# loop is outermost and the population innermost (shared/PERFORMANCE.md).
+# ----------------------------------------------------------------------------------------------
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _dahl_x(x0, cv, a):
+    """Exact solution of dx/dv = −c |x|^a sgn(x) after c·v = ``cv`` (x never changes sign).
+
+    |x|^{1−a} = |x0|^{1−a} − (1−a) c v  (a ≠ 1; for a < 1 x reaches 0 in finite v and stays),
+    |x| = |x0| e^{−cv}  (a = 1). Written with expm1/log1p so that a → 1 stays accurate.
+    """
+    if x0 == 0.0 or cv == 0.0:
+        return x0
+    ax = abs(x0)
+    eps = 1.0 - a
+    if abs(eps) < 1e-12:
+        ax1 = ax * math.exp(-cv)
+    else:
+        qm1 = math.expm1(eps * math.log(ax)) - eps * cv  # |x1|^eps − 1
+        if qm1 <= -1.0:
+            ax1 = 0.0 if eps > 0.0 else math.inf
+        else:
+            ax1 = math.exp(math.log1p(qm1) / eps)
+    return ax1 if x0 > 0.0 else -ax1
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _dahl_advance(h, du, sigma, fc, a):
+    """Advance the Dahl state h exactly over one straight input segment du.
+
+    ḣ = σ u̇ φ_a(1 − (h/F) sgn u̇), φ_a(x) = |x|^a sgn x, F = sgn(σ)·F_c. With s = sgn(du),
+    v = |du| and x = 1 − s h/F: dx/dv = −(σ/F) φ_a(x), solved by :func:`_dahl_x`.
+    """
+    if du == 0.0 or sigma == 0.0:
+        return h
+    s = 1.0 if du > 0.0 else -1.0
+    F = fc if sigma > 0.0 else -fc
+    c = sigma / F
+    x1 = _dahl_x(1.0 - s * h / F, c * abs(du), a)
+    return s * F * (1.0 - x1)
+
+
+@njit(cache=True, error_model="numpy")
+def dahl_population(u, sigma, fc, a):
+    """Dahl hysteretic state h for a population, exact per sample, h(0) = 0.
+
+    Parameters
+    ----------
+    u : (N,) input (V).
+    sigma : (P,) initial slope σ (out/V); its sign sets the loop orientation.
+    fc : (P,) saturation level F_c > 0 (out).  a : (P,) exponent a > 0.
+
+    Returns
+    -------
+    (N, P) h (output units); the caller transposes.
+    """
+    N = u.shape[0]
+    P = sigma.shape[0]
+    out = np.empty((N, P))
+    for p in range(P):
+        out[0, p] = 0.0
+    for k in range(1, N):
+        du = u[k] - u[k - 1]
+        for p in range(P):
+            out[k, p] = _dahl_advance(out[k - 1, p], du, sigma[p], fc[p], a[p])
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def dahl_step(h0, u_prev, u_new, sigma, fc, a):
+    """One Dahl sample from state h0 for candidate inputs u_new (C,) → new states (C,)."""
+    C = u_new.shape[0]
+    out = np.empty(C)
+    for i in range(C):
+        out[i] = _dahl_advance(h0, u_new[i] - u_prev, sigma, fc, a)
+    return out
 
 
 @models.register
@@ -41,7 +123,7 @@ class Dahl(Model):
     the closed-form solution |x|^{1−a} = |x_0|^{1−a} − (1 − a)(σ/F) v (|x| = |x_0| e^{−(σ/F)v}
     for a = 1; for a < 1, x reaches 0 in finite v and stays). The kernel uses it, so the state
     is exact for piecewise-linear inputs at any sample rate and any a — no sub-steps
-    (:func:`hystfit.models._kernels_extra.dahl_population`).
+    (:func:`hystfit.models.dahl.dahl_population`).
 
     Parameters (θ)
     --------------

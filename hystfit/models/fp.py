@@ -6,11 +6,11 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from .._jit import njit
 from .._lazy import lazy_module
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels_extra import gl_filter_population, gl_weights
 from .base import Model
 from .separable import separable_by_simulation
 
@@ -22,6 +22,73 @@ RECURRENCE_MAX_TERMS = 200
 _FFT_ALIAS = 1e-14
 #: complex spectrum elements per FFT block of candidates (≈ 64 MB per work array)
 FFT_BLOCK_ELEMENTS = 4_000_000
+
+
+# ----------------------------------------------------------------------------------------------
+# Compiled recurrences of this model (Fractional Zener: Grünwald–Letnikov recurrence). numba, cache=True, error_model="numpy": a
+# diverging candidate gives inf/nan (the objective scores it +inf), never an exception; the time
+# loop is outermost and the population innermost (shared/PERFORMANCE.md).
+# ----------------------------------------------------------------------------------------------
+
+@njit(cache=True, error_model="numpy")
+def gl_weights(a, L):
+    """Grünwald–Letnikov weights w_j = (−1)^j C(a, j), j = 0..L, for each order a[p].
+
+    Recurrence w_0 = 1, w_j = w_{j−1} (1 − (a+1)/j). Returns (L+1, P).
+    """
+    P = a.shape[0]
+    w = np.empty((L + 1, P))
+    for p in range(P):
+        w[0, p] = 1.0
+    for j in range(1, L + 1):
+        f = 1.0 / j
+        for p in range(P):
+            w[j, p] = w[j - 1, p] * (1.0 - (a[p] + 1.0) * f)
+    return w
+
+
+@njit(cache=True, error_model="numpy")
+def gl_filter_population(x, w, c0, c1, d0, d1):
+    """Solve (c0 + c1 W) y = (d0 + d1 W) x sample by sample for a population.
+
+    W is the windowed Grünwald–Letnikov sum (W x)_k = Σ_{j=0}^{min(k, L)} w_j x_{k−j}
+    (zero history before the first sample, w_0 = 1)::
+
+        y_k = [d0 x_k + d1 (x_k + Σ_{j≥1} w_j x_{k−j}) − c1 Σ_{j≥1} w_j y_{k−j}] / (c0 + c1)
+
+    With c0 = 1, c1 = b = (τ/dt)^a, d0 = E0, d1 = E∞ b this is the fractional Zener model in
+    deviation variables; swapping the roles gives its exact inverse.
+
+    Parameters
+    ----------
+    x : (N,) input (shared by the population).  w : (L+1, P) weights from :func:`gl_weights`.
+    c0, c1, d0, d1 : (P,) coefficients.
+
+    Returns
+    -------
+    (N, P) output. Cost O(N · L · P): time outer, memory middle, population inner.
+    """
+    N = x.shape[0]
+    L = w.shape[0] - 1
+    P = w.shape[1]
+    y = np.empty((N, P))
+    acc_x = np.empty(P)
+    acc_y = np.empty(P)
+    for k in range(N):
+        J = min(k, L)
+        for p in range(P):
+            acc_x[p] = 0.0
+            acc_y[p] = 0.0
+        for j in range(1, J + 1):
+            xj = x[k - j]
+            for p in range(P):
+                wj = w[j, p]
+                acc_x[p] += wj * xj
+                acc_y[p] += wj * y[k - j, p]
+        xk = x[k]
+        for p in range(P):
+            y[k, p] = (d0[p] * xk + d1[p] * (xk + acc_x[p]) - c1[p] * acc_y[p]) / (c0[p] + c1[p])
+    return y
 
 
 @models.register
@@ -42,7 +109,7 @@ class FractionalZener(Model):
     D^a x(t_k) ≈ Ts^{−a} Σ_{j=0}^{min(k, L)} w_j x_{k−j}, w_j = (−1)^j C(a, j), L = round(memory_s/Ts).
     With b = (τ/Ts)^a each sample solves
     y_k (1 + b) = E0 u_k + E∞ b Σ_j w_j u_{k−j} − b Σ_{j≥1} w_j y_{k−j}
-    (:func:`hystfit.models._kernels_extra.gl_filter_population`). The recurrence is written in
+    (:func:`hystfit.models.fp.gl_filter_population`). The recurrence is written in
     deviations from the first sample (u − u_0, y − E0 u_0): the stage is taken to rest at u_0
     before the capture (Caputo-type start), so a capture that starts at a non-zero input does
     not see a spurious step.

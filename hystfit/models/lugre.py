@@ -2,16 +2,94 @@
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
+from .._jit import njit
 
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels_extra import lugre_population, lugre_step
 from .base import Model
 from .separable import separable_by_simulation
+
+
+# ----------------------------------------------------------------------------------------------
+# Compiled recurrences of this model (LuGre (exact per sample for the sample's constant rate)). numba, cache=True, error_model="numpy": a
+# diverging candidate gives inf/nan (the objective scores it +inf), never an exception; the time
+# loop is outermost and the population innermost (shared/PERFORMANCE.md).
+# ----------------------------------------------------------------------------------------------
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _lugre_advance(z, v, dt, s0abs, fc, fs, vs):
+    """Advance z over one sample with constant rate v: ż = v − λ z, λ = |σ0| |v| / g(v).
+
+    Exact: z1 = z e^{−λdt} + v dt (1 − e^{−λdt})/(λdt). Returns (z1, ż at the sample's end).
+    """
+    if v == 0.0:
+        return z, 0.0
+    r = v / vs
+    g = fc + (fs - fc) * math.exp(-r * r)
+    lam = s0abs * abs(v) / g
+    x = lam * dt
+    if abs(x) < 1e-5:
+        phi = 1.0 - x * (0.5 - x / 6.0)
+    else:
+        phi = -math.expm1(-x) / x
+    z1 = z * math.exp(-x) + v * dt * phi
+    return z1, v - lam * z1
+
+
+@njit(cache=True, error_model="numpy")
+def lugre_population(u, dt, k, s0, s1, s2, fc, fs, vs):
+    """LuGre output y = k u + σ0 z + σ1 ż + σ2 u̇ for a population (without offset), z(0) = 0.
+
+    u̇ is the backward difference (u_k − u_{k−1})/dt (0 at the first sample) and is constant
+    over each sample, so the linear z equation is integrated exactly: stable at any rate.
+    g(u̇) = F_c + (F_s − F_c) e^{−(u̇/v_s)²} with F_c, F_s > 0; the sign of σ0 sets the loop
+    orientation (λ uses |σ0|).
+
+    Parameters
+    ----------
+    u : (N,) input (V).  dt : sample period (s).
+    k, s0, s1, s2, fc, fs, vs : (P,) parameters (see :class:`hystfit.models.lugre.LuGre`).
+
+    Returns
+    -------
+    (N, P) output.
+    """
+    N = u.shape[0]
+    P = k.shape[0]
+    out = np.empty((N, P))
+    z = np.zeros(P)
+    if N == 0:
+        return out
+    for p in range(P):
+        out[0, p] = k[p] * u[0]
+    for n in range(1, N):
+        un = u[n]
+        v = (un - u[n - 1]) / dt
+        for p in range(P):
+            z1, zd = _lugre_advance(z[p], v, dt, abs(s0[p]), fc[p], fs[p], vs[p])
+            z[p] = z1
+            out[n, p] = k[p] * un + s0[p] * z1 + s1[p] * zd + s2[p] * v
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def lugre_step(z0, u_prev, u_new, dt, k, s0, s1, s2, fc, fs, vs):
+    """One LuGre sample from state z0 for candidate inputs u_new (C,) → (outputs (C,), states (C,))."""
+    C = u_new.shape[0]
+    y = np.empty(C)
+    z = np.empty(C)
+    for i in range(C):
+        v = (u_new[i] - u_prev) / dt
+        z1, zd = _lugre_advance(z0, v, dt, abs(s0), fc, fs, vs)
+        z[i] = z1
+        y[i] = k * u_new[i] + s0 * z1 + s1 * zd + s2 * v
+    return y, z
 
 
 @models.register
@@ -41,7 +119,7 @@ class LuGre(Model):
     Integration. Over one sample u̇ is constant, so ż = u̇ − λ z with λ = |σ0||u̇|/g is linear
     and is solved exactly: z_k = z_{k−1} e^{−λTs} + u̇ Ts (1 − e^{−λTs})/(λTs); ż_k = u̇ − λ z_k
     (the rate at the end of the sample). Stable at any sample rate, no sub-steps
-    (:func:`hystfit.models._kernels_extra.lugre_population`). The model is rate dependent: g, σ1
+    (:func:`hystfit.models.lugre.lugre_population`). The model is rate dependent: g, σ1
     and σ2 see u̇.
 
     Structure

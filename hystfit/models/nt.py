@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from .._jit import njit
 
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels_extra import nt_inverse_backward, nt_inverse_causal, nt_population, nt_root
 from .base import Model
 from .separable import Separable
 
@@ -30,6 +32,139 @@ def softsign(x: np.ndarray) -> np.ndarray:
     """x / (1 + |x|) (002 eq. 1)."""
     x = np.asarray(x, dtype=np.float64)
     return x / (1.0 + np.abs(x))
+
+
+# ----------------------------------------------------------------------------------------------
+# Compiled recurrences of this model (NT softsign model (paper 002 eq. 2, inverse eq. 4–10)). numba, cache=True, error_model="numpy": a
+# diverging candidate gives inf/nan (the objective scores it +inf), never an exception; the time
+# loop is outermost and the population innermost (shared/PERFORMANCE.md).
+# ----------------------------------------------------------------------------------------------
+
+@njit(cache=True, error_model="numpy")
+def nt_population(u, v, k0, c0, k1, k2, y0):
+    """NT output y = k0 u + c0 u̇ + k1 k2 u/(1 + |k2 u|) + y0 for a population.
+
+    Parameters
+    ----------
+    u, v : (N,) input (V) and its backward difference rate (V/s).
+    k0, c0, k1, k2, y0 : (P,) parameters.
+
+    Returns
+    -------
+    (N, P) output.
+    """
+    N = u.shape[0]
+    P = k0.shape[0]
+    out = np.empty((N, P))
+    for n in range(N):
+        un = u[n]
+        vn = v[n]
+        for p in range(P):
+            q = k2[p] * un
+            out[n, p] = k0[p] * un + c0[p] * vn + k1[p] * q / (1.0 + abs(q)) + y0[p]
+    return out
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _quad_roots(a2, a1, a0):
+    """Real roots of a2 x² + a1 x + a0 (stable formula). Returns (n, r1, r2), n ∈ {0, 1, 2}."""
+    if a2 == 0.0:
+        if a1 == 0.0:
+            return 0, 0.0, 0.0
+        return 1, -a0 / a1, 0.0
+    disc = a1 * a1 - 4.0 * a2 * a0
+    if disc < 0.0:
+        if disc > -1e-14 * a1 * a1:
+            disc = 0.0
+        else:
+            return 0, 0.0, 0.0
+    sq = math.sqrt(disc)
+    q = -0.5 * (a1 + sq) if a1 >= 0.0 else -0.5 * (a1 - sq)
+    if q == 0.0:
+        return 1, 0.0, 0.0
+    return 2, q / a2, a0 / q
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _nt_resid(u, A, k1, k2, B):
+    q = k2 * u
+    return A * u + k1 * q / (1.0 + abs(q)) - B
+
+
+@njit(cache=True, error_model="numpy")
+def nt_root(A, k1, k2, B, u_ref):
+    """Solve A u + k1 k2 u/(1 + k2|u|) = B by 002's piecewise quadratics (eq. 8–10), k2 > 0.
+
+    u ≥ 0:  A k2 u² + (A + k1 k2 − B k2) u − B = 0;
+    u < 0:  A k2 u² − (A + k1 k2 + B k2) u + B = 0.
+
+    Roots are kept when they lie on their branch and satisfy the original equation on
+    substitution (relative residual ≤ 1e-8); among those the one closest to ``u_ref`` wins.
+    Returns (u, ok); when no admissible root exists (A = 0 and |B| ≥ |k1|), (u_ref, False).
+    """
+    best = u_ref
+    best_d = math.inf
+    scale = abs(B) + abs(k1) + 1e-300
+    for br in range(2):
+        if br == 0:
+            n, r1, r2 = _quad_roots(A * k2, A + k1 * k2 - B * k2, -B)
+        else:
+            n, r1, r2 = _quad_roots(A * k2, -(A + k1 * k2 + B * k2), B)
+        for i in range(n):
+            r = r1 if i == 0 else r2
+            if (br == 0 and r < 0.0) or (br == 1 and r >= 0.0):
+                continue
+            if abs(_nt_resid(r, A, k1, k2, B)) > 1e-8 * (scale + abs(A * r)):
+                continue
+            d = abs(r - u_ref)
+            if d < best_d:
+                best, best_d = r, d
+    return best, best_d < math.inf
+
+
+@njit(cache=True, error_model="numpy")
+def nt_inverse_causal(yd, A, c, k1, k2, u_first):
+    """Causal discrete NT inverse (paper 002 eq. 4–10): u_n from B_n = y_n + c u_{n−1}.
+
+    Parameters
+    ----------
+    yd : (N,) target output minus the offset y0.
+    A : k0 + c0/Ts.  c : c0/Ts.  k1, k2 : softsign parameters (k2 > 0).
+    u_first : input at the first sample (the static inverse of yd[0]).
+
+    Returns
+    -------
+    (N,) input; samples without an admissible root hold the previous input.
+    """
+    N = yd.shape[0]
+    out = np.empty(N)
+    if N == 0:
+        return out
+    out[0] = u_first
+    for n in range(1, N):
+        B = yd[n] + c * out[n - 1]
+        out[n], _ = nt_root(A, k1, k2, B, out[n - 1])
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def nt_inverse_backward(yd, k0, c, k1, k2, u_last):
+    """Anti-causal NT inverse: u_{n−1} = u_n + (k0 u_n + k1 softsign(k2 u_n) − y_n)/c, backwards.
+
+    The same discrete model equation as :func:`nt_inverse_causal` solved for u_{n−1}: stable
+    exactly when the causal recursion is not (c0 < 0 with |c0|/Ts above half the local slope).
+    ``u_last`` is the terminal input (static inverse of the last target sample).
+    """
+    N = yd.shape[0]
+    out = np.empty(N)
+    if N == 0:
+        return out
+    out[N - 1] = u_last
+    for n in range(N - 1, 0, -1):
+        un = out[n]
+        q = k2 * un
+        out[n - 1] = un + (k0 * un + k1 * q / (1.0 + abs(q)) - yd[n]) / c
+    return out
 
 
 @models.register

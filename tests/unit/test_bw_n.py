@@ -1,9 +1,9 @@
-"""Bouc–Wen with a free exponent n (kernel in hystfit.models._kernels_extra)."""
+"""Bouc–Wen with a free exponent n (kernel in hystfit.models.bw)."""
 
 import numpy as np
 
 from hystfit.models._kernels import bouc_wen_population
-from hystfit.models._kernels_extra import bouc_wen_n_population, bouc_wen_n_step
+from hystfit.models.bw import bouc_wen_n_population, bouc_wen_n_step
 
 
 def euler_reference(u, a, b, g, n, sub=2000):

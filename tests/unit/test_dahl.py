@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from hystfit.models._kernels_extra import dahl_population
+from hystfit.models.dahl import dahl_population
 from hystfit.models.dahl import Dahl
 from hystfit.objective import Objective, Series
 from hystfit.optimizers.lsq import LSQ

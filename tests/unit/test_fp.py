@@ -8,7 +8,7 @@ from scipy.special import binom
 
 from hystfit.errors import ConfigError
 from hystfit.models import fp as fp_module
-from hystfit.models._kernels_extra import gl_filter_population, gl_weights
+from hystfit.models.fp import gl_filter_population, gl_weights
 from hystfit.models.fp import FractionalZener
 from hystfit.objective import Objective, Series
 from hystfit.optimizers.lsq import LSQ

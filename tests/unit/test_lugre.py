@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hystfit.errors import ConfigError
-from hystfit.models._kernels_extra import lugre_population
+from hystfit.models.lugre import lugre_population
 from hystfit.models.lugre import LuGre
 from hystfit.objective import Objective, Series
 from hystfit.optimizers.lsq import LSQ

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hystfit.errors import ConfigError
-from hystfit.models._kernels_extra import nt_inverse_causal
+from hystfit.models.nt import nt_inverse_causal
 from hystfit.models.nt import NT
 from hystfit.objective import Objective, Series
 from hystfit.optimizers.lsq import LSQ
