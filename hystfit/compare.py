@@ -26,7 +26,7 @@ from .objective import Objective, Series
 from .parallel import default_jobs, run_jobs
 from .params import DataScale, apply_bound_overrides
 from .registry import optimizers as optimizer_registry
-from .setup import make_model, make_optimizer
+from .factory import make_model, make_optimizer
 
 Progress = Optional[Callable[[str, dict], None]]
 

@@ -277,7 +277,7 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
     Returns the :class:`hystfit.identify.IdentifyResult`, or None when nothing was named.
     """
     from .identify import identify
-    from .setup import make_model
+    from .factory import make_model
 
     if not d.explained_by:
         return None

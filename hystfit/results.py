@@ -33,7 +33,7 @@ from .identify import ConditionFit, IdentifyResult, unit_param
 from .models.base import Model
 from .models.composite import model_from_structure
 from .params import DataScale
-from .setup import make_model
+from .factory import make_model
 
 SCHEMA = "hystfit.params"
 SCHEMA_VERSION = 2

@@ -66,7 +66,7 @@ def compare(
     from ..report.compare_report import compare_frame, write_compare_outputs
     from ..params import parse_bound_overrides
     from ..report.tables import fmt
-    from ..setup import budget_options, make_model, model_option_names, model_param_names
+    from ..factory import budget_options, make_model, model_option_names, model_param_names
 
     model_names = model_registry.names() if models.strip().lower() == "all" else _names(models, "models")
     opt_names = _names(opts, "opts")

@@ -60,7 +60,7 @@ def diagnose(
     from ..io import load_captures, staged_output_dir
     from ..registry import optimizers
     from ..report.diagnose_report import next_step_line, write_diagnose_outputs
-    from ..setup import make_model, make_optimizer
+    from ..factory import make_model, make_optimizer
 
     opt_cls = optimizers.get(opt)
     mopts = parse_key_values(model_option or [], "--model-option")

@@ -52,7 +52,7 @@ def identify(
     from ..report.identify_report import bound_notes, summary_rows, write_identify_outputs
     from ..report.tables import fmt
     from ..results import identify_to_dict
-    from ..setup import make_model, make_optimizer
+    from ..factory import make_model, make_optimizer
 
     opt_cls = optimizers.get(opt)
     mopts = parse_key_values(model_option or [], "--model-option")

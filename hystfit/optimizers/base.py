@@ -271,7 +271,7 @@ class Optimizer(ABC):
     # ---------------------------------------------------------------- settings, flat
     @classmethod
     def takes_budget_flags(cls) -> bool:
-        """Whether ``--pop`` / ``--iters`` apply (population searches); see :func:`hystfit.setup.budget_options`."""
+        """Whether ``--pop`` / ``--iters`` apply (population searches); see :func:`hystfit.factory.budget_options`."""
         return False
 
     @classmethod

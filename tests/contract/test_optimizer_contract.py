@@ -20,7 +20,7 @@ importlib.import_module("hystfit.optimizers")  # registers the built-in optimize
 from hystfit.errors import ConfigError  # noqa: E402
 from hystfit.optimizers.base import STOP_RULE_NAMES, PopulationSearch, StopRules  # noqa: E402
 from hystfit.registry import optimizers as registry  # noqa: E402
-from hystfit.setup import make_optimizer  # noqa: E402
+from hystfit.factory import make_optimizer  # noqa: E402
 
 
 def _population_names() -> list[str]:

@@ -13,7 +13,7 @@ from hystfit import synth
 from hystfit.capture import Capture
 from hystfit.identify import identify
 from hystfit.registry import Registry
-from hystfit.setup import make_model, make_optimizer
+from hystfit.factory import make_model, make_optimizer
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "architecture.md"
 

@@ -10,7 +10,7 @@ from hystfit.capture import Capture
 from hystfit.diagnose import DiagnoseSettings, choose_split, diagnose, is_swept
 from hystfit.errors import ConfigError
 from hystfit.registry import optimizers
-from hystfit.setup import make_model, make_optimizer
+from hystfit.factory import make_model, make_optimizer
 
 DT = 1e-4
 

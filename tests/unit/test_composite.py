@@ -16,7 +16,7 @@ from hystfit.objective import Objective, Series
 from hystfit.params import DataScale
 from hystfit.registry import optimizers
 from hystfit.results import identify_to_dict, load_params
-from hystfit.setup import make_model, make_optimizer
+from hystfit.factory import make_model, make_optimizer
 
 DT = 1e-4
 TRUE_R = list(synth.DEFAULT_THRESHOLDS_V)

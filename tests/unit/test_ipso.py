@@ -4,7 +4,7 @@ import pytest
 
 from hystfit.errors import ConfigError
 from hystfit.optimizers.ipso import IPSO, rank_coefficients, social_attractors
-from hystfit.setup import make_optimizer
+from hystfit.factory import make_optimizer
 
 
 def sphere(X):
