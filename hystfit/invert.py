@@ -80,7 +80,6 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
@@ -89,6 +88,7 @@ from ._jit import njit
 
 from .conditions import LookupTable, detect_condition
 from .errors import ConfigError, InputError
+from .io import TARGET_NAMES, load_table
 from .results import Cell, ParamsFile
 
 __all__ = [
@@ -391,9 +391,8 @@ def _target_frequency(y: np.ndarray, dt: float) -> float:
 
 
 #: Column names read as the desired displacement, before the generic output names of captures.
-TARGET_ALIASES = frozenset({"target", "reference", "ref", "setpoint", "set_point", "desired", "y_d", "yd", "y_ref",
-                            "yref", "r", "trajectory", "target_displacement", "desired_displacement",
-                            "reference_displacement", "command_displacement", "demand"})
+#: names that read as a desired trajectory (the loader's ``target`` role), before the output names
+TARGET_ALIASES = TARGET_NAMES
 
 
 def load_target(path: str | os.PathLike, *, fs: float | None = None, time_col: str | int | None = None,
@@ -423,104 +422,23 @@ def load_target(path: str | os.PathLike, *, fs: float | None = None, time_col: s
     InputError
         Unreadable file, missing/ambiguous column, non-numeric or non-finite cell, non-uniform time.
     """
-    from . import io as _io
-
-    p = Path(path)
-    label = str(path)
-    table = _io._read_table(p, label, False)
-    names = table.names
-
-    def resolve(spec, flag: str) -> int:
-        if isinstance(spec, str) and spec.strip().isdigit():
-            spec = int(spec.strip())
-        if isinstance(spec, (int, np.integer)) and not isinstance(spec, bool):
-            if not 0 <= spec < table.ncols:
-                raise InputError(f"{label}: {flag} {spec}: no such column; the file has {table.ncols} columns "
-                                 f"(0-based indices 0–{table.ncols - 1})")
-            return int(spec)
-        if names is None:
-            raise InputError(f"{label}: {flag} {spec!r}: the file has no header row, so give a 0-based index")
-        hits = [i for i, nm in enumerate(names) if nm.strip().lower() == str(spec).strip().lower()]
-        if len(hits) != 1:
-            raise InputError(f"{label}: {flag} {spec!r}: " + ("no such column" if not hits else "several columns "
-                             "have this name") + f"; {table.listing()}")
-        return hits[0]
-
-    def candidates(aliases, role_units, taken) -> list[int]:
-        if names is None:
-            return []
-        out = []
-        for i, nm in enumerate(names):
-            if i in taken or table.is_empty(i):
-                continue
-            for base, u in _io._interpretations(nm):
-                if base in aliases and (u is None or u in role_units):
-                    out.append(i)
-                    break
-        return out
-
-    taken: set[int] = set()
-    t_idx = resolve(time_col, "--time-col") if time_col is not None else None
-    if t_idx is None and fs is None:
-        found = candidates(_io._ALIASES["time"], _io._UNITS["time"], taken)
-        if len(found) > 1:
-            raise InputError(f"{label}: several time columns: {', '.join(repr(names[i]) for i in found)}; "
-                             "pass --time-col")
-        t_idx = found[0] if found else None
-        if t_idx is None:
-            raise InputError(f"{label}: no time column found ({table.listing()}); pass --time-col NAME, "
-                             "or --fs HZ if the file has no time column")
-    if t_idx is not None:
-        taken.add(t_idx)
-    if target_col is not None:
-        y_idx = resolve(target_col, "--target-col")
-    else:
-        y_idx = None
-        for aliases in (TARGET_ALIASES, _io._ALIASES["output"]):
-            found = candidates(aliases, _io._UNITS["output"], taken)
-            if len(found) > 1:
-                raise InputError(f"{label}: several target columns: {', '.join(repr(names[i]) for i in found)}; "
-                                 "pass --target-col with the one to use")
-            if found:
-                y_idx = found[0]
-                break
-        if y_idx is None:
-            raise InputError(f"{label}: no target (desired displacement) column found ({table.listing()}); "
-                             "name it e.g. 'target_um' or 'displacement_um', or pass --target-col")
-    if y_idx == t_idx:
-        raise InputError(f"{label}: {table.col_label(y_idx)} is selected both as time and as target")
-    y = _io._numeric(table, y_idx)
-    bad = np.flatnonzero(~np.isfinite(y))
-    if bad.size:
-        k = int(bad[0])
-        raise InputError(f"{label}: row {table.rows[k]}, {table.col_label(y_idx)}: not a finite number; "
-                         "fix or remove the row")
-    col_unit = None
-    if names is not None:
-        for _, u in _io._interpretations(names[y_idx]):
-            if u is not None and u in _io._UNITS["output"]:
-                col_unit = str(_io._UNITS["output"][u])
-                break
-    y_unit = col_unit or unit or "um"
-    if t_idx is not None:
-        t = _io._numeric(table, t_idx)
-        bad = np.flatnonzero(~np.isfinite(t))
-        if bad.size:
-            k = int(bad[0])
-            raise InputError(f"{label}: row {table.rows[k]}, {table.col_label(t_idx)}: not a finite number; "
-                             "fix or remove the row")
-        tu = _io._unit_of(names[t_idx], "time") if names is not None else None
-        t = t * (float(_io._UNITS["time"][tu]) if tu else 1.0)
+    tc = load_table(path, ("time", "target"), columns={"time": time_col, "target": target_col},
+                    optional=("time",) if fs is not None else (), fallback={"target": "output"})
+    label = tc.label
+    y = tc.values("target")
+    y_unit = tc.unit("target") or unit or "um"
+    if tc.index["time"] is not None:
+        t = tc.values("time")
         if t.size < 4:
             raise InputError(f"{label}: only {t.size} data rows; a target needs at least 4 samples")
-        dt = _io._check_time(table, t_idx, t, table.rows)
+        dt = tc.sample_period(t)
         if fs is not None and abs(1.0 / dt - fs) > 0.01 * fs:
             raise InputError(f"{label}: the time column gives {1 / dt:.6g} Hz but --fs is {fs:g} Hz; drop --fs")
     else:
         dt = 1.0 / _positive("--fs", fs)
         if y.size < 4:
             raise InputError(f"{label}: only {y.size} data rows; a target needs at least 4 samples")
-    tgt = target_from_array(y, dt, unit=y_unit, description=f"file {label} ({table.col_label(y_idx)})")
+    tgt = target_from_array(y, dt, unit=y_unit, description=f"file {label} ({tc.describe('target')})")
     return Target(tgt.t_s, tgt.y, tgt.dt, tgt.unit, tgt.description, "file", tgt.segments)
 
 

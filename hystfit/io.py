@@ -32,7 +32,7 @@ import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Mapping, Iterator, Sequence
 
 import numpy as np
 import pandas as pd
@@ -61,6 +61,10 @@ _ALIASES: dict[str, frozenset[str]] = {
                          "yout", "stroke", "deflection", "extension", "elongation", "measured_displacement",
                          "sensor", "sensor_output", "measured_position", "actual_position", "distance", "z"}),
     "amplitude": frozenset({"amplitude", "amp", "amplitude_pp", "amp_pp", "vpp"}),
+    # a desired trajectory (feedforward targets); the output names are accepted after these
+    "target": frozenset({"target", "reference", "ref", "setpoint", "set_point", "desired", "y_d", "yd", "y_ref",
+                         "yref", "r", "trajectory", "target_displacement", "desired_displacement",
+                         "reference_displacement", "command_displacement", "demand"}),
     "frequency": frozenset({"frequency", "freq"}),
 }
 #: Multiplier to SI (s, V, Hz) per unit text (lower case). Output units are kept, not converted.
@@ -68,13 +72,17 @@ _UNITS: dict[str, dict[str, float | str]] = {
     "time": {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6, "ns": 1e-9},
     "input": {"v": 1.0, "mv": 1e-3, "kv": 1e3},
     "output": {"nm": "nm", "um": "um", "µm": "um", "μm": "um", "mm": "mm", "m": "m"},
+    "target": {"nm": "nm", "um": "um", "µm": "um", "μm": "um", "mm": "mm", "m": "m"},
     "amplitude": {"v": 1.0, "mv": 1e-3, "kv": 1e3, "vpp": 1.0},
     "frequency": {"hz": 1.0, "khz": 1e3},
 }
 #: Aliases that carry their unit in the name itself.
 _IMPLIED_UNIT = {"seconds": "s", "secs": "s", "sec": "s", "vpp": "v"}
-_FLAGS = {"time": "--time-col", "input": "--input-col", "output": "--output-col"}
-_WHAT = {"time": "time", "input": "input (voltage)", "output": "output (displacement)"}
+#: names that read as a desired trajectory (``target`` role of :func:`load_table`)
+TARGET_NAMES = _ALIASES["target"]
+_FLAGS = {"time": "--time-col", "input": "--input-col", "output": "--output-col", "target": "--target-col"}
+_WHAT = {"time": "time", "input": "input (voltage)", "output": "output (displacement)",
+         "target": "target (desired displacement)"}
 _MISSING_CELLS = frozenset({"", "nan", "-nan", "+nan", "na", "n/a", "#n/a", "null", "none"})
 
 _DECIMAL_COMMA_RE = r"[-+]?\d*,\d+(?:[eE][-+]?\d+)?"
@@ -609,31 +617,39 @@ def _auto_column(table: _Table, role: str, taken: set[int]) -> list[int]:
             if i not in taken and _is_candidate(n, role) and not table.is_empty(i)]
 
 
-def _headerless_error(table: _Table, role: str) -> InputError:
+def _headerless_error(table: _Table, role: str, roles: Sequence[str] = ("time", "input", "output")) -> InputError:
     if table.header_auto:
         why, alt = "the first row is all numbers, so the file is read as having no header row", "add a header row"
     else:
         why, alt = "the file has no header row (--no-header)", "add a header row and drop --no-header"
-    return InputError(f"{table.label}: {why}: pass --time-col, --input-col and --output-col as 0-based indices "
+    flags = [_FLAGS[r] for r in ("time", "input", "output", "target") if r in roles]
+    listed = ", ".join(flags[:-1]) + " and " + flags[-1] if len(flags) > 1 else flags[0]
+    return InputError(f"{table.label}: {why}: pass {listed} as 0-based indices "
                       f"(0–{table.ncols - 1}; missing: {_FLAGS[role]}), or {alt}")
 
 
-def _select_columns(table: _Table, opts: LoadOptions) -> dict[str, int | None]:
-    """Column index per role (time/input/output/amplitude/frequency); None when absent."""
+def _select_roles(table: _Table, roles: Sequence[str], specs: Mapping[str, str | int | None],
+                  optional: Sequence[str] = (), fallback: Mapping[str, str] | None = None) -> dict[str, int | None]:
+    """Column index per role: explicit specs first (a name or 0-based index), then by name (alias
+    and unit) in the order of ``roles``; each column serves one role. ``optional`` roles may be
+    absent (None); ``fallback`` lets a role accept another role's names when none of its own is
+    found. Every failure is one line naming the file, the column and the fix."""
     chosen: dict[str, int | None] = {}
-    for role, spec in (("time", opts.time_col), ("input", opts.input_col), ("output", opts.output_col)):
-        if spec is not None:
-            chosen[role] = _resolve_spec(table, spec, role)
+    for role in roles:
+        if specs.get(role) is not None:
+            chosen[role] = _resolve_spec(table, specs[role], role)
     seen: dict[int, str] = {}
     for role, i in chosen.items():
         if i in seen:
             raise InputError(f"{table.label}: {table.col_label(i)} is selected both as {seen[i]} "
                              f"({_FLAGS[seen[i]]}) and as {role} ({_FLAGS[role]}); select different columns")
         seen[i] = role
-    for role in ("input", "output", "time"):
+    for role in roles:
         if role in chosen:
             continue
         found = _auto_column(table, role, set(seen))
+        if not found and role in (fallback or {}):
+            found = _auto_column(table, fallback[role], set(seen))
         if len(found) > 1:
             cands = ", ".join(repr(table.names[i]) for i in found)
             raise InputError(f"{table.label}: several {_WHAT[role]} columns: {cands}; pass {_FLAGS[role]} "
@@ -643,13 +659,22 @@ def _select_columns(table: _Table, opts: LoadOptions) -> dict[str, int | None]:
             seen[found[0]] = role
             continue
         chosen[role] = None
-        if (role == "time" and opts.fs is not None) or (role == "output" and not opts.require_output):
+        if role in optional:
             continue
         if table.names is None and role != "time":
-            raise _headerless_error(table, role)
+            raise _headerless_error(table, role, roles)
         raise _missing_column_error(table, role)
+    return chosen
+
+
+def _select_columns(table: _Table, opts: LoadOptions) -> dict[str, int | None]:
+    """Column index per role of a capture (time/input/output/amplitude/frequency); None when absent."""
+    optional = [r for r, absent in (("time", opts.fs is not None), ("output", not opts.require_output)) if absent]
+    chosen = _select_roles(table, ("input", "output", "time"),
+                           {"time": opts.time_col, "input": opts.input_col, "output": opts.output_col}, optional)
+    taken = {i for i in chosen.values() if i is not None}
     for role in ("amplitude", "frequency"):
-        found = _auto_column(table, role, set(seen))
+        found = _auto_column(table, role, taken)
         if len(found) > 1:
             cands = ", ".join(repr(table.names[i]) for i in found)
             raise InputError(f"{table.label}: several {role} columns: {cands}; keep only one")
@@ -665,10 +690,79 @@ def _missing_column_error(table: _Table, role: str) -> InputError:
         hint = _bad_unit_hint(table.names, role)
         return InputError(f"{table.label}: no time column found ({table.listing()}){hint}; "
                           f"pass --time-col NAME, or --fs HZ if the file has no time column")
+    if role == "target":
+        return InputError(f"{table.label}: no target (desired displacement) column found ({table.listing()}); "
+                          "name it e.g. 'target_um' or 'displacement_um', or pass --target-col")
     examples = {"input": "voltage_V", "output": "displacement_um"}[role]
     return InputError(f"{table.label}: no {_WHAT[role]} column found ({table.listing()})"
                       f"{_bad_unit_hint(table.names or [], role)}; pass {_FLAGS[role]} NAME or a 0-based index, "
                       f"or name the column e.g. {examples!r}")
+
+
+@dataclass(frozen=True)
+class TableColumns:
+    """A file read as a table, with the columns of the requested roles found (:func:`load_table`).
+
+    ``index`` maps each role to its 0-based column (None when an optional role is absent).
+    """
+
+    path: str
+    table: _Table
+    index: Mapping[str, int | None]
+
+    @property
+    def label(self) -> str:
+        return self.table.label
+
+    def describe(self, role: str) -> str:
+        """The column of ``role`` as the messages name it (``column 'target_um'`` or ``column 2``)."""
+        return self.table.col_label(self.index[role])
+
+    def unit(self, role: str) -> str | None:
+        """The unit the column's name gives (normalized: ``um``, ``ms`` …), None when it gives none."""
+        u = _col_unit(self.table, self.index[role], role)
+        if u is not None and isinstance(_UNITS[role][u], str):
+            return str(_UNITS[role][u])
+        return u
+
+    def values(self, role: str) -> np.ndarray:
+        """The column as float64, in SI for time/input (s, V) and as written for outputs/targets; a
+        non-finite cell is an :class:`InputError` naming its row and column."""
+        i = self.index[role]
+        x = _numeric(self.table, i)
+        bad = np.flatnonzero(~np.isfinite(x))
+        if bad.size:
+            k = int(bad[0])
+            raise InputError(f"{self.label}: row {self.table.rows[k]}, {self.table.col_label(i)}: not a finite "
+                             "number; fix or remove the row")
+        if role in ("time", "input"):
+            x = x * _scale(self.table, i, role)
+        return x
+
+    def sample_period(self, t: np.ndarray) -> float:
+        """dt (s) of a strictly increasing, uniform time column (one-line error otherwise)."""
+        return _check_time(self.table, self.index["time"], t, self.table.rows)
+
+
+def load_table(path: str | os.PathLike, roles: Sequence[str], *, columns: Mapping[str, str | int | None] | None = None,
+               optional: Sequence[str] = (), fallback: Mapping[str, str] | None = None,
+               no_header: bool = False) -> TableColumns:
+    """Read a CSV/TXT/TSV/DAT or Parquet file and find the column of every role — the one reader
+    and column matching behind captures (:func:`load_capture`) and feedforward targets
+    (:func:`hystfit.invert.load_target`).
+
+    Parameters
+    ----------
+    roles : e.g. ``("time", "target")``; names by alias and unit suffix (``time_ms``,
+        ``target_um``), case-insensitive; each column serves one role.
+    columns : explicit columns per role (a name or a 0-based index), as ``--time-col`` etc.
+    optional : roles that may be absent (their index is None).
+    fallback : role → another role whose names are accepted when none of its own is found
+        (``{"target": "output"}``: a target file may name its column ``displacement_um``).
+    """
+    table = _read_table(Path(path), str(path), no_header)
+    chosen = _select_roles(table, roles, dict(columns or {}), optional, fallback)
+    return TableColumns(str(path), table, chosen)
 
 
 # ----------------------------------------------------------------------------------------------

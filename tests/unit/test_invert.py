@@ -96,7 +96,7 @@ def test_load_target_columns_units_and_errors(tmp_path):
     assert load_target(q, fs=1000.0, target_col=0).dt == pytest.approx(1e-3)
     amb = tmp_path / "amb.csv"
     amb.write_text("t,target,reference\n0,1,1\n1,2,2\n2,3,3\n3,4,4\n")
-    with pytest.raises(InputError, match="several target columns"):
+    with pytest.raises(InputError, match="several target .desired displacement. columns"):
         load_target(amb)
     assert load_target(amb, target_col="reference").y[-1] == 4.0
     bad = tmp_path / "bad.csv"

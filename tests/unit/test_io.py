@@ -676,3 +676,20 @@ def test_more_column_aliases(tmp_path, names):
     cap = load_capture(path)
     np.testing.assert_allclose(cap.u, u)
     np.testing.assert_allclose(cap.y, y)
+
+
+def test_load_table_is_the_one_reader_for_captures_and_targets(tmp_path):
+    """io.load_table finds role columns by alias and unit as the capture loader does; a target file
+    may name its column like a capture's output (fallback)."""
+    from hystfit.io import load_table
+
+    p = tmp_path / "t.csv"
+    p.write_text("Time [ms],Voltage_V,Position_um\n0,0,1\n0.1,1,2\n0.2,2,3\n0.3,3,4\n")
+    tc = load_table(p, ("time", "input", "output"))
+    np.testing.assert_allclose(tc.values("time"), [0, 1e-4, 2e-4, 3e-4])
+    assert tc.unit("output") == "um" and tc.describe("input") == "column 'Voltage_V'"
+    assert tc.sample_period(tc.values("time")) == pytest.approx(1e-4)
+    tt = load_table(p, ("time", "target"), fallback={"target": "output"})
+    assert tt.index["target"] == 2
+    with pytest.raises(InputError, match="no target"):
+        load_table(p, ("time", "target"))
