@@ -534,12 +534,9 @@ def _verdict_paragraph(d: Diagnosis) -> list[str]:
     return lines
 
 
-def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
-    """The report text (see the module docstring)."""
-    u = _u(d.unit)
+def _md_intro(d: Diagnosis, figs: dict[str, str]) -> list[str]:
+    """Report section: title, verdict and what was done."""
     s = d.settings
-    w = d.where
-    sigma = d.noise["sigma"]
     n_caps = len(d.captures)
     L = [f"# Why the `{d.base_model}` model misses the measurement", ""]
     L += _verdict_paragraph(d)
@@ -585,7 +582,14 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
                  "(held-out frequencies inside the fitted ones at every amplitude), the temporal one tests an "
                  "amplitude extrapolation on these captures."), ""]
 
-    L += ["## 1. The gap and the noise floor", ""]
+    return L
+
+
+def _md_gap(d: Diagnosis, figs: dict[str, str]) -> list[str]:
+    """Report section: 1. the gap and the noise floor."""
+    u = _u(d.unit)
+    sigma = d.noise["sigma"]
+    L = ["## 1. The gap and the noise floor", ""]
     g = d.gap
     rows = [["RMSE, all data (model fitted to all data)", f"{g['rmse_out']:.4g} {u}"],
             ["RMSE on held-out data (model fitted to the first part)", f"{g['heldout_rmse_out']:.4g} {u}"],
@@ -602,7 +606,14 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
               "noise has slow components, or the process does not repeat from cycle to cycle (creep, drift). "
               "The floor used here is the white part only, so slow noise would count as model gap.", ""]
 
-    L += ["## 2. Where the model misses", "", "Main findings:", ""]
+    return L
+
+
+def _md_where(d: Diagnosis, figs: dict[str, str]) -> list[str]:
+    """Report section: 2. where the model misses."""
+    u = _u(d.unit)
+    w = d.where
+    L = ["## 2. Where the model misses", "", "Main findings:", ""]
     L += [f"- {p}" for p in w["pointers"]] + [""]
     L += ["### By operating condition", ""]
     rows = [[f"{r['amplitude_V']:g} V, {r['frequency_Hz']:g} Hz", r["rmse_out"], r["excess_rmse_out"],
@@ -674,7 +685,13 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
     if "bands" in figs:
         L += [f"![bands]({figs['bands']})", ""]
 
-    L += ["## 3. Which effect: every candidate tested", ""]
+    return L
+
+
+def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
+    """Report section: 3. which effect."""
+    u = _u(d.unit)
+    L = ["## 3. Which effect: every candidate tested", ""]
     for i, step in enumerate(d.steps):
         title = "Step 1 — on top of the base model" if i == 0 else \
             f"Step {i + 1} — on top of the base model + {' + '.join(d.explained_by[:i])}"
@@ -699,13 +716,23 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
     if "effects" in figs:
         L += [f"![held-out RMSE per effect]({figs['effects']})", ""]
 
-    L += ["## 4. The model with the named effects", ""]
+    return L
+
+
+def _md_model(d: Diagnosis, figs: dict[str, str]) -> list[str]:
+    """Report section: 4. the model with the named effects."""
+    L = ["## 4. The model with the named effects", ""]
     for key, text in (("loop", "Loop of the capture the base model misses most"),
                       ("explained_periodic", "Time series of that capture (grey: held out)"),
                       ("explained_other", "The non-periodic capture the base model misses most")):
         if key in figs:
             L += [f"{text}:", "", f"![{key}]({figs[key]})", ""]
-    L += ["## Definitions", "",
+    return L
+
+
+def _md_definitions(d: Diagnosis, figs: dict[str, str]) -> list[str]:
+    """Report section: definitions."""
+    L = ["## Definitions", "",
           "- RMSE = √mean(e²), e = model − measured; held-out RMSE counts only the samples after the split.",
           "- Noise floor σ: the scatter of e from one sample to the next. Technically 1.4826 × the median absolute "
           "deviation of the third difference (−1, 3, −3, 1)/√20 of e: white sensor noise passes it unchanged, a "
@@ -718,8 +745,14 @@ def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
           "- Parameters: the number of numbers fitted for the effect (a per-capture effect such as drift has two per "
           "capture).",
           f"- Runtime {d.runtime_s:.1f} s. Machine-readable results: `diagnosis.json`.", ""]
-    return "\n".join(L)
+    return L
 
+def markdown(d: Diagnosis, figs: dict[str, str]) -> str:
+    """The report text (see the module docstring), section by section."""
+    L: list[str] = []
+    for section in (_md_intro, _md_gap, _md_where, _md_effects, _md_model, _md_definitions):
+        L += section(d, figs)
+    return "\n".join(L)
 
 def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
     """The report's last line: the effects named, the held-out error of the base with all of
