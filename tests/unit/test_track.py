@@ -182,6 +182,12 @@ def test_step_metrics_of_a_first_order_response():
     y2 = y.copy()
     y2[-1] = 0.0  # leaves the band at the very end: not settled
     assert math.isnan(step_metrics(tgt, y2)[0]["settling_time_2pct_s"])
+    # paper 002 Table 6's emax/RMSE of a step: after the transient (from the ±5 % settling time)
+    ks = int(round(m["settling_time_5pct_s"] * fs))
+    e = 2.0 * np.exp(-t[ks:] / tau)
+    assert m["e_max_settled_um"] == pytest.approx(e.max(), rel=1e-9) and m["e_max_settled_um"] <= 0.05 * 2.0
+    assert m["rmse_settled_um"] == pytest.approx(np.sqrt(np.mean(e ** 2)), rel=1e-9)
+    assert math.isnan(step_metrics(tgt, 1.0 + 0.5 * (y - 1.0))[0]["rmse_settled_um"])  # never settles
 
 
 def test_feedforward_loop_reproduces_the_invert_preview():
