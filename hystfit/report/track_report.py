@@ -80,7 +80,8 @@ def track_markdown(res: TrackResult, figures: list[str], command: str | None = N
                  f"derivative filter {p.tf_s:.3g} s, anti-windup {p.anti_windup} (Tt = {p.tt_s:.3g} s); {p.rule}; "
                  f"nominal bandwidth ≈ {p.bandwidth_Hz:.4g} Hz, GM = {p.gain_margin:.3g}, PM = {p.phase_margin_deg:.3g}°")
     if res.smc is not None:
-        L.append(f"- sliding mode (paper 003 eq. 25–42, on top of the feedforward): {res.smc.describe()}")
+        L.append(f"- sliding mode (paper 003 eq. 25–42; smc on top of the feedforward, smc-noinv without the "
+                 f"inverse compensation): {res.smc.describe()}")
     L += ["", "## Comparison", "",
           f"Errors e = plant output − reference (true output, without the measurement noise); % of stroke = "
           f"100·x / (max r − min r). limited %: share of samples where the voltage limits acted.", ""]
