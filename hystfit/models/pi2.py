@@ -16,7 +16,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from ._kernels import PARALLEL_MIN_POP, play_matrix, thread_blocks
 from .base import Model
-from .gpi import GPI, _tanh, gpi_population
+from .gpi import GPI, _tanh
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
 
@@ -247,7 +247,7 @@ class PI2(Model):
     Speed: one fused numba kernel (:func:`gpi2_run`) runs the generalized plays, the stage and
     the squared error (or the normal equations of ρ and y0, which enter linearly: the ``auto``
     optimizer searches the other ten or twelve) in one time loop, candidates innermost; the
-    (P, N) outputs are never stored. Simulation reuses :func:`gpi_population` and
+    (P, N) outputs are never stored. Simulation reuses :func:`~hystfit.models.gpi.gpi_population` and
     :func:`biquad_columns` themselves.
 
     Inverse: the stage's inverse (:func:`~hystfit.blocks.dynamics.invert_second_order`, one
@@ -358,7 +358,7 @@ class PI2(Model):
 
     # ------------------------------------------------------------------ simulation
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
-        """gPI output (:func:`gpi_population`), stage (:func:`biquad_columns`), offset: (P, N)."""
+        """gPI output (:func:`~hystfit.models.gpi.gpi_population`), stage (:func:`biquad_columns`), offset: (P, N)."""
         theta = self.check_theta(theta, self.d)
         u = np.ascontiguousarray(u, dtype=np.float64)
         fn, z = self._stage(theta)
