@@ -17,8 +17,8 @@ population of random parameter vectors inside the default bounds, for the models
     the squared error in the time loop; for ``pi`` with fixed thresholds the exact quadratic
     form of the linear model (no time loop at all per candidate: structure, not speed).
 
-Plus ``pi2`` (PI followed by a second-order stage whose f_n and ζ are searched: the recurrence
-of ``shared/PERFORMANCE.md``'s PI row) on (c) and (d). Prints evaluations/s, sample-steps/s
+Plus ``pi2`` (paper 000's generalized PI followed by a second-order stage, joint route: f_n and
+ζ searched with the hysteresis; one fused kernel for plays, stage and error) on (c) and (d). Prints evaluations/s, sample-steps/s
 (candidates × samples per second) and the ratios. The results agree with the reference
 implementations (checked on three candidates before timing).
 """
@@ -104,12 +104,12 @@ def measure(P: int = 200, N: int = 5000, seed: int = 0) -> list[dict]:
                  "numpy": best_time(lambda: sf.bw_numpy(theta, u), 2, 0.0),
                  "simulate": best_time(lambda: sim(theta)), "objective": best_time(lambda: obj(theta))})
 
-    pi2 = PI2(10).adapt(scale)
+    pi2 = PI2(10, identification="joint").adapt(scale)
     theta, default = _population(pi2, scale, P, rng)
     y = pi2.simulate_one(default, u, dt)
     sim, obj = pi2.simulator(u, dt), Objective(pi2, [Series(u, y, dt)])
     sim(theta), obj(theta)
-    rows.append({"model": "pi2 (PI + 2nd-order stage)", "straightforward": np.nan, "numpy": np.nan,
+    rows.append({"model": "pi2 (generalized PI + 2nd-order stage)", "straightforward": np.nan, "numpy": np.nan,
                  "simulate": best_time(lambda: sim(theta)), "objective": best_time(lambda: obj(theta))})
     for r in rows:
         r.update(P=P, N=N)

@@ -21,7 +21,7 @@ from .capture import Capture
 from .conditions import condition_label, group_by_condition
 from .errors import ConfigError, HystfitError
 from .identify import check_seed, fit_captures
-from .metrics import compute_metrics_pooled
+from .metrics import check_mape_floor, compute_metrics_pooled
 from .objective import Objective, Series
 from .parallel import default_jobs, run_jobs
 from .params import DataScale, apply_bound_overrides
@@ -45,6 +45,7 @@ class CellSpec:
     model_options: dict
     optimizer_options: dict
     bounds: dict = field(default_factory=dict)  # parameter name → (lower, upper) for this cell's model
+    mape_floor: float = 0.01  # MAPE/SMAPE floor, fraction of the stroke (hystfit.metrics)
 
 
 @dataclass(frozen=True)
@@ -157,7 +158,8 @@ def run_cell(spec: CellSpec) -> CellResult:
         opt = make_optimizer(optimizer_registry.get(spec.optimizer), spec.optimizer_options)
         _warm_up(spec, model, opt)
         fit = fit_captures(spec.captures, model, opt, seed=spec.seed, cell=spec.index, runs=spec.runs,
-                           polish=spec.polish, label=spec.label, condition=spec.key, bounds=spec.bounds)
+                           polish=spec.polish, label=spec.label, condition=spec.key, bounds=spec.bounds,
+                           mape_floor=spec.mape_floor)
         objective = Objective(fit.model, [Series(c.u, c.y, c.dt, c.warmup_samples) for c in spec.captures])
         sum_y2 = float(sum(np.dot(c.y[c.warmup_samples:], c.y[c.warmup_samples:]) for c in spec.captures))
         to_j = objective.n_total / sum_y2 if sum_y2 > 0 else np.nan  # MSE → J = Σe²/Σy² (004 eq. 16)
@@ -165,7 +167,7 @@ def run_cell(spec: CellSpec) -> CellResult:
         for r in fit.runs:
             preds = objective.predict(r.x)
             m = compute_metrics_pooled([(c.y[c.warmup_samples:], p[c.warmup_samples:])
-                                        for c, p in zip(spec.captures, preds)], fit.unit)
+                                        for c, p in zip(spec.captures, preds)], fit.unit, mape_floor=spec.mape_floor)
             runs.append(RunMetrics(r.run, r.seed, r.fun, r.fun * to_j, m, r.wall_time_s, r.nfev,
                                    np.asarray(r.result.history_best), float(r.result.fun), float(r.result.fun) * to_j,
                                    int(r.result.nfev)))
@@ -215,7 +217,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
             runs: int = 1, seed: int = 0, jobs: int | None = None, polish: bool = True,
             model_options: Mapping[str, dict] | None = None, optimizer_options: Mapping[str, dict] | None = None,
             bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None, global_fit: bool = False,
-            progress: Progress = None) -> CompareResult:
+            progress: Progress = None, mape_floor: float = 0.01) -> CompareResult:
     """Run the cross product models × optimizers × conditions with ``runs`` runs per cell.
 
     ``model_options`` / ``optimizer_options`` / ``bounds`` are per model or optimizer name (see
@@ -224,6 +226,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     result. ``global_fit`` fits one parameter set to all captures instead of one per condition.
     """
     check_seed(seed)
+    mape_floor = check_mape_floor(mape_floor)  # MAPE/SMAPE floor (hystfit.metrics; 0: every sample, as 002)
     if not model_names or not optimizer_names:
         raise ConfigError("compare needs at least one model and one optimizer")
     for m in model_names:
@@ -276,7 +279,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
                 # model sees the same seeds on a condition, and the numbers never depend on --jobs
                 specs.append(CellSpec(ci * 1000 + oi, m, o, key, labels[key], tuple(caps), runs, seed, polish,
                                       dict((model_options or {}).get(m, {})), dict(optimizer_options[o]),
-                                      dict(bounds[m])))
+                                      dict(bounds[m]), mape_floor))
     jobs = default_jobs() if jobs is None else max(1, int(jobs))
     if progress:
         progress("start", {"total": len(specs)})

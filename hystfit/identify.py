@@ -16,7 +16,7 @@ import numpy as np
 from .capture import Capture
 from .conditions import condition_label, group_by_condition
 from .errors import ConfigError, InputError
-from .metrics import compute_metrics, compute_metrics_pooled
+from .metrics import MAPE_THRESHOLD_FRACTION, check_mape_floor, compute_metrics, compute_metrics_pooled
 from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import OptimizeResult, Optimizer
@@ -194,7 +194,7 @@ def _run_job(job: tuple) -> RunRecord:
 
 
 def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | None,
-               condition: tuple[float, float] | None) -> ConditionFit:
+               condition: tuple[float, float] | None, mape_floor: float = MAPE_THRESHOLD_FRACTION) -> ConditionFit:
     captures = problem.captures
     objective = problem.objective()
     best = int(np.argmin([rec.fun for rec in records]))
@@ -203,8 +203,9 @@ def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | Non
     unit = problem.unit
     # metrics over the scored samples, as the objective (a --warmup is left out)
     metrics = compute_metrics_pooled([(c.y[c.warmup_samples:], p[c.warmup_samples:]) for c, p in zip(captures, preds)],
-                                     unit)
-    per = tuple({"source": c.source, **compute_metrics(c.y[c.warmup_samples:], p[c.warmup_samples:], unit),
+                                     unit, mape_floor=mape_floor)
+    per = tuple({"source": c.source, **compute_metrics(c.y[c.warmup_samples:], p[c.warmup_samples:], unit,
+                                                       mape_floor=mape_floor),
                  **_nuisance_fields(a, unit)}
                 for c, p, a in zip(captures, preds, objective.nuisance_coefficients(theta)))
     stderr = _stderr(objective, theta, problem.lower, problem.upper)
@@ -236,7 +237,8 @@ def prepare_shared(model: Model, captures: Sequence[Capture]) -> Model:
 def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int, cell: int = 0,
                  runs: int = 1, polish: bool = True, bounds: Mapping[str, tuple[float, float]] | None = None,
                  progress: Progress = None, label: str | None = None,
-                 condition: tuple[float, float] | None = None) -> ConditionFit:
+                 condition: tuple[float, float] | None = None,
+                 mape_floor: float = MAPE_THRESHOLD_FRACTION) -> ConditionFit:
     """Fit one parameter set to the pooled ``captures``: ``runs`` seeded runs, best kept.
 
     Run r uses the seed :func:`run_seed` (seed, cell, r), recorded in the result.
@@ -248,7 +250,7 @@ def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer
         records.append(_run(problem, optimizer, seed, cell, r, polish, objective))
         if progress:
             progress("advance", {"label": label, "run": r, "rmse": records[-1].rmse})
-    return _summarize(problem, records, label, condition)
+    return _summarize(problem, records, label, condition, check_mape_floor(mape_floor))
 
 
 def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -277,13 +279,16 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
              polish: bool = True, global_fit: bool = False,
              bounds: Mapping[str, tuple[float, float]] | None = None,
              progress: Progress = None, model_options: Mapping | None = None,
-             jobs: int | None = 1) -> IdentifyResult:
+             jobs: int | None = 1, mape_floor: float = MAPE_THRESHOLD_FRACTION) -> IdentifyResult:
     """Identify ``model`` on ``captures``: one fit per condition (look-up table) or one global fit.
 
     ``jobs`` > 1 spreads the (condition, run) pairs over a process pool (None: all cores); every
     run's seed depends only on (seed, condition index, run), so the numbers do not depend on ``jobs``.
+    ``mape_floor``: MAPE/SMAPE leave out samples with |y_meas| below this fraction of the stroke
+    (0: every sample, as paper 002; :mod:`hystfit.metrics`).
     """
     check_seed(seed)
+    mape_floor = check_mape_floor(mape_floor)
     if not captures:
         raise InputError("no captures to identify")
     unit = _output_unit(captures)
@@ -321,7 +326,7 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     fits = []
     for cell, (problem, cond, label) in enumerate(cells):
         recs = [rec for (job, rec) in zip(work, records) if job[3] == cell]
-        fits.append(_summarize(problem, recs, label, cond))
+        fits.append(_summarize(problem, recs, label, cond, mape_floor))
     return IdentifyResult(
         model_name=model.name, optimizer_name=optimizer.name, optimizer_settings=optimizer.settings(),
         seed=seed, runs=runs, polish=polish, mode="global" if global_fit else "per-condition", unit=unit,

@@ -14,14 +14,23 @@ smape          mean(|e| / ((|y_model| + |y_meas|)/2)), kept        fraction     
 r2             1 − Σe² / Σ(y_meas − mean y_meas)²                  –            002 §3.2
 re             sqrt(Σe² / Σy_meas²)                                –            003 eq. 14
 j              Σe² / Σy_meas²                                      –            004 eq. 16
+j_model        Σe² / Σy_model²                                     –            004 eq. 16 (as printed)
 max_error_<u>  max |e|                                             output unit
 n_samples      number of samples                                   count
 n_excluded     samples left out of MAPE and SMAPE                  count
+mape_floor     the floor used (fraction of the stroke)             fraction
 =============  ==================================================  ===========  ================
 
-MAPE and SMAPE explode where the measured output crosses zero, so only samples with
+MAPE and SMAPE explode where the measured output crosses zero, so by default only samples with
 ``|y_meas| >= 1 % of the stroke`` (stroke = max y_meas − min y_meas) and ``|y_meas| > 0`` are kept;
-``n_excluded`` and ``n_excluded_pct`` report how many were left out.
+``n_excluded`` and ``n_excluded_pct`` report how many were left out. ``mape_floor`` sets the
+fraction (``--mape-floor``); 0 keeps every sample, as paper 002 does (a sample with y_meas = 0
+then makes MAPE infinite).
+
+Paper 004's fitness J (eq. 16) divides Σe² by the sum of the squared *model* output ŷ (its
+text calls it a relative mean squared error); ``j`` uses the measurement, which does not move
+with the candidate, ``j_model`` the model output as printed. They differ by the factor
+Σy_meas²/Σy_model² ≈ 1 for a good fit.
 
 Conventions
 -----------
@@ -49,6 +58,7 @@ __all__ = [
     "MetricSpec",
     "compute_metrics",
     "compute_metrics_pooled",
+    "check_mape_floor",
     "describe_metrics",
     "metric_key",
 ]
@@ -82,17 +92,21 @@ METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("bias", "bias = mean(e), the constant part of the error (e.g. a sensor offset between recording "
                        "days); RMSE² = bias² + variance of e", "output"),
     MetricSpec("nrmse_pct", "NRMSE = 100·RMSE / (max y_meas − min y_meas)", "%"),
-    MetricSpec("mape", "MAPE = mean(|e| / |y_meas|) over samples with |y_meas| ≥ 1 % of stroke (002)",
-               "fraction"),
+    MetricSpec("mape", "MAPE = mean(|e| / |y_meas|) over samples with |y_meas| ≥ mape_floor·stroke (002 uses "
+                       "every sample: mape_floor 0)", "fraction"),
     MetricSpec("smape", "SMAPE = mean(|e| / ((|y_model| + |y_meas|)/2)) over the same samples (002)",
                "fraction"),
     MetricSpec("r2", "R² = 1 − Σe² / Σ(y_meas − ȳ_meas)²", "1"),
     MetricSpec("re", "RE = sqrt(Σe² / Σy_meas²) (003 eq. 14)", "1"),
-    MetricSpec("j", "J = Σe² / Σy_meas² (004 eq. 16)", "1"),
+    MetricSpec("j", "J = Σe² / Σy_meas² (004 eq. 16 with the measurement as denominator)", "1"),
+    MetricSpec("j_model", "J_model = Σe² / Σy_model² (004 eq. 16 as printed: the model output as denominator)", "1"),
     MetricSpec("max_error", "max |e|", "output"),
     MetricSpec("n_samples", "number of samples", "count"),
-    MetricSpec("n_excluded", "samples with |y_meas| < 1 % of stroke, left out of MAPE and SMAPE", "count"),
+    MetricSpec("n_excluded", "samples with |y_meas| < mape_floor·stroke (or = 0 when mape_floor > 0), left out of "
+                             "MAPE and SMAPE", "count"),
     MetricSpec("n_excluded_pct", "100 · n_excluded / n_samples", "%"),
+    MetricSpec("mape_floor", "the MAPE/SMAPE floor as a fraction of the stroke (default 0.01; 0: every sample)",
+               "fraction"),
 )
 
 _BY_NAME = {m.name: m for m in METRICS}
@@ -159,7 +173,8 @@ def _as_pair(y_meas, y_model, where: str = "") -> tuple[np.ndarray, np.ndarray]:
     return ym.ravel(), yp.ravel()
 
 
-def compute_metrics(y_meas, y_model, unit: str = "um") -> dict[str, float]:
+def compute_metrics(y_meas, y_model, unit: str = "um", *, mape_floor: float = MAPE_THRESHOLD_FRACTION
+                    ) -> dict[str, float]:
     """All fit metrics of one model output against one measured output.
 
     Parameters
@@ -171,6 +186,9 @@ def compute_metrics(y_meas, y_model, unit: str = "um") -> dict[str, float]:
         ``-inf`` (see the module docstring); this never raises.
     unit : str, default "um"
         Output unit, appended to the keys of metrics that carry it.
+    mape_floor : float, default 0.01
+        Samples with |y_meas| below this fraction of the stroke are left out of MAPE and SMAPE
+        (0: every sample, as paper 002).
 
     Returns
     -------
@@ -190,10 +208,11 @@ def compute_metrics(y_meas, y_model, unit: str = "um") -> dict[str, float]:
     (0.57735, 1.0)
     """
     ym, yp = _as_pair(y_meas, y_model)
-    return _metrics(ym, yp, unit)
+    return _metrics(ym, yp, unit, mape_floor)
 
 
-def compute_metrics_pooled(pairs: Sequence[tuple[np.ndarray, np.ndarray]], unit: str = "um") -> dict[str, float]:
+def compute_metrics_pooled(pairs: Sequence[tuple[np.ndarray, np.ndarray]], unit: str = "um", *,
+                           mape_floor: float = MAPE_THRESHOLD_FRACTION) -> dict[str, float]:
     """Metrics over several captures of one condition, pooled sample by sample.
 
     The captures are concatenated and measured as one series, so the result equals
@@ -221,10 +240,24 @@ def compute_metrics_pooled(pairs: Sequence[tuple[np.ndarray, np.ndarray]], unit:
     if not pairs:
         raise ValueError("compute_metrics_pooled needs at least one (y_meas, y_model) pair; got none")
     ms, ps = zip(*(_as_pair(a, b, f"[{i}]") for i, (a, b) in enumerate(pairs)))
-    return _metrics(np.concatenate(ms), np.concatenate(ps), unit)
+    return _metrics(np.concatenate(ms), np.concatenate(ps), unit, mape_floor)
 
 
-def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
+def check_mape_floor(mape_floor: float) -> float:
+    """The MAPE floor as a float in [0, 1), or :class:`~hystfit.errors.ConfigError`."""
+    from .errors import ConfigError
+
+    try:
+        f = float(mape_floor)
+    except (TypeError, ValueError):
+        raise ConfigError(f"--mape-floor must be a number in [0, 1), got {mape_floor!r}") from None
+    if not 0.0 <= f < 1.0:
+        raise ConfigError(f"--mape-floor must be in [0, 1) (a fraction of the stroke; 0: every sample), got {f:g}")
+    return f
+
+
+def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str, mape_floor: float = MAPE_THRESHOLD_FRACTION
+             ) -> dict[str, float]:
     n = ym.size
     if n == 0:
         raise ValueError("cannot compute metrics of an empty series (0 samples)")
@@ -234,7 +267,10 @@ def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
 
     stroke = float(ym.max() - ym.min())
     abs_meas = np.abs(ym)
-    keep = (abs_meas >= MAPE_THRESHOLD_FRACTION * stroke) & (abs_meas > 0)
+    if mape_floor > 0:
+        keep = (abs_meas >= mape_floor * stroke) & (abs_meas > 0)
+    else:  # paper 002: every sample (y_meas = 0 makes the ratio infinite)
+        keep = np.ones(n, dtype=bool)
     n_kept = int(np.count_nonzero(keep))
     n_excluded = n - n_kept
     sum_sq_meas = float(np.dot(ym, ym))
@@ -247,7 +283,7 @@ def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
     if not np.isfinite(sse):
         # NaN/inf in the model output, or an output so large that Σe² overflows: infinitely bad
         inf = float("inf")
-        rmse = nrmse = mape = smape = re = j = max_err = inf
+        rmse = nrmse = mape = smape = re = j = j_model = max_err = inf
         r2 = -inf
         bias = bias if math.isfinite(bias) else float("nan")
     else:
@@ -258,11 +294,14 @@ def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
         r2 = 1.0 - sse / ss_tot if ss_tot > 0 else float("nan")
         j = sse / sum_sq_meas if sum_sq_meas > 0 else float("nan")
         re = float(np.sqrt(j))
+        sum_sq_model = float(np.dot(yp, yp))
+        j_model = sse / sum_sq_model if sum_sq_model > 0 else float("nan")
         if n_kept:
             ek, mk, pk = abs_e[keep], abs_meas[keep], np.abs(yp[keep])
-            with np.errstate(over="ignore"):  # a ratio beyond 1e308 is reported as inf
-                mape = float(np.mean(ek / mk))
-                smape = float(np.mean(ek / (0.5 * (pk + mk))))  # denominator ≥ |y_meas|/2 > 0
+            with np.errstate(over="ignore", divide="ignore", invalid="ignore"):  # beyond 1e308 or /0: inf
+                mape = float(np.mean(np.where(mk > 0, ek / mk, np.where(ek > 0, np.inf, 0.0))))
+                sden = 0.5 * (pk + mk)
+                smape = float(np.mean(np.where(sden > 0, ek / sden, np.where(ek > 0, np.inf, 0.0))))
         else:
             mape = smape = float("nan")
 
@@ -275,8 +314,10 @@ def _metrics(ym: np.ndarray, yp: np.ndarray, unit: str) -> dict[str, float]:
     out["r2"] = r2
     out["re"] = re
     out["j"] = j
+    out["j_model"] = j_model
     out[metric_key("max_error", unit)] = max_err
     out["n_samples"] = n
     out["n_excluded"] = n_excluded
     out["n_excluded_pct"] = 100.0 * n_excluded / n
+    out["mape_floor"] = float(mape_floor)
     return out

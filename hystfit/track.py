@@ -51,7 +51,15 @@ Controllers (V = volts, unit = the parameter file's output unit, Ts = sample per
     error enters through p, which 003 also takes as measured. A non-zero G would feed the
     tracking error itself — feedforward residual, reference steps the voltage limits cut, sensor
     noise — into x̂; with the second-order nominal of a dynamic model that destabilised the loop
-    in our tests. The integral is frozen while the voltage is limited (anti-windup).
+    in our tests. The integral is frozen while the voltage is limited (anti-windup). Paper 003's
+    design parameters (ε, α, k, sliding and observer poles; a placed observer gain G) are
+    options of :func:`design_smc` (``--smc-option``).
+``smc-noinv``
+    The same sliding mode without inverse compensation (003's comparison): the feedforward is
+    replaced by the constant initial voltage.
+
+Bandwidths (:func:`measure_bandwidths`, ``--measure-bandwidth``): tracking (−3 dB of Y/R) and
+disturbance rejection (0 dB of Y/D for an output disturbance), paper 003's figures.
 
 Nominal linear part (:func:`nominal_plant`). For a rate-independent model it is the gain and
 the loop's one-sample delay: δy[k+1] = K·δc[k] (first order, pole at z = 0), with K the
@@ -113,7 +121,9 @@ __all__ = [
 ]
 
 #: Controller names accepted by :func:`track`.
-CONTROLLERS = ("ff", "pid", "ff+pid", "smc")
+CONTROLLERS = ("ff", "pid", "ff+pid", "smc", "smc-noinv")
+#: ``--smc-option`` keys of :func:`design_smc` (paper 003's design parameters)
+SMC_OPTIONS = ("eps", "alpha", "k", "sliding_poles", "observer_poles")
 #: Highest automatic bandwidth as a fraction of the sample rate.
 AUTO_BANDWIDTH_FRACTION = 1.0 / 20.0
 #: Required nominal gain margin (factor) and phase margin (degrees) of the automatic tuning.
@@ -513,8 +523,10 @@ class SMCDesign:
     dt: float
 
     def describe(self) -> str:
-        return (f"sliding poles {_poles(self.sliding_poles)} (z), observer poles (G = 0: the nominal plant's) "
-                f"{_poles(self.observer_poles)} (z), q = {self.q:.4g} 1/s, "
+        obs = ("observer poles (G = 0: the nominal plant's)" if not np.any(self.G) else
+               "observer poles (003 eq. 40–42, placed)")
+        return (f"sliding poles {_poles(self.sliding_poles)} (z), {obs} "
+                f"{_poles(self.observer_poles)} (z), k = q = {self.q:.4g} 1/s, "
                 f"ε = {self.eps:.4g} V/s, α = {self.alpha:.4g} 1/V, bandwidth {self.bandwidth_Hz:.4g} Hz")
 
 
@@ -571,13 +583,40 @@ def _sliding_poles(plant_poles: Sequence[complex], zs: float, dt: float) -> list
     return out
 
 
-def design_smc(nominal: NominalPlant, bandwidth_Hz: float, voltage_span: float) -> SMCDesign:
-    """Integral sliding-mode design on the nominal plant (defaults documented in the module docstring).
+def _pole_list(name: str, value, count: int) -> np.ndarray:
+    """``--smc-option NAME=[...]``: ``count`` discrete poles (numbers or strings like "0.9+0.1j"),
+    inside the unit circle, complex ones with their conjugates."""
+    try:
+        vals = [complex(str(v).replace(" ", "")) for v in (value if isinstance(value, (list, tuple)) else [value])]
+    except ValueError:
+        raise ConfigError(f"--smc-option {name}={value!r}: poles must be numbers or strings like \"0.9+0.1j\"") from None
+    if len(vals) != count:
+        raise ConfigError(f"--smc-option {name}: {count} pole(s) are needed for this nominal plant, got {len(vals)}")
+    p = np.array(vals, dtype=complex)
+    if np.any(np.abs(p) >= 1.0):
+        raise ConfigError(f"--smc-option {name}: discrete poles must lie inside the unit circle, got {_poles(p)}")
+    if not np.allclose(np.sort_complex(p), np.sort_complex(p.conj()), atol=1e-9):
+        raise ConfigError(f"--smc-option {name}: complex poles need their conjugates, got {_poles(p)}")
+    return p
 
-    Sliding poles: z_s = exp(−2π·f_s·Ts) for the integral mode, and the nominal plant's own
-    poles except the delay pole at 0 (:func:`_sliding_poles`). Observer gain G = 0, so its
-    poles are the nominal plant's (deadbeat for the static form). Reaching law: boundary layer
-    φ = 0.2 % of the voltage span, α = 1/φ, ε = 0.2·φ/Ts, q = min(2·2π·f_s, 0.5/Ts).
+
+def design_smc(nominal: NominalPlant, bandwidth_Hz: float, voltage_span: float, *, eps: float | None = None,
+               alpha: float | None = None, k: float | None = None, sliding_poles=None,
+               observer_poles=None) -> SMCDesign:
+    """Integral sliding-mode design on the nominal plant (paper 003 eq. 25–42).
+
+    Defaults (the module docstring): sliding poles z_s = exp(−2π·f_s·Ts) for the integral mode
+    and the nominal plant's own poles except the delay pole at 0 (:func:`_sliding_poles`);
+    observer gain G = 0, so the observer's poles are the nominal plant's (deadbeat for the static
+    form); reaching law with boundary layer φ = 0.2 % of the voltage span, α = 1/φ,
+    ε = 0.2·φ/Ts, k = q = min(2·2π·f_s, 0.5/Ts).
+
+    Settable (``--smc-option``, paper 003's design parameters): ``eps`` ε (V/s) and ``k`` (1/s) of
+    the reaching law S⁺ = (1 − k·Ts)·S − ε·Ts·tanh(α·S) (003 eq. 38, tanh for sgn), ``alpha``
+    α (1/V), ``sliding_poles`` (n discrete poles of the sliding motion of the (n + 1)-state
+    augmented plant, eq. 32–35, placed by Ackermann's formula for sliding surfaces; the
+    remaining eigenvalue, 0, is the surface itself), ``observer_poles`` (n discrete poles of the Luenberger observer
+    x̂⁺ = A x̂ + B δ + G (e − C x̂), eq. 40–42: G placed by Ackermann's formula on (Aᵀ, Cᵀ)).
     """
     dt = nominal.dt
     A, B, C = nominal.A, nominal.B, nominal.C
@@ -588,19 +627,35 @@ def design_smc(nominal: NominalPlant, bandwidth_Hz: float, voltage_span: float) 
     Ad[n, n] = 1.0
     Bd = np.r_[B, 0.0]
     zs = math.exp(-2 * math.pi * bandwidth_Hz * dt)
-    plant_poles = sorted(np.roots(nominal.den), key=abs)[1:]  # drop the delay pole at 0
-    poles = np.array([zs] + _sliding_poles(plant_poles, zs, dt), dtype=complex)
+    if sliding_poles is None:
+        plant_poles = sorted(np.roots(nominal.den), key=abs)[1:]  # drop the delay pole at 0
+        poles = np.array([zs] + _sliding_poles(plant_poles, zs, dt), dtype=complex)
+    else:
+        poles = _pole_list("sliding_poles", sliding_poles, n)
     poly = np.real_if_close(np.poly(poles), tol=1e6).real
     M = _ackermann_row(Ad, Bd, poly)
     MB = float(M @ Bd)
     M = M / MB
-    G = np.zeros(n)  # observer of the correction channel: the nominal model itself (see the module docstring)
-    obs = np.linalg.eigvals(A)
+    if observer_poles is None:
+        G = np.zeros(n)  # observer of the correction channel: the nominal model itself (see the module docstring)
+        obs = np.linalg.eigvals(A)
+    else:
+        obs = _pole_list("observer_poles", observer_poles, n)
+        try:
+            G = _ackermann_row(A.T, C.astype(float), np.real_if_close(np.poly(obs), tol=1e6).real)
+        except ConfigError:
+            raise ConfigError("--smc-option observer_poles: the nominal plant is not observable; the observer "
+                              "cannot be placed") from None
     phi = 0.002 * voltage_span
-    alpha = 1.0 / phi
-    eps = 0.2 * phi / dt
-    q = min(2 * 2 * math.pi * bandwidth_Hz, 0.5 / dt)
-    return SMCDesign(A, B, C, M[:n], float(M[n]), np.asarray(G, float), q, eps, alpha, poles, obs, bandwidth_Hz, dt)
+    alpha_ = 1.0 / phi if alpha is None else float(alpha)
+    eps_ = 0.2 * phi / dt if eps is None else float(eps)
+    q = min(2 * 2 * math.pi * bandwidth_Hz, 0.5 / dt) if k is None else float(k)
+    for name, v, ok in (("eps", eps_, eps_ >= 0), ("alpha", alpha_, alpha_ > 0), ("k", q, 0 <= q * dt < 2)):
+        if not (math.isfinite(v) and ok):
+            raise ConfigError(f"--smc-option {name}={v:g}: " + {"eps": "must be ≥ 0 (V/s)", "alpha": "must be > 0 (1/V)",
+                                                                 "k": f"must be in [0, {2 / dt:g}) 1/s (|1 − k·Ts| < 1)"}[name])
+    return SMCDesign(A, B, C, M[:n], float(M[n]), np.asarray(G, float), q, eps_, alpha_, poles, np.asarray(obs),
+                     bandwidth_Hz, dt)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -639,9 +694,14 @@ class ControllerRun:
 
 def simulate_loop(plant: _Plant, r: np.ndarray, v0: float, controller: str, *, ff: np.ndarray | None,
                   pid: PIDGains | None, smc: SMCDesign | None, vmin: float, vmax: float,
-                  max_slew: float | None, noise: np.ndarray, dt: float) -> tuple[np.ndarray, ...]:
+                  max_slew: float | None, noise: np.ndarray, dt: float,
+                  disturbance: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """Run the sampled loop of the module docstring; returns (y, y_meas, voltage, command, limited mask).
 
+    ``disturbance`` (N,), optional: an output disturbance added to the plant's output (so to y
+    and to the measurement), for the disturbance-rejection bandwidth. ``smc-noinv`` is the
+    sliding mode without inverse compensation: the feedforward is replaced by the constant
+    initial voltage v0, so the sliding-mode correction alone moves the stage.
     Scalar Python arithmetic with preallocated arrays; the plant is stepped once per sample.
     """
     N = r.shape[0]
@@ -650,7 +710,8 @@ def simulate_loop(plant: _Plant, r: np.ndarray, v0: float, controller: str, *, f
     volt = np.empty(N)
     cmd = np.empty(N)
     limited = np.zeros(N, dtype=bool)
-    y[0] = plant.start(v0)
+    dist = disturbance if disturbance is not None else np.zeros(N)
+    y[0] = plant.start(v0) + dist[0]
     volt[0] = cmd[0] = v0
     step_max = float("inf") if max_slew is None else max_slew * dt
     use_ff = controller in ("ff", "ff+pid", "smc")
@@ -679,7 +740,7 @@ def simulate_loop(plant: _Plant, r: np.ndarray, v0: float, controller: str, *, f
         m = y[k] + noise[k]
         ym[k] = m
         rk = r[k]
-        u_ff = ffa[k + 1] if ffa is not None else 0.0
+        u_ff = ffa[k + 1] if ffa is not None else (v0 if controller == "smc-noinv" else 0.0)
         if controller == "ff":
             c = u_ff
         elif smc is not None:
@@ -721,7 +782,7 @@ def simulate_loop(plant: _Plant, r: np.ndarray, v0: float, controller: str, *, f
         cmd[k + 1] = c
         volt[k + 1] = v
         vprev = v
-        y[k + 1] = plant.advance(k + 1, v)
+        y[k + 1] = plant.advance(k + 1, v) + dist[k + 1]
     ym[N - 1] = y[N - 1] + noise[N - 1]
     return y, ym, volt, cmd, limited
 
@@ -734,7 +795,11 @@ def step_metrics(target: Target, y: np.ndarray) -> list[dict]:
     (10→90 %); ``settling_time_5pct_s`` / ``settling_time_2pct_s`` = time after which
     |s − 1| stays ≤ 5 % / 2 % until the end of the hold (002's Ts uses ±5 %; NaN when not
     settled); ``overshoot_pct`` = 100·max(0, max s − 1); ``steady_state_error_<unit>`` = mean of
-    y − L1 over the last 10 % of the hold.
+    y − L1 over the last 10 % of the hold; ``e_max_settled_<unit>`` and ``rmse_settled_<unit>`` =
+    max |y − L1| and sqrt(mean (y − L1)²) *after the transient*, from the ±5 % settling time to the
+    end of the hold (paper 002 Table 6's emax and RMSE of a step: 0.042 and 0.009 µm, far below
+    the step's transient; NaN when not settled). The trajectory's own max error and RMSE
+    (:func:`~hystfit.invert.tracking_metrics`, over every sample) include the transient.
     """
     out = []
     dt = target.dt
@@ -758,10 +823,17 @@ def step_metrics(target: Target, y: np.ndarray) -> list[dict]:
 
         t10, t90 = first(s >= 0.1), first(s >= 0.9)
         tail = seg[-max(1, seg.size // 10):]
+        ts5 = settle(0.05)
+        if math.isfinite(ts5):
+            e_set = seg[int(round(ts5 / dt)):] - st.to_level
+            e_max_set, rmse_set = float(np.max(np.abs(e_set))), float(np.sqrt(np.mean(e_set ** 2)))
+        else:
+            e_max_set = rmse_set = float("nan")
         out.append({"t_s": st.index * dt, "from": st.from_level, "to": st.to_level, "t90_s": t90,
-                    "rise_time_s": t90 - t10, "settling_time_5pct_s": settle(0.05),
+                    "rise_time_s": t90 - t10, "settling_time_5pct_s": ts5,
                     "settling_time_2pct_s": settle(0.02), "overshoot_pct": 100.0 * max(0.0, float(s.max()) - 1.0),
-                    f"steady_state_error_{target.unit}": float(np.mean(tail) - st.to_level)})
+                    f"steady_state_error_{target.unit}": float(np.mean(tail) - st.to_level),
+                    f"e_max_settled_{target.unit}": e_max_set, f"rmse_settled_{target.unit}": rmse_set})
     return out
 
 
@@ -814,9 +886,24 @@ class TrackResult:
                     vals = [s[key] for s in run.steps]
                     row[key] = float("nan") if any(not np.isfinite(v) for v in vals) else float(np.mean(vals))
                 row["overshoot_pct"] = float(np.max([s["overshoot_pct"] for s in run.steps]))
+                for key in (f"e_max_settled_{u}", f"rmse_settled_{u}"):  # worst step (NaN: one did not settle)
+                    vals = [s[key] for s in run.steps]
+                    row[key] = float("nan") if any(not np.isfinite(v) for v in vals) else float(np.max(vals))
             row["limited_pct"] = 100.0 * sum(s.n for s in run.limit_spans) / max(1, self.target.n - 1)
             rows.append(row)
         return rows
+
+
+def check_smc_options(options: dict | None) -> dict:
+    """``--smc-option`` keys checked against :data:`SMC_OPTIONS` (values are checked by :func:`design_smc`)."""
+    options = dict(options or {})
+    bad = [k for k in options if k not in SMC_OPTIONS]
+    if bad:
+        raise ConfigError(f"--smc-option {bad[0]!r}: unknown; valid options: {', '.join(SMC_OPTIONS)}")
+    for key in ("eps", "alpha", "k"):
+        if key in options and (isinstance(options[key], bool) or not isinstance(options[key], (int, float))):
+            raise ConfigError(f"--smc-option {key}={options[key]!r}: must be a number")
+    return options
 
 
 def parse_controllers(text: str | Sequence[str]) -> list[str]:
@@ -836,7 +923,7 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
           vmin: float | None = None, vmax: float | None = None, max_slew: float | None = None,
           noise_std: float = 0.0, seed: int = 0, kp: float | None = None, ki: float | None = None,
           kd: float | None = None, bandwidth_Hz: float | None = None, anti_windup: str = "backcalc",
-          progress=None) -> TrackResult:
+          smc_options: dict | None = None, disturbance: np.ndarray | None = None, progress=None) -> TrackResult:
     """Simulate the closed loop for each controller (module docstring).
 
     Parameters
@@ -853,6 +940,8 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
         none ⇒ :func:`auto_pid`.
     bandwidth_Hz : bandwidth for the automatic PID and the sliding mode.
     anti_windup : ``"backcalc"`` or ``"clamp"``.
+    smc_options : :data:`SMC_OPTIONS` for :func:`design_smc` (``smc``, ``smc-noinv``).
+    disturbance : optional output disturbance (N,) in the unit of ``pf``, added to the plant output.
     """
     controllers = parse_controllers(list(controllers))
     if anti_windup not in ("backcalc", "clamp"):
@@ -869,7 +958,9 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
     gains_given = any(g is not None for g in (kp, ki, kd))
     if gains_given and not need_pid:
         raise ConfigError("--kp/--ki/--kd apply to the pid and ff+pid controllers; add one to the controllers")
-    if gains_given and bandwidth_Hz is not None and "smc" not in controllers:
+    if smc_options and not any(c.startswith("smc") for c in controllers):
+        raise ConfigError("--smc-option applies to the smc and smc-noinv controllers; add one to the controllers")
+    if gains_given and bandwidth_Hz is not None and not any(c.startswith("smc") for c in controllers):
         raise ConfigError("--bandwidth sets automatic gains (and the sliding mode); drop it or drop --kp/--ki/--kd")
     plant_pf = pf if plant_pf is None else plant_pf
     if plant_pf.unit != pf.unit:
@@ -894,9 +985,9 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
                else auto_pid(nominal, bandwidth_Hz, anti_windup))
     smc = None
     notes = list(inv.notes)
-    if "smc" in controllers:
+    if any(c.startswith("smc") for c in controllers):
         bw = bandwidth_Hz if bandwidth_Hz is not None else auto_pid(nominal).bandwidth_Hz
-        smc = design_smc(nominal, bw, hi - lo)
+        smc = design_smc(nominal, bw, hi - lo, **check_smc_options(smc_options))
     rng = np.random.default_rng(seed)
     noise = rng.standard_normal(target.n) * noise_std if noise_std > 0 else np.zeros(target.n)
     ff = inv.desired_voltage_V
@@ -909,17 +1000,18 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
         with np.errstate(all="ignore"):  # a diverging plant model is reported below, not warned about
             y, ym, volt, cmd, limited = simulate_loop(
                 plant, target.y, inv.initial_voltage_V, name, ff=ff, pid=pid if name in ("pid", "ff+pid") else None,
-                smc=smc if name == "smc" else None, vmin=lo, vmax=hi, max_slew=max_slew, noise=noise, dt=dt)
+                smc=smc if name.startswith("smc") else None, vmin=lo, vmax=hi, max_slew=max_slew, noise=noise,
+                dt=dt, disturbance=disturbance)
         wall = time.perf_counter() - t0
         if not np.all(np.isfinite(y)):
             notes.append(f"{name}: the closed loop diverged (non-finite output)")
         spans = find_spans(limited, cmd - volt, dt, "limit")
-        details: dict = {"uses_feedforward": name != "pid"}
+        details: dict = {"uses_feedforward": name not in ("pid", "smc-noinv")}
         if name in ("pid", "ff+pid") and pid is not None:
             details["pid"] = {"kp": pid.kp, "ki": pid.ki, "kd": pid.kd, "tf_s": pid.tf_s, "tt_s": pid.tt_s,
                               "anti_windup": pid.anti_windup, "rule": pid.rule, "bandwidth_Hz": pid.bandwidth_Hz,
                               "gain_margin": pid.gain_margin, "phase_margin_deg": pid.phase_margin_deg}
-        if name == "smc" and smc is not None:
+        if name.startswith("smc") and smc is not None:
             details["smc"] = {"design": smc.describe(), "Mx": smc.Mx.tolist(), "Mp": smc.Mp, "G": smc.G.tolist(),
                               "q_per_s": smc.q, "eps_V_per_s": smc.eps, "alpha_per_V": smc.alpha,
                               "bandwidth_Hz": smc.bandwidth_Hz}
@@ -932,3 +1024,81 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
     return TrackResult(pf.path, plant_pf.path, pf.model_name, plant_pf.model_name, pf.unit, target, inv, plant_cells,
                        nominal, pid, smc, tuple(runs), float(noise_std), int(seed),
                        dict(inv.limits, max_slew_V_per_s=max_slew), tuple(notes))
+
+
+# ----------------------------------------------------------------------------------------------
+# Bandwidths (paper 003's tracking and disturbance-rejection figures)
+# ----------------------------------------------------------------------------------------------
+
+#: cycles simulated per frequency; the first ones are left out of the gain (start transient)
+BANDWIDTH_CYCLES, BANDWIDTH_SKIP_CYCLES = 6, 2
+
+
+def _gain_at(x: np.ndarray, f_Hz: float, dt: float, skip: int) -> complex:
+    """Complex amplitude of x at f (least squares on sin, cos and an offset over x[skip:])."""
+    k = np.arange(skip, x.shape[0]) * dt
+    X = np.column_stack([np.ones_like(k), np.cos(2 * np.pi * f_Hz * k), np.sin(2 * np.pi * f_Hz * k)])
+    c, *_ = np.linalg.lstsq(X, x[skip:], rcond=None)
+    return complex(c[1], -c[2])
+
+
+def _crossing(freqs: np.ndarray, mags: np.ndarray, level: float, below: bool) -> float:
+    """The lowest frequency where |·| crosses ``level`` (going below it if ``below``, else above),
+    interpolated linearly in (log f, dB); 0.0 when the lowest grid frequency is already past it
+    (e.g. |S| = 1 everywhere: feedforward alone rejects nothing), NaN when it never crosses on
+    the grid (the bandwidth lies beyond it)."""
+    db, ldb = 20 * np.log10(np.maximum(mags, 1e-300)), 20 * math.log10(level)
+    if (below and db[0] < ldb) or (not below and db[0] >= ldb - 1e-9):
+        return 0.0
+    for i in range(1, freqs.size):
+        a, b = db[i - 1] - ldb, db[i] - ldb
+        if (below and a >= 0 > b) or (not below and a < 0 <= b):
+            w = a / (a - b)
+            return float(math.exp(math.log(freqs[i - 1]) + w * (math.log(freqs[i]) - math.log(freqs[i - 1]))))
+    return float("nan")
+
+
+def measure_bandwidths(pf: ParamsFile, controllers: Sequence[str], *, amplitude: float, offset: float, fs: float,
+                       freqs_Hz: Sequence[float] | None = None, **track_options) -> dict:
+    """Tracking (−3 dB) and disturbance-rejection (0 dB) bandwidths of each controller, by simulation.
+
+    Tracking: the reference is paper 002's sine of ``amplitude`` (peak to peak) about ``offset``
+    at each frequency; T(f) = Y(f)/R(f) at the fundamental, over the cycles after the first
+    :data:`BANDWIDTH_SKIP_CYCLES`; the bandwidth is the lowest frequency where |T| falls below
+    1/√2 (−3 dB). Disturbance rejection: the reference is constant (at ``offset`` + amplitude/2)
+    and a sinusoidal output disturbance of amplitude/2 is added to the plant output;
+    S(f) = Y(f)/D(f); the bandwidth is the lowest frequency where |S| reaches 1 (0 dB: the
+    loop no longer attenuates the disturbance) — paper 003's two figures. Interpolated in
+    (log f, dB); NaN (reported as "beyond the grid") when no crossing lies on the grid.
+    ``freqs_Hz`` defaults to 12 log-spaced frequencies from fs/2000 to fs/5. The loops are
+    those of :func:`track` (same plant, limits, noise, gains): ``track_options`` go there.
+    """
+    freqs = np.asarray(freqs_Hz if freqs_Hz is not None else np.geomspace(fs / 2000, fs / 5, 12), dtype=float)
+    if freqs.size < 2 or not np.all(np.isfinite(freqs)) or np.any(freqs <= 0) or np.any(freqs >= fs / 2):
+        raise ConfigError(f"bandwidth frequencies must be ≥ 2 values in (0, {fs / 2:g}) Hz")
+    freqs = np.sort(freqs)
+    from .invert import sine_target, target_from_array
+
+    T = {c: [] for c in controllers}
+    S = {c: [] for c in controllers}
+    for f in freqs:
+        tgt = sine_target(amplitude, float(f), BANDWIDTH_CYCLES, fs, offset=offset, unit=pf.unit)
+        skip = int(round(BANDWIDTH_SKIP_CYCLES * fs / f))
+        res = track(pf, tgt, controllers, **track_options)
+        R = _gain_at(tgt.y, f, tgt.dt, skip)
+        for run in res.runs:
+            T[run.controller].append(abs(_gain_at(run.output, f, tgt.dt, skip) / R))
+        const = target_from_array(np.full(tgt.n, offset + 0.5 * amplitude), tgt.dt, unit=pf.unit,
+                                  description="constant", frequency_Hz=float(f))
+        d = 0.5 * amplitude * np.sin(2 * np.pi * f * np.arange(tgt.n) * tgt.dt)
+        res = track(pf, const, controllers, disturbance=d, **track_options)
+        D = _gain_at(d, f, tgt.dt, skip)
+        for run in res.runs:
+            S[run.controller].append(abs(_gain_at(run.output, f, tgt.dt, skip) / D))
+    out = {"freqs_Hz": freqs.tolist(), "amplitude": amplitude, "offset": offset, "controllers": {}}
+    for c in controllers:
+        t, s = np.array(T[c]), np.array(S[c])
+        out["controllers"][c] = {"tracking_gain": t.tolist(), "sensitivity_gain": s.tolist(),
+                                 "tracking_bandwidth_Hz": _crossing(freqs, t, 1 / math.sqrt(2), True),
+                                 "disturbance_bandwidth_Hz": _crossing(freqs, s, 1.0, False)}
+    return out

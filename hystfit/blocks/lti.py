@@ -31,6 +31,9 @@ optimize = lazy_module("scipy.optimize")
 
 #: relative tolerance on the sample period when a linear part identified at one rate is used at another
 DT_RTOL = 1e-6
+#: zeros with |z| above this (or oscillating, Re z < 0 and |z| > 1/2) are not inverted exactly
+#: (:meth:`LinearSS.inverse_plan`)
+ACCEPTABLE_RADIUS = 0.99
 
 
 @njit(cache=True)
@@ -190,25 +193,31 @@ class LinearSS:
                        float(self.D), self.dc_gain(), X)
         return Y[:, 0] if x.ndim == 1 else Y
 
-    def minimum_phase(self, radius: float = 0.99) -> tuple[np.ndarray, np.ndarray, int, float]:
-        """Minimum-phase approximation (paper 003 §4.2) for inversion.
+    # ------------------------------------------------------------------ inversion
+    def inverse_plan(self, radius: float = ACCEPTABLE_RADIUS) -> "InversePlan":
+        """How :meth:`inverse_filter` inverts this part: its zeros sorted into three kinds.
 
-        Zeros outside the unit circle are reflected to 1/z̄ (the magnitude response is kept:
-        |e^{iω} − z| = |z|·|e^{iω} − 1/z̄|), then any zero with |z| > ``radius`` is pulled in to
-        ``radius`` (zeros on the circle, e.g. the z = −1 zeros of a bilinear filter, would make
-        the inverse undamped). Leading numerator coefficients below 1e-9 of the largest are a
-        pure delay of ``delay`` samples. The static gain is kept exactly. The phase removed by
-        the reflection is, at low frequency, a delay; its group delay at ω → 0,
-        ``tau_allpass`` = Σ [Re 1/(1 − z'_i) − Re 1/(1 − z_i)] samples over the moved zeros, is
-        compensated by a time advance in :meth:`inverse_filter` (paper 003 instead drops the
-        right-half-plane zeros, s → 0; reflection keeps the magnitude).
+        With b(z⁻¹) = z^{−d}·b_t(z⁻¹) (leading coefficients below 1e-9 of the largest are the pure
+        delay d) and the zeros z_i of b_t:
 
-        Returns
-        -------
-        b_mp : numerator without the delay (z⁻¹ coefficients, b_mp[0] ≠ 0).
-        a : denominator.
-        delay : integer delay d (samples).
-        tau_allpass : group delay (samples) of the removed all-pass part at DC.
+        * **acceptable** — |z| ≤ ``radius`` (0.99) and not oscillating (Re z ≥ 0, or |z| ≤ 1/2): inverted
+          exactly; the inverse's modes are then stable and slower than f_s/4 or decay ≥ 2× per
+          sample.
+        * **reflected** — outside the unit circle (|z| > 1/``radius``) with an acceptable mirror
+          image 1/z̄: replaced by 1/z̄ (the magnitude response is kept, |e^{iω} − z| =
+          |z|·|e^{iω} − 1/z̄|) and the removed all-pass approximated by its group delay at DC,
+          ``tau_allpass`` = Σ [Re 1/(1 − z'_i) − Re 1/(1 − z_i)] samples, a time advance
+          (paper 003 §4.2 drops right-half-plane zeros instead; reflection keeps the magnitude).
+        * **zero-phase** — all the others: on or near the unit circle (the z ≈ −1 zeros of a
+          bilinear stage or of a fast zero-order hold), or inside but oscillating (Re z < 0,
+          |z| > 1/2), whose exact inverse would alternate sign sample to sample. They are not
+          inverted: ZPETC (Tomizuka 1987) applies b_u(z)/b_u(1)² instead, b_u(z⁻¹) = Π(1 − z_i z⁻¹)
+          over these zeros — a non-causal FIR of their count in samples — so the plant times the
+          feedforward is b_u(z⁻¹)·b_u(z)/b_u(1)² = |b_u(e^{iω})|²/b_u(1)²: no phase error, unit
+          static gain, and a gain that falls to zero where b_u vanishes (Nyquist for z = −1)
+          instead of an inverse that blows up there. Gain error at low frequency O(ω²).
+
+        The static gain is kept exactly: b_a(1)·b_u(1) = b_t(1).
         """
         b, a = self.tf()
         big = np.max(np.abs(b))
@@ -219,39 +228,125 @@ class LinearSS:
             d += 1
         bt = b[d:]
         z = np.roots(bt) if bt.size > 1 else np.empty(0, complex)
-        z_new = z.copy()
-        out = np.abs(z_new) > 1.0
-        z_new[out] = 1.0 / np.conj(z_new[out])
-        near = np.abs(z_new) > radius
-        z_new[near] *= radius / np.abs(z_new[near])
-        moved = out | near
-        tau = float(np.sum(np.real(1.0 / (1.0 - z_new[moved])) - np.real(1.0 / (1.0 - z[moved]))))
-        b_mp = np.real(np.poly(z_new)) if z_new.size else np.array([1.0])
-        s_old, s_new = float(np.sum(bt)), float(np.sum(b_mp))
-        if s_old == 0 or s_new == 0:
+
+        def acceptable(x):
+            return (np.abs(x) <= radius) & ((x.real >= 0) | (np.abs(x) <= 0.5))
+
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mirror = 1.0 / np.conj(z)
+        keep = acceptable(z)
+        refl = ~keep & (np.abs(z) > 1.0 / radius) & acceptable(mirror)
+        zp = ~keep & ~refl
+        tau = float(np.sum(np.real(1.0 / (1.0 - mirror[refl])) - np.real(1.0 / (1.0 - z[refl]))))
+        b_u = np.real(np.poly(z[zp])) if np.any(zp) else np.array([1.0])
+        za = np.r_[z[keep], mirror[refl]]
+        b_a = np.real(np.poly(za)) if za.size else np.array([1.0])
+        s_t, s_a, s_u = float(np.sum(bt)), float(np.sum(b_a)), float(np.sum(b_u))
+        if s_t == 0 or s_a == 0 or s_u == 0:
             raise ConfigError("the linear part has a zero at z = 1 (no static gain); it cannot be inverted")
-        b_mp = b_mp * (s_old / s_new)
-        return b_mp, a, d, tau
+        b_a = b_a * (s_t / (s_a * s_u))
+        return InversePlan(b_a=b_a, a=a, delay=d, tau_allpass=tau, b_u=b_u, zeros=z, kinds=tuple(
+            "acceptable" if k else ("reflected" if r else "zero-phase") for k, r in zip(keep, refl)))
 
-    def inverse_filter(self, y: np.ndarray, radius: float = 0.99) -> np.ndarray:
-        """Input v (N,) whose response follows y (N,): stable inverse of the minimum-phase approximation.
+    def inverse_filter(self, y: np.ndarray, radius: float = ACCEPTABLE_RADIUS) -> np.ndarray:
+        """Input v (N,) whose response follows y (N,): a stable, non-oscillating inverse (:meth:`inverse_plan`).
 
-        v = (a / b_mp)[y advanced by d + τ_allpass samples] (see :meth:`minimum_phase`), the
-        fractional advance by linear interpolation, y held after its last sample, the inverse
-        filter at rest at its first input. Exact (up to the held end) for a minimum-phase part
-        with zeros inside ``radius``; otherwise the all-pass remainder is approximated by its
-        low-frequency delay. Needs a smooth target: the inverse amplifies where |G| is small.
+        v = (a / b_a)[ b_u(z)/b_u(1)² [y advanced by d + τ_allpass samples] ]: the fractional
+        advance by linear interpolation, y held after its last sample, the inverse filter at
+        rest at its first input. Exact for a part whose zeros are all acceptable; otherwise
+        zero-phase (ZPETC) for the zeros near the unit circle and a low-frequency delay for the
+        reflected ones. The output is non-causal by d + τ + (number of zero-phase zeros)
+        samples: a preview of the target.
         """
         y = np.asarray(y, dtype=np.float64)
         if self.order == 0:
             return y.copy()
-        b_mp, a, d, tau = self.minimum_phase(radius)
+        plan = self.inverse_plan(radius)
         N = y.shape[0]
         k = np.arange(N, dtype=np.float64)
-        y_adv = np.interp(k + d + tau, k, y)
-        zi = signal.lfilter_zi(a, b_mp) * y_adv[0]
-        v, _ = signal.lfilter(a, b_mp, y_adv, zi=zi)
+        w = np.interp(k + plan.delay + plan.tau_allpass, k, y)
+        s = plan.b_u.size - 1
+        if s:
+            padded = np.r_[w, np.full(s, w[-1])]
+            w = sum(c * padded[j: j + N] for j, c in enumerate(plan.b_u)) / float(np.sum(plan.b_u)) ** 2
+        zi = signal.lfilter_zi(plan.a, plan.b_a) * w[0]
+        v, _ = signal.lfilter(plan.a, plan.b_a, w, zi=zi)
         return v
+
+    # ------------------------------------------------------------------ other sample rates
+    def to_continuous(self, method: str = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """The continuous state space (A_c, B_c, C_c, D_c) this discrete part is the image of.
+
+        ``method``: "zoh" — sampled behind a zero-order hold (A = e^{A_c T}; the matrix logarithm
+        of [[A, B], [0, 1]] = T·[[A_c, B_c], [0, 0]]); "bilinear" — the Tustin image
+        (A_c = (2/T)(A − I)(A + I)⁻¹, scipy's bilinear realization inverted exactly); "auto" —
+        zero-order hold for a strictly proper part (D = 0: paper 003's form, a sample-and-hold
+        drive) and bilinear when it has feedthrough (a smooth, not held, input; hystfit's
+        virtual actuator's stage is bilinear). Refused when no real continuous system maps to it
+        (a pole on the negative real axis: z ≈ −1 for bilinear, any z < 0 for zero-order hold).
+        """
+        method = self._continuous_method(method)
+        r, T = self.order, self.dt
+        A, B, C = self.A, self.B.reshape(r, 1), self.C.reshape(1, r)
+        if method == "zoh":
+            M = np.zeros((r + 1, r + 1))
+            M[:r, :r], M[:r, r:] = A, B
+            M[r, r] = 1.0
+            if np.any((np.abs(self.poles().imag) < 1e-12) & (self.poles().real <= 0)):
+                raise ConfigError(f"the linear part has a pole on the negative real axis ({self._pole_text()}): "
+                                  "it is not a zero-order-hold sample of a continuous system; it cannot be resampled")
+            L = linalg.logm(M)
+            L = np.real(L) / T
+            return L[:r, :r], L[:r, r], self.C.copy(), float(self.D)
+        eye = np.eye(r)
+        if np.min(np.abs(self.poles() + 1.0)) < 1e-9:
+            raise ConfigError(f"the linear part has a pole at z = −1 ({self._pole_text()}): it is not the bilinear "
+                              "image of a continuous system; it cannot be resampled")
+        Ac = (2.0 / T) * np.linalg.solve((A + eye).T, (A - eye).T).T
+        ima = eye - 0.5 * T * Ac
+        Bc = ima @ B / T
+        Cc = C @ ima
+        Dc = float(self.D - 0.5 * (Cc @ B)[0, 0])  # scipy: D = D_c + ½·C_c·B (B discrete)
+        return Ac, Bc.ravel(), Cc.ravel(), Dc
+
+    def _continuous_method(self, method: str) -> str:
+        if method not in ("auto", "zoh", "bilinear"):
+            raise ConfigError(f"resampling method must be 'auto', 'zoh' or 'bilinear', got {method!r}")
+        if method == "auto":
+            return "zoh" if self.D == 0.0 else "bilinear"
+        return method
+
+    def _pole_text(self) -> str:
+        return ", ".join(f"{p:.4g}" for p in self.poles())
+
+    def resampled(self, dt: float, method: str = "auto") -> "LinearSS":
+        """The same continuous system (:meth:`to_continuous`) discretized at period ``dt`` by the same
+        method: exact re-discretization, so a part identified at 5 kHz simulates and inverts at
+        10 kHz. The static gain is kept exactly. Returns ``self`` when ``dt`` equals its period."""
+        if self.order == 0:
+            return replace(self, dt=float(dt))
+        if abs(dt - self.dt) <= DT_RTOL * self.dt:
+            return self
+        method = self._continuous_method(method)
+        Ac, Bc, Cc, Dc = self.to_continuous(method)
+        r = self.order
+        A, B, C, D, _ = signal.cont2discrete((Ac, Bc.reshape(r, 1), Cc.reshape(1, r), np.array([[Dc]])), float(dt),
+                                             method=method)
+        return replace(self, A=np.asarray(A), B=np.asarray(B).ravel(), C=np.asarray(C).ravel(), dt=float(dt),
+                       D=float(np.asarray(D).ravel()[0]))
+
+
+@dataclass(frozen=True, eq=False)
+class InversePlan:
+    """:meth:`LinearSS.inverse_plan`: v = (a/b_a)[b_u(z)/b_u(1)² [y(k + delay + tau_allpass)]]."""
+
+    b_a: np.ndarray
+    a: np.ndarray
+    delay: int
+    tau_allpass: float
+    b_u: np.ndarray
+    zeros: np.ndarray
+    kinds: tuple[str, ...]
 
 
 def _correlations(v: np.ndarray, y: np.ndarray, M: int) -> tuple[np.ndarray, np.ndarray]:
@@ -301,7 +396,7 @@ def _as_list(x) -> list[np.ndarray]:
 
 
 def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | None = None, *,
-                        order: int | None = None, feedthrough: bool = True, correlation: str = "exact",
+                        order: int | None = None, feedthrough: "bool | str" = "auto", correlation: str = "exact",
                         ridge: float = 1e-9) -> LinearSS:
     r"""Linear discrete state space from input/output data by correlation analysis + Hankel SVD (paper 003 §2.3).
 
@@ -323,12 +418,20 @@ def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | Non
     4. C = first row of U₁Σ₁^{1/2}, B = first column of Σ₁^{1/2}V₁ᵀ (eq. 10),
        A = Σ₁^{−1/2} U₁ᵀ H₁ V₁ Σ₁^{−1/2} (eq. 12).
 
-    Deviation: paper 003 assumes D = 0 and sums eq. 6 from j = 1. With ``feedthrough=True``
-    (default) the sum starts at j = 0 and D = α(0) is estimated too: the sampled response of a
-    continuous stage to a smooth (not sample-and-hold) input — and hystfit's virtual actuator,
-    whose dynamics are a bilinear filter — has a first Markov parameter of ~10 % of the static
-    gain, which D = 0 cannot represent; for a truly strictly proper system the estimate is ≈ 0.
-    ``feedthrough=False`` is the paper's D = 0.
+    Feedthrough. Paper 003 assumes D = 0 and sums eq. 6 from j = 1 (``feedthrough=False``).
+    ``feedthrough=True`` starts the sum at j = 0 and estimates D = α(0) too: the sampled response
+    of a continuous stage to a smooth (not sample-and-hold) input — and hystfit's virtual
+    actuator, whose dynamics are a bilinear filter — has a first Markov parameter of ~10 % of
+    the static gain, which D = 0 cannot represent. ``feedthrough="auto"`` (default) keeps the
+    paper's D = 0 unless the data demand D: both are realized from the same normal equations,
+    each is simulated on the captures (from rest, means removed), and D is kept only when it at
+    least halves the sum of squared errors (:data:`FEEDTHROUGH_SSE_RATIO`; an unstable or
+    non-finite D = 0 realization counts as infinite error). Measured on
+    ``sample_data/broadband`` (PRBS + steps from v = u): RMSE 6.7 µm with D = 0 (a spurious
+    mode at z ≈ −1 from the PRBS's spectral nulls; alternating with the PI weights does not
+    remove it) against 0.099 µm with D, so D is kept there; on zero-order-hold data α(0) ≈ 0
+    and D = 0 is kept. A feedthrough brings zeros near z = −1; :meth:`LinearSS.inverse_filter`
+    handles them without an oscillating inverse.
 
     Parameters
     ----------
@@ -339,7 +442,8 @@ def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | Non
     n_markov : number M of Markov parameters (even; default min(1000, N_min/3)). They must cover
         the decay of the impulse response (the Hankel matrices are M/2 × M/2).
     order : force the order instead of the gap rule.
-    feedthrough : estimate D = α(0) (default) or take the paper's D = 0.
+    feedthrough : True (estimate D = α(0)), False (the paper's D = 0) or "auto" (default: D = 0
+        unless D halves the simulation error, see above).
     correlation : "exact" (default) or "toeplitz" (paper 003 eq. 4 + Levinson), see step 2.
     ridge : Tikhonov regularization relative to the mean input power (guards against spectral
         nulls of the input, e.g. at the clock frequency of a PRBS: the response there is
@@ -363,6 +467,8 @@ def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | Non
         raise InputError(f"identify_linear_era: need 4 ≤ n_markov < capture length (got n_markov={M}, N={n_min})")
     if not 1 <= max_order < M // 2:
         raise ConfigError(f"identify_linear_era: max_order must be in [1, {M // 2 - 1}], got {max_order}")
+    if not (isinstance(feedthrough, bool) or feedthrough == "auto"):
+        raise ConfigError(f"identify_linear_era: feedthrough must be true, false or 'auto', got {feedthrough!r}")
     if correlation not in ("exact", "toeplitz"):
         raise ConfigError(f"identify_linear_era: correlation must be 'exact' or 'toeplitz', got {correlation!r}")
     if correlation == "toeplitz":
@@ -380,10 +486,8 @@ def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | Non
             raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
         col = ruu.copy()
         col[0] *= 1.0 + ridge
-        if feedthrough:
-            alpha = linalg.solve_toeplitz(col, ryu)  # α(0) … α(M)
-        else:
-            alpha = np.r_[0.0, linalg.solve_toeplitz(col[:M], ryu[1:])]  # α(0) = 0, α(1) … α(M)
+        solve_d = lambda: linalg.solve_toeplitz(col, ryu)  # noqa: E731  α(0) … α(M)
+        solve_0 = lambda: np.r_[0.0, linalg.solve_toeplitz(col[:M], ryu[1:])]  # noqa: E731  α(0) = 0
     else:
         G = np.zeros((M + 1, M + 1))
         g = np.zeros(M + 1)
@@ -394,10 +498,39 @@ def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | Non
         if not G[0, 0] > 0:
             raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
         G[np.diag_indices_from(G)] += ridge * np.trace(G) / (M + 1)
-        if feedthrough:
-            alpha = linalg.solve(G, g, assume_a="pos")
-        else:
-            alpha = np.r_[0.0, linalg.solve(G[1:, 1:], g[1:], assume_a="pos")]
+        solve_d = lambda: linalg.solve(G, g, assume_a="pos")  # noqa: E731
+        solve_0 = lambda: np.r_[0.0, linalg.solve(G[1:, 1:], g[1:], assume_a="pos")]  # noqa: E731
+    if feedthrough is True:
+        return _realize(solve_d(), dt, max_order, order)
+    lin0 = _realize(solve_0(), dt, max_order, order)
+    if feedthrough is False:
+        return lin0
+    lin_d = _realize(solve_d(), dt, max_order, order)
+    sse_d, sse_0 = _simulation_sse(lin_d, vs, ys), _simulation_sse(lin0, vs, ys)
+    return lin_d if sse_d < FEEDTHROUGH_SSE_RATIO * sse_0 else lin0
+
+
+#: ``feedthrough="auto"`` keeps D only when it multiplies the simulation SSE by less than this
+FEEDTHROUGH_SSE_RATIO = 0.5
+
+
+def _simulation_sse(lin: LinearSS, vs, ys) -> float:
+    """Σ over captures of the squared error of lin's response to v (from rest, means removed); inf
+    when the realization is unstable or the response not finite."""
+    if not lin.is_stable:
+        return math.inf
+    total = 0.0
+    with np.errstate(all="ignore"):
+        for a, b in zip(vs, ys):
+            e = lin.filter(a - a.mean())
+            e = (e - e.mean()) - (b - b.mean())
+            total += float(e @ e)
+    return total if math.isfinite(total) else math.inf
+
+
+def _realize(alpha: np.ndarray, dt: float, max_order: int, order: int | None) -> LinearSS:
+    """Hankel SVD realization (paper 003 eq. 7–12) of the Markov parameters α(0) … α(M)."""
+    M = alpha.size - 1
     n = M // 2
     idx = np.arange(n)
     H = alpha[1 + idx[:, None] + idx[None, :]]
@@ -579,6 +712,23 @@ def fit_linear_to_sine(v, y, dt: float, *, fn_bounds_Hz: tuple[float, float] | N
     return replace(lin, fit_points=tuple((float(f), complex(g)) for f, g in zip(f_u, G_u)), continuous=(K, fn, z))
 
 
+def check_era_options(max_order, n_markov, feedthrough, correlation, era_order) -> None:
+    """One check of the ERA identification options for the ``lti`` block and the Hammerstein model."""
+    def positive_int(x):
+        return isinstance(x, int) and not isinstance(x, bool) and x >= 1
+
+    if not positive_int(max_order):
+        raise ConfigError(f"max_order must be a positive integer, got {max_order!r}")
+    if n_markov is not None and not (positive_int(n_markov) and n_markov >= 4):
+        raise ConfigError(f"n_markov must be an integer ≥ 4 (or null: automatic), got {n_markov!r}")
+    if era_order is not None and not positive_int(era_order):
+        raise ConfigError(f"era_order must be a positive integer (or null: the singular-value gap), got {era_order!r}")
+    if not (isinstance(feedthrough, bool) or feedthrough == "auto"):
+        raise ConfigError(f"feedthrough must be true, false or 'auto', got {feedthrough!r}")
+    if correlation not in ("exact", "toeplitz"):
+        raise ConfigError(f"correlation must be 'exact' or 'toeplitz', got {correlation!r}")
+
+
 def is_broadband(u: np.ndarray, min_bins: int = 64, level: float = 1e-3) -> bool:
     """True when the input excites many frequencies (PRBS, multisine, chirp, steps), not a few lines.
 
@@ -614,19 +764,25 @@ class Lti(Block):
     ---------
     order, A, B, C, D, dt_s, method, singular_values : the identified state space (set by
         :meth:`prepare`; ``order`` 0 before), its sample period and how it was found.
-    max_order, n_markov, feedthrough : identification options (:func:`identify_linear_era`).
-        ``feedthrough`` (D = α(0)) is on by default, as in the Hammerstein model: on the sample
-        PRBS/steps captures D = 0 (paper 003) identifies a spurious mode at z ≈ −1 from v = u
-        (RMSE 6.7 µm against 0.099 µm with D).
+    max_order, n_markov, feedthrough, correlation, era_order : identification options
+        (:func:`identify_linear_era`; ``era_order`` is its ``order``: force the order instead of
+        the singular-value gap). ``feedthrough`` is "auto" by default: the paper's D = 0 unless
+        D halves the simulation error (on the sample PRBS/steps captures it does: D = 0
+        identifies a spurious mode at z ≈ −1 from v = u, RMSE 6.7 µm against 0.099 µm with D).
 
-    Inverse: the stable inverse of the minimum-phase approximation (paper 003 §4.2,
-    :meth:`LinearSS.inverse_filter`); the target must be smooth.
+    Other sample rates: the stage is re-discretized exactly (:meth:`LinearSS.resampled`: zero-
+    order hold for D = 0, bilinear with a feedthrough), so a stage identified at 5 kHz
+    simulates and inverts at 10 kHz.
+
+    Inverse: a stable, non-oscillating inverse (:meth:`LinearSS.inverse_filter`: exact for
+    well-damped zeros, reflection for zeros far outside the unit circle, zero-phase ZPETC for
+    zeros near it).
     """
 
     name: ClassVar[str] = "lti"
     title: ClassVar[str] = "identified linear stage (ERA state space)"
     equation: ClassVar[str] = "s_{k+1} = A s_k + B x_k,  y_k = C s_k + D x_k,  G(1) = 1"
-    reference: ClassVar[str] = "paper 003 eq. 4–12 (correlation, Hankel SVD), §4.2 (minimum-phase inverse)"
+    reference: ClassVar[str] = "paper 003 eq. 4–12 (correlation, Hankel SVD), §4.2 (stable inverse; ZPETC near the unit circle)"
     candidate: ClassVar[bool] = False
 
     order: int = 0
@@ -639,9 +795,12 @@ class Lti(Block):
     singular_values: tuple[float, ...] = ()
     max_order: int = 8
     n_markov: int | None = None
-    feedthrough: bool = True
+    feedthrough: "bool | str" = "auto"
+    correlation: str = "exact"
+    era_order: int | None = None
 
     def __post_init__(self) -> None:
+        check_era_options(self.max_order, self.n_markov, self.feedthrough, self.correlation, self.era_order)
         r = self.order
         if not isinstance(r, int) or isinstance(r, bool) or r < 0:
             raise ValueError(f"order must be a non-negative integer, got {r!r}")
@@ -675,8 +834,8 @@ class Lti(Block):
             raise ConfigError("lti: no broadband capture (PRBS, multisine, steps) to identify the linear stage from; "
                               "sine captures determine one frequency each — use the dynamics block instead")
         lin = identify_linear_era([c.u for c in broad], [c.y for c in broad], broad[0].dt,
-                                  max_order=self.max_order, n_markov=self.n_markov,
-                                  feedthrough=self.feedthrough)
+                                  max_order=self.max_order, n_markov=self.n_markov, order=self.era_order,
+                                  feedthrough=self.feedthrough, correlation=self.correlation)
         if not lin.is_stable:
             raise InputError(f"lti: the identified linear stage is unstable (spectral radius "
                              f"{lin.spectral_radius:.4f}); use a longer or richer capture or a lower max_order")
@@ -688,28 +847,24 @@ class Lti(Block):
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         return ()
 
-    def _check_dt(self, dt: float) -> None:
-        if self.order and abs(dt - self.dt_s) > DT_RTOL * self.dt_s:
-            raise ConfigError(f"lti: the linear stage was identified at dt = {self.dt_s:g} s; this capture has "
-                              f"dt = {dt:g} s. Resample the capture or identify at this rate")
+    def linear_at(self, dt: float) -> LinearSS:
+        """The stage at sample period ``dt`` (exact re-discretization when it differs from ``dt_s``)."""
+        return self.linear.resampled(dt) if self.order else self.linear
 
     # ------------------------------------------------------------------ diagnose interface (not a candidate)
     def operator(self, x, view, phi):
-        self._check_dt(view.dt)
-        return self.linear.filter(x)
+        return self.linear_at(view.dt).filter(x)
 
     def describe(self, phi, shared, local, views, sources=None):
         return {"order": self.order, "method": self.method}
 
     # ------------------------------------------------------------------ composite interface
     def apply_population(self, x, theta, dt):
-        self._check_dt(dt)
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        return self.linear.filter(np.ascontiguousarray(x.T)).T
+        return self.linear_at(dt).filter(np.ascontiguousarray(x.T)).T
 
     def invert(self, theta, y, dt):
-        self._check_dt(dt)
-        return self.linear.inverse_filter(np.asarray(y, dtype=np.float64))
+        return self.linear_at(dt).inverse_filter(np.asarray(y, dtype=np.float64))
 
     def step_init(self, theta, x0, dt):
         return np.r_[np.zeros(self.order), float(x0)]  # state deviations, first input
@@ -721,7 +876,7 @@ class Lti(Block):
         x0 = state[r]
         if r == 0:
             return x_new.copy(), np.full((x_new.size, 1), x0)
-        lin = self.linear
+        lin = self.linear_at(dt)
         s = state[:r]
         d = x_new - x0
         y = lin.dc_gain() * x0 + lin.C @ s + lin.D * d

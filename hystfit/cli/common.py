@@ -53,6 +53,8 @@ def seed_callback(value: int) -> int:
         raise typer.BadParameter(str(exc)) from None
 
 
+MapeFloor = Annotated[float, typer.Option("--mape-floor", help="MAPE/SMAPE leave out samples with |y_meas| below "
+                                          "this fraction of the stroke; 0 = every sample, as paper 002.")]
 Seed = Annotated[int, typer.Option("--seed", callback=seed_callback,
                                    help="Seed of every random choice (0 … 4294967295); each run derives its own.")]
 Pop = Annotated[Optional[int], typer.Option("--pop", min=1, show_default="the optimizer's own, see 'hystfit "

@@ -11,7 +11,7 @@ from rich.table import Table
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut,
                      NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Start, Stop, Warmup,
-                     Runs, Seed, TimeCol, load_options, parse_key_values, plots_flag, print_capture_notes, phase,
+                     Runs, Seed, TimeCol, MapeFloor, load_options, parse_key_values, plots_flag, print_capture_notes, phase,
                      print_json, progress_bar, stderr, stdout)
 
 
@@ -35,6 +35,7 @@ def compare(
     runs: Runs = 1,
     out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-compare"),
     seed: Seed = 0,
+    mape_floor: MapeFloor = 0.01,
     jobs: Jobs = None,
     pop: Pop = None,
     iters: Iters = None,
@@ -96,7 +97,7 @@ def compare(
         with progress_bar(not quiet and not json_out, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
                               model_options=mopts, optimizer_options=opt_options, bounds=bnds,
-                              global_fit=not per_condition, progress=cb)
+                              global_fit=not per_condition, progress=cb, mape_floor=mape_floor)
         make_plots = plots_flag(plots, figures_alias)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
             write_compare_outputs(res, stage, make_figures=make_plots, n_jobs=jobs)

@@ -11,7 +11,7 @@ from rich.table import Table
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut,
                      NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Start, Stop, Warmup,
-                     Runs, Seed, TimeCol, load_options, parse_key_values, plots_flag, print_capture_notes, phase,
+                     Runs, Seed, TimeCol, MapeFloor, load_options, parse_key_values, plots_flag, print_capture_notes, phase,
                      print_json, progress_bar, stderr, stdout)
 
 
@@ -23,6 +23,7 @@ def identify(
     opt: Annotated[str, typer.Option("--opt", "-o", help="Optimizer name (see 'hystfit optimizers'); auto = exact linear solves + search over the nonlinear parameters.")] = "auto",
     out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-out"),
     seed: Seed = 0,
+    mape_floor: MapeFloor = 0.01,
     pop: Pop = None,
     iters: Iters = None,
     runs: Runs = 1,
@@ -73,7 +74,7 @@ def identify(
             print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, f"identify {m.name} / {opt_cls.name}") as cb:
             res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=not per_condition,
-                               bounds=bnds, progress=cb, model_options=mopts, jobs=jobs)
+                               bounds=bnds, progress=cb, model_options=mopts, jobs=jobs, mape_floor=mape_floor)
         make_plots = plots_flag(plots, figures_alias)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
             write_identify_outputs(res, stage, make_plots=make_plots, n_jobs=jobs)

@@ -10,8 +10,8 @@ from rich.table import Table
 
 from ..errors import ConfigError
 from .app import app, guarded
-from .common import (Condition, Force, JsonOut, OutputUnit, Plots, Quiet, Seed, TimeCol, parse_condition, phase,
-                     print_json, progress_bar, stderr, stdout)
+from .common import (Condition, Force, JsonOut, OutputUnit, Plots, Quiet, Seed, TimeCol, parse_condition,
+                     parse_key_values, phase, print_json, progress_bar, stderr, stdout)
 
 # --noise is in µm (as in 'hystfit synth'); the loop runs in the parameter file's unit.
 UM_PER_UNIT_INV = {"nm": 1e3, "um": 1.0, "mm": 1e-3, "m": 1e-6}
@@ -25,8 +25,9 @@ def track(
     params: Annotated[Path, typer.Argument(help="params.json of the controller's model (feedforward inverse, "
                                                 "nominal plant).", show_default=False)],
     target: TargetArg = None,
-    controller: Annotated[str, typer.Option("--controller", "-c", help="ff, pid, ff+pid or smc; a comma list "
-                                                                       "compares them, e.g. pid,ff,ff+pid.")] = "ff+pid",
+    controller: Annotated[str, typer.Option("--controller", "-c", help="ff, pid, ff+pid, smc or smc-noinv (sliding "
+                                                                       "mode without inverse compensation); a comma "
+                                                                       "list compares them, e.g. pid,ff,ff+pid.")] = "ff+pid",
     plant: Annotated[Optional[Path], typer.Option("--plant", help="params.json of the plant (default: PARAMS "
                                                                   "itself); another model tests the inverse "
                                                                   "realistically.")] = None,
@@ -42,6 +43,15 @@ def track(
                                                                            "automatic PID and of the sliding mode "
                                                                            "(default: automatic, ≤ fs/20).")] = None,
     anti_windup: Annotated[str, typer.Option("--anti-windup", help="backcalc or clamp.")] = "backcalc",
+    smc_option: Annotated[Optional[list[str]], typer.Option("--smc-option", help="Sliding-mode design KEY=VALUE "
+                                                                                 "(paper 003): eps (V/s), alpha (1/V), "
+                                                                                 "k (1/s), sliding_poles=[z,...], "
+                                                                                 "observer_poles=[z,...] (repeatable).")] = None,
+    measure_bandwidth: Annotated[bool, typer.Option("--measure-bandwidth", help="Also measure each controller's "
+                                                                               "tracking (−3 dB) and disturbance-"
+                                                                               "rejection (0 dB) bandwidth (paper 003) "
+                                                                               "with sines of the target's amplitude; "
+                                                                               "writes OUT/bandwidth.json.")] = False,
     sine: Sine = None, triangle: Triangle = None, steps: Steps = None, multi: Multi = False, offset: Offset = 0.0,
     fs: TargetFs = None, condition: Condition = None, method: Method = "interpolate",
     initial_voltage: InitialVoltage = None, vmin: Vmin = None, vmax: Vmax = None, max_slew: MaxSlew = None,
@@ -62,9 +72,10 @@ def track(
     from ..io import staged_output_dir
     from ..report.track_report import comparison_headers, comparison_text_rows, write_track_outputs
     from ..results import load_params
-    from ..track import parse_controllers, track as run_track
+    from ..track import check_smc_options, measure_bandwidths, parse_controllers, track as run_track
 
     names = parse_controllers(controller)
+    smc_opts = check_smc_options(parse_key_values(smc_option or [], "--smc-option"))
     if fmt not in ("csv", "parquet"):
         raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
     if anti_windup not in ("backcalc", "clamp"):
@@ -87,15 +98,30 @@ def track(
                            anti_windup=None if anti_windup == "backcalc" else anti_windup, sine=sine,
                            triangle=triangle, steps=steps, multi=multi, offset=offset, fs=fs, condition=condition,
                            method=method, initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
-                           time_col=time_col, target_col=target_col, output_unit=output_unit, out=out)
+                           time_col=time_col, target_col=target_col, output_unit=output_unit, out=out,
+                           smc_option=" ".join(smc_option or []) or None, measure_bandwidth=measure_bandwidth)
     with staged_output_dir(out, force) as stage:
         with progress_bar(not quiet and not json_out, "track") as cb:
             res = run_track(pf, tgt, names, plant_pf=plant_pf, method=method, condition=cond,
                             initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
                             noise_std=noise * UM_PER_UNIT_INV[pf.unit], seed=seed, kp=kp, ki=ki, kd=kd, bandwidth_Hz=bandwidth,
-                            anti_windup=anti_windup, progress=cb)
+                            anti_windup=anti_windup, smc_options=smc_opts, progress=cb)
+        bw = None
+        if measure_bandwidth:
+            with phase(not quiet and not json_out, "measuring the bandwidths"):
+                bw = measure_bandwidths(pf, names, amplitude=float(tgt.y.max() - tgt.y.min()), offset=float(tgt.y.min()),
+                                        fs=1.0 / tgt.dt, plant_pf=plant_pf, method=method, condition=cond,
+                                        vmin=vmin, vmax=vmax, max_slew=max_slew,
+                                        noise_std=noise * UM_PER_UNIT_INV[pf.unit], seed=seed, kp=kp, ki=ki, kd=kd,
+                                        bandwidth_Hz=bandwidth, anti_windup=anti_windup, smc_options=smc_opts)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if plots else "")):
             summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command)
+            if bw is not None:
+                from ..io import atomic_write_text
+                from ..results import _clean, dumps
+
+                atomic_write_text(stage / "bandwidth.json", dumps(_clean(dict(bw, command=command))))
+                summary["bandwidth"] = bw
     for run in res.runs:
         if run.limit_spans:
             n = sum(s.n for s in run.limit_spans)
@@ -116,6 +142,14 @@ def track(
             t.add_column(c, justify="left" if i == 0 else "right", no_wrap=i == 0)
         for row in rows:
             t.add_row(*row)
+        stdout.print(t)
+    if bw is not None:
+        t = Table(title="bandwidths (paper 003; 0 = none on the grid, – = beyond it)")
+        for i, c in enumerate(("controller", "tracking −3 dB (Hz)", "disturbance rejection 0 dB (Hz)")):
+            t.add_column(c, justify="left" if i == 0 else "right")
+        for c, v in bw["controllers"].items():
+            t.add_row(c, *(f"{x:.4g}" if x == x else "–" for x in (v["tracking_bandwidth_Hz"],
+                                                                     v["disturbance_bandwidth_Hz"])))
         stdout.print(t)
     for note in res.notes:
         stderr.print(f"note: {note}", markup=False, highlight=False, style="dim")

@@ -162,10 +162,14 @@ class BoucWen(Model):
     .. math::
 
         y = K_v\,u + h + y_0,\qquad
-        \dot h = \alpha\,\dot u - \beta\,|\dot u|\,h - \gamma\,\dot u\,|h|,\qquad h(0) = 0
+        \dot h = \alpha\,\dot u - \beta\,|\dot u|\,h - \gamma\,\mathrm{sgn}(\alpha)\,\dot u\,|h|,
+        \qquad h(0) = 0
 
-    (paper 004 eq. 1–2 with n = 1, as ``shared/papers/README.md`` adopts). The output offset
-    y0 is ours: real captures carry a sensor offset.
+    (paper 004 eq. 1–2 with n = 1, as ``shared/papers/README.md`` adopts, with paper 004's γ
+    written γ·sgn(α): see "Sign convention" below). The output offset y0 is ours: real captures
+    carry a sensor offset. This is the equation simulated *and* the one printed in ``params.json``
+    (:attr:`equation`) for the stored values: ``tests/unit/test_bw_printed_equation.py`` integrates
+    the printed equation with the printed values independently and matches hystfit.
 
     Parameters (θ)
     --------------
@@ -182,7 +186,8 @@ class BoucWen(Model):
     rate, exact for piecewise-linear inputs.
 
     Sign convention of γ. θ stores γ such that paper 004's γ is γ·sgn(α) (identical for α ≥ 0,
-    the case paper 004 bounds to). Then h = α·g exactly, with g the solution of
+    the case paper 004 bounds to; on real captures α often comes out negative, and then the
+    textbook γ is −γ). Then h = α·g exactly, with g the solution of
     ġ = u̇ − β|u̇|g − γu̇|g| for *either* sign of α: the output is linear in (Kv, α, y0) and the
     ``auto`` optimizer solves them exactly, searching only (β, γ). Without this convention the
     split would be wrong for α < 0 (|h| = |α||g|), and loops of both orientations (clockwise and
@@ -203,7 +208,9 @@ class BoucWen(Model):
     name = "bw"
     title = "Bouc–Wen"
     reference = "paper 004 eq. 1–2"
-    equation = "y = Kv·u + h + y0,  dh/dt = α·du/dt − β·|du/dt|·h − γ·du/dt·|h|"
+    #: the equation simulated, in the stored θ (γ multiplies sgn(α): paper 004's γ is γ·sgn(α));
+    #: with ``free_exponent`` h becomes |h|^(n−1)·h and |h|^n, β and γ scaled by h_ref^(1−n)
+    equation = "y = Kv·u + h + y0,  dh/dt = α·du/dt − β·|du/dt|·h − γ·sgn(α)·du/dt·|h|"
     rate_dependent = False
 
     free_exponent: bool = False
@@ -225,7 +232,7 @@ class BoucWen(Model):
             Param("Kv", "out/V", -3 * g, 3 * g, g, "linear gain"),
             Param("alpha", "out/V", -3 * g, 3 * g, 0.1 * g, "hysteresis input gain α"),
             Param("beta", "1/V", 0.0, 50.0 / du, 2.0 / du, "shape parameter β (normalised by h_ref^(1−n) when n is free)"),
-            Param("gamma", "1/V", -50.0 / du, 50.0 / du, 0.0, "shape parameter γ (normalised by h_ref^(1−n) when n is free)"),
+            Param("gamma", "1/V", -50.0 / du, 50.0 / du, 0.0, "shape parameter γ, multiplies sgn(α)·u̇·|h| (paper 004's γ = γ·sgn(α); normalised by h_ref^(1−n) when n is free)"),
             Param("y0", "out", scale.y_min - span, scale.y_max + span, 0.0, "output offset"),
         )
         if self.free_exponent:

@@ -7,8 +7,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 from .._lazy import lazy_module
-from ..blocks.lti import (DT_RTOL as _DT_RTOL, LinearSS, Lti, _as_list, _fundamental, _zoh_second_order,  # noqa: F401
-                          fit_linear_to_sine,
+from ..blocks.lti import (LinearSS, Lti, _as_list, _fundamental, _zoh_second_order,  # noqa: F401
+                          check_era_options, fit_linear_to_sine,
                           identify_linear_era, is_broadband, measure_gain_phase, ss_columns)
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
@@ -63,10 +63,15 @@ class Hammerstein(Model):
     n_operators, placement, thresholds_V, nonnegative : the PI part, as in :class:`PI`.
     order : state dimension r of the linear part (0: none, y = v).
     A : r·r entries of A, row-major.   B, C : r entries each.   D : feedthrough (0 in paper 003).
-    dt_s : sample period (s) the linear part was identified at; captures at another rate are refused.
+    dt_s : sample period (s) the linear part was identified at; at another rate it is re-discretized
+        exactly (:meth:`LinearSS.resampled`).
     linear_method : how the linear part was obtained ("era", "sine-gain-phase", "given", "none").
     singular_values : the leading Hankel singular values of an ERA identification (for reports:
         the gap that chose the order); empty otherwise.
+    max_order, n_markov, feedthrough, correlation, era_order : options of the ERA identification
+        (:func:`identify_linear_era`, ``era_order`` its forced ``order``), settable with
+        ``--model-option``; ``feedthrough`` "auto" (default) keeps the paper's D = 0 unless D
+        halves the simulation error.
 
     Parameters (θ)
     --------------
@@ -75,16 +80,17 @@ class Hammerstein(Model):
     filtered play outputs, so the optimum is one (non-negative) least-squares solve
     (:meth:`fit_weights`, :meth:`separable`).
 
-    Inverse (:meth:`invert`): the stable inverse of the minimum-phase approximation of the
-    linear part (paper 003 §4.2; non-minimum-phase zeros reflected into the unit circle, the
-    removed all-pass approximated by a time advance, see :meth:`LinearSS.minimum_phase`), then
-    the analytic PI inverse (eq. 17–20). The input is non-causal by the plant's delay plus the
-    all-pass delay (preview of the target), and the target must be smooth.
+    Inverse (:meth:`invert`): a stable, non-oscillating inverse of the linear part
+    (:meth:`LinearSS.inverse_plan`: well-damped zeros inverted exactly, zeros far outside the
+    unit circle reflected with their all-pass delay as a time advance — paper 003 §4.2's
+    minimum-phase idea — and zeros near the unit circle, e.g. the z ≈ −1 pair a feedthrough
+    brings, handled zero-phase by ZPETC), then the analytic PI inverse (eq. 17–20). The input
+    is non-causal by a few samples (preview of the target).
     """
 
     name = "hammerstein"
     title = "Hammerstein (PI + identified linear state space)"
-    reference = "paper 003 eq. 1–3 (PI), eq. 4–12 (correlation, Hankel SVD), §4.2 (minimum-phase inverse)"
+    reference = "paper 003 eq. 1–3 (PI), eq. 4–12 (correlation, Hankel SVD), §4.2 (stable inverse; ZPETC near the unit circle)"
     equation = "v = Σ_j w_j F_{r_j}[u],  x_{k+1} = A x_k + B v_k,  y_k = C x_k + D v_k + y0  (G(1) = 1)"
     rate_dependent = True
 
@@ -100,8 +106,17 @@ class Hammerstein(Model):
     dt_s: float | None = None
     linear_method: str = "none"
     singular_values: tuple[float, ...] = ()
+    max_order: int = 8
+    n_markov: int | None = None
+    feedthrough: "bool | str" = "auto"
+    correlation: str = "exact"
+    era_order: int | None = None
 
     def __post_init__(self) -> None:
+        try:
+            check_era_options(self.max_order, self.n_markov, self.feedthrough, self.correlation, self.era_order)
+        except ConfigError as exc:
+            raise ConfigError(f"hammerstein: {exc}") from None
         try:
             self.pi
         except ConfigError as exc:
@@ -129,7 +144,8 @@ class Hammerstein(Model):
     def lti(self) -> Lti:
         """The linear part as the ``lti`` block (same state space; its simulation, stepping and inverse)."""
         return Lti(order=self.order, A=self.A, B=self.B, C=self.C, D=self.D, dt_s=self.dt_s, method=self.linear_method,
-                   singular_values=self.singular_values)
+                   singular_values=self.singular_values, max_order=self.max_order, n_markov=self.n_markov,
+                   feedthrough=self.feedthrough, correlation=self.correlation, era_order=self.era_order)
 
     @property
     def linear(self) -> LinearSS:
@@ -188,7 +204,9 @@ class Hammerstein(Model):
             raise ConfigError("hammerstein: the captures have different sample periods "
                               f"({sorted(dts)} s); resample them to one rate before identifying the linear part")
         fitted = type(self).from_data([c.u for c in caps], [c.y for c in caps], caps[0].dt, self.n_operators,
-                                      placement=self.placement, nonnegative=self.nonnegative)
+                                      placement=self.placement, nonnegative=self.nonnegative,
+                                      max_order=self.max_order, n_markov=self.n_markov, feedthrough=self.feedthrough,
+                                      correlation=self.correlation, order=self.era_order)
         return replace(fitted, thresholds_V=self.thresholds_V)
 
     def adapt(self, scale: DataScale) -> "Hammerstein":
@@ -201,20 +219,17 @@ class Hammerstein(Model):
         return self.pi.params(scale)
 
     # ------------------------------------------------------------------ simulation
-    def _check_dt(self, dt: float) -> None:
-        if self.order and abs(dt - self.dt_s) > _DT_RTOL * self.dt_s:
-            raise ConfigError(
-                f"hammerstein: the linear part was identified at dt = {self.dt_s:g} s; this capture has dt = {dt:g} s. "
-                "Resample the capture or identify the linear part at this rate.")
+    def linear_at(self, dt: float) -> LinearSS:
+        """The linear part at sample period ``dt`` (exact re-discretization when it differs from ``dt_s``)."""
+        return self.lti.linear_at(dt)
 
     def design_matrix(self, u: np.ndarray, dt: float) -> np.ndarray:
         """Regressors (N, n + 1): the play outputs filtered by the linear part, and ones (offset).
 
         y = Φ θ exactly (the linear part is fixed and has unit static gain).
         """
-        self._check_dt(dt)
         u = np.ascontiguousarray(u, dtype=np.float64)
-        F = self.linear.filter(play_matrix(u, self.pi.r))
+        F = self.linear_at(dt).filter(play_matrix(u, self.pi.r))
         return np.hstack([F, np.ones((u.shape[0], 1))])
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
@@ -280,19 +295,19 @@ class Hammerstein(Model):
         part, a low-frequency approximation otherwise) and :meth:`PI.invert` for the analytic
         PI inverse (paper 003 eq. 17–20). ``u_range`` is ignored (both steps are analytic).
         """
-        self._check_dt(dt)
         t = np.asarray(theta, dtype=np.float64).ravel()
         n = self.n_operators
         if t.size != n + 1:
             raise ValueError(f"hammerstein: theta must have {n + 1} entries, got {t.size}")
-        v = self.linear.inverse_filter(np.asarray(y_target, dtype=np.float64) - t[n])
+        v = self.linear_at(dt).inverse_filter(np.asarray(y_target, dtype=np.float64) - t[n])
         return self.pi.invert(np.r_[t[:n], 0.0], v, dt)
 
     # ------------------------------------------------------------------ identification
     @classmethod
     def from_data(cls, captures_u: Sequence[np.ndarray], captures_y: Sequence[np.ndarray], dt: float,
                   n_operators: int = 10, *, method: str = "auto", max_order: int = 8,
-                  n_markov: int | None = None, feedthrough: bool = True, iterations: int | None = None,
+                  n_markov: int | None = None, feedthrough: "bool | str" = "auto", correlation: str = "exact",
+                  order: int | None = None, iterations: int | None = None,
                   sine_tol: float = 1e-5, placement: str = "uniform", nonnegative: bool = True) -> "Hammerstein":
         """Identify the linear part from captures and return the model with it fixed (unit static gain).
 
@@ -320,7 +335,8 @@ class Hammerstein(Model):
         captures_u, captures_y : sequences of input (V) and output arrays, one pair per capture.
         dt : common sample period (s).
         n_operators, placement, nonnegative : the PI structure (thresholds from the data range).
-        max_order, n_markov, feedthrough : passed to :func:`identify_linear_era`.
+        max_order, n_markov, feedthrough, correlation, order : passed to :func:`identify_linear_era`
+            (and stored in the returned structure; ``order`` as ``era_order``).
         iterations : number of passes (default 2 for ERA, at most 60 for the sine route).
         """
         us, ys = _as_list(captures_u), _as_list(captures_y)
@@ -329,7 +345,8 @@ class Hammerstein(Model):
         if method not in ("auto", "era", "sine"):
             raise ConfigError(f"Hammerstein.from_data: method must be 'auto', 'era' or 'sine', got {method!r}")
         scale = DataScale.from_arrays(us, ys, [dt] * len(us))
-        base = cls(n_operators, placement, None, nonnegative).adapt(scale)
+        base = cls(n_operators, placement, None, nonnegative, max_order=max_order, n_markov=n_markov,
+                   feedthrough=feedthrough, correlation=correlation, era_order=order).adapt(scale)
         broad = [is_broadband(u) for u in us]
         if method == "auto":
             method = "era" if any(broad) else "sine"
@@ -349,7 +366,7 @@ class Hammerstein(Model):
         for it in range(max(1, n_iter)):
             if method == "era":
                 lin = identify_linear_era(vs, [ys[i] for i in sel], dt, max_order=max_order, n_markov=n_markov,
-                                          feedthrough=feedthrough)
+                                          feedthrough=feedthrough, correlation=correlation, order=order)
             else:
                 lin = fit_linear_to_sine(vs, [ys[i] for i in sel], dt, start=start)
                 start = lin.continuous

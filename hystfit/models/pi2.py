@@ -1,526 +1,452 @@
-"""Electromechanical model: PI hysteresis followed by a second-order linear subsystem (paper 000)."""
+"""Electromechanical model of paper 000: generalized PI hysteresis driving a second-order stage."""
 
 from __future__ import annotations
 
-import hashlib
 import math
-import weakref
 from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
-from .._jit import njit, prange
 
-from ..errors import ConfigError
+from .._jit import njit, prange
+from .._lazy import lazy_module
+from ..blocks.dynamics import bilinear_biquad, biquad_columns, fn_search_range, invert_second_order
+from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
 from ..registry import models
-from ..blocks.dynamics import bilinear_biquad, biquad_columns, invert_second_order
 from ._kernels import PARALLEL_MIN_POP, play_matrix, thread_blocks
 from .base import Model
 from .separable import Separable
-from .pi import PI
+from .gpi import GPI, _tanh
+
+optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
+
+#: kernel modes: the outputs (N, P), Σ(ŷ − y)² (P, 1), or the moments Σz_f², Σz_f, Σz_f·y (P, 3)
+_OUTPUT, _SSE, _MOMENTS = 0, 1, 2
+#: identification routes (structure option ``identification``)
+IDENTIFICATIONS = ("two-step", "joint")
 
 
-#: fastmath flags of the fused pi2 kernels: no ``nnan``/``ninf`` (a non-finite candidate must stay inf/NaN)
-_PI2_FASTMATH = {"contract", "arcp", "nsz", "reassoc"}
+@njit(cache=True)
+def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n, mode, out,
+                p0, p1):
+    """Generalized PI → second-order stage for candidates p0:p1, in one time loop.
 
+    Per candidate (the recurrences of :func:`~hystfit.models.gpi.gpi_population` and
+    :func:`~hystfit.blocks.dynamics.biquad_columns`, fused):
 
-@njit(cache=True, fastmath=_PI2_FASTMATH)
-def _pi2_sse_block(F, y, W, c0, b0, b1, b2, a1, a2, out, p0, p1):
-    """Σ_k (ŷ_k − y_k)² of the pi2 candidates p0:p1 into ``out[p0:p1]``, without storing ŷ.
+        s_j(k) = max(γ_l(u_k) − r_j, min(γ_r(u_k) + r_j, s_j(k−1))),  s_j(−1) = 0,  r_j = α j
+        z(k)   = Σ_j e^{−τ r_j} s_j(k)                                  (unit-density gPI output)
+        e(k)   = f0 d(k) + f1 d(k−1) + f2 d(k−2) − g1 e(k−1) − g2 e(k−2),  d(k) = z(k) − z(0)
+        z_f(k) = z(0) + e(k)                                            (stage at rest at z(0))
+        ŷ(k)   = ρ z_f(k) + y0
 
-    For candidate p (weights w = W[:, p], biquad b0, b1, b2, a1, a2 of :func:`bilinear_biquad`):
-
-        d[k] = Σ_j w_j (F[k, j] − F[0, j])          (PI output v[k] minus its first sample v[0])
-        e[k] = b0 d[k] + b1 d[k−1] + b2 d[k−2] − a1 e[k−1] − a2 e[k−2],   d[<0] = e[<0] = 0
-        ŷ[k] = e[k] + c0,   c0 = v[0] + y0 = Σ_j w_j F[0, j] + y0
-
-    i.e. :func:`biquad_columns` (the filter at rest at its first input) applied to the PI output
-    F·w, plus the offset: the arithmetic of :meth:`PI2.simulate` up to the order of the PI sum.
-
-    Layout (``shared/PERFORMANCE.md``): the time loop is sequential and outermost; inside it every
-    loop runs over the block's candidates, contiguous — the weights are copied to a (n, m) array
-    (one contiguous row per operator), coefficients and filter states are (m,) arrays — so LLVM
-    vectorizes across candidates. Memory O(n·m): the (N, P) outputs are never formed. A candidate
-    with non-finite parameters gets a non-finite sum (never an exception).
-
-    Parameters
-    ----------
-    F : (N, n) play-operator outputs of the capture (θ-independent: computed once per capture).
-    y : (N,) measured output.  W : (n, P) weights.  c0 : (P,) at-rest output v[0] + y0.
-    b0, b1, b2, a1, a2 : (P,) biquad coefficients (a0 = 1).
-    out : (P,) receives the sums of the block.  p0, p1 : the candidate block.
+    ``mode`` :data:`_OUTPUT` writes ŷ into out (N, P); :data:`_SSE` accumulates Σ(ŷ − y)² into
+    out[p, 0]; :data:`_MOMENTS` Σz_f², Σz_f, Σz_f·y into out[p, 0:3] (the normal equations of
+    (ρ, y0), which enter linearly). Time outermost, candidates innermost and contiguous; memory
+    O(n·P) in the SSE and moments modes. Non-finite candidates give non-finite results.
     """
-    N, n = F.shape
+    N = u.shape[0]
     m = p1 - p0
-    w = np.empty((n, m))
+    s = np.zeros((n, m))
+    q = np.empty((n, m))
+    r = np.empty((n, m))
     for j in range(n):
         for i in range(m):
-            w[j, i] = W[j, p0 + i]
-    B0 = b0[p0:p1].copy()
-    B1 = b1[p0:p1].copy()
-    B2 = b2[p0:p1].copy()
-    A1 = a1[p0:p1].copy()
-    A2 = a2[p0:p1].copy()
-    C0 = c0[p0:p1].copy()
-    F0 = np.zeros(n)
-    if N > 0:
-        F0[:] = F[0]
-    d = np.empty(m)
+            p = p0 + i
+            r[j, i] = alpha[p] * j
+            q[j, i] = math.exp(-tau[p] * alpha[p] * j)
+    z0 = np.zeros(m)
     d1 = np.zeros(m)
     d2 = np.zeros(m)
     e1 = np.zeros(m)
     e2 = np.zeros(m)
-    acc = np.zeros(m)
+    acc0 = np.zeros(m)
+    acc1 = np.zeros(m)
+    acc2 = np.zeros(m)
+    gl = np.empty(m)
+    gr = np.empty(m)
+    z = np.empty(m)
     for k in range(N):
-        x = F[k, 0] - F0[0]
+        uk = u[k]
         for i in range(m):
-            d[i] = w[0, i] * x
-        for j in range(1, n):
-            x = F[k, j] - F0[j]
+            p = p0 + i
+            gl[i] = a1[p] * _tanh(a2[p] * uk + a3[p]) + a4[p]
+            gr[i] = b1[p] * _tanh(b2[p] * uk + b3[p]) + b4[p]
+            z[i] = 0.0
+        for j in range(n):
             for i in range(m):
-                d[i] += w[j, i] * x
-        yk = y[k]
+                v = max(gl[i] - r[j, i], min(gr[i] + r[j, i], s[j, i]))
+                s[j, i] = v
+                z[i] += q[j, i] * v
+        if k == 0:
+            for i in range(m):
+                z0[i] = z[i]
+        yk = y[k] if mode != _OUTPUT else 0.0
         for i in range(m):
-            # states read into locals before any store: no reloads through possibly aliasing arrays
-            di = d[i]
-            da = d1[i]
-            db = d2[i]
-            ea = e1[i]
-            eb = e2[i]
-            e = B0[i] * di + B1[i] * da + B2[i] * db - A1[i] * ea - A2[i] * eb
-            d2[i] = da
-            d1[i] = di
-            e2[i] = ea
+            p = p0 + i
+            d = z[i] - z0[i]
+            e = f0[p] * d + f1[p] * d1[i] + f2[p] * d2[i] - g1[p] * e1[i] - g2[p] * e2[i]
+            d2[i] = d1[i]
+            d1[i] = d
+            e2[i] = e1[i]
             e1[i] = e
-            r = e + C0[i] - yk
-            acc[i] += r * r
-    for i in range(m):
-        out[p0 + i] = acc[i]
-
-
-@njit(cache=True)
-def _pi2_sse_serial(F, y, W, c0, b0, b1, b2, a1, a2, out):
-    _pi2_sse_block(F, y, W, c0, b0, b1, b2, a1, a2, out, 0, c0.shape[0])
+            zf = z0[i] + e
+            if mode == _OUTPUT:
+                out[k, p] = rho[p] * zf + y0[p]
+            elif mode == _SSE:
+                res = rho[p] * zf + y0[p] - yk
+                acc0[i] += res * res
+            else:
+                acc0[i] += zf * zf
+                acc1[i] += zf
+                acc2[i] += zf * yk
+    if mode == _SSE:
+        for i in range(m):
+            out[p0 + i, 0] = acc0[i]
+    elif mode == _MOMENTS:
+        for i in range(m):
+            out[p0 + i, 0] = acc0[i]
+            out[p0 + i, 1] = acc1[i]
+            out[p0 + i, 2] = acc2[i]
 
 
 @njit(cache=True, parallel=True)
-def _pi2_sse_parallel(F, y, W, c0, b0, b1, b2, a1, a2, out, n_blocks):
-    """:func:`_pi2_sse_serial` with ``n_blocks`` candidate blocks spread over threads."""
-    P = c0.shape[0]
+def _gpi2_parallel(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n, mode, out,
+                   n_blocks):
+    """:func:`_gpi2_block` over ``n_blocks`` candidate blocks spread over threads."""
+    P = a1.shape[0]
     size = (P + n_blocks - 1) // n_blocks
     for b in prange(n_blocks):
         p0 = b * size
         p1 = min(P, p0 + size)
         if p0 < p1:
-            _pi2_sse_block(F, y, W, c0, b0, b1, b2, a1, a2, out, p0, p1)
+            _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n, mode, out,
+                        p0, p1)
 
 
-@njit(cache=True, fastmath=_PI2_FASTMATH)
-def _pi2_gram_block(F, y, b0, b1, b2, a1, a2, G, c, p0, p1):
-    """Normal equations of the pi2 linear parameters (w0 … w{n−1}, y0) for the candidate
-    dynamics p0:p1, accumulated in the time loop without storing the filtered signals.
-
-    The basis of candidate p at sample k is b_k = [φ_0[k] … φ_{n−1}[k], 1], φ_j the play output
-    F[:, j] filtered by the candidate's biquad from rest at its first input (:func:`biquad_columns`):
-
-        x_j[k] = F[k, j] − F[0, j]
-        e_j[k] = b0 x_j[k] + b1 x_j[k−1] + b2 x_j[k−2] − a1 e_j[k−1] − a2 e_j[k−2],  x, e = 0 before k = 0
-        φ_j[k] = F[0, j] + e_j[k]
-
-    (the constant column of y0 passes the unit-DC-gain filter unchanged). Accumulated:
-
-        G[p] = Σ_k b_k b_kᵀ:  G[p, j, l] = Σ φ_j φ_l,  G[p, j, n] = G[p, n, j] = Σ φ_j,  G[p, n, n] = N
-        c[p] = Σ_k b_k y_k:   c[p, j] = Σ φ_j y_k,     c[p, n] = Σ y_k
-
-    Layout (``shared/PERFORMANCE.md``): the time loop is sequential and outermost; inside it every
-    loop runs over the block's candidates, contiguous: the output states e_j[k−1], e_j[k−2] and
-    the accumulators are (rows, m) arrays with the candidate index last, so LLVM vectorizes
-    across candidates. The inputs x_j are shared by every candidate (only the coefficients
-    differ), so they are kept once. The filtered rows of 4 consecutive samples are buffered
-    ((4, n, m)) and added to the n(n+1)/2 pair accumulators in one pass (a quarter of the
-    accumulator loads and stores). Memory O(n²·m) whatever N. Candidates with non-finite
-    coefficients get non-finite G, c entries (never an exception).
-
-    Parameters
-    ----------
-    F : (N, n) play-operator outputs (computed once per capture).  y : (N,) measured output.
-    b0, b1, b2, a1, a2 : (P,) biquad coefficients (a0 = 1, :func:`bilinear_biquad`).
-    G : (P, n + 1, n + 1) and c : (P, n + 1) receive the rows p0:p1.
-    """
-    N, n = F.shape
-    m = p1 - p0
-    U = 4  # samples per pass over the pair accumulators (the update below is written out for 4)
-    B0 = b0[p0:p1].copy()
-    B1 = b1[p0:p1].copy()
-    B2 = b2[p0:p1].copy()
-    A1 = a1[p0:p1].copy()
-    A2 = a2[p0:p1].copy()
-    F0 = np.zeros(n)
-    if N > 0:
-        F0[:] = F[0]
-    x1 = np.zeros(n)  # x_j[k−1], x_j[k−2]: shared by all candidates
-    x2 = np.zeros(n)
-    e1 = np.zeros((n, m))
-    e2 = np.zeros((n, m))
-    phi = np.zeros((U, n, m))  # filtered rows of the current group of samples
-    npair = n * (n + 1) // 2
-    gacc = np.zeros((npair, m))
-    sacc = np.zeros((n, m))
-    cacc = np.zeros((n, m))
-    sy = 0.0
-    for k0 in range(0, N, U):
-        nt = min(U, N - k0)
-        for t in range(nt):
-            k = k0 + t
-            yk = y[k]
-            sy += yk
-            for j in range(n):
-                x = F[k, j] - F0[j]
-                xa = x1[j]
-                xb = x2[j]
-                f0 = F0[j]
-                for i in range(m):
-                    ea = e1[j, i]
-                    eb = e2[j, i]
-                    e = B0[i] * x + B1[i] * xa + B2[i] * xb - A1[i] * ea - A2[i] * eb
-                    e2[j, i] = ea
-                    e1[j, i] = e
-                    ph = e + f0
-                    phi[t, j, i] = ph
-                    sacc[j, i] += ph
-                    cacc[j, i] += ph * yk
-                x2[j] = xa
-                x1[j] = x
-        if nt < U:  # last, partial group: the unused rows contribute exact zeros
-            for t in range(nt, U):
-                for j in range(n):
-                    for i in range(m):
-                        phi[t, j, i] = 0.0
-        q = 0
-        for j in range(n):
-            for l in range(j, n):
-                for i in range(m):
-                    gacc[q, i] += ((phi[0, j, i] * phi[0, l, i] + phi[1, j, i] * phi[1, l, i])
-                                   + (phi[2, j, i] * phi[2, l, i] + phi[3, j, i] * phi[3, l, i]))
-                q += 1
-    for i in range(m):
-        p = p0 + i
-        q = 0
-        for j in range(n):
-            for l in range(j, n):
-                G[p, j, l] = gacc[q, i]
-                G[p, l, j] = gacc[q, i]
-                q += 1
-            G[p, j, n] = sacc[j, i]
-            G[p, n, j] = sacc[j, i]
-            c[p, j] = cacc[j, i]
-        G[p, n, n] = float(N)
-        c[p, n] = sy
-
-
-@njit(cache=True)
-def _pi2_gram_serial(F, y, b0, b1, b2, a1, a2, G, c):
-    _pi2_gram_block(F, y, b0, b1, b2, a1, a2, G, c, 0, b0.shape[0])
-
-
-@njit(cache=True, parallel=True)
-def _pi2_gram_parallel(F, y, b0, b1, b2, a1, a2, G, c, n_blocks):
-    """:func:`_pi2_gram_serial` with ``n_blocks`` candidate blocks spread over threads."""
-    P = b0.shape[0]
-    size = (P + n_blocks - 1) // n_blocks
-    for b in prange(n_blocks):
-        p0 = b * size
-        p1 = min(P, p0 + size)
-        if p0 < p1:
-            _pi2_gram_block(F, y, b0, b1, b2, a1, a2, G, c, p0, p1)
-
-
-#: the Gram kernel does ~n²/2 = 50 multiply-adds per candidate and sample where the sum-of-squares
-#: kernel does ~n + 5: it is worth threading from this population on (blocks of ≥ 8 candidates,
-#: one AVX-512 vector), where :data:`~hystfit.models._kernels.PARALLEL_MIN_POP` applies to the latter
-GRAM_PARALLEL_MIN_POP = 16
-
-
-def _f64(x):
-    return np.ascontiguousarray(x, dtype=np.float64)
-
-
-def pi2_sse(F, y, W, c0, b0, b1, b2, a1, a2):
-    """Σ_k (ŷ_k − y_k)² per candidate (P,) from the fused kernel :func:`_pi2_sse_block`, threaded
-    over candidate blocks for populations ≥ :data:`~hystfit.models._kernels.PARALLEL_MIN_POP`.
-
-    F (N, n) play outputs, y (N,), W (n, P) weights, c0 (P,) = Σ_j w_j F[0, j] + y0,
-    b0 … a2 (P,) biquad coefficients. The (N, P) outputs are never stored."""
-    F, y, W, c0 = _f64(F), _f64(y), _f64(W), _f64(c0)
-    co = [_f64(a) for a in (b0, b1, b2, a1, a2)]
-    out = np.empty(c0.shape[0])
-    nb = thread_blocks(c0.shape[0], PARALLEL_MIN_POP, 32)
+def gpi2_run(u, y, gpi_theta, fn_Hz, zeta, dt: float, n: int, mode: int) -> np.ndarray:
+    """Run :func:`_gpi2_block` for a population: ``gpi_theta`` (P, 12) in :class:`GPI`'s order,
+    ``fn_Hz``, ``zeta`` (P,) the stage (discretized by :func:`bilinear_biquad`). Threaded over
+    candidate blocks from :data:`~hystfit.models._kernels.PARALLEL_MIN_POP` candidates on."""
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    y = np.ascontiguousarray(y if y is not None else np.empty(0), dtype=np.float64)
+    t = np.ascontiguousarray(gpi_theta, dtype=np.float64)
+    P = t.shape[0]
+    cols = [np.ascontiguousarray(t[:, i]) for i in range(12)]
+    a1, a2, a3, a4, b1, b2, b3, b4, rho, tau, alpha, y0 = cols
+    with np.errstate(all="ignore"):
+        coef = [np.ascontiguousarray(c) for c in bilinear_biquad(fn_Hz, zeta, dt)]
+    coef = [np.broadcast_to(c, (P,)).copy() if c.shape[0] != P else c for c in coef]
+    out = np.empty((u.shape[0], P)) if mode == _OUTPUT else np.empty((P, 1 if mode == _SSE else 3))
+    args = (u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, *coef, int(n), int(mode), out)
+    nb = thread_blocks(P, PARALLEL_MIN_POP, 8)
     if nb:
-        _pi2_sse_parallel(F, y, W, c0, *co, out, nb)
+        _gpi2_parallel(*args, nb)
     else:
-        _pi2_sse_serial(F, y, W, c0, *co, out)
+        _gpi2_block(*args, 0, P)
     return out
 
 
-def pi2_gram(F, y, b0, b1, b2, a1, a2):
-    """Normal equations (G (P, n + 1, n + 1), c (P, n + 1)) of the pi2 linear parameters for
-    each candidate's biquad, from the fused kernel :func:`_pi2_gram_block` (threaded over
-    candidate blocks for populations ≥ :data:`GRAM_PARALLEL_MIN_POP`). O(P·n²) memory."""
-    F, y = _f64(F), _f64(y)
-    co = [_f64(a) for a in (b0, b1, b2, a1, a2)]
-    P, L = co[0].shape[0], F.shape[1] + 1
-    G = np.empty((P, L, L))
-    c = np.empty((P, L))
-    nb = thread_blocks(P, GRAM_PARALLEL_MIN_POP, 8)
-    if nb:
-        _pi2_gram_parallel(F, y, *co, G, c, nb)
-    else:
-        _pi2_gram_serial(F, y, *co, G, c)
-    return G, c
+def fit_stage_with_classical_pi(us, ys, dt: float, n_operators: int = 20,
+                                fn_bounds_Hz: tuple[float, float] | None = None,
+                                zeta_bounds: tuple[float, float] = (0.01, 2.0)) -> tuple[float, float, float]:
+    """Step 1 of paper 000's two-step identification: the linear part first.
 
+    The hysteresis is stood in for by a classical PI (20 operators, thresholds spread over the
+    input range, weights free) plus static quadratic and cubic terms of the input (the
+    envelopes' curvature), all entering linearly, so for a candidate (f_n, ζ) the best weights
+    follow from one least-squares solve (pooled over the captures, one offset per capture):
+    only (f_n, ζ) are searched — a log-spaced grid, then Nelder–Mead from the best grid point.
+    Returns (f_n Hz, ζ, RMSE of that fit).
 
-#: play-operator matrices in use, keyed by the content of the input and the thresholds, held
-#: weakly: an entry lives as long as a closure that uses it (see :func:`shared_play_matrix`)
-_PLAYS: "weakref.WeakValueDictionary[tuple, np.ndarray]" = weakref.WeakValueDictionary()
-
-
-def shared_play_matrix(u: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """:func:`~hystfit.models._kernels.play_matrix` (N, n) of one capture, computed once and shared.
-
-    The simulator, the fused sum of squares and the normal equations of one capture each need
-    the θ-independent play matrix (80 MB for 10⁶ samples and 10 operators); they share one
-    read-only copy. The key is a digest of the input's bytes (plus N and the thresholds), so an
-    input changed in place gets its own matrix, never a stale one.
+    The stand-in's misfit biases the stage: on a generalized-PI plant with a 1200 Hz, ζ 0.15
+    stage seen through 50 and 200 Hz raised cosines (``tests/unit/test_pi2.py``) it finds
+    1242 Hz and ζ 0.155 (10 operators without the cubic terms: 1513 Hz, ζ 0.195). The joint
+    route (``identification=joint``) has no such bias but searches two more parameters.
     """
-    u = np.ascontiguousarray(u, dtype=np.float64)
-    r = np.ascontiguousarray(r, dtype=np.float64)
-    key = (hashlib.blake2b(memoryview(u).cast("B"), digest_size=20).digest(), u.shape[0], r.tobytes())
-    F = _PLAYS.get(key)
-    if F is None:
-        F = play_matrix(u, r)
-        F.flags.writeable = False
-        _PLAYS[key] = F
-    return F
+    us = [np.ascontiguousarray(u, dtype=np.float64) for u in us]
+    ys = [np.ascontiguousarray(y, dtype=np.float64) for y in ys]
+    u_all = np.concatenate(us)
+    lo_u, hi_u = float(u_all.min()), float(u_all.max())
+    if not hi_u > lo_u:
+        raise InputError("pi2: the input is constant; the linear part needs an excitation")
+    r = np.arange(n_operators) * (hi_u - lo_u) / n_operators
+    c, h = 0.5 * (hi_u + lo_u), 0.5 * (hi_u - lo_u)
+    # plays, plus static cubic terms for the envelopes' curvature (both enter linearly)
+    plays = [np.hstack([play_matrix(u, r), ((u - c) / h)[:, None] ** 2, ((u - c) / h)[:, None] ** 3]) for u in us]
+    n_cols = n_operators + 2
+    if fn_bounds_Hz is None:
+        rate = max(float(np.max(np.abs(np.diff(u)))) / dt for u in us if u.size > 1)
+        fn_bounds_Hz = fn_search_range(dt, rate / (math.pi * (hi_u - lo_u)))
+    lo_f, hi_f = fn_bounds_Hz
+    N_total = sum(u.size for u in us)
+
+    def cost(x):
+        fn, z = math.exp(x[0]), x[1]
+        if not (lo_f <= fn <= hi_f and zeta_bounds[0] <= z <= zeta_bounds[1]):
+            return math.inf
+        coef = [np.full(n_cols, a[0]) for a in bilinear_biquad(fn, z, dt)]
+        rows, rhs = [], []
+        for i, (F, y) in enumerate(zip(plays, ys)):
+            Ff = biquad_columns(F, *coef)
+            off = np.zeros((y.size, len(us)))
+            off[:, i] = 1.0
+            rows.append(np.hstack([Ff, off]))
+            rhs.append(y)
+        A, b = np.vstack(rows), np.concatenate(rhs)
+        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+        res = A @ sol - b
+        return float(res @ res) / N_total
+
+    grid = [(math.log(f), z) for f in np.geomspace(lo_f, hi_f, 10) for z in (0.05, 0.2, 0.5, 1.0)]
+    start = min(grid, key=cost)
+    sol = optimize.minimize(cost, np.array(start), method="Nelder-Mead",
+                            options={"xatol": 1e-4, "fatol": 1e-12, "maxfev": 200})
+    x = sol.x if sol.fun <= cost(start) else np.array(start)
+    return math.exp(x[0]), float(x[1]), math.sqrt(cost(x))
 
 
 @models.register
 @dataclass(frozen=True)
 class PI2(Model):
-    r"""Electromechanical model: classical PI hysteresis driving a second-order linear subsystem.
+    r"""Electromechanical model (paper 000): generalized PI hysteresis driving a second-order stage.
 
     .. math::
 
-        \ddot y + 2\zeta\omega_n \dot y + \omega_n^2 y = \omega_n^2\, g\, H[u],\qquad
-        H[u] = \sum_{j=0}^{n-1} w_j F_{r_j}[u],\qquad \omega_n = 2\pi f_n
+        \ddot x + 2\zeta\omega_n \dot x + \omega_n^2 x = \omega_n^2\, H[u],\qquad
+        y = x + y_0,\qquad \omega_n = 2\pi f_n
 
-        y_{\text{meas}} = y + y_0
+        H[u](k) = \rho \sum_{j=0}^{n-1} e^{-\tau r_j}\, s_{r_j}[u](k),\quad
+        s_r = \max(\gamma_l(u) - r, \min(\gamma_r(u) + r, s_r(k-1))),\quad r_j = \alpha_r j
 
-    (paper 000, Fig. 3 and eq. 20–21: "a second-order linear subsystem preceded by a hysteresis
-    nonlinearity"; formulation of ``shared/papers/README.md``, with the classical PI of paper
-    003 eq. 1–3 as H, reused from :class:`hystfit.models.pi.PI`).
+    with γ_l(u) = a1 tanh(a2 u + a3) + a4, γ_r(u) = b1 tanh(b2 u + b3) + b4: the generalized PI
+    of :class:`~hystfit.models.gpi.GPI` (paper 000's hysteresis; Al Janaideh, Rakheja & Su 2009)
+    as H, the static gain g of ``shared/papers/README.md`` folded into ρ (only ρ·g is
+    identifiable), and the stage of the ``dynamics`` block (:mod:`hystfit.blocks.dynamics`:
+    prewarped bilinear discretization, at rest at the first sample — paper 000's fast exact
+    solution of the linear part instead of RK4). The classical-PI variant is the expression
+    ``pi+dynamics``.
 
     Structure
     ---------
-    n_operators, placement, thresholds_V, nonnegative : the PI part, as in :class:`PI`
-    (thresholds filled from the identification data by :meth:`adapt`).
+    n_operators : generalized play operators n (default 10).
+    identification : "two-step" (default, paper 000: the linear part first, then the hysteresis)
+        or "joint" (f_n and ζ searched with the hysteresis parameters).
+    fn_Hz, zeta : the stage of the two-step route, identified once from all captures by
+        :meth:`prepare` (:func:`fit_stage_with_classical_pi`: the stage with a classical PI
+        standing in for the hysteresis, weights solved exactly); None before, and always None
+        for "joint".
 
-    Parameters (θ), in this order
-    -----------------------------
-    w0 … w{n−1} : PI weights including the static gain g (output unit per V). g is folded into
-        the weights: g·w_j is all the data can determine (only products appear), so a separate
-        g would be an exactly non-identifiable direction. Because the filter's static gain is 1,
-        the weights keep the meaning they have in :class:`PI` (quasi-static loop).
-    y0 : output offset (output unit), added after the filter (equivalent: unit static gain).
-    fn_Hz : natural frequency f_n (Hz). Bounds from the data: lower min(max(5·f_exc, 0.002·f_s),
-        0.05·f_s) with f_exc = rate_max/(π·input range) (the frequency of a sine with the
-        captures' range and peak rate), upper 0.45·f_s. A resonance inside the excitation band
-        would be an implausible explanation of a piezo loop (a low-pass with strong damping
-        mimics the rate-dependent widening of the loop), hence the lower bound.
-    zeta : damping ratio ζ (1), in [0.01, 2].
+    Parameters (θ)
+    --------------
+    a1 … b4, rho, tau, alpha_r, y0 : as in :class:`~hystfit.models.gpi.GPI` (ρ in output unit
+        per V includes the stage's static gain, which is 1).
+    fn_Hz (Hz), zeta (1) : only with ``identification="joint"``; bounds of the ``dynamics`` block
+        (f_n from twice the excitation frequency to 0.45·f_s, ζ in [0.01, 2]).
 
-    Solution of the linear part. Paper 000 replaces RK4 by a fast exact solution ("symmetric
-    solutions"); we discretize the transfer function once per candidate and filter exactly:
-    prewarped bilinear (Tustin) transform (:func:`bilinear_biquad`), state at rest at the
-    first sample. Bilinear rather than zero-order hold because (a) it is the trapezoidal rule:
-    for the sampled, smooth PI output it is second-order accurate and adds no half-sample
-    delay (ZOH would, i.e. a phase error of ω·Ts/2 — 0.75 µm on a 60 µm, 80 Hz loop at
-    10 kHz), (b) prewarping places the resonance exactly, (c) it is unconditionally stable,
-    and (d) it is what hystfit's virtual actuator uses (:mod:`hystfit.synth`), so the model
-    can represent that plant exactly. The population is filtered by a numba biquad kernel,
-    time outermost, candidates innermost (:func:`biquad_columns`). The identification objective
-    does not store the (P, N) outputs: :meth:`sse_evaluator` forms the PI output, filters it and
-    accumulates the squared error in one time loop (:func:`pi2_sse`).
+    Speed: one fused numba kernel (:func:`gpi2_run`) runs the generalized plays, the stage and
+    the squared error (or the normal equations of ρ and y0, which enter linearly: the ``auto``
+    optimizer searches the other ten or twelve) in one time loop, candidates innermost; the
+    (P, N) outputs are never stored. Simulation reuses :func:`~hystfit.models.gpi.gpi_population` and
+    :func:`biquad_columns` themselves.
 
-    Exploited structure: for fixed (f_n, ζ) the output is linear in (w, y0) —
-    :meth:`design_matrix` (filtered play outputs and ones), and :meth:`separable` for the
-    ``auto`` optimizer (only f_n and ζ are searched; the normal equations of (w, y0) come from
-    the fused kernel :func:`pi2_gram`, O(P·n²) memory whatever the capture length).
-
-    Inverse (:meth:`invert`): dynamic inversion of the linear part, then the analytic PI inverse
-    (paper 003 eq. 17–20). The discrete filter's exact inverse is unusable: the bilinear
-    numerator g(1 + z⁻¹)² has a double zero *on* the unit circle (z = −1), so the exact inverse
-    carries an undamped, linearly growing alternating mode. We invert the continuous equation
-    v = y + (2ζ/ω_n) ẏ + ÿ/ω_n² with derivatives consistent with the bilinear map,
-    s ≈ (K/4)(q − q⁻¹), s² ≈ (K²/4)(q − 2 + q⁻¹) (q the one-sample advance; both equal the
-    exact bilinear operator times cos²(θ/2) at normalized frequency θ), plus one correction
-    step that removes the cos²(θ/2) factor to O(θ⁴). Limits: the target must be smooth
-    (the inverse amplifies content above f_n by (f/f_n)²; noise or steps in y_d give large
-    voltage spikes), the input uses one sample of preview (y_d[k+1]), and the signal is taken
-    at rest before the first sample and held after the last.
+    Inverse: the stage's inverse (:func:`~hystfit.blocks.dynamics.invert_second_order`, one
+    sample of preview, smooth targets), then the generalized PI's inverse (:meth:`GPI.invert`:
+    analytic for equal envelopes, per-sample numerical otherwise).
     """
 
     name = "pi2"
-    title = "PI hysteresis + second-order dynamics (electromechanical)"
-    reference = "paper 000 (second-order linear subsystem preceded by hysteresis); PI of paper 003 eq. 1–3"
-    equation = "y'' + 2ζω_n y' + ω_n² y = ω_n² Σ_j w_j F_{r_j}[u],  y_meas = y + y0,  ω_n = 2π f_n"
+    title = "generalized PI hysteresis + second-order dynamics (electromechanical, paper 000)"
+    reference = "paper 000 (generalized PI + second-order linear subsystem, two-step identification)"
+    equation = ("x'' + 2ζω_n x' + ω_n² x = ω_n² ρ Σ_j e^{−τ r_j} s_{r_j}[u],  y = x + y0,  "
+                "s_r = max(γ_l(u) − r, min(γ_r(u) + r, s_r(k−1))),  γ_l = a1 tanh(a2 u + a3) + a4,  "
+                "γ_r = b1 tanh(b2 u + b3) + b4,  r_j = α_r j")
     rate_dependent = True
 
     n_operators: int = 10
-    placement: str = "uniform"
-    thresholds_V: tuple[float, ...] | None = None
-    nonnegative: bool = True
+    identification: str = "two-step"
+    fn_Hz: float | None = None
+    zeta: float | None = None
 
     def __post_init__(self) -> None:
         try:
-            self.pi
+            self.gpi
         except ConfigError as exc:
-            raise ConfigError(f"pi2: {str(exc).removeprefix('pi: ')}") from None
+            raise ConfigError(f"pi2: {str(exc).removeprefix('gpi: ')}") from None
+        if self.identification not in IDENTIFICATIONS:
+            raise ConfigError(f"pi2: identification must be one of {', '.join(IDENTIFICATIONS)}, "
+                              f"got {self.identification!r}")
+        given = (self.fn_Hz is not None, self.zeta is not None)
+        if self.identification == "joint" and any(given):
+            raise ConfigError("pi2: fn_Hz and zeta are searched with identification=joint; do not set them")
+        if given[0] != given[1]:
+            raise ConfigError("pi2: give both fn_Hz and zeta (the stage of the two-step route) or neither")
+        if all(given) and not (float(self.fn_Hz) > 0 and float(self.zeta) >= 0):
+            raise ConfigError(f"pi2: the stage needs fn_Hz > 0 and zeta ≥ 0, got {self.fn_Hz!r}, {self.zeta!r}")
 
     # ------------------------------------------------------------------ structure
-    @property
-    def pi(self) -> PI:
-        """The hysteresis part as a classical :class:`PI` (same structure fields)."""
-        return PI(self.n_operators, self.placement, self.thresholds_V, self.nonnegative)
+    @classmethod
+    def from_structure(cls, data: dict) -> "Model":
+        """Also reads the ``pi2`` of earlier hystfit versions (classical PI + stage; its structure
+        has ``thresholds_V``): that model is now the expression ``pi+dynamics``, with the same θ
+        order (w0 … w{n−1}, y0, f_n, ζ) and the same numbers, and is returned as such."""
+        if "thresholds_V" in data or "placement" in data:
+            from ..blocks.dynamics import Dynamics
+            from .composite import Composite
+            from .pi import PI
 
-    def adapt(self, scale: DataScale) -> "PI2":
-        if self.thresholds_V is not None:
+            legacy = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+            return Composite(PI(**legacy), (Dynamics(),))
+        return super().from_structure(data)
+
+    @property
+    def gpi(self) -> GPI:
+        """The hysteresis part as a :class:`GPI` (same operator count)."""
+        return GPI(self.n_operators)
+
+    @property
+    def joint(self) -> bool:
+        return self.identification == "joint"
+
+    @property
+    def d(self) -> int:
+        return 14 if self.joint else 12
+
+    @classmethod
+    def example(cls, scale: DataScale, fn_Hz: float = 1200.0, zeta: float = 0.15) -> "PI2":
+        """A two-step structure with a representative stage (P-721-like, capped at a tenth of the
+        sample rate), for documentation and the contract suite; in use :meth:`prepare` identifies it."""
+        return cls(fn_Hz=min(float(fn_Hz), 0.1 / scale.dt), zeta=float(zeta))
+
+    def prepare(self, captures) -> "PI2":
+        """Two-step route, step 1: identify the stage once from all captures (unless given)."""
+        if self.joint or self.fn_Hz is not None:
             return self
-        return replace(self, thresholds_V=self.pi.adapt(scale).thresholds_V)
+        caps = [c for c in captures if c.y is not None]
+        dts = {round(c.dt, 12) for c in caps}
+        if len(dts) != 1:
+            raise ConfigError(f"pi2: the captures have different sample periods ({sorted(dts)} s); resample them "
+                              "to one rate, or use --model-option identification=joint")
+        fn, z, _ = fit_stage_with_classical_pi([c.u for c in caps], [c.y for c in caps], caps[0].dt)
+        return replace(self, fn_Hz=float(fn), zeta=float(z))
 
-    @property
-    def n_params(self) -> int:
-        return self.n_operators + 3
+    def structure_summary(self) -> str:
+        if self.joint:
+            return "Stage: f_n and ζ searched jointly with the hysteresis (identification=joint)."
+        if self.fn_Hz is None:
+            return "Stage: not identified yet (two-step: identified from the captures before the fit)."
+        return (f"Stage: f_n {self.fn_Hz:.4g} Hz, ζ {self.zeta:.3g}, identified first with a classical PI standing "
+                "in for the hysteresis (paper 000's two-step identification); the hysteresis is fitted through it.")
 
     def params(self, scale: DataScale) -> tuple[Param, ...]:
-        fs = 1.0 / scale.dt
-        f_exc = scale.rate_max / (math.pi * scale.u_range)
-        f_lo = min(max(5.0 * f_exc, 0.002 * fs), 0.05 * fs)
-        f_hi = 0.45 * fs
-        return self.pi.params(scale) + (
-            Param("fn_Hz", "Hz", f_lo, f_hi, math.sqrt(f_lo * f_hi), "natural frequency f_n of the linear subsystem"),
-            Param("zeta", "1", 0.01, 2.0, 0.2, "damping ratio ζ of the linear subsystem"),
-        )
+        ps = self.gpi.params(scale)
+        if self.joint:
+            lo, hi = fn_search_range(scale.dt, scale.rate_max / (math.pi * scale.u_range))
+            ps += (Param("fn_Hz", "Hz", lo, hi, math.sqrt(lo * hi), "natural frequency f_n of the linear subsystem"),
+                   Param("zeta", "1", 0.01, 2.0, 0.2, "damping ratio ζ of the linear subsystem"))
+        return ps
+
+    def _stage(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(f_n, ζ) per candidate (P,) from θ (joint) or the structure (two-step)."""
+        P = theta.shape[0]
+        if self.joint:
+            return np.ascontiguousarray(theta[:, 12]), np.ascontiguousarray(theta[:, 13])
+        if self.fn_Hz is None:
+            raise ConfigError("pi2: the stage is not identified yet (two-step route): identify from captures, give "
+                              "--model-option fn_Hz=… zeta=…, or use --model-option identification=joint")
+        return np.full(P, float(self.fn_Hz)), np.full(P, float(self.zeta))
 
     # ------------------------------------------------------------------ simulation
-    def _filter(self, v: np.ndarray, fn: np.ndarray, zeta: np.ndarray, dt: float) -> np.ndarray:
-        """Filter the columns of v (N, M) with per-column (f_n, ζ) (M,): (N, M)."""
-        b0, b1, b2, a1, a2 = bilinear_biquad(fn, zeta, dt)
-        return biquad_columns(np.ascontiguousarray(v), b0, b1, b2, a1, a2)
-
-    def design_matrix(self, u: np.ndarray, dt: float, fn_Hz: float, zeta: float) -> np.ndarray:
-        """Regressors (N, n + 1) for fixed (f_n, ζ): filtered play outputs and a column of ones.
-
-        y = Φ·[w0 … w{n−1}, y0] exactly (the filter is linear and has unit static gain), so the
-        weights follow from (non-negative) least squares for every candidate dynamics.
-        """
-        u = np.ascontiguousarray(u, dtype=np.float64)
-        F = play_matrix(u, self.pi.r)
-        n = self.n_operators
-        Ff = self._filter(F, np.full(n, float(fn_Hz)), np.full(n, float(zeta)), dt)
-        return np.hstack([Ff, np.ones((u.shape[0], 1))])
-
-    def _simulate_from_plays(self, theta: np.ndarray, F: np.ndarray, dt: float) -> np.ndarray:
-        n = self.n_operators
-        theta = self.check_theta(theta, n + 3)
-        v = np.ascontiguousarray(F @ theta[:, :n].T)  # (N, P) hysteresis outputs
-        y = self._filter(v, theta[:, n + 1], theta[:, n + 2], dt)
-        y += theta[:, n][None, :]
-        return y.T
-
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        """gPI output (:func:`~hystfit.models.gpi.gpi_population`), stage (:func:`biquad_columns`), offset: (P, N)."""
+        theta = self.check_theta(theta, self.d)
         u = np.ascontiguousarray(u, dtype=np.float64)
-        return self._simulate_from_plays(theta, play_matrix(u, self.pi.r), dt)
+        fn, z = self._stage(theta)
+        zg = self.gpi._z(theta[:, :12], u)  # (N, P) unit-density gPI output
+        with np.errstate(all="ignore"):
+            coef = bilinear_biquad(fn, z, dt)
+        zf = biquad_columns(np.ascontiguousarray(zg), *coef)
+        return (zf * theta[:, 8][None, :] + theta[:, 11][None, :]).T
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
-        F = shared_play_matrix(u, self.pi.r)  # once per capture
-        return lambda theta: self._simulate_from_plays(theta, F, dt)
+        u = np.ascontiguousarray(u, dtype=np.float64)
+
+        def sim(theta):
+            theta = self.check_theta(theta, self.d)
+            fn, z = self._stage(theta)
+            return gpi2_run(u, None, theta[:, :12], fn, z, dt, self.n_operators, _OUTPUT).T
+
+        return sim
 
     def sse_evaluator(self, u: np.ndarray, dt: float, y: np.ndarray):
-        """Σ_k (ŷ_k − y_k)² per candidate from the fused kernel :func:`pi2_sse` (PI sum, biquad and
-        squared error inside one time loop): the (P, N) outputs are never stored. The play-operator
-        matrix is computed once per capture (shared with the simulator, :func:`shared_play_matrix`).
-        Non-finite candidates give inf/NaN (never an exception)."""
+        """Σ(ŷ − y)² per candidate from the fused kernel (:func:`gpi2_run`, SSE mode)."""
         u = np.ascontiguousarray(u, dtype=np.float64)
         y = np.ascontiguousarray(y, dtype=np.float64)
-        n = self.n_operators
-        F = shared_play_matrix(u, self.pi.r)  # once per capture
-        F0 = F[0].copy() if F.shape[0] else np.zeros(n)
 
         def sse(theta):
-            theta = self.check_theta(theta, n + 3)
-            with np.errstate(all="ignore"):
-                b0, b1, b2, a1, a2 = bilinear_biquad(theta[:, n + 1], theta[:, n + 2], dt)
-                c0 = theta[:, :n] @ F0 + theta[:, n]  # at-rest output v[0] + y0
-                return pi2_sse(F, y, theta[:, :n].T, c0, b0, b1, b2, a1, a2)
+            theta = self.check_theta(theta, self.d)
+            fn, z = self._stage(theta)
+            return gpi2_run(u, y, theta[:, :12], fn, z, dt, self.n_operators, _SSE)[:, 0]
 
         return sse
 
     def separable(self):
-        """Weights and y0 enter linearly; only (f_n, ζ) are searched (variable projection).
+        """ρ and y0 enter linearly (y = ρ·z_f + y0); the normal equations come from the fused kernel."""
+        lin = (8, 11)
+        nl = tuple(i for i in range(self.d) if i not in lin)
 
-        ``gram_factory``: the normal equations Σ_k b_k b_kᵀ, Σ_k b_k y_k of the basis
-        b_k = [filtered plays, 1] straight from the fused kernel :func:`pi2_gram` (O(P·n²) memory,
-        ``gram_fused=True``). ``basis_factory``: the basis itself, (P, N, n + 1), for callers that
-        need it (filtered candidate by candidate; the play matrix is fetched on first use)."""
-        n = self.n_operators
-
-        def gram_factory(u, dt, y):
-            u = np.ascontiguousarray(u, dtype=np.float64)
-            y = np.ascontiguousarray(y, dtype=np.float64)
-            F = shared_play_matrix(u, self.pi.r)  # once per capture
-            yy = float(y @ y)
-
-            def gram(theta_nl):
-                theta_nl = np.atleast_2d(np.asarray(theta_nl, dtype=np.float64))
-                G, c = pi2_gram(F, y, *bilinear_biquad(theta_nl[:, 0], theta_nl[:, 1], dt))
-                return G, c, yy
-
-            return gram
+        def full(theta_nl):
+            theta_nl = np.atleast_2d(np.asarray(theta_nl, dtype=np.float64))
+            th = np.zeros((theta_nl.shape[0], self.d))
+            th[:, nl] = theta_nl
+            th[:, 8] = 1.0  # unit density scale: the kernel's output is then z_f (y0 = 0)
+            return th
 
         def factory(u, dt):
             u = np.ascontiguousarray(u, dtype=np.float64)
-            plays = []  # the play matrix, computed on the first call only
 
             def basis(theta_nl):
-                if not plays:
-                    plays.append(shared_play_matrix(u, self.pi.r))
-                F = plays[0]
-                theta_nl = np.atleast_2d(np.asarray(theta_nl, dtype=np.float64))
-                P, N = theta_nl.shape[0], F.shape[0]
-                coef = bilinear_biquad(theta_nl[:, 0], theta_nl[:, 1], dt)
-                B = np.empty((P, N, n + 1))
-                for p in range(P):  # one candidate at a time: no (N, P·n) copy of the plays
-                    B[p, :, :n] = biquad_columns(F, *(np.full(n, a[p]) for a in coef))
-                B[:, :, n] = 1.0
+                th = full(theta_nl)
+                fn, z = self._stage(th)
+                zf = gpi2_run(u, None, th[:, :12], fn, z, dt, self.n_operators, _OUTPUT)  # (N, P)
+                B = np.empty((th.shape[0], u.shape[0], 2))
+                B[:, :, 0] = zf.T
+                B[:, :, 1] = 1.0
                 return B
 
             return basis
 
-        return Separable(tuple(range(n + 1)), (n + 1, n + 2), factory, gram_factory, gram_fused=True)
+        def gram_factory(u, dt, y):
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            y = np.ascontiguousarray(y, dtype=np.float64)
+            n, sy, yy = float(u.shape[0]), float(y.sum()), float(y @ y)
+
+            def gram(theta_nl):
+                th = full(theta_nl)
+                fn, z = self._stage(th)
+                M = gpi2_run(u, y, th[:, :12], fn, z, dt, self.n_operators, _MOMENTS)
+                P = M.shape[0]
+                G = np.empty((P, 2, 2))
+                G[:, 0, 0] = M[:, 0]
+                G[:, 0, 1] = G[:, 1, 0] = M[:, 1]
+                G[:, 1, 1] = n
+                c = np.empty((P, 2))
+                c[:, 0] = M[:, 2]
+                c[:, 1] = sy
+                return G, c, yy
+
+            return gram
+
+        return Separable(lin, nl, factory, gram_factory, gram_fused=True)
 
     # ------------------------------------------------------------------ stepping
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
-        """[play states (n), d[k−1], d[k−2], e[k−1], e[k−2], v0] after the first sample u0.
-
-        The filter memory is that of :func:`biquad_columns` (deviations from the first PI
-        output v0, all zero at rest); stepping from here reproduces :meth:`simulate` from the
-        second sample on.
-        """
+        """[gPI operator states (n), d[k−1], d[k−2], e[k−1], e[k−2], z0] after the first sample u0."""
         t = np.asarray(theta, dtype=np.float64).ravel()
-        r = self.pi.r
-        plays = np.maximum(u0 - r, np.minimum(u0 + r, 0.0))
-        return np.r_[plays, 0.0, 0.0, 0.0, 0.0, plays @ t[: self.n_operators]]
+        s = self.gpi.initial_state(t[:12], u0, dt)
+        _, q = self.gpi._operators(np.r_[t[:8], 1.0, t[9:12]])
+        return np.r_[s, 0.0, 0.0, 0.0, 0.0, float(s @ q)]
 
     def step(self, theta, state, u_prev, u_new, dt):
         """One sample for candidate inputs u_new (C,): outputs (C,) and states (C, n + 5)."""
@@ -528,38 +454,27 @@ class PI2(Model):
         n = self.n_operators
         state = np.asarray(state, dtype=np.float64)
         u_new = np.atleast_1d(np.asarray(u_new, dtype=np.float64))
-        r = self.pi.r
-        plays = np.maximum(u_new[:, None] - r[None, :], np.minimum(u_new[:, None] + r[None, :], state[None, :n]))
-        d1, d2, e1, e2, v0 = state[n:n + 5]
-        b0, b1, b2, a1, a2 = (float(c[0]) for c in bilinear_biquad(t[n + 1], t[n + 2], dt))
-        d = plays @ t[:n] - v0
+        unit = np.r_[t[:8], 1.0, t[9:11], 0.0]  # ρ = 1, y0 = 0: the gPI's unit-density output z
+        z, s = self.gpi.step(unit, state[:n], u_prev, u_new, dt)
+        d1, d2, e1, e2, z0 = state[n:n + 5]
+        fn, zeta = self._stage(t[None, :])
+        b0, b1, b2, a1, a2 = (float(c[0]) for c in bilinear_biquad(fn, zeta, dt))
+        d = z - z0
         e = b0 * d + b1 * d1 + b2 * d2 - a1 * e1 - a2 * e2
         C = u_new.shape[0]
-        new = np.hstack([plays, d[:, None], np.full((C, 1), d1), e[:, None], np.full((C, 1), e1), np.full((C, 1), v0)])
-        return e + v0 + t[n], new
+        new = np.hstack([s, d[:, None], np.full((C, 1), d1), e[:, None], np.full((C, 1), e1), np.full((C, 1), z0)])
+        return t[8] * (z0 + e) + t[11], new
 
     # ------------------------------------------------------------------ inverse
-    def invert_dynamics(self, theta: np.ndarray, y_target: np.ndarray, dt: float) -> np.ndarray:
-        """Hysteresis output v (N,) that drives the linear part along ``y_target`` (offset included):
-        the ``dynamics`` block's inverse (:func:`hystfit.blocks.dynamics.invert_second_order`)."""
-        t = np.asarray(theta, dtype=np.float64).ravel()
-        n = self.n_operators
-        try:
-            return invert_second_order(y_target, float(t[n + 1]), float(t[n + 2]), dt)
-        except ConfigError as exc:
-            raise ConfigError(f"pi2: {str(exc).removeprefix('dynamics: ')}") from None
-
     def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
                u_range: tuple[float, float] | None = None) -> np.ndarray:
-        """Input u (N,) for a smooth target ``y_target``: dynamic inversion, then the PI inverse.
-
-        See the class docstring for the method and its limits (smooth target, one sample of
-        preview). ``u_range`` is accepted for interface compatibility and ignored: both steps
-        are analytic.
-        """
+        """Input u (N,) for a smooth target: the stage's inverse, then the generalized PI's inverse."""
         t = np.asarray(theta, dtype=np.float64).ravel()
-        n = self.n_operators
-        if t.size != n + 3:
-            raise ValueError(f"pi2: theta must have {n + 3} entries, got {t.size}")
-        v = self.invert_dynamics(t, y_target, dt)
-        return self.pi.invert(t[: n + 1], v, dt)
+        if t.size != self.d:
+            raise ValueError(f"pi2: theta must have {self.d} entries, got {t.size}")
+        fn, zeta = (float(a[0]) for a in self._stage(t[None, :]))
+        try:
+            x = invert_second_order(np.asarray(y_target, dtype=np.float64), fn, zeta, dt)
+        except ConfigError as exc:
+            raise ConfigError(f"pi2: {str(exc).removeprefix('dynamics: ')}") from None
+        return self.gpi.invert(t[:12], x, dt, u_range=u_range)

@@ -10,7 +10,7 @@ import pandas as pd
 from ..metrics import describe_metrics, metric_key
 
 #: metric columns shown in per-condition reports, in order
-REPORT_METRICS = ("rmse", "bias", "nrmse_pct", "mape", "smape", "r2", "re", "j", "max_error")
+REPORT_METRICS = ("rmse", "bias", "nrmse_pct", "mape", "smape", "r2", "re", "j", "j_model", "max_error")
 
 
 def metric_columns(unit: str) -> list[str]:

@@ -80,7 +80,8 @@ def track_markdown(res: TrackResult, figures: list[str], command: str | None = N
                  f"derivative filter {p.tf_s:.3g} s, anti-windup {p.anti_windup} (Tt = {p.tt_s:.3g} s); {p.rule}; "
                  f"nominal bandwidth ≈ {p.bandwidth_Hz:.4g} Hz, GM = {p.gain_margin:.3g}, PM = {p.phase_margin_deg:.3g}°")
     if res.smc is not None:
-        L.append(f"- sliding mode (paper 003 eq. 25–42, on top of the feedforward): {res.smc.describe()}")
+        L.append(f"- sliding mode (paper 003 eq. 25–42; smc on top of the feedforward, smc-noinv without the "
+                 f"inverse compensation): {res.smc.describe()}")
     L += ["", "## Comparison", "",
           f"Errors e = plant output − reference (true output, without the measurement noise); % of stroke = "
           f"100·x / (max r − min r). limited %: share of samples where the voltage limits acted.", ""]
@@ -90,8 +91,11 @@ def track_markdown(res: TrackResult, figures: list[str], command: str | None = N
         L += ["", "### Steps (paper 002 Table 6)", "",
               "t90 = time from the step to 90 % of it (002's Tr); settling = time after which the output stays "
               "within ±5 % / ±2 % of the step (– = not settled within the hold); overshoot in % of the step "
-              "(largest over the steps); times are means over the steps. Per step, also the 10 → 90 % rise time "
-              "and the steady-state error: `summary.json`, `runs[].steps`.", ""]
+              "(largest over the steps); times are means over the steps. e_max settled / RMSE settled = max |e| "
+              "and sqrt(mean e²) after the transient, from the ±5 % settling time to the end of each hold (002 "
+              "Table 6's emax and RMSE of a step; worst step; – = not settled), unlike the trajectory's max and "
+              "RMSE above, which include the transients. Per step, also the 10 → 90 % rise time and the "
+              "steady-state error: `summary.json`, `runs[].steps`.", ""]
         L += _md_table(step_cols, step_rows)
     L += ["", "## Table cells", "", "| segment | controller cells | plant cells |", "|---|---|---|"]
     for ch, (seg, pcells) in zip(inv.choices, res.plant_cells):
@@ -145,7 +149,8 @@ def comparison_headers(res: TrackResult) -> tuple[list[str], list[str]]:
     """Column headers of :func:`comparison_text_rows`: (tracking table, step table — empty without steps)."""
     du = display_unit(res.unit)
     track_cols = ["controller", f"max ({du})", f"RMSE ({du})", "max %", "RMSE %", "limited %"]
-    step_cols = ["controller", "t90 (ms)", "settle ±5 % (ms)", "settle ±2 % (ms)", "overshoot %"] \
+    step_cols = ["controller", "t90 (ms)", "settle ±5 % (ms)", "settle ±2 % (ms)", "overshoot %",
+                 f"e_max settled ({du})", f"RMSE settled ({du})"] \
         if res.target.steps else []
     return track_cols, step_cols
 
@@ -163,5 +168,6 @@ def comparison_text_rows(res: TrackResult) -> tuple[list[list[str]], list[list[s
                            fmt(row["max_error_pct"], 3), fmt(row["rmse_pct"], 3), fmt(row["limited_pct"], 3)])
         if "t90_s" in row:
             step_rows.append([row["controller"], ms(row["t90_s"]), ms(row["settling_time_5pct_s"]),
-                              ms(row["settling_time_2pct_s"]), fmt(row["overshoot_pct"], 3)])
+                              ms(row["settling_time_2pct_s"]), fmt(row["overshoot_pct"], 3),
+                              fmt(row[f"e_max_settled_{u}"], 3), fmt(row[f"rmse_settled_{u}"], 3)])
     return track_rows, step_rows

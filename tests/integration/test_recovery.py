@@ -247,24 +247,24 @@ def test_gpi_recovery_auto(rng):
 
 
 def test_pi2_recovery_auto(rng):
-    """PI + second-order stage (000) from 50 Hz and 200 Hz raised cosines, auto with default settings.
-
-    Identifiable: f_n, ζ (the 200 Hz capture shows the lag), y0, the low-threshold weights and Σw.
-    Not individually identifiable: the high-threshold weights w5…w9 (to no better than ~40 %): the
-    play-operator matrix is ill-conditioned there, neighbouring operators differ only near the
-    reversals of the largest loop.
-    """
+    """Generalized PI + second-order stage (paper 000) from 50 Hz and 200 Hz raised cosines, auto with
+    default settings, both routes. Two-step (the paper's): the stage first (with a classical PI
+    standing in for the hysteresis: a few % of bias on f_n), then the generalized PI through it.
+    Joint: f_n and ζ searched with the hysteresis. Both reach the noise floor; the generalized PI's
+    own parameters are not individually identifiable (GPI's docstring), so only the fit is checked,
+    and the stage of the joint route."""
+    from hystfit.models.gpi import GPI
     from hystfit.models.pi2 import PI2
 
-    w = np.r_[0.2, 0.05, 0.04, 0.03, 0.02, 0.015, 0.01, 0.008, 0.005, 0.003]
-    truth = np.r_[w, 0.5, 1200.0, 0.15]  # weights µm/V, y0 µm, fn Hz, ζ
     us = [raised_cosine(60, f=50.0, cycles=2), raised_cosine(60, f=200.0, cycles=4)]
-    m_true = PI2().adapt(DataScale.from_arrays(us, us, [1 / FS] * 2))
-    caps = noisy_captures(m_true, truth, list(zip(us, (50.0, 200.0))), rng)
-    fit = fit_captures(caps, PI2(), Auto(), seed=0)
-    assert fit.model.thresholds_V == m_true.thresholds_V
-    assert fit.metrics["rmse_um"] <= 1.1 * SIGMA
-    np.testing.assert_allclose(fit.theta[11:], truth[11:], rtol=0.01)   # fn, ζ
-    assert abs(fit.theta[10] - truth[10]) < 0.01                          # y0
-    np.testing.assert_allclose(fit.theta[:3], w[:3], rtol=0.02)
-    assert fit.theta[:10].sum() == pytest.approx(w.sum(), rel=0.005)
+    scale = DataScale.from_arrays(us, [0.2 * u for u in us], [1 / FS] * 2)
+    g = np.array([p.default for p in GPI().params(scale)])
+    g[4] *= 1.1  # unequal envelopes
+    truth = np.r_[g, 1200.0, 0.15]
+    caps = noisy_captures(PI2(identification="joint"), truth, list(zip(us, (50.0, 200.0))), rng)
+    two = fit_captures(caps, PI2(), Auto(), seed=0)
+    assert two.model.fn_Hz == pytest.approx(1200.0, rel=0.05) and two.model.zeta == pytest.approx(0.15, abs=0.02)
+    assert two.metrics["rmse_um"] <= 3 * SIGMA
+    joint = fit_captures(caps, PI2(identification="joint"), Auto(), seed=0)
+    assert joint.metrics["rmse_um"] <= 1.2 * SIGMA
+    np.testing.assert_allclose(joint.theta[12:], truth[12:], rtol=0.02)

@@ -67,16 +67,17 @@ def test_parameter_names_are_prefixed_by_block():
 
 
 # ----------------------------------------------------------------------------------------------
-# one implementation: pi+dynamics is pi2
+# one implementation: pi2 is gpi+dynamics (paper 000); the classical-PI variant is pi+dynamics
 
 
-def test_pi_plus_dynamics_equals_pi2(rng):
+def test_gpi_plus_dynamics_equals_pi2(rng):
+    from hystfit.models.gpi import GPI
+
     t, u = synth.raised_cosine(60.0, 40.0, 3, 10_000)
-    opts = {"thresholds_V": TRUE_R}
-    comp = make_model("pi+dynamics", opts)
-    pi2 = make_model("pi2", opts)
-    w = np.array(synth.DEFAULT_WEIGHTS_UM_PER_V)
-    theta = np.r_[w, 0.25, 900.0, 0.2]
+    scale = DataScale.from_arrays([u], [0.3 * u], [DT])
+    theta = np.r_[[p.default for p in GPI().params(scale)], 900.0, 0.2]
+    comp = make_model("gpi+dynamics")
+    pi2 = make_model("pi2", {"identification": "joint"})
     np.testing.assert_allclose(comp.simulate_one(theta, u, DT), pi2.simulate_one(theta, u, DT), rtol=1e-12, atol=1e-12)
 
 

@@ -122,14 +122,38 @@ def test_structure_json_round_trip_and_adapt_keeps_linear_part():
     np.testing.assert_array_equal(back.simulate_one(THETA, u, DT), m.simulate_one(THETA, u, DT))
 
 
-def test_invalid_structure_and_sample_rate_mismatch():
+def test_invalid_structure():
     with pytest.raises(ConfigError, match="entries"):
         Hammerstein(order=2, A=(1.0, 0.0), B=(1.0, 0.0), C=(1.0, 0.0), dt_s=DT)
     with pytest.raises(ConfigError, match="dt_s"):
         Hammerstein(order=1, A=(0.5,), B=(1.0,), C=(0.5,))
-    m = model_with(second_order_zoh().normalized())
-    with pytest.raises(ConfigError, match="identified at dt"):
-        m.simulate_one(THETA, np.zeros(10), 2 * DT)
+    for bad in ({"feedthrough": "yes"}, {"correlation": "fft"}, {"max_order": 0}, {"n_markov": 2},
+                {"era_order": -1}):
+        with pytest.raises(ConfigError, match=next(iter(bad))):
+            Hammerstein(**bad)
+
+
+@pytest.mark.parametrize("method", ["zoh", "bilinear"])
+def test_linear_part_identified_at_5kHz_simulates_and_inverts_at_10kHz(method):
+    """Exact re-discretization: the 5 kHz part resampled to 10 kHz equals the same continuous stage
+    discretized at 10 kHz (zero-order hold for D = 0, bilinear with a feedthrough)."""
+    wn = 2 * np.pi * 800.0
+    sysc = signal.tf2ss([wn * wn], [1.0, 2 * 0.1 * wn, wn * wn])
+
+    def at(dt):
+        A, B, C, D, _ = signal.cont2discrete(sysc, dt, method=method)
+        return LinearSS(A, B.ravel(), C.ravel(), dt, 2, D=float(D.ravel()[0]))
+
+    assert (at(2 * DT).D == 0.0) == (method == "zoh")  # "auto" picks the method from D
+    m5, m10 = model_with(at(2 * DT)), model_with(at(DT))
+    u = raised_cosine(60, 20, fs_Hz=FS)[1]
+    u = u + 5 * np.sin(2 * np.pi * 700 * np.arange(u.size) * DT)
+    np.testing.assert_allclose(m5.simulate_one(THETA, u, DT), m10.simulate_one(THETA, u, DT), atol=1e-9)
+    y_d = 2 + 5 * (1 - np.cos(2 * np.pi * 10 * np.arange(2000) * DT))
+    np.testing.assert_allclose(m5.invert(THETA, y_d, DT), m10.invert(THETA, y_d, DT), atol=1e-8)
+    with pytest.raises(ConfigError, match="negative real axis|z = −1"):
+        LinearSS(np.array([[-0.5 if method == "zoh" else -1.0]]), np.array([1.0]), np.array([1.5]), DT, 1,
+                 D=0.0 if method == "zoh" else 0.1).resampled(2 * DT, method)
 
 
 def test_step_agrees_with_simulate(rng):
@@ -174,12 +198,60 @@ def test_era_identifies_paper_003_eq16_from_a_prbs_capture():
     assert s[5] / s[6] > 5 and s[5] / s[6] == max(s[:8] / s[1:9])  # the gap
     mag, ph = _compare_response(lin, true)
     assert mag < 0.02 and ph < 2.0
-    assert abs(lin.D) < 1e-3  # the feedthrough estimate of a strictly proper plant is ≈ 0
-    # the paper's D = 0 variant gives the same model
-    lin0 = identify_linear_era(v, y, DT, n_markov=800, feedthrough=False)
-    assert lin0.order == 6 and lin0.D == 0.0
-    mag0, ph0 = _compare_response(lin0, true)
-    assert mag0 < 0.02 and ph0 < 2.0
+    assert lin.D == 0.0  # feedthrough "auto": a zero-order-hold plant does not demand D
+    # the estimated feedthrough of a strictly proper plant is ≈ 0, and gives the same model
+    lin_d = identify_linear_era(v, y, DT, n_markov=800, feedthrough=True)
+    assert lin_d.order == 6 and abs(lin_d.D) < 1e-3
+    mag_d, ph_d = _compare_response(lin_d, true)
+    assert mag_d < 0.02 and ph_d < 2.0
+
+
+def bilinear_second_order(fn=1200.0, zeta=0.15, dt=DT) -> LinearSS:
+    """The virtual actuator's kind of stage: a bilinear (Tustin) biquad, double zero at z = −1, D ≠ 0."""
+    wn = 2 * np.pi * fn
+    b, a = signal.bilinear([wn * wn], [1.0, 2 * zeta * wn, wn * wn], fs=1.0 / dt)
+    return LinearSS.from_tf(b, a, dt)
+
+
+def test_feedthrough_auto_keeps_d_when_the_data_demand_it():
+    """A bilinear stage has D = b0 ≈ 8 % of its static gain: D = 0 cannot represent it (the
+    simulation error more than halves with D), so "auto" keeps D; a ZOH stage keeps D = 0 (above)."""
+    true = bilinear_second_order()
+    u = prbs(60.0, FS, 1.0, 2500.0, seed=3)[1]
+    y = true.filter(u) + 0.004 * np.random.default_rng(4).standard_normal(u.size)
+    lin = identify_linear_era(u, y, DT, n_markov=400)
+    assert lin.D == pytest.approx(true.D, rel=0.05)
+    assert identify_linear_era(u, y, DT, n_markov=400, feedthrough=False).D == 0.0
+    with pytest.raises(ConfigError, match="feedthrough"):
+        identify_linear_era(u, y, DT, n_markov=400, feedthrough="maybe")
+
+
+def sign_alternations(x):
+    """Longest run of consecutive sample-to-sample differences that alternate in sign."""
+    d = np.sign(np.diff(x))
+    d = d[d != 0]
+    run = best = 0
+    for a, b in zip(d[:-1], d[1:]):
+        run = run + 1 if a != b else 0
+        best = max(best, run)
+    return best
+
+
+def test_step_feedforward_through_zeros_at_minus_one_does_not_oscillate():
+    """The bilinear stage's zeros sit at z = −1: an exact (or radius-pulled) inverse alternates sign
+    every sample and grows to kilovolts. ZPETC: a 10 µm step needs about its static voltage, reached
+    within a few samples, no alternation."""
+    m = model_with(bilinear_second_order().normalized())
+    assert m.linear.inverse_plan().kinds == ("zero-phase", "zero-phase")
+    y_d = np.full(600, THETA[-1])
+    y_d[200:] += 10.0
+    u = m.invert(THETA, y_d, DT)
+    u_static = m.pi.invert(np.r_[W, 0.0], np.array([0.0, 10.0]), DT)[1]  # the static inverse of 10 µm
+    assert np.all(np.isfinite(u)) and u.min() > -1.0 and u.max() < 1.5 * u_static
+    assert sign_alternations(u) <= 2
+    assert np.allclose(u[210:], u_static, rtol=1e-6)
+    y = m.simulate_one(THETA, u, DT)
+    assert np.abs(y - y_d)[210:].max() < 1e-6  # settled on the target
 
 
 def test_era_toeplitz_route_on_a_simple_plant():
@@ -245,8 +317,11 @@ def test_sine_only_data_fits_gain_and_phase():
         fit_linear_to_sine([pi_output(us[0])] * 2, [ys[0]] * 2, DT)
 
 
-def test_inverse_round_trip_minimum_phase_is_exact():
-    m = model_with(second_order_zoh().normalized())
+def test_inverse_round_trip_acceptable_zeros_is_exact():
+    """Well-damped zeros (|z| ≤ 0.9, Re z ≥ 0) are inverted exactly."""
+    lin = LinearSS.from_tf(np.array([0.0, 0.3, -0.12]), np.array([1.0, -1.2, 0.5]), DT).normalized()
+    assert lin.inverse_plan().kinds == ("acceptable",)
+    m = model_with(lin)
     t = np.arange(4000) * DT
     stroke = 10.0
     y_d = 2 + stroke * 0.5 * (1 - np.cos(2 * np.pi * 10 * t))
@@ -256,13 +331,29 @@ def test_inverse_round_trip_minimum_phase_is_exact():
     assert e[100:-2].max() < 1e-10 * stroke  # one-sample delay inverted exactly; last sample lacks its preview
 
 
+def test_inverse_of_the_zero_order_hold_sampling_zero_is_zero_phase():
+    """A fast zero-order hold puts a zero near z = −1 (here −0.84): its exact inverse alternates sign
+    every sample. ZPETC leaves it uninverted: zero phase error, gain error O(ω²) at low frequency."""
+    m = model_with(second_order_zoh().normalized())
+    plan = m.linear.inverse_plan()
+    assert plan.kinds == ("zero-phase",) and -1 < plan.zeros[0].real < -0.5
+    t = np.arange(4000) * DT
+    stroke = 10.0
+    y_d = 2 + stroke * 0.5 * (1 - np.cos(2 * np.pi * 10 * t))
+    u = m.invert(THETA, y_d, DT)
+    e = np.abs(m.simulate_one(THETA, u, DT) - y_d)
+    assert e.max() < 1e-4 * stroke
+    assert e[100:-2].max() < 1e-5 * stroke
+
+
 def test_inverse_round_trip_non_minimum_phase_eq16():
     """Eq. 16 has right-half-plane zeros (|z| = 1.96 after discretization): its inverse uses the reflected
     (minimum-phase) zeros plus the all-pass's low-frequency delay as a time advance (003 §4.2, our variant).
     Exact up to the all-pass's phase beyond a pure delay: O((ω/ω_z)³)."""
     m = model_with(paper_003_eq16().normalized())
-    b_mp, a, d, tau = m.linear.minimum_phase()
-    assert d == 1 and 2.0 < tau < 3.0 and np.all(np.abs(np.roots(b_mp)) < 1)
+    plan = m.linear.inverse_plan()
+    assert plan.delay == 1 and 2.0 < plan.tau_allpass < 3.0 and np.all(np.abs(np.roots(plan.b_a)) < 1)
+    assert plan.kinds.count("reflected") == 2 and plan.kinds.count("acceptable") == 3  # 286 Hz pair kept
     t = np.arange(4000) * DT
     stroke = 10.0
     y_d = 2 + stroke * 0.5 * (1 - np.cos(2 * np.pi * 5 * t))

@@ -9,6 +9,7 @@ import pytest
 from hystfit.metrics import (
     METRICS,
     compute_metrics,
+    check_mape_floor,
     compute_metrics_pooled,
     describe_metrics,
     metric_key,
@@ -160,3 +161,27 @@ def test_docstring_examples_run():
 
     result = doctest.testmod(hystfit.metrics, optionflags=doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_mape_floor_zero_keeps_every_sample_as_paper_002():
+    y_meas, y_model = [0.5, 1.0, 2.0, 4.0], [1.0, 1.0, 2.5, 3.0]  # |e| = 0.5, 0, 0.5, 1
+    m = compute_metrics(y_meas, y_model, mape_floor=0.0)
+    assert m["n_excluded"] == 0 and m["mape_floor"] == 0.0
+    assert m["mape"] == pytest.approx((1.0 + 0 + 0.25 + 0.25) / 4, rel=1e-12)
+    d = compute_metrics(y_meas, y_model)  # default floor 1 %·stroke = 0.035: still every sample here
+    assert d["mape_floor"] == 0.01 and d["n_excluded"] == 0
+    m = compute_metrics(y_meas, y_model, mape_floor=0.2)  # 0.2·3.5 = 0.7: the first sample is left out
+    assert m["n_excluded"] == 1 and m["mape"] == pytest.approx((0 + 0.25 + 0.25) / 3, rel=1e-12)
+    z = compute_metrics([0.0, 1.0, 2.0], [0.1, 1.0, 2.0], mape_floor=0.0)
+    assert z["mape"] == math.inf and z["n_excluded"] == 0  # y_meas = 0 with an error: MAPE has no finite value
+    for bad in (-0.1, 1.0, "x"):
+        with pytest.raises(Exception, match="mape-floor"):
+            check_mape_floor(bad)
+
+
+def test_j_model_divides_by_the_model_output_as_004_prints_it():
+    m = compute_metrics(Y_MEAS, Y_MODEL)
+    assert m["j_model"] == pytest.approx(1.5 / (0.25 + 1 + 6.25 + 9), rel=1e-12)
+    assert m["j"] == pytest.approx(1.5 / 21, rel=1e-12)
+    legend = dict(describe_metrics("um"))
+    assert "y_model" in legend["j_model"] and "mape_floor" in legend["mape"]

@@ -182,6 +182,12 @@ def test_step_metrics_of_a_first_order_response():
     y2 = y.copy()
     y2[-1] = 0.0  # leaves the band at the very end: not settled
     assert math.isnan(step_metrics(tgt, y2)[0]["settling_time_2pct_s"])
+    # paper 002 Table 6's emax/RMSE of a step: after the transient (from the ±5 % settling time)
+    ks = int(round(m["settling_time_5pct_s"] * fs))
+    e = 2.0 * np.exp(-t[ks:] / tau)
+    assert m["e_max_settled_um"] == pytest.approx(e.max(), rel=1e-9) and m["e_max_settled_um"] <= 0.05 * 2.0
+    assert m["rmse_settled_um"] == pytest.approx(np.sqrt(np.mean(e ** 2)), rel=1e-9)
+    assert math.isnan(step_metrics(tgt, 1.0 + 0.5 * (y - 1.0))[0]["rmse_settled_um"])  # never settles
 
 
 def test_feedforward_loop_reproduces_the_invert_preview():
@@ -298,3 +304,60 @@ def test_feedback_on_a_stage_whose_displacement_falls_with_the_voltage():
     assert rmse["ff"] > 5 and rmse["ff+pid"] < 0.2 and rmse["pid"] < rmse["ff"]
     given = given_pid(nominal_plant(pf, res.inversion.choices, 1e-4), 0.0, 2000.0, 0.0)
     assert given.ki < 0 and "sign of K" in given.rule
+
+
+# ----------------------------------------------------------------------------------------------
+# sliding mode of paper 003: design options, observer, without inverse compensation, bandwidths
+
+
+def test_smc_design_options_and_the_observer_of_003():
+    from hystfit.track import SMC_OPTIONS, check_smc_options
+
+    pf = pi_table()
+    nom = nominal_plant(pf, invert_target(pf, sine_target(5, 10, 1)).choices, 1e-4)
+    base = design_smc(nom, 300.0, 66.0)
+    assert not np.any(base.G)  # default: G = 0 (module docstring)
+    n = nom.A.shape[0]
+    obs = [0.3] * n
+    sl = [0.8] + [0.1] * (n - 1)
+    d = design_smc(nom, 300.0, 66.0, eps=50.0, alpha=2.0, k=1000.0, sliding_poles=sl, observer_poles=obs)
+    assert (d.eps, d.alpha, d.q) == (50.0, 2.0, 1000.0)
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(nom.A - np.outer(d.G, nom.C)).real), obs, atol=1e-9)
+    # the sliding motion (S = 0 enforced: δ = −(M B)⁻¹ M A x) has the chosen poles
+    Ad = np.block([[nom.A, np.zeros((n, 1))], [1e-4 * nom.C[None, :], np.ones((1, 1))]])
+    Bd = np.r_[nom.B, 0.0]
+    M = np.r_[d.Mx, d.Mp]
+    closed = Ad - np.outer(Bd, M @ Ad) / (M @ Bd)
+    ev = np.sort(np.abs(np.linalg.eigvals(closed)))
+    np.testing.assert_allclose(ev[ev > 1e-6], sorted(p for p in sl if p > 1e-6), atol=1e-6)
+    for bad, word in (({"sliding_poles": [0.5] * (n + 1)}, "sliding_poles"), ({"observer_poles": [1.2] * n}, "unit circle"),
+                      ({"eps": -1.0}, "eps"), ({"k": 1e9}, "k")):
+        with pytest.raises(ConfigError, match=word):
+            design_smc(nom, 300.0, 66.0, **bad)
+    with pytest.raises(ConfigError, match="unknown"):
+        check_smc_options({"gain": 1})
+    assert set(SMC_OPTIONS) == {"eps", "alpha", "k", "sliding_poles", "observer_poles"}
+
+
+def test_smc_without_inverse_compensation_tracks_on_feedback_alone():
+    pf = pi_table()
+    tgt = sine_target(10.0, 5.0, cycles=2, offset=2.0)
+    res = track(pf, tgt, ["smc", "smc-noinv"], smc_options={"observer_poles": [0.5]})
+    smc, noinv = res.runs
+    assert noinv.details["uses_feedforward"] is False and smc.details["uses_feedforward"] is True
+    assert smc.metrics["rmse_um"] < 1e-9  # perfect model: the feedforward does it all
+    assert 1e-3 < noinv.metrics["rmse_um"] < 0.02 * 10.0  # the sliding mode alone: small, not zero
+
+
+def test_measured_bandwidths_of_feedback_and_feedforward():
+    from hystfit.track import measure_bandwidths
+
+    bw = measure_bandwidths(pi_table(), ["pid", "ff", "smc-noinv"], amplitude=2.0, offset=5.0, fs=10_000.0,
+                            freqs_Hz=[5.0, 50.0, 200.0, 500.0, 1000.0, 2000.0])
+    pid, ff, noinv = (bw["controllers"][c] for c in ("pid", "ff", "smc-noinv"))
+    # the automatic PID aims at a crossover ≈ fs/20 = 500 Hz: −3 dB a little below it
+    assert 150.0 < pid["tracking_bandwidth_Hz"] < 600.0
+    assert pid["sensitivity_gain"][0] < 0.05 and pid["disturbance_bandwidth_Hz"] > 200.0
+    assert math.isnan(ff["tracking_bandwidth_Hz"])  # perfect model: |T| = 1 at every frequency
+    assert ff["disturbance_bandwidth_Hz"] == 0.0 and np.allclose(ff["sensitivity_gain"], 1.0)  # no feedback
+    assert 100.0 < noinv["tracking_bandwidth_Hz"] < 1000.0
