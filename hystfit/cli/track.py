@@ -118,9 +118,9 @@ def track(
             summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command)
             if bw is not None:
                 from ..io import atomic_write_text
-                from ..results import _clean, dumps
+                from ..results import dumps, json_safe
 
-                atomic_write_text(stage / "bandwidth.json", dumps(_clean(dict(bw, command=command))))
+                atomic_write_text(stage / "bandwidth.json", dumps(json_safe(dict(bw, command=command))))
                 summary["bandwidth"] = bw
     for run in res.runs:
         if run.limit_spans:
