@@ -12,7 +12,6 @@ cell that fails is recorded with its error and the comparison goes on.
 from __future__ import annotations
 
 import time
-import traceback
 import warnings
 from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Optional, Sequence
@@ -152,7 +151,8 @@ def _warm_up(spec: CellSpec, model, opt) -> None:
 
 
 def run_cell(spec: CellSpec) -> CellResult:
-    """Fit one cell (R runs) and summarize it; errors become a CellResult with ``error`` set.
+    """Fit one cell (R runs) and summarize it; a :class:`HystfitError` becomes a CellResult with
+    ``error`` set (other exceptions are crashes, retried by the executor).
 
     Run times exclude the one-off start-up costs of the process (:func:`_warm_up`).
     """
@@ -178,10 +178,9 @@ def run_cell(spec: CellSpec) -> CellResult:
         return CellResult(spec.model, spec.optimizer, a, f, spec.label, len(fit.params), tuple(runs), fit.best_run,
                           fit.theta, tuple(p.name for p in fit.params), tuple(fit.predictions),
                           time.perf_counter() - t0)
-    except HystfitError as exc:
+    except HystfitError as exc:  # the model cannot be fitted to these captures: recorded in the cell
         err = str(exc)
-    except Exception as exc:  # a failing model/optimizer must not stop the comparison
-        err = f"{exc.__class__.__name__}: {exc} ({traceback.extract_tb(exc.__traceback__)[-1].name})"
+    # any other exception is a crash: the executor retries the cell once, then records it (_failed_cell)
     return CellResult(spec.model, spec.optimizer, a, f, spec.label, 0, error=err,
                       runtime_s=time.perf_counter() - t0)
 
@@ -303,7 +302,11 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     if progress:
         progress("start", {"total": len(specs)})
 
+    reused_cells = set()
+
     def done(i: int, res, reused: bool) -> None:
+        if reused:
+            reused_cells.add(i)
         if progress:
             s = specs[i]
             progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}", "reused": reused,
@@ -320,6 +323,9 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
         if own:
             executor.close()
     cells = tuple(_failed_cell(s, r) if isinstance(r, CellFailed) else r for s, r in zip(specs, out))
+    # failed: crashed, or recorded an error (e.g. a model that cannot fit); a reused cell counts as reused
+    stats.failed = sum(not c.ok for i, c in enumerate(cells) if i not in reused_cells)
+    stats.computed = len(cells) - stats.reused - stats.failed
     return CompareResult(tuple(model_names), tuple(optimizer_names), conds,
                          {lab: tuple(groups[k]) for k, lab in conds}, cells, runs, seed, units.pop(),
                          executor.workers, polish, tuple(notes), settings, bounds, global_fit,
