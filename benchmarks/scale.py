@@ -32,7 +32,9 @@ import tempfile
 import time
 from pathlib import Path
 
-CHILD = ("import resource, sys\n"
+# SIGINT as on a terminal (a shell script's background jobs start with it ignored, and so would we)
+CHILD = ("import resource, signal, sys\n"
+         "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
          "from hystfit.cli import main\n"
          "try:\n    main(sys.argv[1:])\nexcept SystemExit as exc:\n    code = exc.code\nelse:\n    code = 0\n"
          "print('PEAK_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n"
@@ -93,7 +95,8 @@ def interrupted(cmd, out: Path, at: int, sig: int) -> float:
     while p.poll() is None and cells_done(out) < at:
         time.sleep(0.2)
     os.killpg(p.pid, sig)
-    p.wait()
+    code = p.wait()
+    assert code in (130, -signal.SIGKILL), f"the interrupted run ended with exit code {code}"
     return time.perf_counter() - t0
 
 

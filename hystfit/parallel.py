@@ -322,7 +322,8 @@ class DaskExecutor(Executor):
                                       for w in self.client.scheduler_info().get("workers", {}).values()))
         else:
             self.workers = default_jobs() if jobs is None else max(1, int(jobs))
-            with single_threaded_children(), dask.config.set({"distributed.worker.daemon": False}):
+            # no dashboard, so no statistical profiler either (it samples every worker's stack 100 times a second)
+            with single_threaded_children(), dask.config.set({"distributed.worker.profile.enabled": False}):
                 self.cluster = distributed.LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                                         dashboard_address=None, silence_logs=logging.ERROR)
             self.client = distributed.Client(self.cluster)
