@@ -24,6 +24,7 @@ minutes on two loaded cores; every fit is still a real fit), and reports:
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import subprocess
@@ -114,11 +115,10 @@ def main() -> None:
     ap.add_argument("--pop", type=int, default=8)
     ap.add_argument("--iters", type=int, default=8)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=1, help="local/dask pairs, alternated (the machine is shared)")
     ap.add_argument("--skip", default="", help="comma-separated steps to skip: dask, sigint, sigkill, memory")
     args = ap.parse_args()
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
-    import json
-
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         files = make_campaign(tmp / "data", args.actuators)
@@ -126,18 +126,21 @@ def main() -> None:
         print(f"campaign: {len(files)} captures ({args.actuators} actuators × 10 conditions), {n_cells} cells × 3 "
               f"runs; PSO --pop {args.pop} --iters {args.iters}; --jobs {args.jobs}; load average "
               f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores\n", flush=True)
-        print("| step | wall time (s) | cells/s | reused | driver peak RSS (MB) | compare.csv = local |\n"
-              "|---|---:|---:|---:|---:|---|", flush=True)
+        print("| step | wall time (s) | cells stage (s) | cells/s in it | reused | driver peak RSS (MB) | "
+              "compare.csv = local |\n|---|---:|---:|---:|---:|---:|---|", flush=True)
         ref = tmp / "local"
-        wall, code, so, se = run(command(files, ref, args))
-        assert code == 0, se[-2000:]
-        print(f"| local pool | {wall:.1f} | {n_cells / wall:.2f} | 0 | {peak_mb(se):.0f} | (reference) |", flush=True)
-        if "dask" not in skip:
-            out = tmp / "dask"
-            w, code, so, se = run(command(files, out, args, "dask"))
-            assert code == 0, se[-2000:]
-            print(f"| dask LocalCluster ({args.jobs} workers) | {w:.1f} | {n_cells / w:.2f} | 0 | {peak_mb(se):.0f} | "
-                  f"{'identical' if same_numbers(ref, out) else 'DIFFERENT'} |", flush=True)
+        for k in range(args.repeat):
+            for executor in ("local", "dask"):
+                if executor == "dask" and "dask" in skip:
+                    continue
+                out = ref if executor == "local" and k == 0 else tmp / f"{executor}-{k}"
+                w, code, so, se = run(command(files, out, args, executor))
+                assert code == 0, se[-2000:]
+                stage = json.loads(so)["cell_counts"]["wall_time_s"]  # the cells alone: no start-up, loading, writing
+                name = "local pool" if executor == "local" else f"dask LocalCluster ({args.jobs} workers)"
+                same = "(reference)" if out == ref else "identical" if same_numbers(ref, out) else "DIFFERENT"
+                print(f"| {name} | {w:.1f} | {stage:.1f} | {n_cells / stage:.2f} | 0 | {peak_mb(se):.0f} | {same} |",
+                      flush=True)
         for name, sig in (("SIGINT", signal.SIGINT), ("SIGKILL", signal.SIGKILL)):
             if name.lower() in skip:
                 continue
@@ -147,16 +150,18 @@ def main() -> None:
             w2, code, so, se = run(command(files, out, args, resume=True))
             assert code == 0, se[-2000:]
             reused = json.loads(so)["cell_counts"]["reused"]
-            print(f"| {name} after {w1:.1f} s ({kept} cells stored), then --resume | {w2:.1f} | "
-                  f"{(n_cells - reused) / w2:.2f} | {reused} | {peak_mb(se):.0f} | "
+            stage = json.loads(so)["cell_counts"]["wall_time_s"]
+            print(f"| {name} after {w1:.1f} s ({kept} cells stored), then --resume | {w2:.1f} | {stage:.1f} | "
+                  f"{(n_cells - reused) / stage:.2f} | {reused} | {peak_mb(se):.0f} | "
                   f"{'identical' if same_numbers(ref, out) else 'DIFFERENT'} |", flush=True)
         if "memory" not in skip:
             quarter = [f for f in files if int(f.name[3:5]) < max(1, args.actuators // 4)]
             out = tmp / "quarter"
             w, code, so, se = run(command(quarter, out, args))
             assert code == 0, se[-2000:]
-            print(f"| local pool, {len(quarter)} captures | {w:.1f} | {n_cells / w:.2f} | 0 | {peak_mb(se):.0f} | "
-                  "(other data) |", flush=True)
+            stage = json.loads(so)["cell_counts"]["wall_time_s"]
+            print(f"| local pool, {len(quarter)} captures | {w:.1f} | {stage:.1f} | {n_cells / stage:.2f} | 0 | "
+                  f"{peak_mb(se):.0f} | (other data) |", flush=True)
 
 
 if __name__ == "__main__":

@@ -97,11 +97,11 @@ class CellRun:
     def __init__(self, executor, store, resume: bool, jobs: Optional[int]) -> None:
         self.executor, self.store, self.resume, self.jobs = executor, store, resume, jobs
 
-    def pool(self):
-        """The executor itself: the Dask one, or a local pool of ``--jobs`` processes."""
+    def pool(self, default_jobs: Optional[int] = None):
+        """The executor itself: the Dask one, or a local pool of ``--jobs`` (else ``default_jobs``) processes."""
         from ..parallel import LocalExecutor
 
-        return self.executor if self.executor is not None else LocalExecutor(self.jobs)
+        return self.executor if self.executor is not None else LocalExecutor(self.jobs or default_jobs)
 
     def describe(self) -> str:
         if self.executor is not None:

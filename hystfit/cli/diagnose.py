@@ -78,7 +78,7 @@ def diagnose(
     check_seed(seed)
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            start=start, stop=stop)
-    with cell_run(out, executor, jobs or 1, scheduler, resume, not quiet) as cr, \
+    with cell_run(out, executor, jobs, scheduler, resume, not quiet) as cr, \
             staged_output_dir(out, force) as stage:
         with phase(not quiet and not json_out, "loading the captures"):
             captures = load_captures(data, options, recursive=recursive)
@@ -86,7 +86,8 @@ def diagnose(
             print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, f"diagnose {m.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
-                             settings=settings, progress=cb, executor=cr.pool(), store=cr.store, resume=resume)
+                             settings=settings, progress=cb, executor=cr.pool(default_jobs=1), store=cr.store,
+                             resume=resume)
         with progress_bar(not quiet and not json_out and bool(d.explained_by),
                           f"identify {d.recommended_model} on all the data") as cb:
             rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb,

@@ -275,3 +275,25 @@ def test_a_bad_batch_file_is_one_line_exit_2_before_any_job(tmp_path, text, word
 def test_a_missing_batch_file_is_exit_2(tmp_path):
     r = run("batch", tmp_path / "nope.toml")
     assert r.exit_code == 2 and "no such batch file" in one_error_line(r)
+
+
+# -- diagnose --------------------------------------------------------------------------------------------
+
+def test_diagnose_per_condition_gives_the_same_diagnosis_on_every_executor_and_resumes(tmp_path):
+    pytest.importorskip("distributed")
+    from hystfit.diagnose import DiagnoseSettings, diagnose, withheld_effect_captures
+    from hystfit.parallel import DaskExecutor
+
+    caps = withheld_effect_captures("creep", 2.0, 0, amplitudes_V=(30.0, 60.0), frequencies_Hz=(10.0,), steps_s=0)
+    kw = dict(per_condition=True, effects=["creep"], settings=DiagnoseSettings(max_effects=1))
+    opt = make_optimizer(optimizers.get("auto"), {})
+    store = CellStore(tmp_path / "s")
+    serial = diagnose(caps, make_model("pi"), opt, store=store, **kw)
+    assert len(store) == 4  # the base fits of two conditions, on everything and on the fit part
+    with DaskExecutor(2) as ex:
+        dask = diagnose(caps, make_model("pi"), opt, executor=ex, **kw)
+    resumed = diagnose(caps, make_model("pi"), opt, store=store, resume=True, **kw)
+    for d in (dask, resumed):
+        assert d.verdict == serial.verdict == "creep"
+        assert d.gap == serial.gap and d.noise == serial.noise
+        assert [r.heldout_rmse_after for r in d.effects] == [r.heldout_rmse_after for r in serial.effects]
