@@ -68,8 +68,8 @@ def _run(root, argv: list[str]) -> int:
 @app.command()
 @guarded
 def batch(
-    jobs_file: Annotated[Path, typer.Argument(help="TOML batch file: [defaults] and [[job]] tables (see docs/scale.md).",
-                                              show_default=False)],
+    jobs_file: Annotated[Path, typer.Argument(help="TOML batch file: a defaults table and job tables "
+                                                   "(see docs/scale.md).", show_default=False)],
     resume: Resume = False,
     jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default="all cores",
                                                 help="Parallel processes of every job that has none of its own "
