@@ -288,6 +288,21 @@ def _stop_now(ex) -> None:
         p.join(timeout=1.0)
 
 
+@contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while child processes are started (they inherit it); a no-op off the main thread."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, saved)
+
+
 def _import_distributed():
     try:
         import distributed  # noqa: F401
@@ -322,8 +337,11 @@ class DaskExecutor(Executor):
                                       for w in self.client.scheduler_info().get("workers", {}).values()))
         else:
             self.workers = default_jobs() if jobs is None else max(1, int(jobs))
-            # no dashboard, so no statistical profiler either (it samples every worker's stack 100 times a second)
-            with single_threaded_children(), dask.config.set({"distributed.worker.profile.enabled": False}):
+            # no dashboard, so no statistical profiler either (it samples every worker's stack 100 times a
+            # second); the worker processes start with SIGINT ignored (inherited): Ctrl-C reaches the whole
+            # process group, and the driver alone stops the cluster, as for the local pool
+            with single_threaded_children(), dask.config.set({"distributed.worker.profile.enabled": False}), \
+                    _sigint_ignored():
                 self.cluster = distributed.LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                                         dashboard_address=None, silence_logs=logging.ERROR)
             self.client = distributed.Client(self.cluster)
