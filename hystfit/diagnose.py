@@ -1074,7 +1074,7 @@ def _base_fit_job(shared: tuple, job: tuple):
 
 
 def _base_fits(jobs: list, n_groups: int, model: Model, optimizer: Optimizer, seed: int, executor, store,
-               resume: bool, advance: Callable[[str], None]) -> list:
+               resume: bool, advance: Callable[[str], None], stats=None) -> list:
     """The base fits of :func:`diagnose` as cells of ``executor`` (resumable with ``store``), in job order."""
     from .cells import cell_key
     from .parallel import CellFailed, run_cells
@@ -1092,7 +1092,7 @@ def _base_fits(jobs: list, n_groups: int, model: Model, optimizer: Optimizer, se
             advance(f"{what} {jobs[i][2]}" + (" (reused)" if reused else ""))
 
     fits = run_cells(_base_fit_job, jobs, shared=(model, optimizer, seed), executor=executor, store=store, keys=keys,
-                     resume=resume, on_done=done)
+                     resume=resume, on_done=done, stats=stats)
     for (_, _, label, _), f in zip(jobs, fits):
         if isinstance(f, CellFailed):
             raise NoResultError(f"diagnose: the base fit of {label} failed on every attempt: {f.error}")
@@ -1102,7 +1102,7 @@ def _base_fits(jobs: list, n_groups: int, model: Model, optimizer: Optimizer, se
 def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0,
              per_condition: bool = False, effects: Sequence[str] | None = None,
              settings: DiagnoseSettings = DiagnoseSettings(), progress: Progress = None,
-             executor=None, store=None, resume: bool = False) -> Diagnosis:
+             executor=None, store=None, resume: bool = False, stats=None) -> Diagnosis:
     """Diagnose the gap between ``model`` and the captures (see the module docstring).
 
     Parameters
@@ -1117,6 +1117,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     progress : optional callback ``progress(event, info)``.
     executor : :class:`hystfit.parallel.Executor` of the base fits (default: this process).
     store, resume : a :class:`hystfit.cells.CellStore` keeping the base fits; ``resume`` reuses them.
+    stats : a :class:`hystfit.parallel.CellStats` that counts the base fits computed, reused, failed.
 
     Returns
     -------
@@ -1176,7 +1177,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     alone = not per_condition and len(by_cond) > 1
     if alone:
         jobs += [(tuple(cs), 1000 + ci, condition_label(key), key) for ci, (key, cs) in enumerate(by_cond.items())]
-    base_fits = _base_fits(jobs, G, model, optimizer, seed, executor, store, resume, advance)
+    base_fits = _base_fits(jobs, G, model, optimizer, seed, executor, store, resume, advance, stats)
 
     # 1. gap: base fitted on everything
     full_fits = base_fits[:G]

@@ -191,7 +191,8 @@ class LocalExecutor(Executor):
     """A spawned process pool on this machine (serial in this process for one job or one cell).
 
     At most ``workers`` cells are in flight, so a lost worker (the pool breaks) costs an attempt
-    only to the cells that were running; the pool is rebuilt and the batch goes on.
+    only to the cells that were running; the pool is rebuilt and those cells are retried one at a
+    time (so a cell that kills its worker again fails alone), and the batch goes on.
     """
 
     name = "local"
@@ -215,6 +216,7 @@ class LocalExecutor(Executor):
         lost = "the worker process was lost (killed or out of memory)"
         ex = None
         running: dict = {}
+        suspects: set[int] = set()
         try:
             while queue or running:
                 if ex is None:
@@ -222,6 +224,10 @@ class LocalExecutor(Executor):
                         ex = _ProcessPool(max_workers=n, mp_context=mp.get_context("spawn"),
                                           initializer=_init_worker, initargs=(shared,))
                 while queue and len(running) < n:
+                    # a cell that was running when a worker died runs alone: if it kills its worker
+                    # again, it alone is to blame and the cells beside it keep their attempts
+                    if running and (queue[-1][0] in suspects or any(k in suspects for k, _ in running.values())):
+                        break
                     i, job = queue.pop()
                     attempts[i] = attempts.get(i, 0) + 1
                     running[ex.submit(_call_pool, fn, job)] = (i, job)
@@ -235,6 +241,7 @@ class LocalExecutor(Executor):
                         raise
                     except BrokenProcessPool:
                         broken = True
+                        suspects.add(i)
                         if attempts[i] < ATTEMPTS:
                             queue.append((i, job))
                         else:
@@ -245,6 +252,7 @@ class LocalExecutor(Executor):
                         else:
                             yield i, CellFailed(describe_error(exc), attempts[i])
                 if broken:  # every cell still in flight died with the pool: one attempt each
+                    suspects.update(i for i, _ in running.values())
                     for i, job in running.values():
                         if attempts[i] < ATTEMPTS:
                             queue.append((i, job))

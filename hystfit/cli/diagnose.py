@@ -12,7 +12,7 @@ from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, ExecutorOpt, FiguresAlias, Force, Fs, InputCol, JsonOut,
                      NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Quiet, Recursive, Resume, Scheduler, Start,
                      Stop, Seed, TimeCol, cell_run, load_options, parse_key_values, plots_flag, print_capture_notes,
-                     phase, print_json, progress_bar, stdout)
+                     phase, print_cell_summary, print_json, progress_bar, stdout)
 
 
 def _parse_effects(value: Optional[str]) -> list[str] | None:
@@ -63,6 +63,7 @@ def diagnose(
     Writes OUT/diagnosis.json, OUT/diagnosis.md and OUT/figures/.
     """
     from ..diagnose import DiagnoseSettings, check_seed, fit_recommended
+    from ..parallel import CellStats
     from ..diagnose import diagnose as run_diagnose
     from ..io import load_captures, staged_output_dir
     from ..registry import optimizers
@@ -78,6 +79,7 @@ def diagnose(
     check_seed(seed)
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            start=start, stop=stop)
+    stats = CellStats()
     with cell_run(out, executor, jobs, scheduler, resume, not quiet) as cr, \
             staged_output_dir(out, force) as stage:
         with phase(not quiet and not json_out, "loading the captures"):
@@ -87,7 +89,7 @@ def diagnose(
         with progress_bar(not quiet and not json_out, f"diagnose {m.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb, executor=cr.pool(default_jobs=1), store=cr.store,
-                             resume=resume)
+                             resume=resume, stats=stats)
         with progress_bar(not quiet and not json_out and bool(d.explained_by),
                           f"identify {d.recommended_model} on all the data") as cb:
             rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb,
@@ -95,6 +97,9 @@ def diagnose(
         make_plots = plots_flag(plots, figures_alias)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
             write_diagnose_outputs(d, stage, make_figures=make_plots, recommended=rec)
+    if rec is not None:
+        stats.add(rec.cell_stats)
+    print_cell_summary(stats, cr.describe(), quiet or json_out)
     if json_out:
         print_json({**d.to_dict(), "params": str(out / "params.json") if d.explained_by else None})
         return
