@@ -8,7 +8,8 @@ expression and options, the optimizer and its settings, the bounds, the seed and
 in the seed derivation, the number of runs, the polish, and the hystfit version — so a changed
 input or setting invalidates exactly the cells it affects, and a store can never hand back a cell
 computed under other conditions. ``--resume`` reuses the cells found; a run without ``--resume``
-starts from an empty store. Once the outputs are published, the store is removed.
+does not read them (it overwrites them as it goes). Once the outputs are published, the store is
+removed.
 
 The files are Python pickles: load a store only from a directory you wrote yourself.
 """

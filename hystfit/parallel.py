@@ -142,6 +142,12 @@ def _call_pool(fn: Callable, job: Any) -> Any:
     return fn(_SHARED, job)
 
 
+def _hystfit_version() -> str:
+    from . import __version__
+
+    return __version__
+
+
 def _call_dask(fn: Callable, shared: Any, job: Any) -> Any:
     _single_threaded()
     return fn(shared, job)
@@ -341,6 +347,7 @@ class DaskExecutor(Executor):
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc}); start one with 'dask scheduler' "
                                   "and 'dask worker ADDRESS', or leave out --scheduler for a local cluster") from None
+            self._check_workers(scheduler)
             self.workers = max(1, sum(w.get("nthreads", 1)
                                       for w in self.client.scheduler_info().get("workers", {}).values()))
         else:
@@ -353,6 +360,22 @@ class DaskExecutor(Executor):
                 self.cluster = distributed.LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                                         dashboard_address=None, silence_logs=logging.ERROR)
             self.client = distributed.Client(self.cluster)
+
+    def _check_workers(self, scheduler: str) -> None:
+        """Every worker of an existing cluster runs this hystfit version (the cells' code and keys)."""
+        from . import __version__
+
+        try:
+            versions = self.client.run(_hystfit_version)
+        except Exception as exc:  # noqa: BLE001 - e.g. hystfit not importable on a worker
+            self.client.close()
+            raise ConfigError(f"--scheduler {scheduler}: a worker cannot run hystfit ({describe_error(exc)}); "
+                              f"install hystfit {__version__} on every worker (pip install \"hystfit[dask]\")") from None
+        other = sorted({v for v in versions.values() if v != __version__})
+        if other:
+            self.client.close()
+            raise ConfigError(f"--scheduler {scheduler}: workers run hystfit {', '.join(other)}, this is "
+                              f"{__version__}; install the same version on every worker")
 
     def run(self, fn, shared, items):
         from distributed import as_completed

@@ -116,18 +116,19 @@ def cell_run(out: Path, executor: str, jobs: Optional[int], scheduler: Optional[
              enabled: bool = True) -> Iterator[CellRun]:
     """Start the executor and open the cell store ``OUT.partial`` around a command's work.
 
-    Without ``--resume`` the store starts empty. On success (the block returns: the outputs are
-    published) the store is removed; on Ctrl-C, an error or a kill it stays, and a line says how
-    to continue.
+    Without ``--resume`` stored cells are not read (a forgotten ``--resume`` must not throw away an
+    interrupted run's work: a note says they are there), only written. On success (the block
+    returns: the outputs are published) the store is removed; on Ctrl-C, an error or a kill it
+    stays, and a line says how to continue.
     """
     from ..cells import CellStore, partial_dir
     from ..parallel import make_executor
 
     store = CellStore(partial_dir(out))
-    if resume and enabled and len(store):
-        _line(f"resuming: {len(store)} stored cell(s) in {store.root}")
-    elif not resume:
-        store.clear()
+    if enabled and len(store):
+        _line(f"resuming: {len(store)} stored cell(s) in {store.root}" if resume else
+              f"note: {store.root} holds {len(store)} cell(s) of an interrupted run; they are recomputed "
+              "(stop and add --resume to reuse them)")
     ex = make_executor(executor, jobs, scheduler)
     if ex.name == "local":
         ex = None

@@ -78,6 +78,22 @@ def test_missing_dask_extra_is_one_line_naming_the_install_command(tmp_path, mon
     assert not (tmp_path / "o").exists()
 
 
+def test_an_existing_scheduler_is_used_and_its_workers_must_run_this_version(captures, monkeypatch):
+    pytest.importorskip("distributed")
+    import hystfit
+    from hystfit.errors import ConfigError
+    from hystfit.parallel import DaskExecutor
+
+    with DaskExecutor(1) as cluster:
+        address = cluster.cluster.scheduler_address
+        with DaskExecutor(scheduler=address) as ex:
+            res = compare(captures[:1], ["pi"], ["auto"], executor=ex)
+        assert res.cells[0].ok and ex.workers == 1
+        monkeypatch.setattr(hystfit, "__version__", "0.0.0-other")
+        with pytest.raises(ConfigError, match="workers run hystfit .*this is 0.0.0-other"):
+            DaskExecutor(scheduler=address)
+
+
 def test_unknown_executor_and_scheduler_without_dask_are_exit_2(tmp_path):
     r = run("identify", FILES[0], "--executor", "slurm", "--out", tmp_path / "o", "-q")
     assert r.exit_code == 2 and "--executor 'slurm'" in one_error_line(r)
@@ -163,7 +179,7 @@ def test_resume_after_an_interruption_recomputes_nothing_that_finished(tmp_path,
     assert not partial_dir(out).exists()  # published: the store is gone
 
 
-def test_a_run_without_resume_starts_from_an_empty_store(tmp_path, monkeypatch):
+def test_a_run_without_resume_reads_no_stored_cell_but_says_they_are_there(tmp_path, monkeypatch):
     monkeypatch.setattr(hystfit.parallel, "STOP_AFTER_CELLS", 1)
     out = tmp_path / "o"
     args = ["identify", *FILES, "--model", "pi", "--jobs", "1", "--no-plots", "--out", out]
@@ -171,6 +187,8 @@ def test_a_run_without_resume_starts_from_an_empty_store(tmp_path, monkeypatch):
     monkeypatch.setattr(hystfit.parallel, "STOP_AFTER_CELLS", None)
     r = run(*args, "--json")
     assert r.exit_code == 0 and json.loads(r.stdout)["cell_counts"]["reused"] == 0
+    assert "holds 1 cell(s) of an interrupted run" in r.stderr and "--resume" in r.stderr
+    assert not partial_dir(out).exists()
 
 
 def test_a_changed_capture_or_setting_invalidates_exactly_its_cells(captures, tmp_path):
