@@ -2,15 +2,16 @@
 
 Each *cell* (one model, one optimizer, one condition) is an independent job: R seeded runs of
 :func:`hystfit.identify.fit_captures`, summarized into a picklable :class:`CellResult`. Cells run
-serially or in a process pool (``jobs``); the numbers do not depend on ``jobs`` because every
-run's seed is derived from (seed, cell index, run) and the cell order is fixed. A cell that fails
-is recorded with its error and the comparison goes on.
+on an executor (:mod:`hystfit.parallel`: serially, a local process pool, or Dask); the numbers do
+not depend on it because every run's seed is derived from (seed, cell index, run) and the cell
+order is fixed. The captures are shipped to the workers once; a cell names its condition by index.
+With a :class:`hystfit.cells.CellStore` each finished cell is stored and ``resume`` reuses it. A
+cell that fails is recorded with its error and the comparison goes on.
 """
 
 from __future__ import annotations
 
 import time
-import traceback
 import warnings
 from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Optional, Sequence
@@ -18,12 +19,13 @@ from typing import Callable, Mapping, Optional, Sequence
 import numpy as np
 
 from .capture import Capture
+from .cells import CellStore, cell_key
 from .conditions import condition_label, group_by_condition
 from .errors import ConfigError, HystfitError
 from .identify import check_seed, fit_captures
 from .metrics import check_mape_floor, compute_metrics_pooled
 from .objective import Objective, Series
-from .parallel import default_jobs, run_jobs
+from .parallel import CellFailed, CellStats, Executor, LocalExecutor, run_cells
 from .params import DataScale, apply_bound_overrides
 from .registry import optimizers as optimizer_registry
 from .factory import make_model, make_optimizer
@@ -46,6 +48,7 @@ class CellSpec:
     optimizer_options: dict
     bounds: dict = field(default_factory=dict)  # parameter name → (lower, upper) for this cell's model
     mape_floor: float = 0.01  # MAPE/SMAPE floor, fraction of the stroke (hystfit.metrics)
+    condition: int = 0  # index of the condition: ``captures`` is filled from the shared captures on the worker
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,8 @@ class CompareResult:
     bounds: dict = field(default_factory=dict)  # model → bound overrides applied to it
     global_fit: bool = False
     self_polishing: tuple[str, ...] = ()  # optimizers that are not polished after (``polishes_itself``)
+    cell_stats: CellStats = field(default_factory=CellStats)  # cells computed / reused / failed, wall time
+    executor: str = "local"
 
     def cell(self, model: str, optimizer: str, label: str) -> CellResult | None:
         for c in self.cells:
@@ -147,7 +152,8 @@ def _warm_up(spec: CellSpec, model, opt) -> None:
 
 
 def run_cell(spec: CellSpec) -> CellResult:
-    """Fit one cell (R runs) and summarize it; errors become a CellResult with ``error`` set.
+    """Fit one cell (R runs) and summarize it; a :class:`HystfitError` becomes a CellResult with
+    ``error`` set (other exceptions are crashes, retried by the executor).
 
     Run times exclude the one-off start-up costs of the process (:func:`_warm_up`).
     """
@@ -174,12 +180,24 @@ def run_cell(spec: CellSpec) -> CellResult:
         return CellResult(spec.model, spec.optimizer, a, f, spec.label, len(fit.params), tuple(runs), fit.best_run,
                           fit.theta, tuple(p.name for p in fit.params), tuple(fit.predictions),
                           time.perf_counter() - t0)
-    except HystfitError as exc:
+    except HystfitError as exc:  # the model cannot be fitted to these captures: recorded in the cell
         err = str(exc)
-    except Exception as exc:  # a failing model/optimizer must not stop the comparison
-        err = f"{exc.__class__.__name__}: {exc} ({traceback.extract_tb(exc.__traceback__)[-1].name})"
+    # any other exception is a crash: the executor retries the cell once, then records it (_failed_cell)
     return CellResult(spec.model, spec.optimizer, a, f, spec.label, 0, error=err,
                       runtime_s=time.perf_counter() - t0)
+
+
+def _cell_job(shared: tuple[tuple[Capture, ...], ...], spec: CellSpec) -> CellResult:
+    """Executor entry point: the cell with its captures taken from the shared ones."""
+    return run_cell(replace(spec, captures=shared[spec.condition]))
+
+
+def cell_store_key(spec: CellSpec, settings: Mapping) -> str:
+    """What a compare cell's numbers depend on (see :mod:`hystfit.cells`)."""
+    return cell_key("compare", captures=spec.captures, model=spec.model, model_options=spec.model_options,
+                    optimizer=spec.optimizer, optimizer_settings=settings, bounds=spec.bounds, seed=spec.seed,
+                    index=spec.index, runs=spec.runs, polish=spec.polish, condition=list(spec.key),
+                    mape_floor=spec.mape_floor)
 
 
 def scoped_options(items: Mapping[str, object], valid: Mapping[str, Sequence[str]], flag: str) -> dict[str, dict]:
@@ -217,13 +235,17 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
             runs: int = 1, seed: int = 0, jobs: int | None = None, polish: bool = True,
             model_options: Mapping[str, dict] | None = None, optimizer_options: Mapping[str, dict] | None = None,
             bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None, global_fit: bool = False,
-            progress: Progress = None, mape_floor: float = 0.01) -> CompareResult:
+            progress: Progress = None, mape_floor: float = 0.01, executor: Executor | None = None,
+            store: CellStore | None = None, resume: bool = False) -> CompareResult:
     """Run the cross product models × optimizers × conditions with ``runs`` runs per cell.
 
     ``model_options`` / ``optimizer_options`` / ``bounds`` are per model or optimizer name (see
     :func:`scoped_options` for spreading command-line items). Every optimizer is built (and its
     options validated) before any fit; its settings, which fix its budget, are recorded in the
     result. ``global_fit`` fits one parameter set to all captures instead of one per condition.
+
+    ``executor`` runs the cells (default: a local pool of ``jobs`` processes); with a ``store``
+    every finished cell is stored, and ``resume`` reuses the cells already stored there.
     """
     check_seed(seed)
     mape_floor = check_mape_floor(mape_floor)  # MAPE/SMAPE floor (hystfit.metrics; 0: every sample, as 002)
@@ -279,18 +301,43 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
                 # model sees the same seeds on a condition, and the numbers never depend on --jobs
                 specs.append(CellSpec(ci * 1000 + oi, m, o, key, labels[key], tuple(caps), runs, seed, polish,
                                       dict((model_options or {}).get(m, {})), dict(optimizer_options[o]),
-                                      dict(bounds[m]), mape_floor))
-    jobs = default_jobs() if jobs is None else max(1, int(jobs))
+                                      dict(bounds[m]), mape_floor, ci))
+    keys = [cell_store_key(s, settings[s.optimizer]) for s in specs] if store is not None else None
     if progress:
         progress("start", {"total": len(specs)})
 
-    def done(i: int, _res) -> None:
+    reused_cells = set()
+
+    def done(i: int, res, reused: bool) -> None:
+        if reused:
+            reused_cells.add(i)
         if progress:
             s = specs[i]
-            progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}"})
+            progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}", "reused": reused,
+                                 "failed": isinstance(res, CellFailed) or not res.ok})
 
-    cells = tuple(run_jobs(run_cell, specs, jobs, done))
+    own = executor is None
+    executor = LocalExecutor(jobs) if own else executor
+    stats = CellStats()
+    shared = tuple(tuple(caps) for caps in groups.values())
+    try:
+        out = run_cells(_cell_job, [replace(s, captures=()) for s in specs], shared=shared, executor=executor,
+                        store=store, keys=keys, resume=resume, on_done=done, stats=stats)
+    finally:
+        if own:
+            executor.close()
+    cells = tuple(_failed_cell(s, r) if isinstance(r, CellFailed) else r for s, r in zip(specs, out))
+    # failed: crashed, or recorded an error (e.g. a model that cannot fit); a reused cell counts as reused
+    stats.failed = sum(not c.ok for i, c in enumerate(cells) if i not in reused_cells)
+    stats.computed = len(cells) - stats.reused - stats.failed
     return CompareResult(tuple(model_names), tuple(optimizer_names), conds,
-                         {lab: tuple(groups[k]) for k, lab in conds}, cells, runs, seed, units.pop(), jobs, polish,
-                         tuple(notes), settings, bounds, global_fit,
-                         tuple(o for o in optimizer_names if optimizer_registry.get(o).polishes_itself))
+                         {lab: tuple(groups[k]) for k, lab in conds}, cells, runs, seed, units.pop(),
+                         executor.workers, polish, tuple(notes), settings, bounds, global_fit,
+                         tuple(o for o in optimizer_names if optimizer_registry.get(o).polishes_itself), stats,
+                         executor.name)
+
+
+def _failed_cell(spec: CellSpec, failure: CellFailed) -> CellResult:
+    """A cell whose every attempt crashed (or whose worker was lost), recorded with its error."""
+    return CellResult(spec.model, spec.optimizer, spec.key[0], spec.key[1], spec.label, 0,
+                      error=f"{failure.error} (after {failure.attempts} attempts)")

@@ -36,7 +36,7 @@ from .capture import Capture
 from .conditions import condition_label, group_by_condition
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Linearization, Placebo, make_effect,
                       signature_share, solve_coefficients)
-from .errors import ConfigError, InputError
+from .errors import ConfigError, InputError, NoResultError
 from .identify import fit_captures, prepare_shared
 from .models.base import Model
 from .objective import Objective, Series
@@ -270,7 +270,8 @@ def recommend_expression(base_model: str, named: Sequence[str]) -> str:
 
 
 def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, optimizer: Optimizer, *,
-                    seed: int, model_options: dict | None = None, progress=None):
+                    seed: int, model_options: dict | None = None, progress=None, executor=None, store=None,
+                    resume: bool = False):
     """Identify the recommended model on all the data (globally, or per condition as the diagnosis
     was made), so the diagnosis hands over a model that ``simulate``/``invert``/``track`` accept.
 
@@ -284,7 +285,7 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
     opts = dict(model_options or {})
     rec = make_model(d.recommended_model, opts)
     return identify(captures, rec, optimizer, seed=seed, global_fit=d.mode != "per-condition",
-                    model_options=opts, progress=progress)
+                    model_options=opts, progress=progress, executor=executor, store=store, resume=resume)
 
 
 def check_seed(seed) -> int:
@@ -1172,9 +1173,43 @@ def _library(effects: Sequence[Effect], xs: Sequence[np.ndarray], views: Sequenc
     return [L[:, keep] / scale[keep] for L in per_cap]
 
 
+def _base_fit_job(shared: tuple, job: tuple):
+    """Executor entry point: one base fit (captures, cell, label, condition) of the diagnosis."""
+    model, optimizer, seed = shared
+    caps, cell, label, cond = job
+    return fit_captures(list(caps), model, optimizer, seed=seed, cell=cell, label=label, condition=cond)
+
+
+def _base_fits(jobs: list, n_groups: int, model: Model, optimizer: Optimizer, seed: int, executor, store,
+               resume: bool, advance: Callable[[str], None], stats=None) -> list:
+    """The base fits of :func:`diagnose` as cells of ``executor`` (resumable with ``store``), in job order."""
+    from .cells import cell_key
+    from .parallel import CellFailed, run_cells
+
+    keys = None
+    if store is not None:
+        opts, settings = model.as_options(), optimizer.settings()
+        keys = [cell_key("diagnose-base", captures=caps, model=model.name, model_options=opts,
+                         optimizer=optimizer.name, optimizer_settings=settings, seed=seed, cell=cell)
+                for caps, cell, _, _ in jobs]
+
+    def done(i: int, res, reused: bool) -> None:
+        if i < 2 * n_groups:
+            what = "base fit" if i < n_groups else "base fit (fit part)"
+            advance(f"{what} {jobs[i][2]}" + (" (reused)" if reused else ""))
+
+    fits = run_cells(_base_fit_job, jobs, shared=(model, optimizer, seed), executor=executor, store=store, keys=keys,
+                     resume=resume, on_done=done, stats=stats)
+    for (_, _, label, _), f in zip(jobs, fits):
+        if isinstance(f, CellFailed):
+            raise NoResultError(f"diagnose: the base fit of {label} failed on every attempt: {f.error}")
+    return fits
+
+
 def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0,
              per_condition: bool = False, effects: Sequence[str] | None = None,
-             settings: DiagnoseSettings = DiagnoseSettings(), progress: Progress = None) -> Diagnosis:
+             settings: DiagnoseSettings = DiagnoseSettings(), progress: Progress = None,
+             executor=None, store=None, resume: bool = False, stats=None) -> Diagnosis:
     """Diagnose the gap between ``model`` and the captures (see the module docstring).
 
     Parameters
@@ -1187,6 +1222,9 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     effects : candidate effect names (default: all of :data:`hystfit.effects.EFFECTS`).
     settings : :class:`DiagnoseSettings`.
     progress : optional callback ``progress(event, info)``.
+    executor : :class:`hystfit.parallel.Executor` of the base fits (default: this process).
+    store, resume : a :class:`hystfit.cells.CellStore` keeping the base fits; ``resume`` reuses them.
+    stats : a :class:`hystfit.parallel.CellStats` that counts the base fits computed, reused, failed.
 
     Returns
     -------
@@ -1243,12 +1281,19 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         if progress:
             progress("advance", {"label": label})
 
+    # the base fits (on everything, on the fit part, per condition alone) are the cells of the executor
+    G = len(group_idx)
+    by_cond = group_by_condition(caps)
+    jobs = [(tuple(caps[i] for i in idx), gi, labels[gi], conds[gi]) for gi, idx in enumerate(group_idx)]
+    jobs += [(tuple(_truncate(caps[i], int(views[i].fit_end)) for i in idx if views[i].fit_end >= 2), gi, labels[gi],
+              conds[gi]) for gi, idx in enumerate(group_idx)]
+    alone = not per_condition and len(by_cond) > 1
+    if alone:
+        jobs += [(tuple(cs), 1000 + ci, condition_label(key), key) for ci, (key, cs) in enumerate(by_cond.items())]
+    base_fits = _base_fits(jobs, G, model, optimizer, seed, executor, store, resume, advance, stats)
+
     # 1. gap: base fitted on everything
-    full_fits = []
-    for gi, idx in enumerate(group_idx):
-        full_fits.append(fit_captures([caps[i] for i in idx], model, optimizer, seed=seed, cell=gi,
-                                      label=labels[gi], condition=conds[gi]))
-        advance(f"base fit {labels[gi]}")
+    full_fits = base_fits[:G]
     full_pred = [None] * C
     for gi, idx in enumerate(group_idx):
         for k, i in enumerate(idx):
@@ -1258,12 +1303,10 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     sigma = noise["sigma"]
     rmse_full = math.sqrt(sum(float(r @ r) for r in residuals) / sum(r.size for r in residuals))
     residuals_alone = None
-    by_cond = group_by_condition(caps)
-    if not per_condition and len(by_cond) > 1:
+    if alone:
         residuals_alone = [None] * C
         order = {id(c): i for i, c in enumerate(caps)}
-        for ci, (key, cs) in enumerate(by_cond.items()):
-            f = fit_captures(cs, model, optimizer, seed=seed, cell=1000 + ci, label=condition_label(key), condition=key)
+        for (key, cs), f in zip(by_cond.items(), base_fits[2 * G:]):
             for c, p in zip(cs, f.predictions):
                 residuals_alone[order[id(c)]] = np.asarray(p, float) - c.y
     where, fig_where = where_analysis(caps, residuals, sigma, periodic, residuals_alone)
@@ -1273,11 +1316,9 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     # 2. base fitted on the fit part only
     groups = []
     for gi, idx in enumerate(group_idx):
-        train = [_truncate(caps[i], int(views[i].fit_end)) for i in idx if views[i].fit_end >= 2]
-        f = fit_captures(train, model, optimizer, seed=seed, cell=gi, label=labels[gi], condition=conds[gi])
+        f = base_fits[G + gi]
         groups.append(_Group(labels[gi], conds[gi], f.model, f.params, np.asarray(f.theta, float).copy(),
                              np.array([p.lower for p in f.params]), np.array([p.upper for p in f.params]), idx))
-        advance(f"base fit (fit part) {labels[gi]}")
     state0 = _State(groups, [], tuple(group_of))
     calib = capture_calibration(caps, full_pred, sigma)
     calibrated = len(caps) > 1 and any(c["calibration_differs"] for c in calib)

@@ -34,3 +34,13 @@ class NoResultError(HystfitError):
     """
 
     exit_code = 3
+
+
+class CellsFailedError(HystfitError):
+    """A command finished and wrote its outputs, but some cells failed on every attempt.
+
+    Exit code 4, so scripts can tell "done, with holes" from "nothing to use" (3). The failed
+    cells and their errors are in the outputs.
+    """
+
+    exit_code = 4

@@ -15,13 +15,14 @@ import numpy as np
 
 from .capture import Capture
 from .conditions import condition_label, group_by_condition
-from .errors import ConfigError, InputError
+from .cells import CellStore, cell_key
+from .errors import ConfigError, InputError, NoResultError
 from .metrics import MAPE_THRESHOLD_FRACTION, check_mape_floor, compute_metrics, compute_metrics_pooled
 from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import OptimizeResult, Optimizer
 from .optimizers.lsq import polisher
-from .parallel import default_jobs, run_jobs
+from .parallel import CellFailed, CellStats, Executor, LocalExecutor, default_jobs, run_cells
 from .params import DataScale, Param, apply_bound_overrides, bound_side, with_output_unit
 
 #: progress(event, info) — events: "start" (total units), "advance" (one run done), "note" (text).
@@ -109,6 +110,8 @@ class IdentifyResult:
     fits: tuple[ConditionFit, ...]
     bounds_overrides: dict = field(default_factory=dict)
     model_options: dict = field(default_factory=dict)
+    failed: tuple[str, ...] = ()  # "CONDITION run R: error" of every run that failed on every attempt
+    cell_stats: CellStats = field(default_factory=CellStats)  # runs computed / reused / failed, wall time
 
 
 SEED_MAX = 2 ** 32 - 1
@@ -188,9 +191,11 @@ def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int
                      time.perf_counter() - t_run)
 
 
-def _run_job(job: tuple) -> RunRecord:
-    """Pool entry point: (problem, optimizer, seed, cell, run, polish) → RunRecord."""
-    return _run(*job)
+def _run_job(shared: tuple, job: tuple[int, int]) -> RunRecord:
+    """Executor entry point: shared (problems, optimizer, seed, polish), job (cell, run) → RunRecord."""
+    problems, optimizer, seed, polish = shared
+    cell, run = job
+    return _run(problems[cell], optimizer, seed, cell, run, polish)
 
 
 def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | None,
@@ -279,13 +284,17 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
              polish: bool = True, global_fit: bool = False,
              bounds: Mapping[str, tuple[float, float]] | None = None,
              progress: Progress = None, model_options: Mapping | None = None,
-             jobs: int | None = 1, mape_floor: float = MAPE_THRESHOLD_FRACTION) -> IdentifyResult:
+             jobs: int | None = 1, executor: Executor | None = None, store: CellStore | None = None,
+             resume: bool = False, mape_floor: float = MAPE_THRESHOLD_FRACTION) -> IdentifyResult:
     """Identify ``model`` on ``captures``: one fit per condition (look-up table) or one global fit.
 
-    ``jobs`` > 1 spreads the (condition, run) pairs over a process pool (None: all cores); every
-    run's seed depends only on (seed, condition index, run), so the numbers do not depend on ``jobs``.
-    ``mape_floor``: MAPE/SMAPE leave out samples with |y_meas| below this fraction of the stroke
-    (0: every sample, as paper 002; :mod:`hystfit.metrics`).
+    ``jobs`` > 1 spreads the (condition, run) cells over a process pool (None: all cores), or
+    ``executor`` runs them (:mod:`hystfit.parallel`); every run's seed depends only on (seed,
+    condition index, run), so the numbers depend on neither. With a ``store`` every finished run is
+    stored, and ``resume`` reuses the runs stored there. A run that fails on every attempt is listed
+    in ``failed`` and left out of its condition; a condition left without runs is left out; when
+    nothing is left, :class:`NoResultError`. ``mape_floor``: MAPE/SMAPE leave out samples with
+    |y_meas| below this fraction of the stroke (0: every sample, as paper 002; :mod:`hystfit.metrics`).
     """
     check_seed(seed)
     mape_floor = check_mape_floor(mape_floor)
@@ -312,23 +321,46 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         else:
             cond, label = key, condition_label(key)
         cells.append((_problem(caps, model, bounds), cond, label))
-    work = [(problem, optimizer, seed, cell, r, polish) for cell, (problem, _, _) in enumerate(cells)
-            for r in range(runs)]
+    work = [(cell, r) for cell in range(len(cells)) for r in range(runs)]
+    keys = None
+    if store is not None:
+        settings = optimizer.settings()
+        opts = model.as_options()
+        keys = [cell_key("identify", captures=cells[c][0].captures, model=model.name, model_options=opts,
+                         optimizer=optimizer.name, optimizer_settings=settings, bounds=dict(bounds or {}), seed=seed,
+                         cell=c, run=r, polish=polish) for c, r in work]
 
-    def done(i: int, rec: RunRecord) -> None:
+    def done(i: int, rec, reused: bool) -> None:
         if progress:
-            progress("advance", {"label": cells[work[i][3]][2], "run": rec.run, "rmse": rec.rmse})
+            failed = isinstance(rec, CellFailed)
+            progress("advance", {"label": f"{cells[work[i][0]][2]} run {work[i][1]}", "run": work[i][1],
+                                 "rmse": None if failed else rec.rmse, "reused": reused, "failed": failed})
 
-    if jobs is None:  # all cores, unless every cell is one exact linear solve (a pool would only add start-up)
+    if jobs is None and executor is None:  # all cores, unless every cell is one exact linear solve
         sep = model.separable() if optimizer.uses_separable_structure else None
         jobs = 1 if (sep is not None and not sep.nonlinear) else default_jobs()
-    records = run_jobs(_run_job, work, jobs, done)
-    fits = []
+    own = executor is None
+    executor = LocalExecutor(jobs) if own else executor
+    stats = CellStats()
+    try:
+        records = run_cells(_run_job, work, shared=(tuple(c[0] for c in cells), optimizer, seed, polish),
+                            executor=executor, store=store, keys=keys, resume=resume, on_done=done, stats=stats)
+    finally:
+        if own:
+            executor.close()
+    fits, failed = [], []
+    for (cell, r), rec in zip(work, records):
+        if isinstance(rec, CellFailed):
+            failed.append(f"{cells[cell][2]} run {r}: {rec.error} (after {rec.attempts} attempts)")
     for cell, (problem, cond, label) in enumerate(cells):
-        recs = [rec for (job, rec) in zip(work, records) if job[3] == cell]
-        fits.append(_summarize(problem, recs, label, cond, mape_floor))
+        recs = [rec for (job, rec) in zip(work, records) if job[0] == cell and not isinstance(rec, CellFailed)]
+        if recs:
+            fits.append(_summarize(problem, recs, label, cond, mape_floor))
+    if not fits:
+        raise NoResultError(f"every run failed ({len(failed)} of {len(work)}); first error: {failed[0]}")
     return IdentifyResult(
         model_name=model.name, optimizer_name=optimizer.name, optimizer_settings=optimizer.settings(),
         seed=seed, runs=runs, polish=polish, mode="global" if global_fit else "per-condition", unit=unit,
         fits=tuple(fits), bounds_overrides=dict(bounds or {}), model_options=dict(model_options or {}),
+        failed=tuple(failed), cell_stats=stats,
     )

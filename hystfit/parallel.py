@@ -1,17 +1,39 @@
-"""Process-pool execution shared by ``identify`` and ``compare``.
+"""Where cells run: the one executor abstraction of ``identify``, ``compare`` and ``diagnose``.
 
-Workers are spawned (not forked: numba's threading layer is not fork-safe) with one BLAS/OpenMP/
-numba thread each, so processes × threads never exceed the cores. Results come back in the order
-of the jobs, so the numbers never depend on the number of processes.
+A *cell* is one independent unit of work (a condition × run of ``identify``, a model × optimizer ×
+condition of ``compare``, a base fit of ``diagnose``): ``fn(shared, job)``, where ``shared`` is
+data every cell reads (the captures) and ``job`` is small. :func:`run_cells` runs a list of cells on
+an :class:`Executor`, reuses the cells a :class:`hystfit.cells.CellStore` already holds (``resume``),
+stores each cell as it finishes, and returns the results in the order of the jobs — so the numbers
+never depend on the executor, the number of workers or the order in which cells finish.
+
+Two executors:
+
+* :class:`LocalExecutor` — a spawned process pool on this machine (not forked: numba's threading
+  layer is not fork-safe). ``shared`` is shipped once to each worker (the pool's initializer).
+* :class:`DaskExecutor` — ``dask.distributed``: a ``LocalCluster`` of ``jobs`` single-threaded
+  worker processes, or an existing scheduler (``tcp://host:8786``). ``shared`` is scattered to
+  the workers once (``Client.scatter(broadcast=True)``), not once per cell. Optional extra
+  ``hystfit[dask]``.
+
+Every worker runs single-threaded kernels (one BLAS/OpenMP/numba thread), so workers × threads
+never exceed the cores. A cell that raises (other than a :class:`~hystfit.errors.HystfitError`,
+which is the user's and re-raised at once) or whose worker is lost is retried once; if it fails
+again the result is a :class:`CellFailed` and the batch goes on.
 """
 
 from __future__ import annotations
 
 import os
 import signal
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import time
+import traceback
+from abc import ABC, abstractmethod
 from contextlib import contextmanager
-from typing import Callable, Optional, Sequence, TypeVar
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator, Optional, Sequence, TypeVar
+
+from .errors import ConfigError, HystfitError
 
 J = TypeVar("J")
 R = TypeVar("R")
@@ -19,6 +41,15 @@ R = TypeVar("R")
 #: thread-count variables of BLAS/OpenMP/numba, set to 1 for pool workers
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
                "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+#: attempts per cell: the first and one retry
+ATTEMPTS = 2
+
+#: executor names accepted by ``--executor``
+EXECUTORS = ("local", "dask")
+
+#: install command of the optional Dask extra (named in the error when it is missing)
+DASK_INSTALL = 'pip install "hystfit[dask]"'
 
 
 def default_jobs() -> int:
@@ -44,49 +75,216 @@ def single_threaded_children():
                 os.environ[k] = v
 
 
-def _init_worker() -> None:
-    # Ctrl-C reaches the whole process group: the parent alone decides (it terminates the workers),
-    # so the workers ignore SIGINT instead of each printing a KeyboardInterrupt traceback.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+@dataclass(frozen=True)
+class CellFailed:
+    """A cell that failed on every attempt (an exception, or its worker was lost)."""
+
+    error: str
+    attempts: int
+
+
+@dataclass
+class CellStats:
+    """What a batch did: cells computed here, reused from the store, failed; its wall time."""
+
+    computed: int = 0
+    reused: int = 0
+    failed: int = 0
+    wall_time_s: float = 0.0
+
+    def add(self, other: "CellStats") -> None:
+        self.computed += other.computed
+        self.reused += other.reused
+        self.failed += other.failed
+        self.wall_time_s += other.wall_time_s
+
+    @property
+    def total(self) -> int:
+        return self.computed + self.reused + self.failed
+
+
+def describe_error(exc: BaseException) -> str:
+    """One line: the exception and the function it was raised in."""
+    tb = traceback.extract_tb(exc.__traceback__)
+    where = f" ({tb[-1].name})" if tb else ""
+    return f"{exc.__class__.__name__}: {exc}{where}"
+
+
+# ------------------------------------------------------------------------------------------ workers
+_SHARED: Any = None
+_SINGLE_THREADED = False
+
+
+def _single_threaded() -> None:
+    """One numba thread in this worker process (once per process)."""
+    global _SINGLE_THREADED
+    if _SINGLE_THREADED:
+        return
+    _SINGLE_THREADED = True
     try:
         import numba
 
         numba.set_num_threads(1)
-    except Exception:  # pragma: no cover
+    except Exception:  # pragma: no cover - numba without threading layer
         pass
 
 
-def run_jobs(fn: Callable[[J], R], jobs_in: Sequence[J], n_jobs: int | None,
-             on_done: Optional[Callable[[int, R], None]] = None) -> list[R]:
-    """``[fn(j) for j in jobs_in]``, in a spawned process pool when ``n_jobs > 1`` (same order, same numbers)."""
-    n = default_jobs() if n_jobs is None else max(1, int(n_jobs))
-    results: dict[int, R] = {}
-    if n == 1 or len(jobs_in) <= 1:
-        for i, j in enumerate(jobs_in):
-            results[i] = fn(j)
-            if on_done:
-                on_done(i, results[i])
-    else:
-        import multiprocessing as mp
+def _init_worker(shared: Any) -> None:
+    # Ctrl-C reaches the whole process group: the parent alone decides (it terminates the workers),
+    # so the workers ignore SIGINT instead of each printing a KeyboardInterrupt traceback.
+    global _SHARED
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _single_threaded()
+    _SHARED = shared
 
-        with single_threaded_children():
-            ex = ProcessPoolExecutor(max_workers=min(n, len(jobs_in)), mp_context=mp.get_context("spawn"),
-                                     initializer=_init_worker)
+
+def _call_pool(fn: Callable, job: Any) -> Any:
+    return fn(_SHARED, job)
+
+
+def _hystfit_version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def _call_dask(fn: Callable, shared: Any, job: Any) -> Any:
+    _single_threaded()
+    return fn(shared, job)
+
+
+# ---------------------------------------------------------------------------------------- executors
+class Executor(ABC):
+    """Runs cells ``fn(shared, job)``; yields ``(index, result or CellFailed)`` as cells finish."""
+
+    name: str = ""
+
+    def __init__(self) -> None:
+        self.workers = 1
+
+    @abstractmethod
+    def run(self, fn: Callable[[Any, J], R], shared: Any,
+            items: Sequence[tuple[int, J]]) -> Iterator[tuple[int, R | CellFailed]]:
+        """Run every ``(index, job)`` of ``items``; yield each index with its outcome when it finishes."""
+
+    def close(self) -> None:
+        """Release the workers (a no-op for executors that hold none between runs)."""
+
+    def __enter__(self) -> "Executor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def describe(self) -> str:
+        return f"{self.name} ({self.workers} worker{'s' if self.workers != 1 else ''})"
+
+
+def _inline(fn: Callable, shared: Any, job: Any) -> Any:
+    """One cell in this process, with its retry."""
+    for attempt in range(1, ATTEMPTS + 1):
         try:
-            futs = {ex.submit(fn, j): i for i, j in enumerate(jobs_in)}
-            for fut in as_completed(futs):
-                i = futs[fut]
-                results[i] = fut.result()
-                if on_done:
-                    on_done(i, results[i])
-        except BaseException:
-            _stop_now(ex)
+            return fn(shared, job)
+        except HystfitError:
             raise
-        ex.shutdown(wait=True)
-    return [results[i] for i in range(len(jobs_in))]
+        except Exception as exc:  # noqa: BLE001 - a crashed cell is retried, then reported in its cell
+            if attempt == ATTEMPTS:
+                return CellFailed(describe_error(exc), attempt)
+    raise AssertionError("unreachable")  # pragma: no cover
 
 
-def _stop_now(ex: ProcessPoolExecutor) -> None:
+class LocalExecutor(Executor):
+    """A spawned process pool on this machine (serial in this process for one job or one cell).
+
+    At most ``workers`` cells are in flight, so a lost worker (the pool breaks) costs an attempt
+    only to the cells that were running; the pool is rebuilt and those cells are retried one at a
+    time (so a cell that kills its worker again fails alone), and the batch goes on.
+    """
+
+    name = "local"
+
+    def __init__(self, jobs: int | None = None) -> None:
+        super().__init__()
+        self.workers = default_jobs() if jobs is None else max(1, int(jobs))
+
+    def run(self, fn, shared, items):
+        if self.workers == 1 or len(items) <= 1:
+            for i, job in items:
+                yield i, _inline(fn, shared, job)
+            return
+        import multiprocessing as mp
+        from concurrent.futures import FIRST_COMPLETED, wait
+        from concurrent.futures.process import BrokenProcessPool
+
+        n = min(self.workers, len(items))
+        queue = list(items)[::-1]  # pop() takes the next cell in job order
+        attempts: dict[int, int] = {}
+        lost = "the worker process was lost (killed or out of memory)"
+        ex = None
+        running: dict = {}
+        suspects: set[int] = set()
+        try:
+            while queue or running:
+                if ex is None:
+                    with single_threaded_children():
+                        ex = _ProcessPool(max_workers=n, mp_context=mp.get_context("spawn"),
+                                          initializer=_init_worker, initargs=(shared,))
+                while queue and len(running) < n:
+                    # a cell that was running when a worker died runs alone: if it kills its worker
+                    # again, it alone is to blame and the cells beside it keep their attempts
+                    if running and (queue[-1][0] in suspects or any(k in suspects for k, _ in running.values())):
+                        break
+                    i, job = queue.pop()
+                    attempts[i] = attempts.get(i, 0) + 1
+                    running[ex.submit(_call_pool, fn, job)] = (i, job)
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                broken = False
+                for fut in done:
+                    i, job = running.pop(fut)
+                    try:
+                        yield i, fut.result()
+                    except HystfitError:
+                        raise
+                    except BrokenProcessPool:
+                        broken = True
+                        suspects.add(i)
+                        if attempts[i] < ATTEMPTS:
+                            queue.append((i, job))
+                        else:
+                            yield i, CellFailed(lost, attempts[i])
+                    except Exception as exc:  # noqa: BLE001 - retried, then reported in its cell
+                        if attempts[i] < ATTEMPTS:
+                            queue.append((i, job))
+                        else:
+                            yield i, CellFailed(describe_error(exc), attempts[i])
+                if broken:  # every cell still in flight died with the pool: one attempt each
+                    suspects.update(i for i, _ in running.values())
+                    for i, job in running.values():
+                        if attempts[i] < ATTEMPTS:
+                            queue.append((i, job))
+                        else:
+                            yield i, CellFailed(lost, attempts[i])
+                    running = {}
+                    _stop_now(ex)
+                    ex = None
+        except BaseException:
+            if ex is not None:
+                _stop_now(ex)
+            raise
+        if ex is not None:
+            ex.shutdown(wait=True)
+
+
+class _ProcessPool:
+    """Lazy import wrapper: ``concurrent.futures.ProcessPoolExecutor``."""
+
+    def __new__(cls, **kw):
+        from concurrent.futures import ProcessPoolExecutor
+
+        return ProcessPoolExecutor(**kw)
+
+
+def _stop_now(ex) -> None:
     """Stop a pool at once (Ctrl-C, an error): drop the queued jobs and terminate the running ones.
 
     ``shutdown(cancel_futures=True)`` alone waits for the jobs already running, which is a whole
@@ -102,3 +300,178 @@ def _stop_now(ex: ProcessPoolExecutor) -> None:
     ex.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         p.join(timeout=1.0)
+
+
+@contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while child processes are started (they inherit it); a no-op off the main thread."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, saved)
+
+
+def _import_distributed():
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise ConfigError(f"--executor dask: dask.distributed is not installed; install the optional extra with "
+                          f"{DASK_INSTALL} (or use --executor local)") from None
+    return distributed
+
+
+class DaskExecutor(Executor):
+    """``dask.distributed``: a LocalCluster of ``jobs`` single-threaded worker processes, or the
+    scheduler at ``scheduler`` (``tcp://host:8786``). The workers need hystfit importable."""
+
+    name = "dask"
+
+    def __init__(self, jobs: int | None = None, scheduler: str | None = None) -> None:
+        super().__init__()
+        distributed = _import_distributed()
+        import logging
+
+        import dask
+
+        self.cluster = None
+        self.scheduler = scheduler
+        if scheduler:
+            try:
+                self.client = distributed.Client(scheduler, timeout="15s")
+            except (OSError, TimeoutError) as exc:
+                raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc}); start one with 'dask scheduler' "
+                                  "and 'dask worker ADDRESS', or leave out --scheduler for a local cluster") from None
+            self._check_workers(scheduler)
+            self.workers = max(1, sum(w.get("nthreads", 1)
+                                      for w in self.client.scheduler_info().get("workers", {}).values()))
+        else:
+            self.workers = default_jobs() if jobs is None else max(1, int(jobs))
+            # no dashboard, so no statistical profiler either (it samples every worker's stack 100 times a
+            # second); the worker processes start with SIGINT ignored (inherited): Ctrl-C reaches the whole
+            # process group, and the driver alone stops the cluster, as for the local pool
+            with single_threaded_children(), dask.config.set({"distributed.worker.profile.enabled": False}), \
+                    _sigint_ignored():
+                self.cluster = distributed.LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                                        dashboard_address=None, silence_logs=logging.ERROR)
+            self.client = distributed.Client(self.cluster)
+
+    def _check_workers(self, scheduler: str) -> None:
+        """Every worker of an existing cluster runs this hystfit version (the cells' code and keys)."""
+        from . import __version__
+
+        try:
+            versions = self.client.run(_hystfit_version)
+        except Exception as exc:  # noqa: BLE001 - e.g. hystfit not importable on a worker
+            self.client.close()
+            raise ConfigError(f"--scheduler {scheduler}: a worker cannot run hystfit ({describe_error(exc)}); "
+                              f"install hystfit {__version__} on every worker (pip install \"hystfit[dask]\")") from None
+        other = sorted({v for v in versions.values() if v != __version__})
+        if other:
+            self.client.close()
+            raise ConfigError(f"--scheduler {scheduler}: workers run hystfit {', '.join(other)}, this is "
+                              f"{__version__}; install the same version on every worker")
+
+    def run(self, fn, shared, items):
+        from distributed import as_completed
+
+        if not items:
+            return
+        shared_f = self.client.scatter(shared, broadcast=True, hash=False) if shared is not None else None
+        futs = {}
+        try:
+            for i, job in items:
+                f = self.client.submit(_call_dask, fn, shared_f, job, pure=False, retries=ATTEMPTS - 1)
+                futs[f] = i
+            for f in as_completed(list(futs)):
+                i = futs[f]
+                try:
+                    yield i, f.result()
+                except HystfitError:
+                    raise
+                except Exception as exc:  # noqa: BLE001 - retried by dask, then reported in its cell
+                    yield i, CellFailed(describe_error(exc), ATTEMPTS)
+                f.release()
+        except BaseException:
+            self.client.cancel(list(futs))
+            raise
+
+    def close(self) -> None:
+        try:
+            self.client.close()
+        finally:
+            if self.cluster is not None:
+                self.cluster.close()
+
+    def describe(self) -> str:
+        where = self.scheduler or "a local cluster"
+        return f"dask on {where} ({self.workers} worker thread{'s' if self.workers != 1 else ''})"
+
+
+def make_executor(kind: str = "local", jobs: int | None = None, scheduler: str | None = None) -> Executor:
+    """The executor named by ``--executor`` (``local`` or ``dask``), sized by ``--jobs``."""
+    kind = (kind or "local").strip().lower()
+    if kind not in EXECUTORS:
+        raise ConfigError(f"--executor {kind!r}: choose one of {', '.join(EXECUTORS)}")
+    if scheduler and kind != "dask":
+        raise ConfigError(f"--scheduler {scheduler}: needs --executor dask")
+    if kind == "dask":
+        return DaskExecutor(jobs, scheduler)
+    return LocalExecutor(jobs)
+
+
+# ----------------------------------------------------------------------------------------- batches
+#: tests set this to stop a batch (KeyboardInterrupt) after that many cells were computed and stored
+STOP_AFTER_CELLS: Optional[int] = None
+
+
+def run_cells(fn: Callable[[Any, J], R], jobs: Sequence[J], *, shared: Any = None,
+              executor: Executor | None = None, store=None, keys: Sequence[str] | None = None,
+              resume: bool = False, on_done: Optional[Callable[[int, Any, bool], None]] = None,
+              stats: CellStats | None = None) -> list[R | CellFailed]:
+    """``[fn(shared, j) for j in jobs]`` on ``executor`` (default: this process), in job order.
+
+    With a ``store`` (a :class:`hystfit.cells.CellStore`) and ``keys`` (one per job), every cell
+    is stored as it finishes; with ``resume`` the cells already stored under their key are reused
+    and not computed. Failed cells (:class:`CellFailed`) are not stored. ``on_done(index, result,
+    reused)`` is called in this process as each cell finishes; ``stats`` counts what happened.
+    """
+    t0 = time.perf_counter()
+    stats = stats if stats is not None else CellStats()
+    start = CellStats(stats.computed, stats.reused, stats.failed)
+    results: dict[int, Any] = {}
+    todo = []
+    for i, job in enumerate(jobs):
+        if store is not None and resume:
+            hit = store.get(keys[i])
+            if hit is not None:
+                results[i] = hit
+                stats.reused += 1
+                if on_done:
+                    on_done(i, hit, True)
+                continue
+        todo.append((i, job))
+    ex = executor if executor is not None else LocalExecutor(1)
+    outcomes = ex.run(fn, shared, todo)
+    try:
+        for i, out in outcomes:
+            results[i] = out
+            if isinstance(out, CellFailed):
+                stats.failed += 1
+            else:
+                stats.computed += 1
+                if store is not None:
+                    store.put(keys[i], out)
+            if on_done:
+                on_done(i, out, False)
+            if STOP_AFTER_CELLS is not None and stats.computed - start.computed >= STOP_AFTER_CELLS:
+                raise KeyboardInterrupt(f"test hook: stopped after {STOP_AFTER_CELLS} cells")
+    finally:
+        outcomes.close()  # stops the workers at once when this loop is left by an exception (Ctrl-C)
+        stats.wall_time_s += time.perf_counter() - t0
+    return [results[i] for i in range(len(jobs))]

@@ -28,3 +28,4 @@ __all__ = ["app", "main"]
 from . import diagnose as _diagnose  # noqa: E402,F401
 from . import invert as _invert  # noqa: E402,F401
 from . import track as _track  # noqa: E402,F401
+from . import batch as _batch  # noqa: E402,F401

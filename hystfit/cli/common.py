@@ -64,6 +64,16 @@ Iters = Annotated[Optional[int], typer.Option("--iters", min=1, show_default="th
                                               "optimizers'", help="Iterations of iterative optimizers (>= 1).")]
 Jobs = Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default="all cores",
                                              help="Parallel processes (the numbers do not depend on it).")]
+ExecutorOpt = Annotated[str, typer.Option("--executor", help="Where the cells run: local (a process pool of --jobs "
+                                                           "processes) or dask (a Dask LocalCluster of --jobs "
+                                                           "workers, or the cluster at --scheduler; needs "
+                                                           "pip install \"hystfit[dask]\"). The numbers do not "
+                                                           "depend on it.")]
+Scheduler = Annotated[Optional[str], typer.Option("--scheduler", help="Address of a running Dask scheduler, e.g. "
+                                                                      "tcp://host:8786 (with --executor dask).")]
+Resume = Annotated[bool, typer.Option("--resume", help="Continue an interrupted run: reuse the cells it stored in "
+                                                       "OUT.partial/ (those whose captures and settings are "
+                                                       "unchanged) and compute only the rest.")]
 Runs = Annotated[int, typer.Option("--runs", min=1, help="Independent seeded runs per condition; the best is kept "
                                                          "(>= 1).")]
 Plots = Annotated[bool, typer.Option("--plots/--no-plots", help="Write the figures.")]
@@ -77,6 +87,73 @@ PerCondition = Annotated[bool, typer.Option("--per-condition/--global",
                                                  "one for all captures.")]
 Method = Annotated[str, typer.Option("--method", help="Look-up-table cells: interpolate (bilinear blend of the "
                                                       "nearest cells) or nearest.")]
+
+
+class CellRun:
+    """The executor and the cell store of one command writing ``out`` (see :func:`cell_run`).
+
+    ``executor`` is None for ``--executor local``: the library then sizes its own pool from
+    ``--jobs`` (``identify`` runs exact linear solves in-process, where a pool only adds start-up).
+    """
+
+    def __init__(self, executor, store, resume: bool, jobs: Optional[int]) -> None:
+        self.executor, self.store, self.resume, self.jobs = executor, store, resume, jobs
+
+    def pool(self, default_jobs: Optional[int] = None):
+        """The executor itself: the Dask one, or a local pool of ``--jobs`` (else ``default_jobs``) processes."""
+        from ..parallel import LocalExecutor
+
+        return self.executor if self.executor is not None else LocalExecutor(self.jobs or default_jobs)
+
+    def describe(self) -> str:
+        if self.executor is not None:
+            return self.executor.describe()
+        from ..parallel import default_jobs
+
+        return f"local ({self.jobs or default_jobs()} process(es) at most)"
+
+
+@contextmanager
+def cell_run(out: Path, executor: str, jobs: Optional[int], scheduler: Optional[str], resume: bool,
+             enabled: bool = True) -> Iterator[CellRun]:
+    """Start the executor and open the cell store ``OUT.partial`` around a command's work.
+
+    Without ``--resume`` stored cells are not read (a forgotten ``--resume`` must not throw away an
+    interrupted run's work: a note says they are there), only written. On success (the block
+    returns: the outputs are published) the store is removed; on Ctrl-C, an error or a kill it
+    stays, and a line says how to continue.
+    """
+    from ..cells import CellStore, partial_dir
+    from ..parallel import make_executor
+
+    store = CellStore(partial_dir(out))
+    if enabled and len(store):
+        _line(f"resuming: {len(store)} stored cell(s) in {store.root}" if resume else
+              f"note: {store.root} holds {len(store)} cell(s) of an interrupted run; they are recomputed "
+              "(stop and add --resume to reuse them)")
+    ex = make_executor(executor, jobs, scheduler)
+    if ex.name == "local":
+        ex = None
+    try:
+        yield CellRun(ex, store, resume, jobs)
+    except BaseException:
+        kept = len(store)
+        if kept:
+            _line(f"note: {kept} finished cell(s) kept in {store.root}; rerun the same command with --resume "
+                  "to continue")
+        raise
+    finally:
+        if ex is not None:
+            ex.close()
+    store.clear()
+
+
+def print_cell_summary(stats, executor_text: str, quiet: bool) -> None:
+    """The final line: wall time, cells computed, reused, failed (stderr)."""
+    if quiet:
+        return
+    _line(f"cells: {stats.computed} computed, {stats.reused} reused, {stats.failed} failed in "
+          f"{stats.wall_time_s:.1f} s on {executor_text}")
 
 
 def plots_flag(plots: bool, figures_alias: Optional[bool]) -> bool:
@@ -169,13 +246,22 @@ def progress_bar(enabled: bool, description: str) -> Iterator:
         if event == "start":
             task = prog.add_task(description, total=info.get("total"), last="")
         elif event == "advance" and task is not None:
-            last = info.get("label") or ""
-            prog.update(task, advance=1, last=str(last))
+            prog.update(task, advance=1, last=_cell_text(info))
         elif event == "note":
             prog.console.print(info.get("text", ""))
 
     with prog:
         yield callback
+
+
+def _cell_text(info: dict) -> str:
+    """The last cell's label, marked when it was reused from the store or failed."""
+    text = str(info.get("label") or "")
+    if info.get("failed"):
+        text += " (failed)"
+    elif info.get("reused"):
+        text += " (reused)"
+    return text
 
 
 def _line(text: str) -> None:
@@ -220,7 +306,7 @@ class _PlainProgress:
                 if due:
                     self.spoken, self.last = True, now
                     of = f"/{self.total}" if self.total else ""
-                    label = f" {info['label']}" if info.get("label") else ""
+                    label = f" {_cell_text(info)}" if info.get("label") else ""
                     _line(f"{self.description}: {self.done}{of}{label} ({now - self.t0:.1f} s)")
         elif event == "note":
             _line(str(info.get("text", "")))

@@ -9,10 +9,10 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut,
-                     NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Start, Stop, Warmup,
-                     Runs, Seed, TimeCol, MapeFloor, load_options, parse_key_values, plots_flag, print_capture_notes, phase,
-                     print_json, progress_bar, stderr, stdout)
+from .common import (Condition, DataArg, DropNonfinite, ExecutorOpt, FiguresAlias, Force, Fs, InputCol, Iters, Jobs,
+                     JsonOut, NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Resume,
+                     Scheduler, Start, Stop, Warmup, Runs, Seed, TimeCol, MapeFloor, cell_run, load_options, parse_key_values,
+                     plots_flag, print_capture_notes, print_cell_summary, phase, print_json, progress_bar, stdout)
 
 
 def _names(text: str, what: str) -> list[str]:
@@ -37,6 +37,9 @@ def compare(
     seed: Seed = 0,
     mape_floor: MapeFloor = 0.01,
     jobs: Jobs = None,
+    executor: ExecutorOpt = "local",
+    scheduler: Scheduler = None,
+    resume: Resume = False,
     pop: Pop = None,
     iters: Iters = None,
     polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after the global search.")] = True,
@@ -60,7 +63,7 @@ def compare(
     """
     from ..compare import compare as run_compare
     from ..compare import scoped_options
-    from ..errors import NoResultError
+    from ..errors import CellsFailedError, NoResultError
     from ..io import load_captures, staged_output_dir
     from ..registry import models as model_registry
     from ..registry import optimizers as optimizer_registry
@@ -89,7 +92,7 @@ def compare(
         from ..report.render import preload
 
         preload()  # import matplotlib in a thread while the captures load and the fits run
-    with staged_output_dir(out, force) as stage:
+    with cell_run(out, executor, jobs, scheduler, resume, not quiet) as cr, staged_output_dir(out, force) as stage:
         with phase(not quiet and not json_out, "loading the captures"):
             captures = load_captures(data, options, recursive=recursive)
         if not quiet:
@@ -97,19 +100,22 @@ def compare(
         with progress_bar(not quiet and not json_out, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
                               model_options=mopts, optimizer_options=opt_options, bounds=bnds,
-                              global_fit=not per_condition, progress=cb, mape_floor=mape_floor)
+                              global_fit=not per_condition, progress=cb, executor=cr.executor, store=cr.store,
+                              resume=resume, mape_floor=mape_floor)
         make_plots = plots_flag(plots, figures_alias)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
             write_compare_outputs(res, stage, make_figures=make_plots, n_jobs=jobs)
+    print_cell_summary(res.cell_stats, cr.describe(), quiet or json_out)
     df = compare_frame(res)
     u = res.unit
     failed = [c for c in res.cells if not c.ok]
     if failed and len(failed) == len(res.cells):
         raise NoResultError(f"every cell failed ({len(failed)} of {len(failed)}); first error: {failed[0].model}/"
                             f"{failed[0].optimizer}/{failed[0].label}: {failed[0].error} (all errors in {out}/compare.csv)")
-    if failed:
-        stderr.print(f"warning: {len(failed)} of {len(res.cells)} cells failed; their errors are in {out}/compare.csv",
-                     markup=False, highlight=False)
+    some_failed = CellsFailedError(f"{len(failed)} of {len(res.cells)} cells failed (first: {failed[0].model}/"
+                                   f"{failed[0].optimizer}/{failed[0].label}: {failed[0].error}); the other cells "
+                                   f"are in {out}, every error in {out}/compare.csv") if failed else None
+    st = res.cell_stats
     if json_out:
         ok = df[df["error"] == ""] if "error" in df else df
         best = ok[ok["best_run"] == True] if "best_run" in ok else ok  # noqa: E712
@@ -118,9 +124,15 @@ def compare(
                               for row in best[["model", "optimizer", "condition", "amplitude_V", "frequency_Hz",
                                                f"rmse_{u}", "r2", "j", "runtime_s", "evaluations"]].to_dict("records")],
                     "failed": [{"model": c.model, "optimizer": c.optimizer, "condition": c.label, "error": c.error}
-                               for c in res.cells if not c.ok]})
+                               for c in res.cells if not c.ok],
+                    "cell_counts": {"computed": st.computed, "reused": st.reused, "failed": st.failed,
+                                    "wall_time_s": st.wall_time_s, "executor": res.executor}})
+        if some_failed:
+            raise some_failed
         return
     if quiet:
+        if some_failed:
+            raise some_failed
         return
     t = Table(title=f"mean over conditions (best run per cell) — written to {out}")
     for col in ("model", "optimizer", f"mean rmse_{u}", "worst r2", "failed cells", "total time s"):
@@ -133,3 +145,5 @@ def compare(
             r2 = min((c.best.metrics["r2"] for c in okc), default=float("nan"))
             t.add_row(m, o, fmt(rm), fmt(r2, 5), str(len(cells) - len(okc)), f"{sum(c.runtime_s for c in cells):.2f}")
     stdout.print(t)
+    if some_failed:
+        raise some_failed

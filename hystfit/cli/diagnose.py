@@ -9,9 +9,10 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, JsonOut, NoHeader, OutputCol,
-                     OutputUnit, PerCondition, Plots, Quiet, Recursive, Start, Stop, Seed, TimeCol, load_options,
-                     parse_key_values, plots_flag, print_capture_notes, phase, print_json, progress_bar, stdout)
+from .common import (Condition, DataArg, DropNonfinite, ExecutorOpt, FiguresAlias, Force, Fs, InputCol, JsonOut,
+                     NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Quiet, Recursive, Resume, Scheduler, Start,
+                     Stop, Seed, TimeCol, cell_run, load_options, parse_key_values, plots_flag, print_capture_notes,
+                     phase, print_cell_summary, print_json, progress_bar, stdout)
 
 
 def _parse_effects(value: Optional[str]) -> list[str] | None:
@@ -35,6 +36,12 @@ def diagnose(
     per_condition: PerCondition = False,
     effects: Annotated[Optional[str], typer.Option("--effects", help="Candidate effects, comma-separated (default: dynamics,creep,asymmetry,drift,delay).")] = None,
     seed: Seed = 0,
+    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default="1",
+                                                help="Parallel processes for the base fits of --per-condition (the "
+                                                     "numbers do not depend on it).")] = None,
+    executor: ExecutorOpt = "local",
+    scheduler: Scheduler = None,
+    resume: Resume = False,
     fit_fraction: Annotated[float, typer.Option("--fit-fraction", help="Share of every capture used to fit; the rest is held out.")] = 0.6,
     threshold: Annotated[float, typer.Option("--threshold", help="Minimum held-out reduction for naming an effect.")] = 0.3,
     max_effects: Annotated[int, typer.Option("--max-effects", help="How many effects may be named, in order (>= 1).")] = 3,
@@ -56,6 +63,7 @@ def diagnose(
     Writes OUT/diagnosis.json, OUT/diagnosis.md and OUT/figures/.
     """
     from ..diagnose import DiagnoseSettings, check_seed, fit_recommended
+    from ..parallel import CellStats
     from ..diagnose import diagnose as run_diagnose
     from ..io import load_captures, staged_output_dir
     from ..registry import optimizers
@@ -71,20 +79,27 @@ def diagnose(
     check_seed(seed)
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            start=start, stop=stop)
-    with staged_output_dir(out, force) as stage:
+    stats = CellStats()
+    with cell_run(out, executor, jobs, scheduler, resume, not quiet) as cr, \
+            staged_output_dir(out, force) as stage:
         with phase(not quiet and not json_out, "loading the captures"):
             captures = load_captures(data, options, recursive=recursive)
         if not quiet:
             print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, f"diagnose {m.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
-                             settings=settings, progress=cb)
+                             settings=settings, progress=cb, executor=cr.pool(default_jobs=1), store=cr.store,
+                             resume=resume, stats=stats)
         with progress_bar(not quiet and not json_out and bool(d.explained_by),
                           f"identify {d.recommended_model} on all the data") as cb:
-            rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb)
+            rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb,
+                                  executor=cr.executor, store=cr.store, resume=resume)
         make_plots = plots_flag(plots, figures_alias)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
             write_diagnose_outputs(d, stage, make_figures=make_plots, recommended=rec)
+    if rec is not None:
+        stats.add(rec.cell_stats)
+    print_cell_summary(stats, cr.describe(), quiet or json_out)
     if json_out:
         print_json({**d.to_dict(), "params": str(out / "params.json") if d.explained_by else None})
         return

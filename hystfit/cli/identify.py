@@ -9,10 +9,11 @@ import typer
 from rich.table import Table
 
 from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, FiguresAlias, Force, Fs, InputCol, Iters, Jobs, JsonOut,
-                     NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Start, Stop, Warmup,
-                     Runs, Seed, TimeCol, MapeFloor, load_options, parse_key_values, plots_flag, print_capture_notes, phase,
-                     print_json, progress_bar, stderr, stdout)
+from .common import (Condition, DataArg, DropNonfinite, ExecutorOpt, FiguresAlias, Force, Fs, InputCol, Iters, Jobs,
+                     JsonOut, NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Resume,
+                     Scheduler, Start, Stop, Warmup, Runs, Seed, TimeCol, MapeFloor, cell_run, load_options, parse_key_values,
+                     plots_flag, print_capture_notes, print_cell_summary, phase, print_json, progress_bar, stderr,
+                     stdout)
 
 
 @app.command()
@@ -29,6 +30,9 @@ def identify(
     runs: Runs = 1,
     polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after the global search.")] = True,
     jobs: Jobs = None,
+    executor: ExecutorOpt = "local",
+    scheduler: Scheduler = None,
+    resume: Resume = False,
     per_condition: PerCondition = True,
     bounds: Annotated[Optional[list[str]], typer.Option("--bounds", help="Override a bound: NAME=LOWER:UPPER (repeatable).")] = None,
     model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE, e.g. n_operators=12 (repeatable).")] = None,
@@ -67,17 +71,25 @@ def identify(
         from ..report.render import preload
 
         preload()  # import matplotlib in a thread while the captures load and the fit runs
-    with staged_output_dir(out, force) as stage:
+    with cell_run(out, executor, jobs, scheduler, resume, not quiet) as cr, staged_output_dir(out, force) as stage:
         with phase(not quiet and not json_out, "loading the captures"):
             captures = load_captures(data, options, recursive=recursive)
         if not quiet:
             print_capture_notes(captures)
         with progress_bar(not quiet and not json_out, f"identify {m.name} / {opt_cls.name}") as cb:
             res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=not per_condition,
-                               bounds=bnds, progress=cb, model_options=mopts, jobs=jobs, mape_floor=mape_floor)
+                               bounds=bnds, progress=cb, model_options=mopts, jobs=jobs, executor=cr.executor,
+                               store=cr.store, resume=resume, mape_floor=mape_floor)
         make_plots = plots_flag(plots, figures_alias)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
             write_identify_outputs(res, stage, make_plots=make_plots, n_jobs=jobs)
+    print_cell_summary(res.cell_stats, cr.describe(), quiet or json_out)
+    some_failed = None
+    if res.failed:
+        from ..errors import CellsFailedError
+
+        some_failed = CellsFailedError(f"{len(res.failed)} run(s) failed and were left out (first: {res.failed[0]}); "
+                                       f"the other runs are in {out}, every failure in {out}/report.md")
     pinned = bound_notes(res)
     if pinned and not quiet:
         stderr.print(f"note: {len(pinned)} parameter set(s) have parameters at a search bound (no standard error; "
@@ -94,9 +106,16 @@ def identify(
                     "conditions": [{"label": c["label"], "amplitude_V": c["amplitude_V"],
                                     "frequency_Hz": c["frequency_Hz"], "metrics": c["metrics"],
                                     "runtime_s": c["runtime_s"], "evaluations": c["evaluations"]}
-                                   for c in d["conditions"]]})
+                                   for c in d["conditions"]],
+                    "failed": list(res.failed),
+                    "cell_counts": {"computed": res.cell_stats.computed, "reused": res.cell_stats.reused,
+                                    "failed": res.cell_stats.failed, "wall_time_s": res.cell_stats.wall_time_s}})
+        if some_failed:
+            raise some_failed
         return
     if quiet:
+        if some_failed:
+            raise some_failed
         return
     u = res.unit
     table = Table(title=f"{m.name} / {opt_cls.name} — {len(res.fits)} condition(s), output in {out}")
@@ -106,3 +125,5 @@ def identify(
         table.add_row(row["condition"], f"{row[f'rmse_{u}']:.4g}", f"{row['nrmse_pct']:.3g}", fmt(row['r2'], 5),
                       f"{row[f'max_error_{u}']:.4g}", f"{row['runtime_s']:.2f}")
     stdout.print(table)
+    if some_failed:
+        raise some_failed

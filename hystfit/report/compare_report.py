@@ -378,7 +378,9 @@ def markdown(res: CompareResult, figures: list[str]) -> str:
     lines = ["# hystfit comparison", "",
              f"- models: {', '.join(f'`{m}`' for m in res.models)}; optimizers: "
              f"{', '.join(f'`{o}`' for o in res.optimizers)}; conditions: {len(res.conditions)}; runs per cell: {res.runs}",
-             f"- seed {res.seed} (every run's own seed is in `compare.csv`); parallel jobs {res.jobs}; "
+             f"- seed {res.seed} (every run's own seed is in `compare.csv`); parallel jobs {res.jobs} "
+             f"({res.executor} executor; cells computed {res.cell_stats.computed}, reused from an interrupted run "
+             f"{res.cell_stats.reused}); "
              f"hystfit {__version__}; output unit {u}",
              f"- least-squares polish after global optimizers: "
              f"{'yes (the optimizers are also compared on their search alone, before the polish)' if polished else 'no' if not res.polish else 'not applicable (auto and lsq end with their own local solve)'}",

@@ -86,7 +86,10 @@ def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> st
              f"- model: `{res.model_name}` — optimizer: `{res.optimizer_name}`"
              f"{' + least-squares polish' if res.polish and res.optimizer_name not in ('lsq', 'auto') else ''}",
              f"- mode: {res.mode}; runs per condition: {res.runs}; seed: {res.seed}; hystfit {__version__}",
-             f"- output unit: {u}; input unit: V; time: s", ""]
+             f"- output unit: {u}; input unit: V; time: s",
+             f"- runs computed {res.cell_stats.computed}, reused from an interrupted run {res.cell_stats.reused}", ""]
+    if res.failed:
+        lines += ["## Failed runs (left out)", "", *[f"- {f}" for f in res.failed], ""]
     lines += ["## Metrics per condition", "", markdown_table(frame(summary_rows(res))), "",
               "Formulas (e = model − measured):", "", metric_legend(u), ""]
     for f in res.fits:

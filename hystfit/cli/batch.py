@@ -1,0 +1,143 @@
+"""``hystfit batch``: run the jobs of a TOML batch file, one summary table, per-job exit codes."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from .app import app, click_exceptions, error_line, guarded
+from .common import ExecutorOpt, JsonOut, Quiet, Resume, Scheduler, print_json, stderr, stdout
+
+#: exit code → what it means for a job (see docs/scale.md)
+JOB_STATUS = {0: "ok", 2: "bad input", 3: "no result", 4: "some cells failed", 130: "interrupted"}
+
+
+def _argv(job, command, path: Path) -> list[str]:
+    """The command line of ``job``; an option the command does not have is a ConfigError naming the job."""
+    from ..errors import ConfigError
+
+    flags = {}
+    for p in command.params:
+        if p.param_type_name == "option":
+            for o in p.opts:
+                flags[o] = (p, False)
+            for o in p.secondary_opts:
+                flags[o] = (p, True)
+    args = [job.command] + ([str(job.params)] if job.params is not None else []) + [str(d) for d in job.data]
+    args += ["--out", str(job.out)]
+    for key, value in job.options.items():
+        flag = f"--{key.replace('_', '-')}"
+        if flag not in flags or flags[flag][1]:
+            known = sorted(o[2:] for o, (p, second) in flags.items() if not second and o.startswith("--")
+                           and o not in ("--out", "--help"))
+            raise ConfigError(f"{path}: job {job.name!r}: {job.command} has no option {key!r}; one of: "
+                              f"{', '.join(known)}")
+        p = flags[flag][0]
+        if value is False and p.is_flag and p.secondary_opts:
+            args.append(max(p.secondary_opts, key=len))
+        elif isinstance(value, bool) and p.is_flag:
+            if value:
+                args.append(flag)
+        elif isinstance(value, list):
+            for v in value:
+                args += [flag, str(v)]
+        else:
+            args += [flag, str(value).lower() if isinstance(value, bool) else str(value)]
+    return args
+
+
+def _run(root, argv: list[str]) -> int:
+    """Run one job in this process; its exit code (its own error line is already printed)."""
+    try:
+        rv = root.main(args=argv, prog_name="hystfit", standalone_mode=False)
+        return rv if isinstance(rv, int) else 0
+    except click_exceptions.ClickException as exc:
+        error_line(f"{exc.format_message()} (see 'hystfit {argv[0]} --help')")
+        return exc.exit_code
+    except click_exceptions.Abort:
+        return 130
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else 1
+
+
+@app.command()
+@guarded
+def batch(
+    jobs_file: Annotated[Path, typer.Argument(help="TOML batch file: a defaults table and job tables "
+                                                   "(see docs/scale.md).", show_default=False)],
+    resume: Resume = False,
+    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default="all cores",
+                                                help="Parallel processes of every job that has none of its own "
+                                                     "(the numbers do not depend on it).")] = None,
+    executor: ExecutorOpt = "local",
+    scheduler: Scheduler = None,
+    json_out: JsonOut = False,
+    quiet: Quiet = False,
+) -> None:
+    """Run the jobs of JOBS_FILE (identify, compare, diagnose, simulate) one after the other.
+
+    A job that fails does not stop the others; the table gives each job's exit code. With --resume
+    a job whose output directory is already written is skipped and the others continue from the
+    cells they stored. Exit code 0 when every job succeeded, 3 when every job failed, 4 when some
+    did, 130 on Ctrl-C.
+    """
+    from typer.main import get_command
+
+    from ..batch import load_batch
+    from ..errors import CellsFailedError, NoResultError
+
+    batch_jobs = load_batch(jobs_file)
+    root = get_command(app)
+    runs = []
+    for job in batch_jobs:  # every job's options are checked before any job runs: a typo is exit 2 at once
+        command = root.commands[job.command]
+        have = {o for p in command.params for o in p.opts}
+        opts = {k: v for k, v in job.defaults.items() if f"--{k.replace('_', '-')}" in have}
+        opts.update(job.options)
+        for key, value in (("jobs", jobs), ("executor", executor if executor != "local" else None),
+                           ("scheduler", scheduler)):
+            if value is not None and f"--{key}" in have and key not in opts:
+                opts[key] = value
+        if resume and "--resume" in have:
+            opts["resume"] = True
+        if (quiet or json_out) and "--quiet" in have:
+            opts.setdefault("quiet", True)
+        runs.append((job, _argv(replace(job, options=opts), command, jobs_file)))
+    rows = []
+    interrupted = False
+    for job, argv in runs:
+        t0 = time.perf_counter()
+        if resume and job.out.is_dir() and any(job.out.iterdir()):
+            rows.append((job, 0, "done before (skipped)", 0.0))
+            continue
+        if not quiet and not json_out:
+            stderr.print(f"== batch: {job.name}: hystfit {' '.join(argv)}", markup=False, highlight=False,
+                         soft_wrap=True)
+        code = _run(root, argv)
+        rows.append((job, code, JOB_STATUS.get(code, "error"), time.perf_counter() - t0))
+        if code == 130:
+            interrupted = True
+            break
+    if json_out:
+        print_json({"jobs": [{"name": j.name, "command": j.command, "out": str(j.out), "exit_code": c, "status": s,
+                              "wall_time_s": t} for j, c, s, t in rows]})
+    elif not quiet:
+        table = Table(title=f"batch {jobs_file}: {len(rows)} of {len(runs)} job(s) run")
+        for col in ("job", "command", "exit", "status", "time s", "out"):
+            table.add_column(col, justify="right" if col in ("exit", "time s") else "left")
+        for j, c, s, t in rows:
+            table.add_row(j.name, j.command, str(c), s, f"{t:.1f}", str(j.out))
+        stdout.print(table)
+    failed = [r for r in rows if r[1] != 0]
+    if interrupted:
+        raise KeyboardInterrupt
+    if failed and len(failed) == len(rows):
+        raise NoResultError(f"every job of {jobs_file} failed (exit codes {', '.join(str(r[1]) for r in failed)})")
+    if failed:
+        raise CellsFailedError(f"{len(failed)} of {len(rows)} job(s) of {jobs_file} failed: "
+                               + ", ".join(f"{j.name} (exit {c})" for j, c, _, _ in failed))

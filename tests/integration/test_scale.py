@@ -1,0 +1,317 @@
+"""Issue 16: executors (local, Dask), resumable runs, crashed cells, batch files."""
+
+import json
+import operator
+import os
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+import hystfit.compare
+import hystfit.parallel
+from hystfit.cells import CellStore, partial_dir
+from hystfit.cli import app
+from hystfit.compare import compare
+from hystfit.identify import identify
+from hystfit.io import load_captures
+from hystfit.parallel import CellFailed, LocalExecutor, run_cells
+from hystfit.report.compare_report import compare_frame
+from hystfit.factory import make_model, make_optimizer
+from hystfit.registry import optimizers
+
+SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
+FILES = [SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a20V_f20Hz.csv"]
+PSO = {"pso": {"pop": 6, "iters": 4}}
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def one_error_line(r) -> str:
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith("note: ")]
+    assert len(lines) == 1 and lines[0].startswith("hystfit: error: "), r.stderr
+    return lines[0]
+
+
+def numbers(df: pd.DataFrame) -> pd.DataFrame:
+    """compare.csv without its wall-time columns (the only fields that may differ between runs)."""
+    return df[[c for c in df.columns if "time" not in c]].reset_index(drop=True)
+
+
+@pytest.fixture(scope="module")
+def captures():
+    return load_captures(FILES)
+
+
+# -- executors ---------------------------------------------------------------------------------------
+
+def test_dask_executor_gives_the_numbers_of_the_local_pool(captures):
+    pytest.importorskip("distributed")
+    from hystfit.parallel import DaskExecutor
+
+    kw = dict(runs=2, seed=5, optimizer_options=PSO)
+    local = compare(captures, ["pi", "bw"], ["pso"], jobs=1, **kw)
+    with DaskExecutor(2) as ex:
+        dask = compare(captures, ["pi", "bw"], ["pso"], executor=ex, **kw)
+        ident = identify(captures, make_model("bw"), make_optimizer(optimizers.get("pso"), PSO["pso"]), runs=2,
+                         seed=5, executor=ex)
+    assert dask.executor == "dask" and dask.cell_stats.computed == 4
+    pd.testing.assert_frame_equal(numbers(compare_frame(local)), numbers(compare_frame(dask)))
+    ident_local = identify(captures, make_model("bw"), make_optimizer(optimizers.get("pso"), PSO["pso"]), runs=2,
+                           seed=5, jobs=1)
+    for a, b in zip(ident.fits, ident_local.fits):
+        np.testing.assert_array_equal(a.theta, b.theta)
+
+
+def test_missing_dask_extra_is_one_line_naming_the_install_command(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed → ImportError
+    r = run("compare", FILES[0], "--models", "pi", "--executor", "dask", "--out", tmp_path / "o", "-q")
+    assert r.exit_code == 2
+    assert 'pip install "hystfit[dask]"' in one_error_line(r)
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_existing_scheduler_is_used_and_its_workers_must_run_this_version(captures, monkeypatch):
+    pytest.importorskip("distributed")
+    import hystfit
+    from hystfit.errors import ConfigError
+    from hystfit.parallel import DaskExecutor
+
+    with DaskExecutor(1) as cluster:
+        address = cluster.cluster.scheduler_address
+        with DaskExecutor(scheduler=address) as ex:
+            res = compare(captures[:1], ["pi"], ["auto"], executor=ex)
+        assert res.cells[0].ok and ex.workers == 1
+        monkeypatch.setattr(hystfit, "__version__", "0.0.0-other")
+        with pytest.raises(ConfigError, match="workers run hystfit .*this is 0.0.0-other"):
+            DaskExecutor(scheduler=address)
+
+
+def test_unknown_executor_and_scheduler_without_dask_are_exit_2(tmp_path):
+    r = run("identify", FILES[0], "--executor", "slurm", "--out", tmp_path / "o", "-q")
+    assert r.exit_code == 2 and "--executor 'slurm'" in one_error_line(r)
+    r = run("identify", FILES[0], "--scheduler", "tcp://h:8786", "--out", tmp_path / "o", "-q")
+    assert r.exit_code == 2 and "needs --executor dask" in one_error_line(r)
+
+
+# -- crashed cells and lost workers -----------------------------------------------------------------
+
+def _exit_on_three(shared, job):
+    if job == 3:
+        os._exit(1)  # the worker process dies: a lost worker
+    return shared + job
+
+
+def test_crashed_cell_is_retried_once_then_reported_and_the_rest_goes_on():
+    # operator.truediv(1, 0) raises every time: two attempts, then a CellFailed in its place
+    out = run_cells(operator.truediv, [1, 0, 4], shared=1.0, executor=LocalExecutor(2))
+    assert out[0] == 1.0 and out[2] == 0.25
+    assert isinstance(out[1], CellFailed) and out[1].attempts == 2 and "ZeroDivisionError" in out[1].error
+
+
+def test_lost_worker_costs_its_cell_an_attempt_and_the_batch_goes_on():
+    out = run_cells(_exit_on_three, [1, 2, 3, 4, 5], shared=10, executor=LocalExecutor(2))
+    assert [o for i, o in enumerate(out) if i != 2] == [11, 12, 14, 15]
+    assert isinstance(out[2], CellFailed) and "lost" in out[2].error
+
+
+def test_a_cell_that_crashes_once_is_recomputed_with_the_same_numbers(captures, monkeypatch):
+    ref = compare(captures[:1], ["pi"], ["auto"], jobs=1)
+    real, calls = hystfit.compare.fit_captures, []
+
+    def flaky(*a, **k):
+        calls.append(1)
+        if len(calls) == 1:
+            raise MemoryError("transient")
+        return real(*a, **k)
+
+    monkeypatch.setattr(hystfit.compare, "fit_captures", flaky)
+    res = compare(captures[:1], ["pi"], ["auto"], jobs=1)
+    assert res.cells[0].ok and res.cell_stats.failed == 0
+    np.testing.assert_array_equal(res.cells[0].theta, ref.cells[0].theta)
+
+
+def test_some_cells_failed_exits_4_with_the_others_written(tmp_path, monkeypatch):
+    real = hystfit.compare.fit_captures
+
+    def bw_crashes(caps, model, *a, **k):
+        if model.name == "bw":
+            raise RuntimeError("synthetic crash")
+        return real(caps, model, *a, **k)
+
+    monkeypatch.setattr(hystfit.compare, "fit_captures", bw_crashes)
+    out = tmp_path / "c"
+    r = run("compare", FILES[0], "--models", "pi,bw", "--out", out, "--jobs", "1", "--no-plots", "-q")
+    assert r.exit_code == 4
+    assert "1 of 2 cells failed" in one_error_line(r)
+    df = pd.read_csv(out / "compare.csv")
+    assert "synthetic crash" in df.loc[df["model"] == "bw", "error"].iloc[0]
+    assert "after 2 attempts" in df.loc[df["model"] == "bw", "error"].iloc[0]
+    assert df.loc[df["model"] == "pi", "error"].isna().all()
+
+
+# -- resume --------------------------------------------------------------------------------------------
+
+def test_resume_after_an_interruption_recomputes_nothing_that_finished(tmp_path, monkeypatch):
+    args = ["compare", *FILES, "--models", "pi,bw", "--opts", "pso", "--pop", "6", "--iters", "4", "--runs", "2",
+            "--jobs", "1", "--no-plots", "--seed", "9"]
+    r = run(*args, "--out", tmp_path / "whole", "-q")
+    assert r.exit_code == 0, r.output
+    monkeypatch.setattr(hystfit.parallel, "STOP_AFTER_CELLS", 3)
+    out = tmp_path / "cut"
+    r = run(*args, "--out", out, "-q")
+    assert r.exit_code == 130 and not out.exists()
+    assert len(CellStore(partial_dir(out))) == 3  # the finished cells were kept
+    monkeypatch.setattr(hystfit.parallel, "STOP_AFTER_CELLS", None)
+    r = run(*args, "--out", out, "--resume", "--json")
+    assert r.exit_code == 0, r.output
+    counts = json.loads(r.stdout)["cell_counts"]
+    assert (counts["reused"], counts["computed"], counts["failed"]) == (3, 1, 0)
+    pd.testing.assert_frame_equal(numbers(pd.read_csv(tmp_path / "whole" / "compare.csv")),
+                                  numbers(pd.read_csv(out / "compare.csv")))
+    assert not partial_dir(out).exists()  # published: the store is gone
+
+
+def test_a_run_without_resume_reads_no_stored_cell_but_says_they_are_there(tmp_path, monkeypatch):
+    monkeypatch.setattr(hystfit.parallel, "STOP_AFTER_CELLS", 1)
+    out = tmp_path / "o"
+    args = ["identify", *FILES, "--model", "pi", "--jobs", "1", "--no-plots", "--out", out]
+    assert run(*args, "-q").exit_code == 130
+    monkeypatch.setattr(hystfit.parallel, "STOP_AFTER_CELLS", None)
+    r = run(*args, "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["cell_counts"]["reused"] == 0
+    assert "holds 1 cell(s) of an interrupted run" in r.stderr and "--resume" in r.stderr
+    assert not partial_dir(out).exists()
+
+
+def test_a_changed_capture_or_setting_invalidates_exactly_its_cells(captures, tmp_path):
+    store = CellStore(tmp_path / "store")
+    kw = dict(runs=1, seed=2, optimizer_options=PSO, jobs=1, store=store)
+    first = compare(captures, ["pi", "bw"], ["pso"], **kw)
+    assert first.cell_stats.computed == 4
+    again = compare(captures, ["pi", "bw"], ["pso"], resume=True, **kw)
+    assert (again.cell_stats.reused, again.cell_stats.computed) == (4, 0)
+    # one sample of the second capture changes: its condition's two cells are recomputed, no other
+    c = captures[1]
+    y = c.y.copy()
+    y[100] += 1e-3
+    changed = [captures[0], replace(c, y=y)]
+    res = compare(changed, ["pi", "bw"], ["pso"], resume=True, **kw)
+    assert (res.cell_stats.reused, res.cell_stats.computed) == (2, 2)
+    # another seed or another optimizer setting: every cell is new
+    res = compare(captures, ["pi", "bw"], ["pso"], resume=True, **{**kw, "seed": 3})
+    assert res.cell_stats.reused == 0
+    res = compare(captures, ["pi", "bw"], ["pso"], resume=True, **{**kw, "optimizer_options": {"pso": {"pop": 7,
+                                                                                                      "iters": 4}}})
+    assert res.cell_stats.reused == 0
+    # another model list: the cells of the model that stayed are reused
+    res = compare(captures, ["pi"], ["pso"], resume=True, **kw)
+    assert (res.cell_stats.reused, res.cell_stats.computed) == (2, 0)
+
+
+def test_identify_resume_reuses_runs_and_gives_the_same_parameters(captures, tmp_path):
+    store = CellStore(tmp_path / "s")
+    opt = make_optimizer(optimizers.get("pso"), PSO["pso"])
+    a = identify(captures, make_model("bw"), opt, runs=2, seed=4, store=store)
+    b = identify(captures, make_model("bw"), opt, runs=2, seed=4, store=store, resume=True)
+    assert (b.cell_stats.reused, b.cell_stats.computed) == (4, 0)
+    for fa, fb in zip(a.fits, b.fits):
+        np.testing.assert_array_equal(fa.theta, fb.theta)
+
+
+# -- batch files ---------------------------------------------------------------------------------------
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def test_batch_runs_every_job_and_reports_per_job_exit_codes(tmp_path):
+    jobs = _write(tmp_path / "jobs.toml", f"""
+[defaults]
+plots = false
+seed = 1
+jobs = 1
+
+[[job]]
+name = "lut"
+command = "identify"
+data = ["{SAMPLE}/a20V_f1*.csv"]
+out = "res/lut"
+
+[[job]]
+name = "typo"
+command = "identify"
+data = "{FILES[0]}"
+out = "res/typo"
+model = "nosuchmodel"
+
+[[job]]
+name = "check"
+command = "simulate"
+params = "res/lut/params.json"
+data = "{FILES[1]}"
+out = "res/check"
+""")
+    r = run("batch", jobs, "--json")
+    assert r.exit_code == 4, r.output
+    rows = {j["name"]: j for j in json.loads(r.stdout)["jobs"]}
+    assert (rows["lut"]["exit_code"], rows["typo"]["exit_code"], rows["check"]["exit_code"]) == (0, 2, 0)
+    assert (tmp_path / "res" / "lut" / "params.json").exists() and (tmp_path / "res" / "check").is_dir()
+    # --resume: the finished jobs are skipped, the failed one runs again
+    r = run("batch", jobs, "--resume", "--json")
+    rows = {j["name"]: j for j in json.loads(r.stdout)["jobs"]}
+    assert rows["lut"]["status"] == "done before (skipped)" and rows["typo"]["exit_code"] == 2
+
+
+@pytest.mark.parametrize("text, words", [
+    ("", "no jobs"),
+    ("[[job]]\ncommand = 'fit'\ndata = 'x.csv'\nout = 'o'\n", "command 'fit' is not one of"),
+    ("[[job]]\ncommand = 'identify'\nout = 'o'\n", "data is missing"),
+    ("[[job]]\ncommand = 'identify'\ndata = 'nothing/*.csv'\nout = 'o'\n", "matches no file"),
+    ("[[job]]\ncommand = 'identify'\ndata = 'x.csv'\nout = 'o'\nmodle = 'pi'\n", "has no option 'modle'"),
+    ("[[job]]\ncommand = 'simulate'\ndata = 'x.csv'\nout = 'o'\n", "simulate needs params"),
+    ("[[job\ncommand = 'identify'\n", "not valid TOML"),
+    ("[jobs]\n", "unknown top-level key"),
+])
+def test_a_bad_batch_file_is_one_line_exit_2_before_any_job(tmp_path, text, words):
+    jobs = _write(tmp_path / "jobs.toml", text)
+    r = run("batch", jobs)
+    assert r.exit_code == 2
+    line = one_error_line(r)
+    assert str(jobs) in line and words in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_missing_batch_file_is_exit_2(tmp_path):
+    r = run("batch", tmp_path / "nope.toml")
+    assert r.exit_code == 2 and "no such batch file" in one_error_line(r)
+
+
+# -- diagnose --------------------------------------------------------------------------------------------
+
+def test_diagnose_per_condition_gives_the_same_diagnosis_on_every_executor_and_resumes(tmp_path):
+    pytest.importorskip("distributed")
+    from hystfit.diagnose import DiagnoseSettings, diagnose, withheld_effect_captures
+    from hystfit.parallel import DaskExecutor
+
+    caps = withheld_effect_captures("creep", 2.0, 0, amplitudes_V=(30.0, 60.0), frequencies_Hz=(10.0,), steps_s=0)
+    kw = dict(per_condition=True, effects=["creep"], settings=DiagnoseSettings(max_effects=1))
+    opt = make_optimizer(optimizers.get("auto"), {})
+    store = CellStore(tmp_path / "s")
+    serial = diagnose(caps, make_model("pi"), opt, store=store, **kw)
+    assert len(store) == 4  # the base fits of two conditions, on everything and on the fit part
+    with DaskExecutor(2) as ex:
+        dask = diagnose(caps, make_model("pi"), opt, executor=ex, **kw)
+    resumed = diagnose(caps, make_model("pi"), opt, store=store, resume=True, **kw)
+    for d in (dask, resumed):
+        assert d.verdict == serial.verdict == "creep"
+        assert d.gap == serial.gap and d.noise == serial.noise
+        assert [r.heldout_rmse_after for r in d.effects] == [r.heldout_rmse_after for r in serial.effects]
