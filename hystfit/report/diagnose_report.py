@@ -713,6 +713,13 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
                       "a copy of the velocity; its share is how much of the error above the noise that shape alone "
                       "matches, before any refit.)"]
             L += [""]
+    rec = d.reconciliation
+    if rec:
+        L += ["Where the error's shape and the refit disagree:", ""]
+        for c in rec:
+            L += [f"- the error's shape points at `{c['effect']}` (its signature matches {100 * c['signature_share']:.0f} % "
+                  f"of the gap above the noise), but it is not named: {c['why']}."]
+        L += [""]
     if "effects" in figs:
         L += [f"![held-out RMSE per effect]({figs['effects']})", ""]
 

@@ -57,6 +57,8 @@ def test_rising_sines_with_a_delay_name_it_from_an_interpolating_hold_out():
     other = d.split["other_scheme"]
     assert other["kind"] == "temporal" and isinstance(other["agrees"], bool)
     assert d.recommended_model.startswith("pi+")
+    # one capture per condition: differences between conditions are the actuator's, never a calibration
+    assert not any(c["calibration_differs"] for c in d.captures)
 
 
 @pytest.mark.slow
