@@ -349,5 +349,26 @@ def print_capture_notes(captures) -> None:
                 stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
+def load_for_command(data, options, *, recursive: bool, quiet: bool, json_out: bool, figures: bool):
+    """The captures of a command: loaded with a progress line when slow, the loader's notes printed;
+    with figures ahead, matplotlib is imported in a background thread meanwhile."""
+    from ..io import load_captures
+
+    if figures:
+        from ..report.render import preload
+
+        preload()
+    with phase(not quiet and not json_out, "loading the captures"):
+        captures = load_captures(data, options, recursive=recursive)
+    if not quiet:
+        print_capture_notes(captures)
+    return captures
+
+
+def writing(out, quiet: bool, json_out: bool, figures: bool):
+    """The phase line of writing a command's outputs."""
+    return phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if figures else ""))
+
+
 def print_json(data: dict) -> None:
     sys.stdout.write(json.dumps(data, indent=2, allow_nan=False) + "\n")

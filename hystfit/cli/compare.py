@@ -10,9 +10,10 @@ from rich.table import Table
 
 from .app import app, guarded
 from .common import (Condition, DataArg, DropNonfinite, ExecutorOpt, FiguresAlias, Force, Fs, InputCol, Iters, Jobs,
-                     JsonOut, NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive, Resume,
-                     Scheduler, Start, Stop, Warmup, Runs, Seed, TimeCol, MapeFloor, cell_run, load_options, parse_key_values,
-                     plots_flag, print_capture_notes, print_cell_summary, phase, print_json, progress_bar, stdout)
+                     JsonOut, MapeFloor, NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive,
+                     Resume, Runs, Scheduler, Seed, Start, Stop, TimeCol, Warmup, cell_run, load_for_command,
+                     load_options, parse_key_values, plots_flag, print_cell_summary, print_json, progress_bar,
+                     stdout, writing)
 
 
 def _names(text: str, what: str) -> list[str]:
@@ -63,13 +64,11 @@ def compare(
     """
     from ..compare import compare as run_compare
     from ..compare import scoped_options
-    from ..errors import CellsFailedError, NoResultError
-    from ..io import load_captures, staged_output_dir
+    from ..io import staged_output_dir
     from ..registry import models as model_registry
     from ..registry import optimizers as optimizer_registry
-    from ..report.compare_report import compare_frame, write_compare_outputs
+    from ..report.compare_report import write_compare_outputs
     from ..params import parse_bound_overrides
-    from ..report.tables import fmt
     from ..factory import budget_options, make_model, model_option_names, model_param_names
 
     model_names = model_registry.names() if models.strip().lower() == "all" else _names(models, "models")
@@ -88,62 +87,69 @@ def compare(
     bnds = scoped_options(bnds, {m: model_param_names(m) for m in model_names}, "--bounds")
     options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
                            start=start, stop=stop, warmup=warmup)
-    if plots_flag(plots, figures_alias):
-        from ..report.render import preload
-
-        preload()  # import matplotlib in a thread while the captures load and the fits run
+    make_plots = plots_flag(plots, figures_alias)
     with cell_run(out, executor, jobs, scheduler, resume, not quiet) as cr, staged_output_dir(out, force) as stage:
-        with phase(not quiet and not json_out, "loading the captures"):
-            captures = load_captures(data, options, recursive=recursive)
-        if not quiet:
-            print_capture_notes(captures)
+        captures = load_for_command(data, options, recursive=recursive, quiet=quiet, json_out=json_out,
+                                    figures=make_plots)
         with progress_bar(not quiet and not json_out, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
                               model_options=mopts, optimizer_options=opt_options, bounds=bnds,
                               global_fit=not per_condition, progress=cb, executor=cr.executor, store=cr.store,
                               resume=resume, mape_floor=mape_floor)
-        make_plots = plots_flag(plots, figures_alias)
-        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
+        with writing(out, quiet, json_out, make_plots):
             write_compare_outputs(res, stage, make_figures=make_plots, n_jobs=jobs)
     print_cell_summary(res.cell_stats, cr.describe(), quiet or json_out)
+    some_failed = _failures(res, out)
+    if json_out:
+        _print_summary_json(res, out, model_names, opt_names, runs)
+    elif not quiet:
+        _print_summary_table(res, out)
+    if some_failed:
+        raise some_failed
+
+
+def _failures(res, out):
+    """NoResultError when every cell failed (raised), CellsFailedError when some did (returned)."""
+    from ..errors import CellsFailedError, NoResultError
+
+    failed = [c for c in res.cells if not c.ok]
+    if not failed:
+        return None
+    first = f"{failed[0].model}/{failed[0].optimizer}/{failed[0].label}: {failed[0].error}"
+    if len(failed) == len(res.cells):
+        raise NoResultError(f"every cell failed ({len(failed)} of {len(failed)}); first error: {first} "
+                            f"(all errors in {out}/compare.csv)")
+    return CellsFailedError(f"{len(failed)} of {len(res.cells)} cells failed (first: {first}); the other cells "
+                            f"are in {out}, every error in {out}/compare.csv")
+
+
+def _print_summary_json(res, out, model_names, opt_names, runs: int) -> None:
+    from ..report.compare_report import compare_frame
+
     df = compare_frame(res)
     u = res.unit
-    failed = [c for c in res.cells if not c.ok]
-    if failed and len(failed) == len(res.cells):
-        raise NoResultError(f"every cell failed ({len(failed)} of {len(failed)}); first error: {failed[0].model}/"
-                            f"{failed[0].optimizer}/{failed[0].label}: {failed[0].error} (all errors in {out}/compare.csv)")
-    some_failed = CellsFailedError(f"{len(failed)} of {len(res.cells)} cells failed (first: {failed[0].model}/"
-                                   f"{failed[0].optimizer}/{failed[0].label}: {failed[0].error}); the other cells "
-                                   f"are in {out}, every error in {out}/compare.csv") if failed else None
     st = res.cell_stats
-    if json_out:
-        ok = df[df["error"] == ""] if "error" in df else df
-        best = ok[ok["best_run"] == True] if "best_run" in ok else ok  # noqa: E712
-        print_json({"out": str(out), "models": model_names, "optimizers": opt_names, "runs": runs,
-                    "cells": [{k: (None if isinstance(v, float) and v != v else v) for k, v in row.items()}
-                              for row in best[["model", "optimizer", "condition", "amplitude_V", "frequency_Hz",
-                                               f"rmse_{u}", "r2", "j", "runtime_s", "evaluations"]].to_dict("records")],
-                    "failed": [{"model": c.model, "optimizer": c.optimizer, "condition": c.label, "error": c.error}
-                               for c in res.cells if not c.ok],
-                    "cell_counts": {"computed": st.computed, "reused": st.reused, "failed": st.failed,
-                                    "wall_time_s": st.wall_time_s, "executor": res.executor}})
-        if some_failed:
-            raise some_failed
-        return
-    if quiet:
-        if some_failed:
-            raise some_failed
-        return
+    ok = df[df["error"] == ""] if "error" in df else df
+    best = ok[ok["best_run"] == True] if "best_run" in ok else ok  # noqa: E712
+    print_json({"out": str(out), "models": model_names, "optimizers": opt_names, "runs": runs,
+                "cells": [{k: (None if isinstance(v, float) and v != v else v) for k, v in row.items()}
+                          for row in best[["model", "optimizer", "condition", "amplitude_V", "frequency_Hz",
+                                           f"rmse_{u}", "r2", "j", "runtime_s", "evaluations"]].to_dict("records")],
+                "failed": [{"model": c.model, "optimizer": c.optimizer, "condition": c.label, "error": c.error}
+                           for c in res.cells if not c.ok],
+                "cell_counts": {"computed": st.computed, "reused": st.reused, "failed": st.failed,
+                                "wall_time_s": st.wall_time_s, "executor": res.executor}})
+
+
+def _print_summary_table(res, out) -> None:
+    from ..report.compare_report import mean_over_conditions
+    from ..report.tables import fmt
+
+    u = res.unit
     t = Table(title=f"mean over conditions (best run per cell) — written to {out}")
     for col in ("model", "optimizer", f"mean rmse_{u}", "worst r2", "failed cells", "total time s"):
         t.add_column(col, justify="right")
-    for m in model_names:
-        for o in opt_names:
-            cells = [c for c in res.cells if c.model == m and c.optimizer == o]
-            okc = [c for c in cells if c.ok]
-            rm = sum(c.best.metrics[f"rmse_{u}"] for c in okc) / len(okc) if okc else float("nan")
-            r2 = min((c.best.metrics["r2"] for c in okc), default=float("nan"))
-            t.add_row(m, o, fmt(rm), fmt(r2, 5), str(len(cells) - len(okc)), f"{sum(c.runtime_s for c in cells):.2f}")
+    for row in mean_over_conditions(res):
+        t.add_row(row["model"], row["optimizer"], fmt(row["mean_rmse"]), fmt(row["worst_r2"], 5),
+                  str(row["failed_cells"]), f"{row['runtime_s']:.2f}")
     stdout.print(t)
-    if some_failed:
-        raise some_failed

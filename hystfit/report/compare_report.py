@@ -46,6 +46,23 @@ def compare_frame(res: CompareResult) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def mean_over_conditions(res: CompareResult) -> list[dict]:
+    """Per model × optimizer: the mean RMSE and worst R² over conditions (best run per cell), the
+    number of failed cells and the total run time (the console summary of ``hystfit compare``)."""
+    u = res.unit
+    rows = []
+    for m in res.models:
+        for o in res.optimizers:
+            cells = [c for c in res.cells if c.model == m and c.optimizer == o]
+            ok = [c for c in cells if c.ok]
+            rows.append({"model": m, "optimizer": o,
+                         "mean_rmse": (float(np.mean([c.best.metrics[f"rmse_{u}"] for c in ok])) if ok
+                                       else float("nan")),
+                         "worst_r2": min((c.best.metrics["r2"] for c in ok), default=float("nan")),
+                         "failed_cells": len(cells) - len(ok), "runtime_s": float(sum(c.runtime_s for c in cells))})
+    return rows
+
+
 def _best_cells(res: CompareResult, optimizer: str) -> list[CellResult]:
     return [c for c in res.cells if c.optimizer == optimizer and c.ok]
 
