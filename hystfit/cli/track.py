@@ -70,24 +70,13 @@ def track(
     OUT/summary.json, OUT/report.md and OUT/plots/. Method and options: docs/invert.md.
     """
     from ..io import staged_output_dir
-    from ..report.track_report import comparison_headers, comparison_text_rows, write_track_outputs
+    from ..report.track_report import write_track_outputs
     from ..results import load_params
     from ..track import check_smc_options, measure_bandwidths, parse_controllers, track as run_track
 
     names = parse_controllers(controller)
     smc_opts = check_smc_options(parse_key_values(smc_option or [], "--smc-option"))
-    if fmt not in ("csv", "parquet"):
-        raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
-    if anti_windup not in ("backcalc", "clamp"):
-        raise ConfigError(f"--anti-windup {anti_windup!r}: choose backcalc or clamp")
-    if method not in ("interpolate", "nearest"):
-        raise ConfigError(f"--method {method!r}: choose interpolate or nearest")
-    if not noise >= 0:
-        raise ConfigError(f"--noise {noise:g}: the noise σ must be >= 0 (µm)")
-    if bandwidth is not None and not bandwidth > 0:
-        raise ConfigError(f"--bandwidth {bandwidth:g}: must be > 0 Hz")
-    if any(g is not None for g in (kp, ki, kd)) and not any(n in ("pid", "ff+pid") for n in names):
-        raise ConfigError("--kp/--ki/--kd apply to the pid and ff+pid controllers; add one to --controller")
+    _check_options(names, fmt, anti_windup, method, noise, bandwidth, (kp, ki, kd))
     pf = load_params(params)
     plant_pf = load_params(plant) if plant is not None else None
     cond = parse_condition(condition)
@@ -115,12 +104,8 @@ def track(
                                         noise_std=noise * UM_PER_UNIT_INV[pf.unit], seed=seed, kp=kp, ki=ki, kd=kd,
                                         bandwidth_Hz=bandwidth, anti_windup=anti_windup, smc_options=smc_opts)
         with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if plots else "")):
-            summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command)
+            summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command, bandwidth=bw)
             if bw is not None:
-                from ..io import atomic_write_text
-                from ..results import dumps, json_safe
-
-                atomic_write_text(stage / "bandwidth.json", dumps(json_safe(dict(bw, command=command))))
                 summary["bandwidth"] = bw
     for run in res.runs:
         if run.limit_spans:
@@ -132,6 +117,31 @@ def track(
         return
     if quiet:
         return
+    _print_tables(res, bw, out)
+    for note in res.notes:
+        stderr.print(f"note: {note}", markup=False, highlight=False, style="dim")
+
+
+def _check_options(names, fmt: str, anti_windup: str, method: str, noise: float, bandwidth, gains) -> None:
+    """One-line errors (exit 2) for option values the library would not accept or would ignore."""
+    if fmt not in ("csv", "parquet"):
+        raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
+    if anti_windup not in ("backcalc", "clamp"):
+        raise ConfigError(f"--anti-windup {anti_windup!r}: choose backcalc or clamp")
+    if method not in ("interpolate", "nearest"):
+        raise ConfigError(f"--method {method!r}: choose interpolate or nearest")
+    if not noise >= 0:
+        raise ConfigError(f"--noise {noise:g}: the noise σ must be >= 0 (µm)")
+    if bandwidth is not None and not bandwidth > 0:
+        raise ConfigError(f"--bandwidth {bandwidth:g}: must be > 0 Hz")
+    if any(g is not None for g in gains) and not any(n in ("pid", "ff+pid") for n in names):
+        raise ConfigError("--kp/--ki/--kd apply to the pid and ff+pid controllers; add one to --controller")
+
+
+def _print_tables(res, bw, out) -> None:
+    """The comparison tables (tracking, steps, bandwidths) on stdout."""
+    from ..report.track_report import comparison_headers, comparison_text_rows
+
     titles = (f"tracking error, plant {res.plant_model_name} ({res.plant_path}); outputs in {out}",
               "step response (paper 002 Table 6; – = not settled)")
     for title, cols, rows in zip(titles, comparison_headers(res), comparison_text_rows(res)):
@@ -151,5 +161,3 @@ def track(
             t.add_row(c, *(f"{x:.4g}" if x == x else "–" for x in (v["tracking_bandwidth_Hz"],
                                                                      v["disturbance_bandwidth_Hz"])))
         stdout.print(t)
-    for note in res.notes:
-        stderr.print(f"note: {note}", markup=False, highlight=False, style="dim")

@@ -112,9 +112,12 @@ def track_markdown(res: TrackResult, figures: list[str], command: str | None = N
 
 
 def write_track_outputs(res: TrackResult, out_dir: Path, *, make_plots: bool = True, fmt_ext: str = "csv",
-                        command: str | None = None) -> dict:
-    """Write ``<controller>.csv`` (or .parquet), ``summary.json``, ``report.md`` and figures into ``out_dir``."""
+                        command: str | None = None, bandwidth: dict | None = None) -> dict:
+    """Write ``<controller>.csv`` (or .parquet), ``summary.json``, ``report.md`` and figures into ``out_dir``;
+    with ``bandwidth`` (:func:`hystfit.track.measure_bandwidths`) also ``bandwidth.json``."""
     out_dir = Path(out_dir)
+    if bandwidth is not None:
+        atomic_write_text(out_dir / "bandwidth.json", dumps(json_safe(dict(bandwidth, command=command))))
     u = res.unit
     tg = res.target
     figures: list[str] = []
