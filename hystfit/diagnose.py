@@ -1236,6 +1236,201 @@ def _base_fits(jobs: list, n_groups: int, model: Model, optimizer: Optimizer, se
     return fits
 
 
+def _checked_inputs(captures: Sequence[Capture], effects: Sequence[str] | None) -> tuple[list, str, list[str]]:
+    """The captures (each with a measured output, one output unit), their unit and the candidate
+    effect names — or a one-line InputError/ConfigError."""
+    caps = list(captures)
+    if not caps:
+        raise InputError("diagnose: no captures")
+    for c in caps:
+        if c.y is None:
+            raise InputError(f"{c.source}: no measured output column; the diagnosis needs one (see --output-col)")
+    units = {c.y_unit for c in caps}
+    if len(units) > 1:
+        raise InputError("diagnose: captures have different output units "
+                         f"({', '.join(f'{c.name}: {c.y_unit}' for c in caps)}); convert them to one unit")
+    names = list(EFFECTS) if effects is None else [make_effect(n).name for n in effects]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"diagnose: an effect is listed twice in {', '.join(names)}")
+    return caps, units.pop(), names
+
+
+def _groups(caps: Sequence[Capture], per_condition: bool) -> tuple[list, list, list, list[int]]:
+    """The base model's parameter groups: one per condition, or one for all captures.
+
+    Returns (capture indices per group, labels, condition keys, group of each capture)."""
+    if per_condition:
+        keyed = group_by_condition(caps)
+        order = {id(c): i for i, c in enumerate(caps)}
+        group_idx = [tuple(order[id(c)] for c in v) for v in keyed.values()]
+        labels = [condition_label(k) for k in keyed]
+        conds = list(keyed)
+    else:
+        group_idx = [tuple(range(len(caps)))]
+        labels = ["global"]
+        conds = [(float("nan"), float("nan"))]
+    group_of = [0] * len(caps)
+    for gi, idx in enumerate(group_idx):
+        for i in idx:
+            group_of[i] = gi
+    return group_idx, labels, conds, group_of
+
+
+def _split_info(split_kind: str, split_why: str, caps, views, swept, held_out, settings) -> dict:
+    """The ``split`` section of diagnosis.json: the hold-out scheme, why, and per capture what was held out."""
+    per_cap = [{"source": c.source, "fit_samples": int(v.fit.sum()), "heldout_samples": int((~v.fit).sum()),
+                "amplitude_changes": bool(sw), "heldout_whole": bool(h),
+                "split_time_s": float(c.t[v.fit_end - 1]) if v.fit_end else None}
+               for c, v, sw, h in zip(caps, views, swept, held_out)]
+    if split_kind == "capture":
+        split = {"kind": "capture", "why": split_why,
+                 "heldout_captures": [c.source for c, h in zip(caps, held_out) if h],
+                 "description": ("every fit (base, base + effect, placebo) uses the captures at the lowest and highest "
+                                 "drive frequencies; the captures at the frequencies in between are held out whole and "
+                                 "only they score 'heldout_*' (an interpolation in frequency, at every amplitude)"),
+                 "per_capture": per_cap}
+    else:
+        split = {"kind": "temporal", "why": split_why,
+                 "fit_fraction": settings.fit_fraction,
+                 "description": ("every fit (base, base + effect, placebo) uses the first part of each capture: whole "
+                                 f"cycles (round({settings.fit_fraction:g} × cycles)) of periodic captures, the first "
+                                 f"{100 * settings.fit_fraction:.0f} % of the samples of the others; the remaining "
+                                 "samples of every capture are held out and only they score 'heldout_*' (the model is "
+                                 "simulated from the start of the capture, so its state at the split is its own)"),
+                 "per_capture": per_cap}
+    return split
+
+
+def _base_fit_jobs(caps, views, group_idx, labels, conds, by_cond) -> list[tuple]:
+    """The base fits as executor cells: per group on everything, per group on the fit part, and (with
+    ``by_cond``) per condition alone."""
+    jobs = [(tuple(caps[i] for i in idx), gi, labels[gi], conds[gi]) for gi, idx in enumerate(group_idx)]
+    jobs += [(tuple(_truncate(caps[i], int(views[i].fit_end)) for i in idx if views[i].fit_end >= 2), gi, labels[gi],
+              conds[gi]) for gi, idx in enumerate(group_idx)]
+    if by_cond is not None:
+        jobs += [(tuple(cs), 1000 + ci, condition_label(key), key) for ci, (key, cs) in enumerate(by_cond.items())]
+    return jobs
+
+
+def _per_capture(fits, group_idx, n: int) -> list[np.ndarray]:
+    """The predictions of group fits, in capture order."""
+    out = [None] * n
+    for f, idx in zip(fits, group_idx):
+        for k, i in enumerate(idx):
+            out[i] = np.asarray(f.predictions[k], float)
+    return out
+
+
+def _residuals_alone(caps, by_cond, fits) -> list[np.ndarray]:
+    """Per capture the residual of the base fitted to its condition alone."""
+    out = [None] * len(caps)
+    order = {id(c): i for i, c in enumerate(caps)}
+    for (key, cs), f in zip(by_cond.items(), fits):
+        for c, p in zip(cs, f.predictions):
+            out[order[id(c)]] = np.asarray(p, float) - c.y
+    return out
+
+
+def _gap(rmse_full: float, before0: float, fit_before0: float, final_after: float, sigma: float) -> dict:
+    """The ``gap`` section: RMSE on all and on held-out data, above the noise, after the named effects."""
+    return {"rmse_out": rmse_full, "heldout_rmse_out": before0, "fit_rmse_out": fit_before0,
+            "excess_rmse_out": _excess(rmse_full, sigma), "heldout_excess_rmse_out": _excess(before0, sigma),
+            "noise_share_of_gap": (sigma / rmse_full) ** 2 if rmse_full > 0 else None,
+            "heldout_rmse_after_explained_out": final_after,
+            "heldout_reduction_explained": float(np.clip((before0 - final_after) / (before0 - sigma), 0, 1))
+            if before0 > sigma else 0.0}
+
+
+def _refined_floor(caps, preds, periodic, noise: dict, sigma: float) -> tuple[list[float], float]:
+    """Per capture the smaller of the noise estimates from the base model's and from the final
+    model's residual, and their median (the refined floor)."""
+    final_res = [p - c.y for p, c in zip(preds, caps)]
+    per_final = estimate_noise(caps, final_res, periodic)["per_capture_out"]
+    per = [min(a, b) if math.isfinite(b) else a for a, b in zip(noise["per_capture_out"], per_final)]
+    finite = [v for v in per if math.isfinite(v)]
+    return per, (float(np.median(finite)) if finite else sigma)
+
+
+def _calibration_pointer(caps, calib: list[dict], unit: str) -> str:
+    return ("per-capture calibration: " + "; ".join(
+        f"{Path(c.source).name} offset {cal['offset_out']:+.3g} {_display(unit)}, gain {cal['gain']:.4f}"
+        for c, cal in zip(caps, calib) if cal["calibration_differs"])
+        + " against the common fit — a sensor re-zeroed or re-scaled between recordings, not an effect of the "
+          "actuator: fitted per capture as part of the base before any effect was tested; identify with the "
+          "`drift` block (offsets) or align offsets (`simulate --align-offset`)")
+
+
+def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, cands, all_effects,
+                    settings: "DiagnoseSettings", seed: int, unit: str, advance, count_progress: bool):
+    """The greedy selection of effects for one noise floor (the fits do not depend on it, the
+    reductions and the verdict do)."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+    steps: list[tuple[EffectResult, ...]] = []
+    chosen: list[str] = []
+    alternatives: list[tuple[str, ...]] = []
+    state = state0
+    preds_state = pred0
+    remaining = list(cands)
+    for step in range(settings.max_effects):
+        if not remaining:
+            break
+        before = _rmse(preds_state, views, "test")
+        fit_before = _rmse(preds_state, views, "fit")
+        lin_cache = _linearize(state, caps, views)
+        xs_full = _predictions(state, caps, views)
+        library = _library(all_effects, xs_full, views)
+        placebo_cache: dict = {}
+        results = []
+        states = {}
+        for eff in remaining:
+            ks, kl = eff.layout()
+            m = eff.searched_bounds()[0].size
+            key = (ks + m, kl)
+            if key not in placebo_cache:
+                imps = []
+                for _ in range(settings.placebo_draws):
+                    pl = Placebo.build(library, key[0], key[1], rng)
+                    st_p, _ = _augment(state, pl, caps, views, lin_cache, 1)
+                    imps.append(before - _rmse(_predictions(st_p, caps, views), views, "test"))
+                placebo_cache[key] = (max(imps), float(np.mean(imps)))
+            pl_best, pl_mean = placebo_cache[key]
+            st_e, efit = _augment(state, eff, caps, views, lin_cache, settings.iterations)
+            preds_e = _predictions(st_e, caps, views)
+            after = _rmse(preds_e, views, "test")
+            fit_after = _rmse(preds_e, views, "fit")
+            denom = before - sigma
+            red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
+            pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
+            fitted = [i for i, v in enumerate(views) if v.fit_end >= 3]
+            share, r2 = signature_share(eff, [preds_state[i][: views[i].fit_end] for i in fitted],
+                                        [views[i].head(views[i].fit_end) for i in fitted], sigma * sigma)
+            params = efit.params(views, [c.source for c in caps])
+            excess = _excess(before, sigma)
+            passes = {"reduction_at_least_threshold": red >= settings.threshold,
+                      "beats_placebo": (before - after) > pl_best,
+                      "gap_above_noise": excess >= settings.min_excess_ratio * sigma}
+            ev = _evidence(eff.name, {"signature_share": share, "params": params, "before": before, "after": after,
+                                      "reduction": red, "placebo": pl_best}, where, unit)
+            results.append(EffectResult(eff.name, eff.title, step + 1, before, after, fit_before, fit_after, red,
+                                        pl_best, pl_mean, pl_red, efit.n_parameters, share, r2, params, ev, passes,
+                                        efit))
+            states[eff.name] = (st_e, preds_e)
+            if step == 0 and count_progress:
+                advance(f"effect {eff.name}")
+        results.sort(key=lambda r: (-r.reduction, r.n_parameters))
+        steps.append(tuple(results))
+        pick = choose_effect(results, settings)
+        if pick is None:
+            break
+        top = max(r.reduction for r in results if r.eligible)
+        alternatives.append(tuple(r.effect for r in results if r.eligible and r is not pick
+                                  and r.reduction >= top - settings.occam_tolerance))
+        chosen.append(pick.effect)
+        state, preds_state = states[pick.effect]
+        remaining = [e for e in remaining if e.name != pick.effect]
+    return steps, chosen, alternatives, preds_state
+
+
 def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0,
              per_condition: bool = False, effects: Sequence[str] | None = None,
              settings: DiagnoseSettings = DiagnoseSettings(), progress: Progress = None,
@@ -1262,20 +1457,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     """
     t_start = time.perf_counter()
     check_seed(seed)
-    caps = list(captures)
-    if not caps:
-        raise InputError("diagnose: no captures")
-    for c in caps:
-        if c.y is None:
-            raise InputError(f"{c.source}: no measured output column; the diagnosis needs one (see --output-col)")
-    units = {c.y_unit for c in caps}
-    if len(units) > 1:
-        raise InputError("diagnose: captures have different output units "
-                         f"({', '.join(f'{c.name}: {c.y_unit}' for c in caps)}); convert them to one unit")
-    unit = units.pop()
-    names = list(EFFECTS) if effects is None else [make_effect(n).name for n in effects]
-    if len(set(names)) != len(names):
-        raise ConfigError(f"diagnose: an effect is listed twice in {', '.join(names)}")
+    caps, unit, names = _checked_inputs(captures, effects)
     C = len(caps)
     model = prepare_shared(model, caps)  # shared structure from all captures, once (not per fit subset)
     periodic = [is_periodic(c.u, c.dt, c.frequency_Hz) for c in caps]
@@ -1288,21 +1470,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     views = [CaptureView(c.t, c.dt, c.y, m, float(c.frequency_Hz), p, i)
              for i, (c, m, p) in enumerate(zip(caps, masks, periodic))]
 
-    # groups
-    if per_condition:
-        keyed = group_by_condition(caps)
-        order = {id(c): i for i, c in enumerate(caps)}
-        group_idx = [tuple(order[id(c)] for c in v) for v in keyed.values()]
-        labels = [condition_label(k) for k in keyed]
-        conds = list(keyed)
-    else:
-        group_idx = [tuple(range(C))]
-        labels = ["global"]
-        conds = [(float("nan"), float("nan"))]
-    group_of = [0] * C
-    for gi, idx in enumerate(group_idx):
-        for i in idx:
-            group_of[i] = gi
+    group_idx, labels, conds, group_of = _groups(caps, per_condition)
     n_units = 2 * len(group_idx) + 1 + len(names) + 1
     if progress:
         progress("start", {"total": n_units})
@@ -1314,41 +1482,25 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     # the base fits (on everything, on the fit part, per condition alone) are the cells of the executor
     G = len(group_idx)
     by_cond = group_by_condition(caps)
-    jobs = [(tuple(caps[i] for i in idx), gi, labels[gi], conds[gi]) for gi, idx in enumerate(group_idx)]
-    jobs += [(tuple(_truncate(caps[i], int(views[i].fit_end)) for i in idx if views[i].fit_end >= 2), gi, labels[gi],
-              conds[gi]) for gi, idx in enumerate(group_idx)]
     alone = not per_condition and len(by_cond) > 1
-    if alone:
-        jobs += [(tuple(cs), 1000 + ci, condition_label(key), key) for ci, (key, cs) in enumerate(by_cond.items())]
+    jobs = _base_fit_jobs(caps, views, group_idx, labels, conds, by_cond if alone else None)
     base_fits = _base_fits(jobs, G, model, optimizer, seed, executor, store, resume, advance, stats)
 
     # 1. gap: base fitted on everything
-    full_fits = base_fits[:G]
-    full_pred = [None] * C
-    for gi, idx in enumerate(group_idx):
-        for k, i in enumerate(idx):
-            full_pred[i] = np.asarray(full_fits[gi].predictions[k], float)
+    full_pred = _per_capture(base_fits[:G], group_idx, C)
     residuals = [p - c.y for p, c in zip(full_pred, caps)]
     noise = estimate_noise(caps, residuals, periodic)
     sigma = noise["sigma"]
     rmse_full = math.sqrt(sum(float(r @ r) for r in residuals) / sum(r.size for r in residuals))
-    residuals_alone = None
-    if alone:
-        residuals_alone = [None] * C
-        order = {id(c): i for i, c in enumerate(caps)}
-        for (key, cs), f in zip(by_cond.items(), base_fits[2 * G:]):
-            for c, p in zip(cs, f.predictions):
-                residuals_alone[order[id(c)]] = np.asarray(p, float) - c.y
+    residuals_alone = _residuals_alone(caps, by_cond, base_fits[2 * G:]) if alone else None
     where, fig_where = where_analysis(caps, residuals, sigma, periodic, residuals_alone)
     advance("where")
     first_run = True
 
     # 2. base fitted on the fit part only
-    groups = []
-    for gi, idx in enumerate(group_idx):
-        f = base_fits[G + gi]
-        groups.append(_Group(labels[gi], conds[gi], f.model, f.params, np.asarray(f.theta, float).copy(),
-                             np.array([p.lower for p in f.params]), np.array([p.upper for p in f.params]), idx))
+    groups = [_Group(labels[gi], conds[gi], f.model, f.params, np.asarray(f.theta, float).copy(),
+                     np.array([p.lower for p in f.params]), np.array([p.upper for p in f.params]), idx)
+              for gi, (idx, f) in enumerate(zip(group_idx, base_fits[G:2 * G]))]
     state0 = _State(groups, [], tuple(group_of))
     calib = capture_calibration(caps, full_pred, sigma)
     calibrated = len(caps) > 1 and any(c["calibration_differs"] for c in calib)
@@ -1377,73 +1529,9 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     all_effects = [make_effect(n).configure(fitted_views, fitted_heads) for n in EFFECTS]
 
     def select(sigma: float, where: dict):
-        """The greedy selection of effects for one noise floor (the fits do not depend on it, the
-        reductions and the verdict do)."""
-        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
-        steps: list[tuple[EffectResult, ...]] = []
-        chosen: list[str] = []
-        alternatives: list[tuple[str, ...]] = []
-        state = state0
-        preds_state = pred0
-        remaining = list(cands)
-        for step in range(settings.max_effects):
-            if not remaining:
-                break
-            before = _rmse(preds_state, views, "test")
-            fit_before = _rmse(preds_state, views, "fit")
-            lin_cache = _linearize(state, caps, views)
-            xs_full = _predictions(state, caps, views)
-            library = _library(all_effects, xs_full, views)
-            placebo_cache: dict = {}
-            results = []
-            states = {}
-            for eff in remaining:
-                ks, kl = eff.layout()
-                m = eff.searched_bounds()[0].size
-                key = (ks + m, kl)
-                if key not in placebo_cache:
-                    imps = []
-                    for _ in range(settings.placebo_draws):
-                        pl = Placebo.build(library, key[0], key[1], rng)
-                        st_p, _ = _augment(state, pl, caps, views, lin_cache, 1)
-                        imps.append(before - _rmse(_predictions(st_p, caps, views), views, "test"))
-                    placebo_cache[key] = (max(imps), float(np.mean(imps)))
-                pl_best, pl_mean = placebo_cache[key]
-                st_e, efit = _augment(state, eff, caps, views, lin_cache, settings.iterations)
-                preds_e = _predictions(st_e, caps, views)
-                after = _rmse(preds_e, views, "test")
-                fit_after = _rmse(preds_e, views, "fit")
-                denom = before - sigma
-                red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
-                pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
-                fitted = [i for i, v in enumerate(views) if v.fit_end >= 3]
-                share, r2 = signature_share(eff, [preds_state[i][: views[i].fit_end] for i in fitted],
-                                            [views[i].head(views[i].fit_end) for i in fitted], sigma * sigma)
-                params = efit.params(views, [c.source for c in caps])
-                excess = _excess(before, sigma)
-                passes = {"reduction_at_least_threshold": red >= settings.threshold,
-                          "beats_placebo": (before - after) > pl_best,
-                          "gap_above_noise": excess >= settings.min_excess_ratio * sigma}
-                ev = _evidence(eff.name, {"signature_share": share, "params": params, "before": before, "after": after,
-                                          "reduction": red, "placebo": pl_best}, where, unit)
-                results.append(EffectResult(eff.name, eff.title, step + 1, before, after, fit_before, fit_after, red,
-                                            pl_best, pl_mean, pl_red, efit.n_parameters, share, r2, params, ev, passes,
-                                            efit))
-                states[eff.name] = (st_e, preds_e)
-                if step == 0 and first_run:
-                    advance(f"effect {eff.name}")
-            results.sort(key=lambda r: (-r.reduction, r.n_parameters))
-            steps.append(tuple(results))
-            pick = choose_effect(results, settings)
-            if pick is None:
-                break
-            top = max(r.reduction for r in results if r.eligible)
-            alternatives.append(tuple(r.effect for r in results if r.eligible and r is not pick
-                                      and r.reduction >= top - settings.occam_tolerance))
-            chosen.append(pick.effect)
-            state, preds_state = states[pick.effect]
-            remaining = [e for e in remaining if e.name != pick.effect]
-        return steps, chosen, alternatives, preds_state
+        return _select_effects(sigma, where, state0=state0, pred0=pred0, caps=caps, views=views, cands=cands,
+                               all_effects=all_effects, settings=settings, seed=seed, unit=unit, advance=advance,
+                               count_progress=first_run)
 
     steps, chosen, alternatives, preds_state = select(sigma, where)
     # The floor was estimated from the base model's residual. Where that residual holds fast model
@@ -1452,11 +1540,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     # two residuals per capture and, when the floor drops by more than 5 %, redo the where-analysis
     # and the selection with it (the fits are the same; reductions and the verdict depend on it).
     if chosen:
-        final_res = [p - c.y for p, c in zip(preds_state, caps)]
-        per_final = estimate_noise(caps, final_res, periodic)["per_capture_out"]
-        per = [min(a, b) if math.isfinite(b) else a for a, b in zip(noise["per_capture_out"], per_final)]
-        finite = [v for v in per if math.isfinite(v)]
-        refined = float(np.median(finite)) if finite else sigma
+        per, refined = _refined_floor(caps, preds_state, periodic, noise, sigma)
         noise["sigma_base_model_out"] = sigma
         noise["sigma_final_model_out"] = refined
         if refined < 0.95 * sigma:
@@ -1474,32 +1558,8 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
 
     verdict = chosen[0] if chosen else "none"
     final_after = _rmse(preds_state, views, "test")
-    gap = {"rmse_out": rmse_full, "heldout_rmse_out": before0, "fit_rmse_out": fit_before0,
-           "excess_rmse_out": _excess(rmse_full, sigma), "heldout_excess_rmse_out": _excess(before0, sigma),
-           "noise_share_of_gap": (sigma / rmse_full) ** 2 if rmse_full > 0 else None,
-           "heldout_rmse_after_explained_out": final_after,
-           "heldout_reduction_explained": float(np.clip((before0 - final_after) / (before0 - sigma), 0, 1))
-           if before0 > sigma else 0.0}
-    per_cap = [{"source": c.source, "fit_samples": int(v.fit.sum()), "heldout_samples": int((~v.fit).sum()),
-                "amplitude_changes": bool(sw), "heldout_whole": bool(h),
-                "split_time_s": float(c.t[v.fit_end - 1]) if v.fit_end else None}
-               for c, v, sw, h in zip(caps, views, swept, held_out)]
-    if split_kind == "capture":
-        split = {"kind": "capture", "why": split_why,
-                 "heldout_captures": [c.source for c, h in zip(caps, held_out) if h],
-                 "description": ("every fit (base, base + effect, placebo) uses the captures at the lowest and highest "
-                                 "drive frequencies; the captures at the frequencies in between are held out whole and "
-                                 "only they score 'heldout_*' (an interpolation in frequency, at every amplitude)"),
-                 "per_capture": per_cap}
-    else:
-        split = {"kind": "temporal", "why": split_why,
-                 "fit_fraction": settings.fit_fraction,
-                 "description": ("every fit (base, base + effect, placebo) uses the first part of each capture: whole "
-                                 f"cycles (round({settings.fit_fraction:g} × cycles)) of periodic captures, the first "
-                                 f"{100 * settings.fit_fraction:.0f} % of the samples of the others; the remaining "
-                                 "samples of every capture are held out and only they score 'heldout_*' (the model is "
-                                 "simulated from the start of the capture, so its state at the split is its own)"),
-                 "per_capture": per_cap}
+    gap = _gap(rmse_full, before0, fit_before0, final_after, sigma)
+    split = _split_info(split_kind, split_why, caps, views, swept, held_out, settings)
     if split_kind == "capture" and settings.split == "auto":
         other = diagnose(caps, model, optimizer, seed=seed, per_condition=per_condition, effects=effects,
                          settings=replace(settings, split="temporal"))
@@ -1511,13 +1571,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                       "amplitude_changes": bool(sw), **cal}
                      for c, p, sw, cal in zip(caps, periodic, swept, calib))
     if calibrated:
-        where.setdefault("pointers", []).append(
-            "per-capture calibration: " + "; ".join(
-                f"{Path(c.source).name} offset {cal['offset_out']:+.3g} {_display(unit)}, gain {cal['gain']:.4f}"
-                for c, cal in zip(caps, calib) if cal["calibration_differs"])
-            + " against the common fit — a sensor re-zeroed or re-scaled between recordings, not an effect of the "
-              "actuator: fitted per capture as part of the base before any effect was tested; identify with the "
-              "`drift` block (offsets) or align offsets (`simulate --align-offset`)")
+        where.setdefault("pointers", []).append(_calibration_pointer(caps, calib, unit))
     figures_data = {"captures": caps, "views": views, "full_predictions": full_pred, "residuals": residuals,
                     "base_predictions": pred0, "explained_predictions": preds_state, "chosen": list(chosen),
                     "spectra": fig_where["spectra"], "group_labels": labels}
