@@ -1331,6 +1331,21 @@ def _residuals_alone(caps, by_cond, fits) -> list[np.ndarray]:
     return out
 
 
+def _configured(names: Sequence[str], pred0, views) -> list[Effect]:
+    """The candidate effects, configured on the fit part of the captures that have one."""
+    fitted = [i for i, v in enumerate(views) if v.fit_end >= 2]
+    vs = [views[i] for i in fitted]
+    heads = [pred0[i][: views[i].fit_end] for i in fitted]
+    return [make_effect(n).configure(vs, heads) for n in names]
+
+
+def _other_scheme(other: "Diagnosis", chosen: Sequence[str]) -> dict:
+    """How the temporal split's diagnosis compares with the one that decided."""
+    return {"kind": "temporal", "verdict": other.verdict, "explained_by": list(other.explained_by),
+            "agrees": tuple(sorted(other.explained_by)) == tuple(sorted(chosen)),
+            "reductions": {r.effect: r.reduction for r in other.effects}}
+
+
 def _gap(rmse_full: float, before0: float, fit_before0: float, final_after: float, sigma: float) -> dict:
     """The ``gap`` section: RMSE on all and on held-out data, above the noise, after the named effects."""
     return {"rmse_out": rmse_full, "heldout_rmse_out": before0, "fit_rmse_out": fit_before0,
@@ -1522,11 +1537,8 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     complete_where(where, sigma)
 
     # configure the candidates on the fit data
-    heads0 = [p[: v.fit_end] for p, v in zip(pred0, views)]
-    fitted_views = [v for v in views if v.fit_end >= 2]
-    fitted_heads = [h for h, v in zip(heads0, views) if v.fit_end >= 2]
-    cands = [make_effect(n).configure(fitted_views, fitted_heads) for n in names]
-    all_effects = [make_effect(n).configure(fitted_views, fitted_heads) for n in EFFECTS]
+    cands = _configured(names, pred0, views)
+    all_effects = _configured(list(EFFECTS), pred0, views)
 
     def select(sigma: float, where: dict):
         return _select_effects(sigma, where, state0=state0, pred0=pred0, caps=caps, views=views, cands=cands,
@@ -1560,12 +1572,10 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     final_after = _rmse(preds_state, views, "test")
     gap = _gap(rmse_full, before0, fit_before0, final_after, sigma)
     split = _split_info(split_kind, split_why, caps, views, swept, held_out, settings)
-    if split_kind == "capture" and settings.split == "auto":
-        other = diagnose(caps, model, optimizer, seed=seed, per_condition=per_condition, effects=effects,
-                         settings=replace(settings, split="temporal"))
-        split["other_scheme"] = {"kind": "temporal", "verdict": other.verdict, "explained_by": list(other.explained_by),
-                                 "agrees": tuple(sorted(other.explained_by)) == tuple(sorted(chosen)),
-                                 "reductions": {r.effect: r.reduction for r in other.effects}}
+    if split_kind == "capture" and settings.split == "auto":  # the temporal split beside, for agreement
+        split["other_scheme"] = _other_scheme(
+            diagnose(caps, model, optimizer, seed=seed, per_condition=per_condition, effects=effects,
+                     settings=replace(settings, split="temporal")), chosen)
     cap_info = tuple({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
                       "samples": c.n, "dt_s": c.dt, "duration_s": c.duration_s, "periodic": bool(p),
                       "amplitude_changes": bool(sw), **cal}
