@@ -22,7 +22,7 @@ from .capture import Capture
 from .cells import CellStore, cell_key
 from .conditions import condition_label, group_by_condition
 from .errors import ConfigError, HystfitError
-from .identify import check_seed, fit_captures
+from .identify import check_seed, fit_captures, prepare_shared
 from .metrics import check_mape_floor, compute_metrics_pooled
 from .objective import Objective, Series
 from .parallel import CellFailed, CellStats, Executor, LocalExecutor, run_cells
@@ -231,6 +231,39 @@ def scoped_options(items: Mapping[str, object], valid: Mapping[str, Sequence[str
     return out
 
 
+def _prepare_shared_structure(captures, model_names, model_options: dict) -> list[str]:
+    """Identify every model's shared structure (a Hammerstein model's stage) once from all captures
+    and hand it to the cells as fixed options (``model_options`` updated in place); the notes say
+    how it was found. A model that fails here fails in its cells, with its own message."""
+    notes = []
+    for m in model_names:
+        try:
+            base = make_model(m, model_options[m])
+            prepared = prepare_shared(base, captures)
+            if prepared is not base:
+                model_options[m] = prepared.as_options()
+                summary = getattr(prepared, "structure_summary", None)
+                if summary is not None:
+                    notes.append(f"`{m}`: {summary()}")
+        except HystfitError:
+            pass
+    return notes
+
+
+def _check_bounds(captures, model_names, model_options: dict, bounds: dict) -> None:
+    """Bound names are checked before any fit, as identify does: a typo is exit 2, not failed cells."""
+    if not all(c.y is not None for c in captures):
+        return
+    scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
+    for m in model_names:
+        if bounds[m]:
+            model = make_model(m, model_options[m]).prepare(captures).adapt(scale)
+            try:
+                apply_bound_overrides(model.params(scale), bounds[m])
+            except ConfigError as exc:
+                raise ConfigError(f"model {m!r}: {exc} (a bound for one model only: --bounds MODEL.NAME=LOWER:UPPER)") from None
+
+
 def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_names: Sequence[str], *,
             runs: int = 1, seed: int = 0, jobs: int | None = None, polish: bool = True,
             model_options: Mapping[str, dict] | None = None, optimizer_options: Mapping[str, dict] | None = None,
@@ -273,26 +306,8 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     # structure shared by all conditions (e.g. a Hammerstein model's stage dynamics) is identified
     # once from all captures here and handed to every cell as fixed structure
     model_options = {m: dict((model_options or {}).get(m, {})) for m in model_names}
-    notes = []
-    for m in model_names:
-        try:
-            base = make_model(m, model_options[m])
-            prepared = base.prepare(captures)
-            if prepared is not base:
-                model_options[m] = prepared.as_options()
-                summary = getattr(prepared, "structure_summary", None)
-                if summary is not None:
-                    notes.append(f"`{m}`: {summary()}")
-        except HystfitError:
-            pass  # reported by the cells themselves
-    for m in model_names:  # bound names are checked here, as identify does: a typo is exit 2, not failed cells
-        if bounds[m] and all(c.y is not None for c in captures):
-            scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
-            model = make_model(m, model_options[m]).prepare(captures).adapt(scale)
-            try:
-                apply_bound_overrides(model.params(scale), bounds[m])
-            except ConfigError as exc:
-                raise ConfigError(f"model {m!r}: {exc} (a bound for one model only: --bounds MODEL.NAME=LOWER:UPPER)") from None
+    notes = _prepare_shared_structure(captures, model_names, model_options)
+    _check_bounds(captures, model_names, model_options, bounds)
     specs = []
     for ci, (key, caps) in enumerate(groups.items()):
         for mi, m in enumerate(model_names):
