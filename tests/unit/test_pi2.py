@@ -165,4 +165,4 @@ def test_params_json_of_the_classical_pi2_still_loads_as_pi_plus_dynamics():
     assert cell.model.name == "pi+dynamics" and cell.theta.size == 13
     cap = load_capture(root / "sample_data" / "a20V_f80Hz.csv")
     rmse = float(np.sqrt(np.mean((cell.predict(cap.u, cap.dt) - cap.y) ** 2)))
-    assert rmse == pytest.approx(pf.raw["conditions"][0]["metrics"]["rmse_um"], rel=1e-9)
+    assert rmse == pytest.approx(pf.cells[0].metrics["rmse_um"], rel=1e-9)
