@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from . import __version__
+
 from .capture import Capture
 
 #: suffix of the directory that holds the stored cells of OUT (``OUT.partial``)
@@ -77,8 +79,6 @@ def _canonical(x: Any) -> Any:
 
 def cell_key(kind: str, **parts: Any) -> str:
     """The store key of one cell: SHA-256 of its kind, ``parts`` and the hystfit version."""
-    from . import __version__
-
     text = json.dumps({"kind": kind, "version": __version__, "parts": _canonical(parts)}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from ._lazy import lazy_module
 from .errors import ConfigError
+from .registry import blocks as _blocks
 
 # scipy submodules are imported on first use: keeps start-up fast
 optimize = lazy_module("scipy.optimize")
@@ -652,19 +653,15 @@ def __getattr__(name: str):
     (:attr:`hystfit.blocks.base.Block.candidate`; not ``lti``, which is identified, not fitted), in registration
     order (the order they are reported when tied), name → class."""
     if name == "EFFECTS":
-        from .registry import blocks
-
-        return {n: blocks.get(n) for n in blocks.names() if blocks.get(n).candidate}
+        return {n: _blocks.get(n) for n in _blocks.names() if _blocks.get(n).candidate}
     raise AttributeError(name)
 
 
 def make_effect(name: str) -> Effect:
     """A fresh (unconfigured) candidate effect — a registered block — by name; :class:`ConfigError`
     listing the valid names for an unknown one."""
-    from .registry import blocks
-
     key = name.strip().lower()
-    names = [n for n in blocks.names() if blocks.get(n).candidate]
+    names = [n for n in _blocks.names() if _blocks.get(n).candidate]
     if key not in names:
         raise ConfigError(f"unknown effect {name!r}: choose from {', '.join(names)}")
-    return blocks.get(key)()
+    return _blocks.get(key)()

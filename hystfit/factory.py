@@ -1,4 +1,9 @@
-"""Building models and optimizers from names and KEY=VALUE options (validated, with clear errors)."""
+"""Building models and optimizers from names and KEY=VALUE options (validated, with clear errors).
+
+The model and optimizer packages are imported inside the functions on purpose: importing them loads
+the numba kernels (≈ 0.5 s), which ``hystfit --help``, ``hystfit models`` and the input checks that
+run before any fit must not pay.
+"""
 
 from __future__ import annotations
 

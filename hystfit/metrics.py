@@ -52,6 +52,8 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from .errors import ConfigError
+
 __all__ = [
     "METRICS",
     "MAPE_THRESHOLD_FRACTION",
@@ -245,8 +247,6 @@ def compute_metrics_pooled(pairs: Sequence[tuple[np.ndarray, np.ndarray]], unit:
 
 def check_mape_floor(mape_floor: float) -> float:
     """The MAPE floor as a float in [0, 1), or :class:`~hystfit.errors.ConfigError`."""
-    from .errors import ConfigError
-
     try:
         f = float(mape_floor)
     except (TypeError, ValueError):
