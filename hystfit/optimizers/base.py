@@ -11,6 +11,8 @@ Optimizers know nothing about hysteresis.
 
 from __future__ import annotations
 
+import re
+import textwrap
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields, replace
@@ -105,6 +107,29 @@ class StopRules:
         _real_rule("stall_tol", self.stall_tol, "a finite number ≥ 0", lambda v: v >= 0, "1e-6", nullable=False)
         _real_rule("target", self.target, "a finite number or null", lambda v: True, "1e-3")
         _real_rule("time_limit_s", self.time_limit_s, "a number of seconds > 0 or null", lambda v: v > 0, "60")
+
+
+#: docstring paragraphs shared by the optimizers, written once here. A class docstring names one
+#: by a line holding only ``{name}``, indented where the paragraph goes; :func:`fill_doc` puts it
+#: in when the class is made. ``{unit}`` is the class's ``iteration_unit``.
+DOC_SECTIONS = {
+    "iters_param": (
+        "iters : int, default 200\n"
+        "    Iterations, the initial evaluation included (``nfev = pop · iters`` when this rule stops)."),
+    "stop_rule_params": (
+        "max_evals, stall_iter, stall_tol, target, time_limit_s\n"
+        "    The common stop rules (:class:`~hystfit.optimizers.base.StopRules`)."),
+    "iterated_stop_rules": (
+        "Stop rules: ``iters`` {unit}, ``max_evals`` evaluations, no relative improvement above\n"
+        "``stall_tol`` for ``stall_iter`` {unit}, ``target`` reached, or ``time_limit_s``."),
+}
+_DOC_MARK = re.compile(r"^( *)\{(\w+)\}$", re.M)
+
+
+def fill_doc(doc: str, unit: str = "iterations") -> str:
+    """``doc`` with each line ``{name}`` replaced by :data:`DOC_SECTIONS` [name] (indented as the
+    line, ``{unit}`` → ``unit``); an unknown name is a KeyError."""
+    return _DOC_MARK.sub(lambda m: textwrap.indent(DOC_SECTIONS[m.group(2)].format(unit=unit), m.group(1)), doc)
 
 
 def stop_field(**defaults: Any) -> Any:
@@ -237,6 +262,9 @@ class Optimizer(ABC):
         with no nonlinear parameter is then one exact solve.
     ``applied_stop_rules``
         The stop rules the optimizer honours; setting another one is a ConfigError.
+
+    Docstrings name the paragraphs they share (:data:`DOC_SECTIONS`) by a line ``{name}``;
+    ``iteration_unit`` is what one iteration is called there ("iterations", GA: "generations").
     """
 
     name: ClassVar[str] = ""
@@ -246,8 +274,14 @@ class Optimizer(ABC):
     polishes_itself: ClassVar[bool] = False
     uses_separable_structure: ClassVar[bool] = False
     applied_stop_rules: ClassVar[tuple[str, ...]] = STOP_RULE_NAMES
+    iteration_unit: ClassVar[str] = "iterations"
 
     stop: StopRules = stop_field()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.__doc__:
+            cls.__doc__ = fill_doc(cls.__doc__, cls.iteration_unit)
 
     def __post_init__(self) -> None:
         if not isinstance(self.stop, StopRules):

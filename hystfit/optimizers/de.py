@@ -61,9 +61,7 @@ class DE(IteratedSearch):
         scipy's own convergence test std(E) ≤ tol·|mean(E)| on the population values E
         (status 5 when it fires); 0 leaves only hystfit's stop rules (and a fully collapsed
         population).
-    max_evals, stall_iter, stall_tol, target, time_limit_s
-        The common stop rules (:class:`~hystfit.optimizers.base.StopRules`), applied per
-        generation.
+    {stop_rule_params}
 
     Notes
     -----
@@ -87,6 +85,7 @@ class DE(IteratedSearch):
     """
 
     name = "de"
+    iteration_unit = "generations"
     title = "Differential evolution (scipy)"
     reference = "Storn & Price 1997; scipy.optimize.differential_evolution"
     min_pop = 1

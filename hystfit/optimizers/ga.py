@@ -181,13 +181,11 @@ class GA(PopulationLoop, IteratedSearch):
         Mutation probability per gene; None means 1/d.
     elite : int, default 2
         Individuals carried over unchanged (elitism; ≥ 1).
-    max_evals, stall_iter, stall_tol, target, time_limit_s
-        The common stop rules (:class:`~hystfit.optimizers.base.StopRules`).
+    {stop_rule_params}
 
     Notes
     -----
-    Stop rules: ``iters`` generations, ``max_evals`` evaluations, no relative improvement above
-    ``stall_tol`` over ``stall_iter`` generations, ``target`` reached, or ``time_limit_s``.
+    {iterated_stop_rules}
 
     Bounds: the operators are Deb's bounded variants (their spread distributions respect the box)
     and children are *clipped* into the box for round-off, as Deb's reference code does; no
@@ -199,6 +197,7 @@ class GA(PopulationLoop, IteratedSearch):
     """
 
     name = "ga"
+    iteration_unit = "generations"
     title = "Genetic algorithm (real-coded, SBX, polynomial mutation)"
     reference = "paper 000 (GA comparison); Deb & Agrawal 1995; Deb & Goyal 1996"
 

@@ -143,23 +143,19 @@ class IGWO(GWO):
     Parameters
     ----------
     pop : int, default 40
-        Pack size (≥ 3); 004 settles on 60 (§3.2).
-    iters : int, default 200
-        Iterations, the initial evaluation included (``nfev = pop · iters`` when this rule stops);
-        004 settles on T = 50.
+        Pack size (≥ 3); 004 settles on 60 and T = 50 iterations (§3.2).
+    {iters_param}
     chaos_factor : float, default 2.0
         The adjustment factor F of eq. 10 (> 0; 004: "typically ranges from 2 to 4", chooses 2).
     levy_beta : float, default 1.5
         Lévy stability index β, 0 < β < 2.
     levy_scale : float, default 0.01
         Step size coefficient Γ as a fraction of (upper − lower) (≥ 0; 0 switches the flight off).
-    max_evals, stall_iter, stall_tol, target, time_limit_s
-        The common stop rules (:class:`~hystfit.optimizers.base.StopRules`).
+    {stop_rule_params}
 
     Notes
     -----
-    Stop rules: ``iters`` iterations, ``max_evals`` evaluations, no relative improvement above
-    ``stall_tol`` for ``stall_iter`` iterations, ``target`` reached, or ``time_limit_s``.
+    {iterated_stop_rules}
 
     Bounds: positions that leave the box (Lévy steps occasionally throw far) are *clipped* to the
     violated face, as in GWO and paper 004 (Algorithm 1, step 14).

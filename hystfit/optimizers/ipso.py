@@ -8,8 +8,8 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import PopulationLoop, PopulationSearch, StopRules, Tracker, stop_field
-from .pso import fly, update_personal_bests
+from .base import PopulationSearch, StopRules, stop_field
+from .pso import Swarm
 
 
 def rank_coefficients(pbest_f: np.ndarray, w_min: float = 0.4, w_max: float = 0.9, c_min: float = 1.5,
@@ -76,7 +76,7 @@ def social_attractors(rank: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 @optimizers.register
 @dataclass
-class IPSO(PopulationLoop, PopulationSearch):
+class IPSO(Swarm, PopulationSearch):
     """Improved PSO of paper 000 as ``shared/papers/README.md`` formulates it.
 
     Each iteration the particles are ranked by personal-best value (rank 1 = best, s particles);
@@ -154,20 +154,10 @@ class IPSO(PopulationLoop, PopulationSearch):
             raise ConfigError("ipso: has no iteration count; set at least one of max_evals, stall_iter, "
                               "target, time_limit_s (e.g. --opt-option max_evals=60000)")
 
-    def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-               rng: np.random.Generator) -> None:
-        P, d = x.shape
-        vmax = self.vmax_frac * (upper - lower)
-        v = (rng.random((P, d)) * 2 - 1) * vmax
-        pbest, pbest_f = x.copy(), f.copy()
-        while True:
-            rank, w, c1, c2 = rank_coefficients(pbest_f, self.w_min, self.w_max, self.c_min, self.c_max)
-            att = social_attractors(rank, rng)
-            r = rng.random((2, P, d))
-            v = (w[:, None] * v + c1[:, None] * r[0] * (pbest - x)
-                 + c2[:, None] * r[1] * (pbest[att] - x))
-            x = fly(x, v, vmax, lower, upper)
-            f = tr.evaluate(x)
-            update_personal_bests(pbest, pbest_f, x, f)
-            if tr.end_iteration(f):
-                return
+    def velocity(self, nit: int, x: np.ndarray, v: np.ndarray, pbest: np.ndarray, pbest_f: np.ndarray,
+                 rng: np.random.Generator) -> np.ndarray:
+        rank, w, c1, c2 = rank_coefficients(pbest_f, self.w_min, self.w_max, self.c_min, self.c_max)
+        att = social_attractors(rank, rng)
+        r = rng.random((2,) + x.shape)
+        return (w[:, None] * v + c1[:, None] * r[0] * (pbest - x)
+                + c2[:, None] * r[1] * (pbest[att] - x))

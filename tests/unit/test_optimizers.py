@@ -260,3 +260,53 @@ def test_identify_with_a_negative_budget_exits_2_in_one_line(tmp_path):
         assert r.exit_code == 2, (opt, r.output)
         assert "max_evals" in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
         assert not (tmp_path / opt).exists()
+
+
+# ------------------------------------------------------------------ shared loop and shared docstring text
+def test_fill_doc_puts_the_shared_paragraphs_in_once():
+    from hystfit.optimizers.base import DOC_SECTIONS, fill_doc
+    from hystfit.registry import optimizers
+
+    doc = "Head.\n\n    Notes\n    -----\n    {iterated_stop_rules}\n\n    Tail {not a marker}.\n"
+    filled = fill_doc(doc, "generations")
+    assert filled.startswith("Head.\n\n    Notes\n    -----\n    Stop rules: ``iters`` generations,")
+    assert "\n    ``stall_tol`` for ``stall_iter`` generations, ``target`` reached" in filled
+    assert filled.endswith("\n\n    Tail {not a marker}.\n")
+    with pytest.raises(KeyError):
+        fill_doc("    {no_such_section}\n")
+    # every registered optimizer's docstring is filled in: no marker line is left
+    for name in optimizers.names():
+        doc = optimizers.get(name).__doc__
+        assert not any(line.strip()[1:-1] in DOC_SECTIONS for line in doc.splitlines()), name
+
+
+def test_swarm_loop_is_shared_and_a_velocity_rule_is_all_a_swarm_adds():
+    from dataclasses import dataclass
+
+    from hystfit.optimizers.base import IteratedSearch
+    from hystfit.optimizers.ipso import IPSO
+    from hystfit.optimizers.pso import Swarm
+    from hystfit.optimizers.pso_cf import ConstrictionPSO
+
+    assert all(issubclass(c, Swarm) for c in (PSO, ConstrictionPSO, IPSO))
+
+    @dataclass
+    class Still(Swarm, IteratedSearch):
+        """A swarm whose particles never move."""
+        name = "still"
+        vmax_frac: float = 0.5
+
+        def velocity(self, nit, x, v, pbest, pbest_f, rng):
+            return np.zeros_like(v)
+
+    seen = []
+
+    def f(X):
+        seen.append(X.copy())
+        return sphere(X)
+
+    lo, hi = -np.ones(3), np.ones(3)
+    r = Still(pop=6, iters=4).minimize(f, lo, hi, rng=np.random.default_rng(0))
+    assert r.nit == 4 and r.nfev == 24 and r.status == 0
+    assert all(np.array_equal(X, seen[0]) for X in seen)
+    assert r.fun == sphere(seen[0]).min()
