@@ -8,7 +8,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import PopulationSearch, StopRules, stop_field
+from .base import PopulationSearch, StopRules, setting, stop_field
 from .pso import Swarm
 
 
@@ -123,32 +123,26 @@ class IPSO(Swarm, PopulationSearch):
     ``max_evals``, ``stall_iter``, ``target``, ``time_limit_s`` must be set. ``--iters`` does
     not apply.
 
-    Bounds: reflection at the violated face with the velocity component reversed, as in
-    :class:`~hystfit.optimizers.pso.PSO`.
-
-    Initialisation: uniform in the box, velocities uniform in ±V_max; if ``x0`` is given it
-    replaces the first particle (clipped into the box).
+    {swarm_notes}
     """
 
     name = "ipso"
     title = "Improved particle swarm (rank-adaptive, stall stop)"
     reference = "paper 000 (improved PSO); shared/papers/README.md"
 
-    w_min: float = 0.4
-    w_max: float = 0.9
-    c_min: float = 1.5
-    c_max: float = 2.5
-    vmax_frac: float = 0.2
+    w_min: float = setting(0.4, at_least=0)
+    w_max: float = setting(0.9)
+    c_min: float = setting(1.5, at_least=0)
+    c_max: float = setting(2.5)
+    vmax_frac: float = setting(0.2, above=0)
     stop: StopRules = stop_field(max_evals=60_000, stall_iter=50, stall_tol=1e-6)
 
     def check_settings(self) -> None:
         super().check_settings()
-        if not 0 <= self.w_min < self.w_max:
-            raise ConfigError(f"ipso: need 0 ≤ w_min < w_max (got {self.w_min:g}, {self.w_max:g})")
-        if not 0 <= self.c_min <= self.c_max:
-            raise ConfigError(f"ipso: need 0 ≤ c_min ≤ c_max (got {self.c_min:g}, {self.c_max:g})")
-        if not self.vmax_frac > 0:
-            raise ConfigError(f"ipso: vmax_frac must be positive, got {self.vmax_frac:g}")
+        if not self.w_min < self.w_max:
+            raise ConfigError(f"ipso: need w_min < w_max (got {self.w_min:g}, {self.w_max:g})")
+        if not self.c_min <= self.c_max:
+            raise ConfigError(f"ipso: need c_min ≤ c_max (got {self.c_min:g}, {self.c_max:g})")
         s = self.stop
         if s.max_evals is None and s.stall_iter is None and s.target is None and s.time_limit_s is None:
             raise ConfigError("ipso: has no iteration count; set at least one of max_evals, stall_iter, "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from dataclasses import dataclass
+from typing import ClassVar, Mapping
 
 import numpy as np
 
@@ -42,6 +43,13 @@ class Swarm(PopulationLoop):
     (:meth:`move`, by default :func:`fly`), one evaluation, the personal bests updated, the stop
     rules checked.
     """
+
+    #: the docstring paragraphs on bounds and initialisation of the swarms that move with :func:`fly`
+    doc_sections: ClassVar[Mapping[str, str]] = {"swarm_notes": (
+        "Bounds: a particle that leaves the box is *reflected* back inside and the offending\n"
+        "velocity component reversed (:func:`~hystfit.optimizers.pso.fly`).\n\n"
+        "Initialisation: uniform in the box, velocities uniform in ±V_max; if ``x0`` is given it\n"
+        "replaces the first particle (clipped into the box).")}
 
     def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                rng: np.random.Generator) -> None:

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import IteratedSearch
+from .base import IteratedSearch, setting
 from .pso import Swarm
 
 
@@ -60,27 +60,19 @@ class ConstrictionPSO(Swarm, IteratedSearch):
     -----
     {iterated_stop_rules}
 
-    Bounds: a particle that leaves the box is *reflected* back inside and the offending velocity
-    component reversed, as in :class:`~hystfit.optimizers.pso.PSO`.
-
-    Initialisation: uniform in the box, velocities uniform in ±V_max; if ``x0`` is given it
-    replaces the first particle (clipped into the box).
+    {swarm_notes}
     """
 
     name = "pso-cf"
     title = "Particle swarm (constriction factor)"
     reference = "paper 001 eq. 6–7 (Clerc & Kennedy 2002)"
 
-    phi1: float = 2.05
-    phi2: float = 2.05
-    vmax_frac: float = 1.0
+    phi1: float = setting(2.05, at_least=0)
+    phi2: float = setting(2.05, at_least=0)
+    vmax_frac: float = setting(1.0, above=0)
 
     def check_settings(self) -> None:
         super().check_settings()
-        if self.phi1 < 0 or self.phi2 < 0:
-            raise ConfigError(f"pso-cf: phi1 and phi2 must be non-negative (got {self.phi1:g}, {self.phi2:g})")
-        if not self.vmax_frac > 0:
-            raise ConfigError(f"pso-cf: vmax_frac must be positive, got {self.vmax_frac:g}")
         constriction_factor(self.phi1 + self.phi2)  # validates φ > 4
 
     def velocity(self, nit: int, x: np.ndarray, v: np.ndarray, pbest: np.ndarray, pbest_f: np.ndarray,
