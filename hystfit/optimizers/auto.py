@@ -7,9 +7,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..effects import CaptureView, Linearization
+from ..models.composite import Composite
+from ..objective import Objective as Obj
 from ..registry import optimizers
-from .base import Callback, IteratedSearch, Objective, OptimizeResult, StopRules, Tracker, check_box, stop_field
+from .base import Callback, IteratedSearch, Objective, OptimizeResult, StopRules, Tracker, check_box, setting, stop_field
 from .lsq import polisher
 from .projection import ProjectedObjective
 from .pso import PSO
@@ -56,19 +58,12 @@ class Auto(IteratedSearch):
     polishes_itself = True
     uses_separable_structure = True
     applied_stop_rules = ("max_evals", "stall_iter", "stall_tol", "time_limit_s")
+    required_stop_rules = {"stall_iter": "each search stops on a stall"}
 
     pop: int = 24
     iters: int = 60
-    restarts: int = 1
+    restarts: int = setting(1, whole=True, at_least=1, example=2)
     stop: StopRules = stop_field(stall_iter=12, stall_tol=1e-7)
-
-    def check_settings(self) -> None:
-        super().check_settings()
-        if self.stop.stall_iter is None:
-            raise ConfigError("auto: stall_iter must be a whole number ≥ 1 (each search stops on a stall); "
-                              "set e.g. --opt-option stall_iter=12")
-        if self.restarts < 1:
-            raise ConfigError(f"auto: restarts must be ≥ 1, got {self.restarts}; set e.g. --opt-option restarts=2")
 
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
@@ -153,10 +148,6 @@ class Auto(IteratedSearch):
            the step is kept only if it lowers the objective.
         3. (in :meth:`minimize`) a bounded least-squares polish of the whole vector: the joint optimum.
         """
-        from ..effects import CaptureView, Linearization
-        from ..models.composite import Composite
-        from ..objective import Objective as Obj
-
         base, blocks = composition
         series = list(objective.series)
         sizes = [b.n_theta for b in blocks]

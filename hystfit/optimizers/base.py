@@ -11,6 +11,8 @@ Optimizers know nothing about hysteresis.
 
 from __future__ import annotations
 
+import re
+import textwrap
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields, replace
@@ -53,20 +55,73 @@ class OptimizeResult:
 STOP_RULE_NAMES = ("max_evals", "stall_iter", "stall_tol", "target", "time_limit_s")
 
 
-def _count_rule(name: str, value, what: str) -> None:
-    if value is None:
-        return
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ConfigError(f"stop rule {name} ({what}) must be a whole number ≥ 1 or null, got {value!r}; "
-                          f"set e.g. --opt-option {name}=1000, or {name}=null to switch it off")
+@dataclass(frozen=True)
+class Accepts:
+    """The values a numeric setting (or stop rule) accepts: a finite number, or a whole number
+    with ``whole``, within the bounds given (``at_least``/``above`` below, ``at_most``/``below``
+    above), or None with ``nullable``. Declared on a dataclass field with :func:`setting` and
+    checked, for every such field at once, by :func:`check_fields`.
+
+    ``example`` is the value the error message suggests, set by ``option`` (default
+    ``--opt-option NAME=``); ``what`` says in a few words what the setting is (shown after its
+    name), ``null_means`` what None does.
+    """
+
+    at_least: float | None = None
+    above: float | None = None
+    at_most: float | None = None
+    below: float | None = None
+    whole: bool = False
+    nullable: bool = False
+    example: Any = None
+    option: str = ""
+    what: str = ""
+    null_means: str = "switch it off"
+
+    def __contains__(self, value: Any) -> bool:
+        if value is None:
+            return self.nullable
+        kinds = (int, np.integer) if self.whole else (int, float, np.integer, np.floating)
+        if isinstance(value, bool) or not isinstance(value, kinds) or not np.isfinite(value):
+            return False
+        return ((self.at_least is None or value >= self.at_least) and (self.above is None or value > self.above)
+                and (self.at_most is None or value <= self.at_most) and (self.below is None or value < self.below))
+
+    def describe(self) -> str:
+        """E.g. "a whole number ≥ 1 or null", "a finite number in (0, 2)"."""
+        low = next(((op, v) for op, v in (("[", self.at_least), ("(", self.above)) if v is not None), None)
+        high = next(((op, v) for op, v in (("]", self.at_most), (")", self.below)) if v is not None), None)
+        text = "a whole number" if self.whole else "a finite number"
+        if low and high:
+            text += f" in {low[0]}{low[1]:g}, {high[1]:g}{high[0]}"
+        elif low or high:
+            op, v = low or high
+            text += f" {dict(zip('[(])', '≥>≤<'))[op]} {v:g}"
+        return text + (" or null" if self.nullable else "")
+
+    def check(self, name: str, value: Any, prefix: str = "") -> None:
+        """ConfigError (one line: the setting, the rule, a fix) unless ``value`` is accepted."""
+        if value in self:
+            return
+        what = f" ({self.what})" if self.what else ""
+        fix = "" if self.example is None else f"; set e.g. {self.option or f'--opt-option {name}='}{self.example}"
+        if self.nullable:
+            fix += f", or {name}=null to {self.null_means}"
+        raise ConfigError(f"{prefix}{name}{what} must be {self.describe()}, got {value!r}{fix}")
 
 
-def _real_rule(name: str, value, rule: str, ok, example: str, nullable: bool = True) -> None:
-    if value is None and nullable:
-        return
-    if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
-            or not np.isfinite(value) or not ok(float(value))):
-        raise ConfigError(f"stop rule {name} must be {rule}, got {value!r}; set e.g. --opt-option {name}={example}")
+def setting(default: Any, **accepts: Any) -> Any:
+    """A dataclass field with its :class:`Accepts` rule (``example`` defaults to ``default``)."""
+    accepts.setdefault("example", default)
+    return field(default=default, metadata={"accepts": Accepts(**accepts)})
+
+
+def check_fields(obj: Any, prefix: str = "") -> None:
+    """Check every field of the dataclass instance ``obj`` declared with :func:`setting`."""
+    for f in fields(obj):
+        rule = f.metadata.get("accepts")
+        if rule is not None:
+            rule.check(f.name, getattr(obj, f.name), prefix)
 
 
 @dataclass(frozen=True)
@@ -93,18 +148,40 @@ class StopRules:
     Bad values raise :class:`~hystfit.errors.ConfigError` (one line: the option, the rule, the fix).
     """
 
-    max_evals: int | None = None
-    stall_iter: int | None = None
-    stall_tol: float = 1e-9
-    target: float | None = None
-    time_limit_s: float | None = None
+    max_evals: int | None = setting(None, whole=True, at_least=1, nullable=True, example=1000,
+                                    what="evaluation budget")
+    stall_iter: int | None = setting(None, whole=True, at_least=1, nullable=True, example=30,
+                                     what="stall window in iterations")
+    stall_tol: float = setting(1e-9, at_least=0, example="1e-6")
+    target: float | None = setting(None, nullable=True, example="1e-3")
+    time_limit_s: float | None = setting(None, above=0, nullable=True, example=60, what="seconds")
 
     def __post_init__(self) -> None:
-        _count_rule("max_evals", self.max_evals, "evaluation budget")
-        _count_rule("stall_iter", self.stall_iter, "stall window in iterations")
-        _real_rule("stall_tol", self.stall_tol, "a finite number ≥ 0", lambda v: v >= 0, "1e-6", nullable=False)
-        _real_rule("target", self.target, "a finite number or null", lambda v: True, "1e-3")
-        _real_rule("time_limit_s", self.time_limit_s, "a number of seconds > 0 or null", lambda v: v > 0, "60")
+        check_fields(self, "stop rule ")
+
+
+#: docstring paragraphs shared by the optimizers, written once here (a mixin adds its own as
+#: ``doc_sections``). A class docstring names one by a line holding only ``{name}``, indented where
+#: the paragraph goes; :func:`fill_doc` puts it in when the class is made. ``{unit}`` is the
+#: class's ``iteration_unit``.
+DOC_SECTIONS = {
+    "iters_param": (
+        "iters : int, default 200\n"
+        "    Iterations, the initial evaluation included (``nfev = pop · iters`` when this rule stops)."),
+    "stop_rule_params": (
+        "max_evals, stall_iter, stall_tol, target, time_limit_s\n"
+        "    The common stop rules (:class:`~hystfit.optimizers.base.StopRules`)."),
+    "iterated_stop_rules": (
+        "Stop rules: ``iters`` {unit}, ``max_evals`` evaluations, no relative improvement above\n"
+        "``stall_tol`` for ``stall_iter`` {unit}, ``target`` reached, or ``time_limit_s``."),
+}
+_DOC_MARK = re.compile(r"^( *)\{(\w+)\}$", re.M)
+
+
+def fill_doc(doc: str, sections: Mapping[str, str] = DOC_SECTIONS, unit: str = "iterations") -> str:
+    """``doc`` with each line ``{name}`` replaced by ``sections[name]`` (indented as the line,
+    ``{unit}`` → ``unit``); an unknown name is a KeyError."""
+    return _DOC_MARK.sub(lambda m: textwrap.indent(sections[m.group(2)].format(unit=unit), m.group(1)), doc)
 
 
 def stop_field(**defaults: Any) -> Any:
@@ -237,6 +314,12 @@ class Optimizer(ABC):
         with no nonlinear parameter is then one exact solve.
     ``applied_stop_rules``
         The stop rules the optimizer honours; setting another one is a ConfigError.
+    ``required_stop_rules``
+        The stop rules that must not be switched off (null), each with the reason.
+
+    Docstrings name the paragraphs they share (``doc_sections`` of the class and its bases,
+    :data:`DOC_SECTIONS` here) by a line ``{name}``; ``iteration_unit`` is what one iteration is
+    called there ("iterations", GA: "generations").
     """
 
     name: ClassVar[str] = ""
@@ -246,8 +329,19 @@ class Optimizer(ABC):
     polishes_itself: ClassVar[bool] = False
     uses_separable_structure: ClassVar[bool] = False
     applied_stop_rules: ClassVar[tuple[str, ...]] = STOP_RULE_NAMES
+    required_stop_rules: ClassVar[Mapping[str, str]] = {}
+    iteration_unit: ClassVar[str] = "iterations"
+    doc_sections: ClassVar[Mapping[str, str]] = DOC_SECTIONS
 
     stop: StopRules = stop_field()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.__doc__:
+            sections: dict[str, str] = {}
+            for klass in reversed(cls.__mro__):
+                sections.update(vars(klass).get("doc_sections", {}))
+            cls.__doc__ = fill_doc(cls.__doc__, sections, cls.iteration_unit)
 
     def __post_init__(self) -> None:
         if not isinstance(self.stop, StopRules):
@@ -258,10 +352,17 @@ class Optimizer(ABC):
         if ignored:
             raise ConfigError(f"optimizer {self.name!r} does not apply the stop rule {ignored[0]}; "
                               f"it applies {', '.join(self.applied_stop_rules) or 'none'}")
+        rules = {f.name: f.metadata["accepts"] for f in fields(StopRules)}
+        for k, why in self.required_stop_rules.items():
+            replace(rules[k], nullable=False, example=getattr(default, k), what=why).check(
+                k, getattr(self.stop, k), f"{self.name}: ")
+        check_fields(self, f"{self.name}: ")
         self.check_settings()
 
     def check_settings(self) -> None:
-        """Validate the optimizer's own settings (ConfigError); the stop rules are already valid."""
+        """Validate what the settings' own rules (:func:`setting`) cannot: rules that involve
+        several settings or the class (ConfigError); the stop rules and each setting declared
+        with :func:`setting` are already valid."""
 
     @abstractmethod
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
@@ -330,9 +431,7 @@ class PopulationSearch(Optimizer):
     pop: int = 40
 
     def check_settings(self) -> None:
-        if isinstance(self.pop, bool) or not isinstance(self.pop, (int, np.integer)) or self.pop < self.min_pop:
-            raise ConfigError(f"{self.name}: pop must be a whole number ≥ {self.min_pop}, got {self.pop!r}; "
-                              f"set e.g. --pop 40")
+        Accepts(whole=True, at_least=self.min_pop, example=40, option="--pop ").check("pop", self.pop, f"{self.name}: ")
 
     @classmethod
     def takes_budget_flags(cls) -> bool:
@@ -352,8 +451,7 @@ class IteratedSearch(PopulationSearch):
 
     def check_settings(self) -> None:
         super().check_settings()
-        if isinstance(self.iters, bool) or not isinstance(self.iters, (int, np.integer)) or self.iters < 1:
-            raise ConfigError(f"{self.name}: iters must be a whole number ≥ 1, got {self.iters!r}; set e.g. --iters 200")
+        Accepts(whole=True, at_least=1, example=200, option="--iters ").check("iters", self.iters, f"{self.name}: ")
 
     def max_iterations(self) -> int | None:
         return self.iters

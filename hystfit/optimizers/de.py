@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import Callback, IteratedSearch, Objective, OptimizeResult, Tracker, check_box
+from .base import Callback, IteratedSearch, Objective, OptimizeResult, Tracker, check_box, setting
 
 
 
@@ -61,9 +61,7 @@ class DE(IteratedSearch):
         scipy's own convergence test std(E) ≤ tol·|mean(E)| on the population values E
         (status 5 when it fires); 0 leaves only hystfit's stop rules (and a fully collapsed
         population).
-    max_evals, stall_iter, stall_tol, target, time_limit_s
-        The common stop rules (:class:`~hystfit.optimizers.base.StopRules`), applied per
-        generation.
+    {stop_rule_params}
 
     Notes
     -----
@@ -87,6 +85,7 @@ class DE(IteratedSearch):
     """
 
     name = "de"
+    iteration_unit = "generations"
     title = "Differential evolution (scipy)"
     reference = "Storn & Price 1997; scipy.optimize.differential_evolution"
     min_pop = 1
@@ -94,9 +93,9 @@ class DE(IteratedSearch):
     strategy: str = "best1bin"
     mutation_min: float = 0.5
     mutation_max: float = 1.0
-    recombination: float = 0.7
+    recombination: float = setting(0.7, at_least=0, at_most=1)
     init: str = "latinhypercube"
-    tol: float = 0.0
+    tol: float = setting(0.0, at_least=0)
 
     def check_settings(self) -> None:
         super().check_settings()
@@ -107,10 +106,6 @@ class DE(IteratedSearch):
         if not 0 <= self.mutation_min <= self.mutation_max < 2:
             raise ConfigError(f"de: need 0 ≤ mutation_min ≤ mutation_max < 2 "
                               f"(got {self.mutation_min:g}, {self.mutation_max:g})")
-        if not 0 <= self.recombination <= 1:
-            raise ConfigError(f"de: recombination must lie in [0, 1], got {self.recombination:g}")
-        if self.tol < 0:
-            raise ConfigError(f"de: tol must be ≥ 0, got {self.tol:g}")
 
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:

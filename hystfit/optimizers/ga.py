@@ -9,7 +9,7 @@ from .._jit import njit
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import IteratedSearch, PopulationLoop, Tracker
+from .base import IteratedSearch, PopulationLoop, Tracker, setting
 
 
 @njit(cache=True)
@@ -181,13 +181,11 @@ class GA(PopulationLoop, IteratedSearch):
         Mutation probability per gene; None means 1/d.
     elite : int, default 2
         Individuals carried over unchanged (elitism; ≥ 1).
-    max_evals, stall_iter, stall_tol, target, time_limit_s
-        The common stop rules (:class:`~hystfit.optimizers.base.StopRules`).
+    {stop_rule_params}
 
     Notes
     -----
-    Stop rules: ``iters`` generations, ``max_evals`` evaluations, no relative improvement above
-    ``stall_tol`` over ``stall_iter`` generations, ``target`` reached, or ``time_limit_s``.
+    {iterated_stop_rules}
 
     Bounds: the operators are Deb's bounded variants (their spread distributions respect the box)
     and children are *clipped* into the box for round-off, as Deb's reference code does; no
@@ -199,30 +197,22 @@ class GA(PopulationLoop, IteratedSearch):
     """
 
     name = "ga"
+    iteration_unit = "generations"
     title = "Genetic algorithm (real-coded, SBX, polynomial mutation)"
     reference = "paper 000 (GA comparison); Deb & Agrawal 1995; Deb & Goyal 1996"
 
-    tournament: int = 3
-    eta_c: float = 15.0
-    p_crossover: float = 0.9
-    eta_m: float = 20.0
-    p_mutation: float | None = None
-    elite: int = 2
+    tournament: int = setting(3, whole=True, at_least=1)
+    eta_c: float = setting(15.0, at_least=0)
+    p_crossover: float = setting(0.9, at_least=0, at_most=1)
+    eta_m: float = setting(20.0, at_least=0)
+    p_mutation: float | None = setting(None, at_least=0, at_most=1, nullable=True, example=0.1,
+                                       null_means="use 1/d", what="mutation probability per gene")
+    elite: int = setting(2, whole=True, at_least=1)
 
     def check_settings(self) -> None:
-        if self.elite < 1:
-            raise ConfigError(f"ga: elite must be ≥ 1, got {self.elite}")
         if self.pop < self.elite + 2:
             raise ConfigError(f"ga: pop must be ≥ elite + 2 = {self.elite + 2}, got {self.pop}")
         super().check_settings()
-        if self.tournament < 1:
-            raise ConfigError(f"ga: tournament must be ≥ 1, got {self.tournament}")
-        if self.eta_c < 0 or self.eta_m < 0:
-            raise ConfigError(f"ga: eta_c and eta_m must be ≥ 0 (got {self.eta_c:g}, {self.eta_m:g})")
-        if not 0 <= self.p_crossover <= 1:
-            raise ConfigError(f"ga: p_crossover must lie in [0, 1], got {self.p_crossover:g}")
-        if self.p_mutation is not None and not 0 <= self.p_mutation <= 1:
-            raise ConfigError(f"ga: p_mutation must lie in [0, 1] or be None, got {self.p_mutation:g}")
 
     def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                rng: np.random.Generator) -> None:

@@ -95,15 +95,12 @@ class GWO(PopulationLoop, IteratedSearch):
     ----------
     pop : int, default 40
         Pack size (≥ 3).
-    iters : int, default 200
-        Iterations, the initial evaluation included (``nfev = pop · iters`` when this rule stops).
-    max_evals, stall_iter, stall_tol, target, time_limit_s
-        The common stop rules (:class:`~hystfit.optimizers.base.StopRules`).
+    {iters_param}
+    {stop_rule_params}
 
     Notes
     -----
-    Stop rules: ``iters`` iterations, ``max_evals`` evaluations, no relative improvement above
-    ``stall_tol`` for ``stall_iter`` iterations, ``target`` reached, or ``time_limit_s``.
+    {iterated_stop_rules}
 
     Bounds: positions that leave the box are *clipped* to the violated face, as in Mirjalili's
     reference code and paper 004 (Algorithm 1, step 14: "amend" agents beyond the search space).

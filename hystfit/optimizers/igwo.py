@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
+from .base import setting
 from .gwo import GWO
 
 _E_MINUS_1 = math.e - 1.0
@@ -143,23 +144,19 @@ class IGWO(GWO):
     Parameters
     ----------
     pop : int, default 40
-        Pack size (≥ 3); 004 settles on 60 (§3.2).
-    iters : int, default 200
-        Iterations, the initial evaluation included (``nfev = pop · iters`` when this rule stops);
-        004 settles on T = 50.
+        Pack size (≥ 3); 004 settles on 60 and T = 50 iterations (§3.2).
+    {iters_param}
     chaos_factor : float, default 2.0
         The adjustment factor F of eq. 10 (> 0; 004: "typically ranges from 2 to 4", chooses 2).
     levy_beta : float, default 1.5
         Lévy stability index β, 0 < β < 2.
     levy_scale : float, default 0.01
         Step size coefficient Γ as a fraction of (upper − lower) (≥ 0; 0 switches the flight off).
-    max_evals, stall_iter, stall_tol, target, time_limit_s
-        The common stop rules (:class:`~hystfit.optimizers.base.StopRules`).
+    {stop_rule_params}
 
     Notes
     -----
-    Stop rules: ``iters`` iterations, ``max_evals`` evaluations, no relative improvement above
-    ``stall_tol`` for ``stall_iter`` iterations, ``target`` reached, or ``time_limit_s``.
+    {iterated_stop_rules}
 
     Bounds: positions that leave the box (Lévy steps occasionally throw far) are *clipped* to the
     violated face, as in GWO and paper 004 (Algorithm 1, step 14).
@@ -188,19 +185,9 @@ class IGWO(GWO):
     title = "Improved grey wolf optimizer (chaos, nonlinear a, Lévy flight)"
     reference = "paper 004 §2.3 eq. 10–15"
 
-    chaos_factor: float = 2.0
-    levy_beta: float = 1.5
-    levy_scale: float = 0.01
-
-    def check_settings(self) -> None:
-        super().check_settings()
-        if not (np.isfinite(self.chaos_factor) and self.chaos_factor > 0.0):
-            raise ConfigError(f"igwo: chaos_factor (F of paper 004 eq. 10) must be > 0, got {self.chaos_factor:g}; "
-                              f"004 uses 2")
-        if not 0.0 < self.levy_beta < 2.0:
-            raise ConfigError(f"igwo: levy_beta must lie in (0, 2), got {self.levy_beta:g}")
-        if not (np.isfinite(self.levy_scale) and self.levy_scale >= 0):
-            raise ConfigError(f"igwo: levy_scale must be ≥ 0, got {self.levy_scale:g}")
+    chaos_factor: float = setting(2.0, above=0, what="F of paper 004 eq. 10, which uses 2")
+    levy_beta: float = setting(1.5, above=0, below=2)
+    levy_scale: float = setting(0.01, at_least=0)
 
     def initial_population(self, rng: np.random.Generator, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
         return chaos_init(rng, self.pop, lower, upper, self.chaos_factor)

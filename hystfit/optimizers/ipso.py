@@ -8,8 +8,8 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import PopulationLoop, PopulationSearch, StopRules, Tracker, stop_field
-from .pso import fly, update_personal_bests
+from .base import PopulationSearch, StopRules, setting, stop_field
+from .pso import Swarm
 
 
 def rank_coefficients(pbest_f: np.ndarray, w_min: float = 0.4, w_max: float = 0.9, c_min: float = 1.5,
@@ -76,7 +76,7 @@ def social_attractors(rank: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 @optimizers.register
 @dataclass
-class IPSO(PopulationLoop, PopulationSearch):
+class IPSO(Swarm, PopulationSearch):
     """Improved PSO of paper 000 as ``shared/papers/README.md`` formulates it.
 
     Each iteration the particles are ranked by personal-best value (rank 1 = best, s particles);
@@ -123,51 +123,35 @@ class IPSO(PopulationLoop, PopulationSearch):
     ``max_evals``, ``stall_iter``, ``target``, ``time_limit_s`` must be set. ``--iters`` does
     not apply.
 
-    Bounds: reflection at the violated face with the velocity component reversed, as in
-    :class:`~hystfit.optimizers.pso.PSO`.
-
-    Initialisation: uniform in the box, velocities uniform in ±V_max; if ``x0`` is given it
-    replaces the first particle (clipped into the box).
+    {swarm_notes}
     """
 
     name = "ipso"
     title = "Improved particle swarm (rank-adaptive, stall stop)"
     reference = "paper 000 (improved PSO); shared/papers/README.md"
 
-    w_min: float = 0.4
-    w_max: float = 0.9
-    c_min: float = 1.5
-    c_max: float = 2.5
-    vmax_frac: float = 0.2
+    w_min: float = setting(0.4, at_least=0)
+    w_max: float = setting(0.9)
+    c_min: float = setting(1.5, at_least=0)
+    c_max: float = setting(2.5)
+    vmax_frac: float = setting(0.2, above=0)
     stop: StopRules = stop_field(max_evals=60_000, stall_iter=50, stall_tol=1e-6)
 
     def check_settings(self) -> None:
         super().check_settings()
-        if not 0 <= self.w_min < self.w_max:
-            raise ConfigError(f"ipso: need 0 ≤ w_min < w_max (got {self.w_min:g}, {self.w_max:g})")
-        if not 0 <= self.c_min <= self.c_max:
-            raise ConfigError(f"ipso: need 0 ≤ c_min ≤ c_max (got {self.c_min:g}, {self.c_max:g})")
-        if not self.vmax_frac > 0:
-            raise ConfigError(f"ipso: vmax_frac must be positive, got {self.vmax_frac:g}")
+        if not self.w_min < self.w_max:
+            raise ConfigError(f"ipso: need w_min < w_max (got {self.w_min:g}, {self.w_max:g})")
+        if not self.c_min <= self.c_max:
+            raise ConfigError(f"ipso: need c_min ≤ c_max (got {self.c_min:g}, {self.c_max:g})")
         s = self.stop
         if s.max_evals is None and s.stall_iter is None and s.target is None and s.time_limit_s is None:
             raise ConfigError("ipso: has no iteration count; set at least one of max_evals, stall_iter, "
                               "target, time_limit_s (e.g. --opt-option max_evals=60000)")
 
-    def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-               rng: np.random.Generator) -> None:
-        P, d = x.shape
-        vmax = self.vmax_frac * (upper - lower)
-        v = (rng.random((P, d)) * 2 - 1) * vmax
-        pbest, pbest_f = x.copy(), f.copy()
-        while True:
-            rank, w, c1, c2 = rank_coefficients(pbest_f, self.w_min, self.w_max, self.c_min, self.c_max)
-            att = social_attractors(rank, rng)
-            r = rng.random((2, P, d))
-            v = (w[:, None] * v + c1[:, None] * r[0] * (pbest - x)
-                 + c2[:, None] * r[1] * (pbest[att] - x))
-            x = fly(x, v, vmax, lower, upper)
-            f = tr.evaluate(x)
-            update_personal_bests(pbest, pbest_f, x, f)
-            if tr.end_iteration(f):
-                return
+    def velocity(self, nit: int, x: np.ndarray, v: np.ndarray, pbest: np.ndarray, pbest_f: np.ndarray,
+                 rng: np.random.Generator) -> np.ndarray:
+        rank, w, c1, c2 = rank_coefficients(pbest_f, self.w_min, self.w_max, self.c_min, self.c_max)
+        att = social_attractors(rank, rng)
+        r = rng.random((2,) + x.shape)
+        return (w[:, None] * v + c1[:, None] * r[0] * (pbest - x)
+                + c2[:, None] * r[1] * (pbest[att] - x))

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
 from ..registry import optimizers
 from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box, stop_field
 from .projection import solve_box_qp
@@ -86,16 +85,12 @@ class LSQ(Optimizer):
     uses_start_point = True
     polishes_itself = True
     applied_stop_rules = ("max_evals",)
+    required_stop_rules = {"max_evals": "a local solve needs a budget"}
 
     ftol: float = 1e-10
     xtol: float = 1e-10
     gtol: float = 1e-10
     stop: StopRules = stop_field(max_evals=2000)
-
-    def check_settings(self) -> None:
-        if self.stop.max_evals is None:
-            raise ConfigError("lsq: max_evals must be a whole number ≥ 1 (a local solve needs a budget); "
-                              "set e.g. --opt-option max_evals=2000")
 
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:

@@ -7,6 +7,7 @@ The model side — which parameters enter linearly and their basis — is
 
 from __future__ import annotations
 
+import itertools
 from typing import Sequence
 
 import numpy as np
@@ -96,8 +97,6 @@ def _shifted_nnls_solve(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.nda
 
 def _enumerate_box_qp(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Exact box-constrained minimizer of θᵀGθ − 2cᵀθ by enumerating the 3^L active sets (small L)."""
-    import itertools
-
     P, L = c.shape
     best = np.full((P, L), np.nan)
     best_f = np.full(P, np.inf)

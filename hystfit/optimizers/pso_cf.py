@@ -9,8 +9,8 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..registry import optimizers
-from .base import IteratedSearch, PopulationLoop, Tracker
-from .pso import fly, update_personal_bests
+from .base import IteratedSearch, setting
+from .pso import Swarm
 
 
 def constriction_factor(phi: float) -> float:
@@ -33,7 +33,7 @@ def constriction_factor(phi: float) -> float:
 
 @optimizers.register
 @dataclass
-class ConstrictionPSO(PopulationLoop, IteratedSearch):
+class ConstrictionPSO(Swarm, IteratedSearch):
     """Global-best PSO with constriction factor (paper 001 eq. 6–7; ``shared/papers/README.md``).
 
     v ← χ [v + φ1 r1 (p_i − x) + φ2 r2 (p_g − x)],  x ← x + v,
@@ -48,60 +48,37 @@ class ConstrictionPSO(PopulationLoop, IteratedSearch):
     ----------
     pop : int, default 40
         Swarm size (≥ 2).
-    iters : int, default 200
-        Iterations, the initial evaluation included (``nfev = pop · iters`` when this rule stops).
+    {iters_param}
     phi1, phi2 : float, default 2.05
         Cognitive and social acceleration; φ1 + φ2 must exceed 4.
     vmax_frac : float, default 1.0
         Velocity clamp as a fraction of (upper − lower). Constriction does not need a clamp;
         Eberhart & Shi (2000) still recommend V_max = X_max, i.e. the box width (1.0).
-    max_evals, stall_iter, stall_tol, target, time_limit_s
-        The common stop rules (:class:`~hystfit.optimizers.base.StopRules`).
+    {stop_rule_params}
 
     Notes
     -----
-    Stop rules: ``iters`` iterations, ``max_evals`` evaluations, no relative improvement above
-    ``stall_tol`` for ``stall_iter`` iterations, ``target`` reached, or ``time_limit_s``.
+    {iterated_stop_rules}
 
-    Bounds: a particle that leaves the box is *reflected* back inside and the offending velocity
-    component reversed, as in :class:`~hystfit.optimizers.pso.PSO`.
-
-    Initialisation: uniform in the box, velocities uniform in ±V_max; if ``x0`` is given it
-    replaces the first particle (clipped into the box).
+    {swarm_notes}
     """
 
     name = "pso-cf"
     title = "Particle swarm (constriction factor)"
     reference = "paper 001 eq. 6–7 (Clerc & Kennedy 2002)"
 
-    phi1: float = 2.05
-    phi2: float = 2.05
-    vmax_frac: float = 1.0
+    phi1: float = setting(2.05, at_least=0)
+    phi2: float = setting(2.05, at_least=0)
+    vmax_frac: float = setting(1.0, above=0)
 
     def check_settings(self) -> None:
         super().check_settings()
-        if self.phi1 < 0 or self.phi2 < 0:
-            raise ConfigError(f"pso-cf: phi1 and phi2 must be non-negative (got {self.phi1:g}, {self.phi2:g})")
-        if not self.vmax_frac > 0:
-            raise ConfigError(f"pso-cf: vmax_frac must be positive, got {self.vmax_frac:g}")
         constriction_factor(self.phi1 + self.phi2)  # validates φ > 4
 
-    def search(self, tr: Tracker, x: np.ndarray, f: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-               rng: np.random.Generator) -> None:
-        P, d = x.shape
-        vmax = self.vmax_frac * (upper - lower)
+    def velocity(self, nit: int, x: np.ndarray, v: np.ndarray, pbest: np.ndarray, pbest_f: np.ndarray,
+                 rng: np.random.Generator) -> np.ndarray:
         chi = constriction_factor(self.phi1 + self.phi2)
-        c1, c2 = chi * self.phi1, chi * self.phi2
-        v = (rng.random((P, d)) * 2 - 1) * vmax
-        pbest, pbest_f = x.copy(), f.copy()
+        r = rng.random((2,) + x.shape)
         g = int(np.argmin(pbest_f))
-        while True:
-            r = rng.random((2, P, d))
-            # χ[v + φ1 r1 (p_i − x) + φ2 r2 (p_g − x)], with χ folded into the coefficients
-            v = chi * v + c1 * r[0] * (pbest - x) + c2 * r[1] * (pbest[g] - x)
-            x = fly(x, v, vmax, lower, upper)
-            f = tr.evaluate(x)
-            update_personal_bests(pbest, pbest_f, x, f)
-            g = int(np.argmin(pbest_f))
-            if tr.end_iteration(f):
-                return
+        # χ[v + φ1 r1 (p_i − x) + φ2 r2 (p_g − x)], with χ folded into the coefficients
+        return chi * v + (chi * self.phi1) * r[0] * (pbest - x) + (chi * self.phi2) * r[1] * (pbest[g] - x)

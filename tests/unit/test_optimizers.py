@@ -260,3 +260,100 @@ def test_identify_with_a_negative_budget_exits_2_in_one_line(tmp_path):
         assert r.exit_code == 2, (opt, r.output)
         assert "max_evals" in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
         assert not (tmp_path / opt).exists()
+
+
+# ------------------------------------------------------------------ shared loop and shared docstring text
+def test_fill_doc_puts_the_shared_paragraphs_in_once():
+    import re
+
+    from hystfit.optimizers.base import DOC_SECTIONS, fill_doc
+    from hystfit.registry import optimizers
+
+    doc = "Head.\n\n    Notes\n    -----\n    {iterated_stop_rules}\n\n    Tail {not a marker}.\n"
+    filled = fill_doc(doc, DOC_SECTIONS, "generations")
+    assert filled.startswith("Head.\n\n    Notes\n    -----\n    Stop rules: ``iters`` generations,")
+    assert "\n    ``stall_tol`` for ``stall_iter`` generations, ``target`` reached" in filled
+    assert filled.endswith("\n\n    Tail {not a marker}.\n")
+    assert fill_doc("  {a}\n", {"a": "one\n\ntwo"}) == "  one\n\n  two\n"
+    with pytest.raises(KeyError):
+        fill_doc("    {no_such_section}\n")
+    # every registered optimizer's docstring is filled in (a mixin's sections too): no marker is left
+    for name in optimizers.names():
+        assert not re.search(r"^ *\{\w+\}$", optimizers.get(name).__doc__, re.M), name
+
+
+def test_settings_declare_the_values_they_accept():
+    from dataclasses import dataclass
+
+    from hystfit.optimizers.base import Accepts, check_fields, setting
+    from hystfit.optimizers.ga import GA
+    from hystfit.optimizers.igwo import IGWO
+
+    rule = Accepts(above=0, below=2)
+    assert 1.5 in rule and 2 not in rule and 0 not in rule and float("nan") not in rule and None not in rule
+    assert True not in Accepts() and "1" not in Accepts() and np.float32(3) in Accepts(at_least=3)
+    assert 2.0 not in Accepts(whole=True) and np.int64(2) in Accepts(whole=True, at_most=2)
+    assert rule.describe() == "a finite number in (0, 2)"
+    assert Accepts(whole=True, at_least=1, nullable=True).describe() == "a whole number ≥ 1 or null"
+    assert Accepts(at_least=0, at_most=1).describe() == "a finite number in [0, 1]"
+
+    @dataclass
+    class Toy:
+        step: float = setting(0.5, above=0, what="step size")
+        cap: int | None = setting(None, whole=True, at_least=1, nullable=True, example=9, null_means="have none")
+
+    check_fields(Toy())
+    with pytest.raises(ConfigError, match=r"^toy: step \(step size\) must be a finite number > 0, got -1; "
+                                          r"set e\.g\. --opt-option step=0\.5$"):
+        check_fields(Toy(step=-1), "toy: ")
+    with pytest.raises(ConfigError, match=r"cap=9, or cap=null to have none$"):
+        check_fields(Toy(cap=0))
+    # the optimizers check their declared settings when built
+    with pytest.raises(ConfigError, match="levy_beta must be a finite number in \\(0, 2\\)"):
+        IGWO(levy_beta=2.0)
+    with pytest.raises(ConfigError, match="tournament must be a whole number ≥ 1"):
+        GA(tournament=0)
+
+
+def test_required_stop_rules_cannot_be_switched_off():
+    from hystfit.optimizers.auto import Auto
+
+    assert LSQ.required_stop_rules and Auto.required_stop_rules
+    with pytest.raises(ConfigError, match=r"^lsq: max_evals \(a local solve needs a budget\) must be a whole "
+                                          r"number ≥ 1, got None; set e\.g\. --opt-option max_evals=2000$"):
+        LSQ.from_options({"max_evals": None})
+    with pytest.raises(ConfigError, match="auto: stall_iter"):
+        Auto.from_options({"stall_iter": None})
+    assert LSQ.from_options({"max_evals": 10}).stop.max_evals == 10
+
+
+def test_swarm_loop_is_shared_and_a_velocity_rule_is_all_a_swarm_adds():
+    from dataclasses import dataclass
+
+    from hystfit.optimizers.base import IteratedSearch
+    from hystfit.optimizers.ipso import IPSO
+    from hystfit.optimizers.pso import Swarm
+    from hystfit.optimizers.pso_cf import ConstrictionPSO
+
+    assert all(issubclass(c, Swarm) for c in (PSO, ConstrictionPSO, IPSO))
+
+    @dataclass
+    class Still(Swarm, IteratedSearch):
+        """A swarm whose particles never move."""
+        name = "still"
+        vmax_frac: float = 0.5
+
+        def velocity(self, nit, x, v, pbest, pbest_f, rng):
+            return np.zeros_like(v)
+
+    seen = []
+
+    def f(X):
+        seen.append(X.copy())
+        return sphere(X)
+
+    lo, hi = -np.ones(3), np.ones(3)
+    r = Still(pop=6, iters=4).minimize(f, lo, hi, rng=np.random.default_rng(0))
+    assert r.nit == 4 and r.nfev == 24 and r.status == 0
+    assert all(np.array_equal(X, seen[0]) for X in seen)
+    assert r.fun == sphere(seen[0]).min()
