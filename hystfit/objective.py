@@ -48,7 +48,48 @@ def _projected(sim, Q: np.ndarray, skip: int):
     return lambda theta: _project(np.asarray(sim(theta), dtype=np.float64), Q, skip)
 
 
-class Objective:
+class ObjectiveFunction:
+    """The contract between an objective and the optimizers: what an optimizer may ask of it.
+
+    Required: ``__call__(θ (P, d)) → (P,)`` scores (mean squared error) of a population. Optional
+    capabilities are *declared* here as ``None`` and provided by the objectives that have them, so an
+    optimizer tests ``objective.residuals is not None`` instead of probing attributes:
+
+    - ``model`` / ``series``: the model simulated and the captures scored (``auto`` uses the model's
+      separable structure and composition);
+    - ``residuals(θ (d,)) → (m,)`` with ``n_total`` = m, and ``jacobian(θ, upper=…)``: least squares;
+    - ``normal_equations(θ, upper=…)``: the fused JᵀJ, Jᵀr of long captures (the normal-equation LM).
+
+    A plain callable is accepted wherever an objective is: :func:`as_objective` wraps it.
+    """
+
+    model: Model | None = None
+    series: Sequence[Series] = ()
+    n_total: int | None = None
+    residuals = None
+    jacobian = None
+    normal_equations = None
+
+    def __call__(self, theta: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+class CallableObjective(ObjectiveFunction):
+    """A plain population function ``f(θ (P, d)) → (P,)`` with no optional capability."""
+
+    def __init__(self, fn) -> None:
+        self.fn = fn
+
+    def __call__(self, theta: np.ndarray) -> np.ndarray:
+        return self.fn(theta)
+
+
+def as_objective(f) -> ObjectiveFunction:
+    """``f`` itself when it is an :class:`ObjectiveFunction`, else ``f`` wrapped as one."""
+    return f if isinstance(f, ObjectiveFunction) else CallableObjective(f)
+
+
+class Objective(ObjectiveFunction):
     """MSE(θ) = Σ_captures Σ_k (ŷ_k(θ) − y_k)² / Σ_captures N, for a whole population θ (P, d).
 
     ``residuals(θ)`` returns the concatenated residual vector of one candidate (for least

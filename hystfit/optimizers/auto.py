@@ -9,7 +9,7 @@ import numpy as np
 
 from ..effects import CaptureView, Linearization
 from ..models.composite import Composite
-from ..objective import Objective as Obj
+from ..objective import Objective as Obj, as_objective
 from ..registry import optimizers
 from .base import Callback, IteratedSearch, Objective, OptimizeResult, StopRules, Tracker, check_box, setting, stop_field
 from .lsq import polisher
@@ -68,13 +68,11 @@ class Auto(IteratedSearch):
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
         lower, upper = check_box(lower, upper)
-        model = getattr(objective, "model", None)
-        series = getattr(objective, "series", None)
-        sep = None
-        if model is not None and series is not None and hasattr(model, "separable"):
-            sep = model.separable()
+        objective = as_objective(objective)
+        model, series = objective.model, objective.series
+        sep = model.separable() if model is not None and series else None
         tr = Tracker(objective, StopRules(), callback)
-        composition = model.composition if (model is not None and series is not None) else None
+        composition = model.composition if (model is not None and series) else None
         if composition is not None and all(b.nuisance for b in composition[1]):
             composition = None  # base + nuisance only: variable projection on the projected basis
         if composition is not None:

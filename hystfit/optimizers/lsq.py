@@ -8,6 +8,7 @@ import numpy as np
 
 from ..registry import optimizers
 from .base import Callback, Objective, Optimizer, OptimizeResult, StopRules, Tracker, check_box, stop_field
+from ..objective import as_objective
 from .projection import solve_box_qp
 
 #: residual count × parameter count above which the polish takes the memory-bounded
@@ -95,17 +96,18 @@ class LSQ(Optimizer):
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:
         lower, upper = check_box(lower, upper)
+        objective = as_objective(objective)
         tr = Tracker(objective, StopRules(), callback)
         start = 0.5 * (lower + upper) if x0 is None else np.clip(np.asarray(x0, float), lower, upper)
         # keep the start strictly inside: trf needs an interior point
         eps = 1e-10 * (upper - lower)
         start = np.clip(start, lower + eps, upper - eps)
-        normal_equations = getattr(objective, "normal_equations", None)
-        m_total = getattr(objective, "n_total", None)
-        if (normal_equations is not None and m_total is not None
+        m_total = objective.n_total
+        if (objective.normal_equations is not None and m_total is not None
                 and int(m_total) * start.size > NORMAL_EQUATIONS_ABOVE):
-            return self._normal_equation_lm(objective, normal_equations, int(m_total), lower, upper, start, tr)
-        residuals = getattr(objective, "residuals", None)
+            return self._normal_equation_lm(objective, objective.normal_equations, int(m_total), lower, upper, start,
+                                            tr)
+        residuals = objective.residuals
         if residuals is None:
             def residuals(th):  # noqa: E306
                 return np.sqrt(np.maximum(objective(th[None, :]), 0.0))
@@ -118,8 +120,8 @@ class LSQ(Optimizer):
             return r
 
         jac = "2-point"
-        population_jacobian = getattr(objective, "jacobian", None)
-        if population_jacobian is not None and getattr(objective, "residuals", None) is not None:
+        population_jacobian = objective.jacobian
+        if population_jacobian is not None and objective.residuals is not None:
             def jac(th):  # noqa: E306
                 J = np.asarray(population_jacobian(th, upper=upper), float)
                 tr.nfev += th.size + 1

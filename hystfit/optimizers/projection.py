@@ -14,7 +14,7 @@ import numpy as np
 
 from .._lazy import lazy_module
 from ..models.separable import Separable
-from ..objective import BLOCK_ELEMENTS, Series
+from ..objective import BLOCK_ELEMENTS, ObjectiveFunction, Series
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
 
@@ -125,7 +125,7 @@ def _enumerate_box_qp(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarr
     return best
 
 
-class ProjectedObjective:
+class ProjectedObjective(ObjectiveFunction):
     """MSE over θ_nl with θ_lin solved exactly per candidate (pooled over captures).
 
     ``__call__(Θ_nl (P, m)) → (P,)``; :meth:`full` returns the complete θ (P, d) of the last
