@@ -81,12 +81,13 @@ import math
 import os
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, ClassVar, Sequence
 
 import numpy as np
 import pandas as pd
 from ._jit import njit
 
+from .capture import UniformSamples
 from .conditions import LookupTable, detect_condition
 from .errors import ConfigError, InputError
 from .io import TARGET_NAMES, load_table
@@ -173,7 +174,7 @@ class Step:
 
 
 @dataclass(frozen=True, eq=False)
-class Target:
+class Target(UniformSamples):
     """A desired displacement trajectory.
 
     Attributes
@@ -196,14 +197,7 @@ class Target:
     kind: str
     segments: tuple[Segment, ...]
     steps: tuple[Step, ...] = ()
-
-    @property
-    def n(self) -> int:
-        return int(self.y.shape[0])
-
-    @property
-    def fs(self) -> float:
-        return 1.0 / self.dt
+    samples_field: ClassVar[str] = "y"
 
     @property
     def stroke(self) -> float:

@@ -365,3 +365,12 @@ def test_check_invert_options_completes_the_default_limits():
         check_invert_options(pf, tgt, "interpolate", None, None, 5.0, 1.0, None)
     with pytest.raises(ConfigError, match="choose interpolate or nearest"):
         check_invert_options(pf, tgt, "cubic", None, None, None, None, None)
+
+
+def test_captures_and_targets_count_samples_one_way():
+    from hystfit.capture import Capture, UniformSamples
+
+    tgt = sine_target(10.0, 10.0, cycles=2, fs=1e4)
+    cap = Capture("c.csv", t=np.arange(5) * 1e-3, u=np.zeros(5), y=None, dt=1e-3)
+    assert isinstance(tgt, UniformSamples) and isinstance(cap, UniformSamples)
+    assert (tgt.n, tgt.fs) == (tgt.y.size, pytest.approx(1e4)) and (cap.n, cap.fs) == (5, pytest.approx(1e3))
