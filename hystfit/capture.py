@@ -3,12 +3,30 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 
+class UniformSamples:
+    """The sample count and rate of a uniformly sampled record (a :class:`Capture`, a feedforward
+    target): ``dt`` is its sample period (s), ``samples_field`` names the (N,) array that counts."""
+
+    samples_field: ClassVar[str] = "u"
+    dt: float
+
+    @property
+    def n(self) -> int:
+        return int(getattr(self, self.samples_field).shape[0])
+
+    @property
+    def fs(self) -> float:
+        return 1.0 / self.dt
+
+
 @dataclass(frozen=True, eq=False)
-class Capture:
+class Capture(UniformSamples):
     """One validated capture.
 
     Attributes
@@ -42,14 +60,6 @@ class Capture:
     warmup_samples: int = 0
 
     @property
-    def n(self) -> int:
-        return int(self.u.shape[0])
-
-    @property
-    def fs(self) -> float:
-        return 1.0 / self.dt
-
-    @property
     def duration_s(self) -> float:
         return self.n * self.dt
 
@@ -59,6 +69,4 @@ class Capture:
 
     @property
     def name(self) -> str:
-        from pathlib import Path
-
         return Path(self.source).name

@@ -19,13 +19,15 @@ The procedure (issue 7), for captures and a base model of any kind:
    the effects that explain the gap are named *in order*.
 
 Everything is deterministic for a given seed. This module never prints; progress goes through
-an optional callback ``progress(event, info)`` (events ``start``, ``advance``, ``note``).
+an optional callback ``progress(event, info)`` (events ``start``, ``advance``, ``note``). It
+computes numbers and records (:class:`Finding`, :class:`Evidence`, :class:`SplitChoice`, reason
+codes); every sentence of a diagnosis (``where.pointers``, ``evidence``, ``split.why``, ...) is
+worded from them by :mod:`hystfit.report.diagnose_wording`.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable, ClassVar, Optional, Sequence
@@ -40,6 +42,9 @@ from .errors import ConfigError, InputError, NoResultError
 from .identify import fit_captures, prepare_shared
 from .models.base import Model
 from .objective import Objective, Series
+from .report.diagnose_wording import (DEFINITIONS, NOISE_METHOD, NOISE_METHOD_REFINED, evidence_text,
+                                      pointer_text, pointers_text, reconciliation_why,
+                                      split_description, split_why)
 from .results import json_safe, unit_keys
 from .optimizers.base import Optimizer
 
@@ -56,6 +61,11 @@ __all__ = [
     "check_seed",
     "withheld_effect_captures",
     "one_effect",
+    "Finding",
+    "Evidence",
+    "SplitChoice",
+    "split_choice",
+    "findings",
 ]
 
 Progress = Optional[Callable[[str, dict], None]]
@@ -134,6 +144,46 @@ class DiagnoseSettings:
 
 
 @dataclass(frozen=True)
+class Finding:
+    """One strong finding of :func:`where_analysis`: its ``kind`` (a code such as
+    ``"frequency_grows"``, ``"branch_opposite"``, ``"calibration"``) and the numbers behind it. The
+    sentence of ``where.pointers`` is :func:`hystfit.report.diagnose_wording.pointer_text`."""
+
+    kind: str
+    values: dict = field(default_factory=dict, hash=False)
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """The evidence of one candidate effect, as numbers: how much of the residual above noise its
+    signature explains, its fitted parameters (:meth:`EffectFit.params`), the held-out RMSE before
+    and after (output unit), its reduction, the best placebo's improvement, and the shape of the gap
+    that points at it (from ``where.summary``). The sentence of :attr:`EffectResult.evidence` is
+    :func:`hystfit.report.diagnose_wording.evidence_text`."""
+
+    effect: str
+    signature_share: float
+    params: dict = field(hash=False)
+    heldout_before: float
+    heldout_after: float
+    reduction: float
+    placebo: float
+    frequency_exponent: float | None = None
+    amplitude_exponent: float | None = None
+    low_frequency_share: float = 0.0
+    long_capture_ratio: float | None = None
+    heldout_to_fit_ratio: float | None = None
+    drive_frequency_Hz: float | None = None
+
+    @classmethod
+    def from_summary(cls, effect: str, summary: dict, **numbers) -> "Evidence":
+        """The record with the gap's shape taken from a where-analysis ``summary``."""
+        keys = ("frequency_exponent", "amplitude_exponent", "low_frequency_share", "long_capture_ratio",
+                "heldout_to_fit_ratio", "drive_frequency_Hz")
+        return cls(effect, **numbers, **{k: summary.get(k) for k in keys})
+
+
+@dataclass(frozen=True)
 class EffectResult:
     """One candidate effect tested on top of the current model (one step of the selection).
 
@@ -158,6 +208,7 @@ class EffectResult:
     evidence: str
     passes: dict
     fit: EffectFit = field(repr=False, compare=False, default=None)
+    evidence_record: Evidence | None = field(repr=False, compare=False, default=None)
 
     @property
     def improvement(self) -> float:
@@ -190,6 +241,7 @@ class Diagnosis:
     captures: tuple[dict, ...]
     runtime_s: float
     figures_data: dict = field(repr=False, compare=False, default_factory=dict)
+    findings: tuple[Finding, ...] = field(repr=False, compare=False, default=())  # where.pointers as records
 
     def to_dict(self) -> dict:
         """The JSON document (``diagnosis.json``); unit-bearing names end in the output unit."""
@@ -250,12 +302,10 @@ class Diagnosis:
             explained = bool(self.explained_by) and any(
                 q.effect == r.effect and q.reduction < r.reduction - 0.1
                 for step in self.steps[1:] for q in step)
+            reason = ("shared_shape" if explained else "not_carried_over" if r.reduction < self.settings.threshold
+                      else "other_rule")
             out.append({"effect": r.effect, "signature_share": r.signature_share, "reduction": r.reduction,
-                        "why": ("its shape is shared with the effect(s) named first, which remove it: refitted on top "
-                                "of them it gains less" if explained else
-                                "the refit does not carry the pattern over to held-out data (reduction "
-                                f"{r.reduction:.2f} < {self.settings.threshold:g})" if r.reduction < self.settings.threshold
-                                else "it passes the reduction but fails another rule (placebo or noise floor)")})
+                        "why": reconciliation_why(reason, r.reduction, self.settings.threshold)})
         return out
 
     @property
@@ -397,26 +447,46 @@ def heldout_captures(captures: Sequence[Capture]) -> list[bool]:
     return [bool(lo * 1.01 < x < hi / 1.01) for x in f]
 
 
-def choose_split(captures: Sequence[Capture], swept: Sequence[bool], settings: "DiagnoseSettings",
-                 per_condition: bool) -> tuple[str, list[bool], str]:
-    """(kind, held-out flags per capture, why) of the hold-out (see :attr:`DiagnoseSettings.split`)."""
+@dataclass(frozen=True)
+class SplitChoice:
+    """The hold-out scheme (see :attr:`DiagnoseSettings.split`): ``kind`` (``"temporal"`` or
+    ``"capture"``), the held-out flag per capture, the ``reason`` (``"requested"``, ``"swept"``,
+    ``"stationary"`` or ``"no_interior"``) and the sources of the captures whose amplitude changes
+    within them (:func:`hystfit.report.diagnose_wording.split_why` words it)."""
+
+    kind: str
+    held_out: tuple[bool, ...]
+    reason: str
+    swept_sources: tuple[str, ...] = ()
+
+    @property
+    def why(self) -> str:
+        return split_why(self.reason, self.swept_sources)
+
+
+def split_choice(captures: Sequence[Capture], swept: Sequence[bool], settings: "DiagnoseSettings",
+                 per_condition: bool) -> SplitChoice:
+    """The hold-out of a diagnosis (see :attr:`DiagnoseSettings.split`)."""
     held = heldout_captures(captures)
     possible = (not per_condition) and any(held) and not all(held)
+    none = (False,) * len(captures)
     if settings.split == "temporal":
-        return "temporal", [False] * len(captures), "requested"
+        return SplitChoice("temporal", none, "requested")
     if settings.split == "capture":
         if not possible:
             raise ConfigError("diagnose: split 'capture' needs, in global mode, captures at three or more drive "
                               "frequencies (the interior ones are held out); use split 'temporal' or 'auto'")
-        return "capture", held, "requested"
+        return SplitChoice("capture", tuple(held), "requested")
     if any(swept) and possible:
-        return "capture", held, ("the amplitude of " + ", ".join(c.name for c, s in zip(captures, swept) if s)
-                                 + " changes within the capture: a temporal split would test an amplitude "
-                                 "extrapolation, so whole captures at interior frequencies are held out")
-    why = "every capture is stationary" if not any(swept) else \
-        ("a capture is non-stationary but no interior frequency can be held out (temporal split: the held-out "
-         "part extrapolates in amplitude as well as in time)")
-    return "temporal", [False] * len(captures), why
+        return SplitChoice("capture", tuple(held), "swept", tuple(c.name for c, s in zip(captures, swept) if s))
+    return SplitChoice("temporal", none, "stationary" if not any(swept) else "no_interior")
+
+
+def choose_split(captures: Sequence[Capture], swept: Sequence[bool], settings: "DiagnoseSettings",
+                 per_condition: bool) -> tuple[str, list[bool], str]:
+    """(kind, held-out flags per capture, why) of the hold-out: :func:`split_choice` as a tuple."""
+    s = split_choice(captures, swept, settings, per_condition)
+    return s.kind, list(s.held_out), s.why
 
 
 @dataclass(frozen=True)
@@ -549,8 +619,7 @@ def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
     steps = np.concatenate([np.abs(np.diff(c.y)) for c in captures])
     steps = steps[steps > 0]
     q = float(steps.min()) if steps.size else 0.0
-    return {"sigma": sigma, "method": "1.4826·MAD of the third difference (−1,3,−3,1)/√20 of the base residual, "
-                                      "median over the captures",
+    return {"sigma": sigma, "method": NOISE_METHOD,
             "per_capture_out": per, "repeatability_out": repeat, "quantization_step_out": q}
 
 
@@ -618,6 +687,158 @@ def _bands(r: np.ndarray, dt: float, f0: float) -> dict:
     return out
 
 
+def _capture_rows(caps: Sequence[Capture], res: Sequence[np.ndarray], periodic: Sequence[bool],
+                  sigma: float) -> list[dict]:
+    """``by_capture``: RMSE, excess over noise and mean of the residual per capture."""
+    rows = []
+    for c, r, per in zip(caps, res, periodic):
+        rm = _rms(r)
+        rows.append({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
+                     "duration_s": c.duration_s, "periodic": bool(per), "rmse_out": rm,
+                     "excess_rmse_out": _excess(rm, sigma), "mean_out": float(np.mean(r))})
+    return rows
+
+
+def _condition_rows(caps: Sequence[Capture], res: Sequence[np.ndarray], periodic: Sequence[bool],
+                    sigma: float) -> list[dict]:
+    """``by_condition``: RMSE and excess over noise per amplitude × frequency (sorted)."""
+    groups: dict = {}
+    for i, c in enumerate(caps):
+        groups.setdefault((float(c.amplitude_V), float(c.frequency_Hz)), []).append(i)
+    rows = []
+    for (a, f), idx in sorted(groups.items()):
+        rm = _rms(np.concatenate([res[i] for i in idx]))
+        rows.append({"label": condition_label((a, f)), "amplitude_V": a, "frequency_Hz": f,
+                     "rmse_out": rm, "excess_rmse_out": _excess(rm, sigma), "n_captures": len(idx),
+                     "periodic": bool(all(periodic[i] for i in idx))})
+    return rows
+
+
+_BRANCHES = ("ascending", "descending")
+
+
+def _directions(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample, whether the input rises (ascending) or falls (descending) into it."""
+    du = np.diff(u, prepend=u[0])
+    tol = 1e-9 * max(float(np.ptp(u)), 1e-12)
+    return du > tol, du < -tol
+
+
+def _branch_section(caps: Sequence[Capture], res: Sequence[np.ndarray]) -> dict:
+    """``by_branch``: RMSE, mean and samples of the residual while the input rises, falls or holds."""
+    br = {"ascending": [], "descending": [], "hold": []}
+    for c, r in zip(caps, res):
+        asc, desc = _directions(c.u)
+        br["ascending"].append(r[asc])
+        br["descending"].append(r[desc])
+        br["hold"].append(r[~(asc | desc)])
+    return {k: {"rmse_out": _rms(np.concatenate(v)) if v else float("nan"),
+                "mean_out": float(np.mean(np.concatenate(v))) if sum(x.size for x in v) else float("nan"),
+                "n_samples": int(sum(x.size for x in v))} for k, v in br.items()}
+
+
+def _level_section(caps: Sequence[Capture], res: Sequence[np.ndarray]) -> dict:
+    """``by_level``: the mean residual per tenth of each capture's input range and branch (the
+    "residual loop"), split into the part common to both branches and the part of opposite sign."""
+    level_sum = {k: np.zeros(10) for k in _BRANCHES}
+    level_n = {k: np.zeros(10) for k in _BRANCHES}
+    for c, r in zip(caps, res):
+        asc, desc = _directions(c.u)
+        lv = np.clip(((c.u - c.u.min()) / max(float(np.ptp(c.u)), 1e-300) * 10).astype(int), 0, 9)
+        for name, sel in (("ascending", asc), ("descending", desc)):
+            np.add.at(level_sum[name], lv[sel], r[sel])
+            np.add.at(level_n[name], lv[sel], 1)
+    by_level = {"definition": DEFINITIONS["by_level"],
+                "mean_by_level_out": {k: [float(q / n) if n else None for q, n in zip(level_sum[k], level_n[k])]
+                                      for k in level_sum}}
+    asc, desc = (np.array([np.nan if v is None else v for v in by_level["mean_by_level_out"][k]]) for k in _BRANCHES)
+    both = np.isfinite(asc) & np.isfinite(desc)
+    if both.sum() >= 3:
+        common = 0.5 * (asc[both] + desc[both])
+        common = common - common.mean()  # a constant offset is not a level dependence
+        by_level["level_dependent_rms_out"] = _rms(common)
+        by_level["branch_opposite_rms_out"] = _rms(0.5 * (asc[both] - desc[both]))
+    return by_level
+
+
+def _loop_section(caps: Sequence[Capture], res: Sequence[np.ndarray]) -> dict:
+    """``by_loop_position``: near turning points vs mid-stroke, and the RMSE per tenth of the half-cycle."""
+    pos_sq = {k: np.zeros(10) for k in _BRANCHES}
+    pos_n = {k: np.zeros(10) for k in _BRANCHES}
+    near, mid = [], []
+    for c, r in zip(caps, res):
+        asc, desc = _directions(c.u)
+        pos = _loop_position(c.u)
+        ok = np.isfinite(pos)
+        near.append(r[ok & ((pos < 0.1) | (pos > 0.9))])
+        mid.append(r[ok & (pos >= 0.1) & (pos <= 0.9)])
+        b = np.clip((pos[ok] * 10).astype(int), 0, 9)
+        for name, sel in (("ascending", asc[ok]), ("descending", desc[ok])):
+            np.add.at(pos_sq[name], b[sel], r[ok][sel] ** 2)
+            np.add.at(pos_n[name], b[sel], 1)
+    nr, mr = np.concatenate(near), np.concatenate(mid)
+    return {"near_turning_points": {"rmse_out": _rms(nr), "n_samples": int(nr.size)},
+            "mid_stroke": {"rmse_out": _rms(mr), "n_samples": int(mr.size)},
+            "definition": DEFINITIONS["by_loop_position"],
+            "rmse_by_position_out": {k: [float(math.sqrt(q / n)) if n else None for q, n in zip(pos_sq[k], pos_n[k])]
+                                     for k in pos_sq}}
+
+
+def _time_section(caps: Sequence[Capture], res: Sequence[np.ndarray], periodic: Sequence[bool]) -> dict:
+    """``by_time``: the first cycle vs later, and mean and RMSE per tenth of the capture."""
+    first, later = [], []
+    tenth_sum, tenth_sq, tenth_n = np.zeros(10), np.zeros(10), np.zeros(10)
+    for c, r, per in zip(caps, res, periodic):
+        n1 = int(round(1.0 / (c.frequency_Hz * c.dt))) if per else int(round(0.1 * c.n))
+        n1 = int(np.clip(n1, 1, c.n - 1))
+        first.append(r[:n1])
+        later.append(r[n1:])
+        tb = np.clip((np.arange(c.n) * 10) // c.n, 0, 9)
+        np.add.at(tenth_sum, tb, r)
+        np.add.at(tenth_sq, tb, r * r)
+        np.add.at(tenth_n, tb, 1)
+    fr, lr = np.concatenate(first), np.concatenate(later)
+    return {"first_cycle": {"rmse_out": _rms(fr), "mean_out": float(np.mean(fr)), "n_samples": int(fr.size)},
+            "later": {"rmse_out": _rms(lr), "mean_out": float(np.mean(lr)), "n_samples": int(lr.size)},
+            "definition": DEFINITIONS["by_time"],
+            "mean_by_tenth_out": [float(s / n) if n else None for s, n in zip(tenth_sum, tenth_n)],
+            "rmse_by_tenth_out": [float(math.sqrt(q / n)) if n else None for q, n in zip(tenth_sq, tenth_n)]}
+
+
+def _drive_frequency(c: Capture) -> float:
+    """The capture's excitation frequency, or one period per capture when it has none."""
+    return c.frequency_Hz if np.isfinite(c.frequency_Hz) and c.frequency_Hz > 0 else 1.0 / c.duration_s
+
+
+def _band_section(caps: Sequence[Capture], res: Sequence[np.ndarray], sigma: float) -> dict:
+    """``by_band``: residual RMS per band of :func:`_bands`, the white-noise expectation and the
+    share of the power above it."""
+    band_tot = {"drift": 0.0, "low_harmonics": 0.0, "high_harmonics": 0.0, "broadband": 0.0}
+    band_noise = dict.fromkeys(band_tot, 0.0)
+    n_all = 0
+    for c, r in zip(caps, res):
+        for k, (pw, frac) in _bands(r, c.dt, _drive_frequency(c)).items():
+            band_tot[k] += pw * c.n
+            band_noise[k] += sigma * sigma * frac * c.n
+        n_all += c.n
+    above = {k: max(band_tot[k] - band_noise[k], 0.0) for k in band_tot}
+    tot_above = sum(above.values())
+    by_band = {k: {"rms_out": math.sqrt(band_tot[k] / n_all), "expected_noise_rms_out": math.sqrt(band_noise[k] / n_all),
+                   "share_above_noise": (above[k] / tot_above) if tot_above > 0 else 0.0} for k in band_tot}
+    by_band["definition"] = DEFINITIONS["by_band"]
+    return by_band
+
+
+def _spectra(caps: Sequence[Capture], res: Sequence[np.ndarray], periodic: Sequence[bool]) -> list:
+    """Per periodic capture: (frequency / f0, residual amplitude spectrum, source), for the figures."""
+    out = []
+    for c, r, per in zip(caps, res, periodic):
+        if per:
+            n = r.size
+            out.append((np.fft.rfftfreq(n, c.dt) / _drive_frequency(c), np.abs(np.fft.rfft(r)) * 2.0 / n, c.source))
+    return out
+
+
 def where_analysis(captures: Sequence[Capture], residuals: Sequence[np.ndarray], sigma: float,
                    periodic: Sequence[bool], residuals_alone: Sequence[np.ndarray] | None = None
                    ) -> tuple[dict, dict]:
@@ -634,8 +855,9 @@ def where_analysis(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
         white-noise expectation in the drift band below f0/2, the fundamental and low harmonics up
         to 5.5 f0, the high harmonics up to 50.5 f0, and broadband above), and ``summary``
         (exponents of the gap vs frequency and amplitude, low/high frequency shares, long-capture
-        ratio, first-cycle ratio) with ``pointers``, plain sentences. ``data`` holds arrays for
-        the figures.
+        ratio, first-cycle ratio) with ``pointers``, plain sentences (the :func:`findings` worded by
+        :mod:`hystfit.report.diagnose_wording`). ``data`` holds arrays for the figures and the
+        ``findings``.
 
         With ``residuals_alone`` (the residuals of the base model fitted to each condition on its
         own), ``by_condition_alone`` and the ``*_alone`` exponents describe the gap *within* a
@@ -644,135 +866,29 @@ def where_analysis(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
         ``by_level`` is the mean residual per tenth of each capture's input range on each
         branch: the "residual loop" (a lag draws an ellipse, a bow an arch).
     """
-    s2 = sigma * sigma
     caps = list(captures)
     res = [np.asarray(r, float) for r in residuals]
-    # by capture / condition
-    by_capture = []
-    for c, r, per in zip(caps, res, periodic):
-        rm = _rms(r)
-        by_capture.append({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
-                           "duration_s": c.duration_s, "periodic": bool(per), "rmse_out": rm,
-                           "excess_rmse_out": _excess(rm, sigma), "mean_out": float(np.mean(r))})
-    groups: dict = {}
-    for i, c in enumerate(caps):
-        groups.setdefault((float(c.amplitude_V), float(c.frequency_Hz)), []).append(i)
-
-    def condition_rows(rs):
-        rows = []
-        for (a, f), idx in sorted(groups.items()):
-            rm = _rms(np.concatenate([rs[i] for i in idx]))
-            rows.append({"label": condition_label((a, f)), "amplitude_V": a, "frequency_Hz": f,
-                         "rmse_out": rm, "excess_rmse_out": _excess(rm, sigma), "n_captures": len(idx),
-                         "periodic": bool(all(periodic[i] for i in idx))})
-        return rows
-
-    by_condition = condition_rows(res)
-    by_condition_alone = condition_rows([np.asarray(r, float) for r in residuals_alone]) \
-        if residuals_alone is not None else None
-    level_sum = {"ascending": np.zeros(10), "descending": np.zeros(10)}
-    level_n = {"ascending": np.zeros(10), "descending": np.zeros(10)}
-    # branch
-    br = {"ascending": [], "descending": [], "hold": []}
-    pos_bins = np.linspace(0.0, 1.0, 11)
-    pos_sq = {"ascending": np.zeros(10), "descending": np.zeros(10)}
-    pos_n = {"ascending": np.zeros(10), "descending": np.zeros(10)}
-    near, mid = [], []
-    first, later = [], []
-    tenth_sum = np.zeros(10)
-    tenth_sq = np.zeros(10)
-    tenth_n = np.zeros(10)
-    band_tot = {"drift": 0.0, "low_harmonics": 0.0, "high_harmonics": 0.0, "broadband": 0.0}
-    band_noise = dict.fromkeys(band_tot, 0.0)
-    n_all = 0
-    spectra = []
-    for c, r, per in zip(caps, res, periodic):
-        du = np.diff(c.u, prepend=c.u[0])
-        tol = 1e-9 * max(float(np.ptp(c.u)), 1e-12)
-        asc, desc = du > tol, du < -tol
-        hold = ~(asc | desc)
-        br["ascending"].append(r[asc])
-        br["descending"].append(r[desc])
-        br["hold"].append(r[hold])
-        lv = np.clip(((c.u - c.u.min()) / max(float(np.ptp(c.u)), 1e-300) * 10).astype(int), 0, 9)
-        for name, sel in (("ascending", asc), ("descending", desc)):
-            np.add.at(level_sum[name], lv[sel], r[sel])
-            np.add.at(level_n[name], lv[sel], 1)
-        pos = _loop_position(c.u)
-        ok = np.isfinite(pos)
-        near.append(r[ok & ((pos < 0.1) | (pos > 0.9))])
-        mid.append(r[ok & (pos >= 0.1) & (pos <= 0.9)])
-        b = np.clip((pos[ok] * 10).astype(int), 0, 9)
-        for name, sel in (("ascending", asc[ok]), ("descending", desc[ok])):
-            np.add.at(pos_sq[name], b[sel], r[ok][sel] ** 2)
-            np.add.at(pos_n[name], b[sel], 1)
-        n1 = int(round(1.0 / (c.frequency_Hz * c.dt))) if per else int(round(0.1 * c.n))
-        n1 = int(np.clip(n1, 1, c.n - 1))
-        first.append(r[:n1])
-        later.append(r[n1:])
-        tb = np.clip((np.arange(c.n) * 10) // c.n, 0, 9)
-        np.add.at(tenth_sum, tb, r)
-        np.add.at(tenth_sq, tb, r * r)
-        np.add.at(tenth_n, tb, 1)
-        f0 = c.frequency_Hz if np.isfinite(c.frequency_Hz) and c.frequency_Hz > 0 else 1.0 / c.duration_s
-        bands = _bands(r, c.dt, f0)
-        for k, (pw, frac) in bands.items():
-            band_tot[k] += pw * c.n
-            band_noise[k] += s2 * frac * c.n
-        n_all += c.n
-        if per:
-            n = r.size
-            Rm = np.abs(np.fft.rfft(r)) * 2.0 / n
-            spectra.append((np.fft.rfftfreq(n, c.dt) / f0, Rm, c.source))
-    by_branch = {k: {"rmse_out": _rms(np.concatenate(v)) if v else float("nan"),
-                     "mean_out": float(np.mean(np.concatenate(v))) if sum(x.size for x in v) else float("nan"),
-                     "n_samples": int(sum(x.size for x in v))} for k, v in br.items()}
-    nr, mr = np.concatenate(near), np.concatenate(mid)
-    by_loop = {"near_turning_points": {"rmse_out": _rms(nr), "n_samples": int(nr.size)},
-               "mid_stroke": {"rmse_out": _rms(mr), "n_samples": int(mr.size)},
-               "definition": "near = within 10 % of the half-cycle stroke from a turning point of the input",
-               "rmse_by_position_out": {k: [float(math.sqrt(q / n)) if n else None for q, n in zip(pos_sq[k], pos_n[k])]
-                                        for k in pos_sq}}
-    fr, lr = np.concatenate(first), np.concatenate(later)
-    by_time = {"first_cycle": {"rmse_out": _rms(fr), "mean_out": float(np.mean(fr)), "n_samples": int(fr.size)},
-               "later": {"rmse_out": _rms(lr), "mean_out": float(np.mean(lr)), "n_samples": int(lr.size)},
-               "definition": "first cycle = the first period of a periodic capture, else the first 10 % of it",
-               "mean_by_tenth_out": [float(s / n) if n else None for s, n in zip(tenth_sum, tenth_n)],
-               "rmse_by_tenth_out": [float(math.sqrt(q / n)) if n else None for q, n in zip(tenth_sq, tenth_n)]}
-    above = {k: max(band_tot[k] - band_noise[k], 0.0) for k in band_tot}
-    tot_above = sum(above.values())
-    by_band = {k: {"rms_out": math.sqrt(band_tot[k] / n_all), "expected_noise_rms_out": math.sqrt(band_noise[k] / n_all),
-                   "share_above_noise": (above[k] / tot_above) if tot_above > 0 else 0.0} for k in band_tot}
-    by_band["definition"] = ("bands relative to each capture's excitation frequency f0: drift < f0/2, low harmonics "
-                             "f0/2…5.5·f0, high harmonics 5.5·f0…50.5·f0, broadband above; shares of the residual "
-                             "power above the white-noise expectation")
-    by_level = {"definition": "mean residual per tenth of each capture's input range (0 = lowest input), per branch",
-                "mean_by_level_out": {k: [float(q / n) if n else None for q, n in zip(level_sum[k], level_n[k])]
-                                      for k in level_sum}}
-    asc = np.array([np.nan if v is None else v for v in by_level["mean_by_level_out"]["ascending"]])
-    desc = np.array([np.nan if v is None else v for v in by_level["mean_by_level_out"]["descending"]])
-    both = np.isfinite(asc) & np.isfinite(desc)
-    if both.sum() >= 3:
-        common = 0.5 * (asc[both] + desc[both])
-        common = common - common.mean()  # a constant offset is not a level dependence
-        diff = 0.5 * (asc[both] - desc[both])
-        by_level["level_dependent_rms_out"] = _rms(common)
-        by_level["branch_opposite_rms_out"] = _rms(diff)
+    by_capture = _capture_rows(caps, res, periodic, sigma)
+    by_condition = _condition_rows(caps, res, periodic, sigma)
+    alone = [np.asarray(r, float) for r in residuals_alone] if residuals_alone is not None else None
+    by_condition_alone = _condition_rows(caps, alone, periodic, sigma) if alone is not None else None
+    by_branch, by_level = _branch_section(caps, res), _level_section(caps, res)
+    by_loop, by_time = _loop_section(caps, res), _time_section(caps, res, periodic)
+    by_band = _band_section(caps, res, sigma)
     summary = _summary(by_condition, by_capture, by_band, by_time, sigma)
     summary["level_dependent_rms_out"] = by_level.get("level_dependent_rms_out")
     summary["branch_opposite_rms_out"] = by_level.get("branch_opposite_rms_out")
     if by_condition_alone is not None:
-        fa, aa = _loglog_fit(by_condition_alone, sigma)
-        summary["frequency_exponent_alone"] = fa
-        summary["amplitude_exponent_alone"] = aa
+        summary["frequency_exponent_alone"], summary["amplitude_exponent_alone"] = \
+            _loglog_fit(by_condition_alone, sigma)
     where = {"by_condition": by_condition, "by_capture": by_capture, "by_branch": by_branch,
              "by_loop_position": by_loop, "by_level": by_level, "by_time": by_time, "by_band": by_band}
     if by_condition_alone is not None:
         where["by_condition_alone"] = by_condition_alone
     where["summary"] = summary
-    where["pointers"] = _pointers(summary, by_branch, by_loop, sigma, caps[0].y_unit if caps else "um")
-    data = {"spectra": spectra}
-    return where, data
+    found = findings(summary, by_branch, by_loop, sigma)
+    where["pointers"] = pointers_text(found, caps[0].y_unit if caps else "um")
+    return where, {"spectra": _spectra(caps, res, periodic), "findings": found}
 
 
 def _loglog_fit(rows: list[dict], sigma: float) -> tuple[float | None, float | None]:
@@ -824,72 +940,64 @@ def _summary(by_condition, by_capture, by_band, by_time, sigma) -> dict:
 AMPLITUDE_EXPONENT_LARGE = 2.0
 
 
-def _display(unit: str) -> str:
-    """The unit as written in sentences (µm rather than um)."""
-    return {"um": "µm"}.get(unit, unit)
-
-
-def _pointers(summary: dict, by_branch: dict, by_loop: dict, sigma: float, unit: str) -> list[str]:
-    """Plain sentences for the strong findings of :func:`where_analysis` (thresholds in the text)."""
-    u = _display(unit)
+def _trend_findings(summary: dict) -> list[Finding]:
+    """How the gap grows with frequency and amplitude (globally and per condition alone), and into
+    held-out time or captures."""
     out = []
-    for suffix, how in (("", ""), ("_alone", " when every condition is fitted on its own")):
+    for suffix in ("", "_alone"):
+        alone = suffix == "_alone"
         bf, ba = summary.get("frequency_exponent" + suffix), summary.get("amplitude_exponent" + suffix)
         if bf is not None and bf > 0.15:
-            out.append(f"high frequencies: the gap above noise grows with the excitation frequency{how} (∝ f^{bf:.2f})")
+            out.append(Finding("frequency_grows", {"exponent": bf, "alone": alone}))
         elif bf is not None and bf < -0.15:
-            out.append(f"low frequencies: the gap above noise shrinks with the excitation frequency{how} (∝ f^{bf:.2f})")
+            out.append(Finding("frequency_shrinks", {"exponent": bf, "alone": alone}))
         if ba is not None and ba >= AMPLITUDE_EXPONENT_LARGE:
-            out.append(f"large amplitudes: the gap grows with the square of the amplitude or faster{how} (∝ A^{ba:.2f}; "
-                       "a scale-invariant loop-shape error grows ∝ A)")
+            out.append(Finding("amplitude_large", {"exponent": ba, "alone": alone}))
     ratio = summary.get("heldout_to_fit_ratio")
     if ratio is not None and ratio > 1.15 and summary.get("split", "temporal") == "temporal":
-        if summary.get("amplitude_changes_within_capture"):
-            out.append(f"later time: fitted on the first part of each capture, the model misses {ratio:.2f}× more "
-                       "(above noise) on the later part — but the drive amplitude changes within the captures, so "
-                       "this compares small loops with large ones; it is not by itself evidence of creep or drift")
-        else:
-            out.append(f"later time: fitted on the first part of each capture, the model misses "
-                       f"{ratio:.2f}× more (above noise) on the later part")
+        out.append(Finding("later_time_swept" if summary.get("amplitude_changes_within_capture") else "later_time",
+                           {"ratio": ratio}))
     elif ratio is not None and ratio > 1.15:
-        out.append(f"held-out captures: fitted on the other drive frequencies, the model misses {ratio:.2f}× more "
-                   "(above noise) on the interior frequencies it did not see")
+        out.append(Finding("heldout_captures", {"ratio": ratio}))
     if summary["low_frequency_share"] > 0.25:
-        out.append(f"low frequencies: {100 * summary['low_frequency_share']:.0f} % of the residual power above noise lies "
-                   "below half the excitation frequency (slow trends)")
+        out.append(Finding("low_frequency_share", {"share": summary["low_frequency_share"]}))
     if summary["high_frequency_share"] > 0.3:
-        out.append(f"high frequencies: {100 * summary['high_frequency_share']:.0f} % of the residual power above noise lies "
-                   "above the fifth harmonic of the excitation (sharp features: turning points, steps, ringing)")
+        out.append(Finding("high_frequency_share", {"share": summary["high_frequency_share"]}))
     if summary["long_capture_ratio"] is not None and summary["long_capture_ratio"] > 1.5:
-        out.append(f"long captures: the longest captures miss {summary['long_capture_ratio']:.1f}× more (above noise) "
-                   "than the others")
+        out.append(Finding("long_captures", {"ratio": summary["long_capture_ratio"]}))
+    return out
+
+
+def _shape_findings(summary: dict, by_branch: dict, by_loop: dict, sigma: float) -> list[Finding]:
+    """Where in the loop the error sits: by input level, by branch, near turning points, at start-up."""
+    out = []
     lv, bo = summary.get("level_dependent_rms_out"), summary.get("branch_opposite_rms_out")
     if lv is not None and bo is not None and max(lv, bo) > 2.0 * sigma:
         if lv > 1.5 * bo:
-            out.append(f"displacement level: the error follows the input level the same way on both branches "
-                       f"({lv:.3g} {u} RMS, against {bo:.3g} {u} with opposite signs on the two branches): a static "
-                       "output nonlinearity")
+            out.append(Finding("level_dependent", {"level_rms": lv, "opposite_rms": bo}))
         elif bo > 1.5 * lv:
-            out.append(f"branches: at the same input level the error has opposite signs on the two branches "
-                       f"({bo:.3g} {u} RMS, against {lv:.3g} {u} common to both): the loop is too narrow or too wide, "
-                       "a lag or lead")
+            out.append(Finding("branch_opposite", {"level_rms": lv, "opposite_rms": bo}))
     a, d = by_branch["ascending"], by_branch["descending"]
     if a["n_samples"] and d["n_samples"] and math.isfinite(a["mean_out"]) and math.isfinite(d["mean_out"]):
-        if not any(p.startswith("branches:") for p in out) and a["mean_out"] * d["mean_out"] < 0 and \
+        if not any(f.kind == "branch_opposite" for f in out) and a["mean_out"] * d["mean_out"] < 0 and \
                 abs(a["mean_out"] - d["mean_out"]) > max(2.0 * sigma, 0.25 * max(a["rmse_out"], d["rmse_out"])):
-            out.append(f"branches: the model sits {a['mean_out']:+.3g} {u} on the ascending and {d['mean_out']:+.3g} {u} "
-                       "on the descending branch on average (opposite biases: lag or branch asymmetry)")
+            out.append(Finding("branch_bias", {"ascending_mean": a["mean_out"], "descending_mean": d["mean_out"]}))
     n, m = by_loop["near_turning_points"]["rmse_out"], by_loop["mid_stroke"]["rmse_out"]
     if math.isfinite(n) and math.isfinite(m) and m > 0:
         if n > 1.3 * m:
-            out.append(f"turning points: the error near turning points is {n / m:.1f}× the mid-stroke error")
+            out.append(Finding("turning_points", {"ratio": n / m}))
         elif m > 1.3 * n:
-            out.append(f"mid-stroke: the error mid-stroke is {m / n:.1f}× the error near turning points")
+            out.append(Finding("mid_stroke", {"ratio": m / n}))
     if summary["first_cycle_ratio"] is not None and summary["first_cycle_ratio"] > 1.5:
-        out.append(f"start-up: the first cycle misses {summary['first_cycle_ratio']:.1f}× more than the later ones")
-    if not out:
-        out.append("no concentration: the residual is spread evenly over conditions, branches, time and frequency")
+        out.append(Finding("start_up", {"ratio": summary["first_cycle_ratio"]}))
     return out
+
+
+def findings(summary: dict, by_branch: dict, by_loop: dict, sigma: float) -> list[Finding]:
+    """The strong findings of :func:`where_analysis` (thresholds in the code); ``no_concentration``
+    when there is none."""
+    out = _trend_findings(summary) + _shape_findings(summary, by_branch, by_loop, sigma)
+    return out or [Finding("no_concentration")]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1112,75 +1220,6 @@ def choose_effect(results: Sequence[EffectResult], settings: DiagnoseSettings) -
 
 
 # ----------------------------------------------------------------------------------------------
-# Evidence text
-# ----------------------------------------------------------------------------------------------
-
-
-def creep_character(tau_s: Sequence[float], gain: Sequence[float], drive_Hz: float | None) -> str:
-    """What the fitted creep chain *is*, from where its gain sits: a relaxation within about one
-    drive period is rate dependence (the loop widens with frequency); one over many periods is slow
-    creep (the output keeps moving after a move)."""
-    g = np.asarray(gain, float)
-    t = np.asarray(tau_s, float)
-    if g.size == 0 or not np.any(g > 0):
-        return "no creep gain fitted"
-    tau = float(np.exp(np.sum(g * np.log(t)) / np.sum(g)))  # gain-weighted (geometric) mean time constant
-    if drive_Hz is not None and np.isfinite(drive_Hz) and drive_Hz > 0 and tau <= 2.0 / drive_Hz:
-        return (f"most of the gain relaxes within τ ≈ {1e3 * tau:.3g} ms, about {tau * drive_Hz:.2g} drive period(s): "
-                "a relaxation on the scale of the drive period — rate dependence of the loop rather than slow creep")
-    return f"most of the gain relaxes over τ ≈ {tau:.3g} s: slow creep (the output keeps moving after a move)"
-
-
-def _evidence(name: str, res: dict, where: dict, unit: str) -> str:
-    """Plain-language evidence of one effect: signature, where-pointer, parameters, held-out numbers."""
-    unit = _display(unit)
-    s = where["summary"]
-    p = res["params"]
-    sig = f"its signature explains {100 * res['signature_share']:.0f} % of the residual above noise"
-    parts = []
-    if name == "dynamics":
-        parts.append(f"{sig} (lag ∝ dŷ/dt plus gain rise ∝ d²ŷ/dt²)")
-        if s["frequency_exponent"] is not None:
-            parts.append(f"the gap grows with frequency as f^{s['frequency_exponent']:.2f}")
-        parts.append(f"fitted stage: f_n = {p['fn_Hz']:.4g} Hz, ζ = {p['zeta']:.3g}"
-                     + (f" ({p['phase_lag_at_highest_excitation_deg']:.2f}° lag at {p['at_highest_excitation_Hz']:g} Hz)"
-                        if "phase_lag_at_highest_excitation_deg" in p else ""))
-    elif name == "delay":
-        parts.append(f"{sig} (lag ∝ dŷ/dt)")
-        if s["frequency_exponent"] is not None:
-            parts.append(f"the gap grows with frequency as f^{s['frequency_exponent']:.2f}")
-        parts.append(f"fitted delay {p['delay_ms'] * 1e3:.4g} µs ({p['delay_samples']:.2f} samples)")
-    elif name == "creep":
-        parts.append(f"{sig} (slow low-pass responses of the output)")
-        parts.append(f"{100 * s['low_frequency_share']:.0f} % of the residual power above noise is below half the "
-                     "excitation frequency")
-        if s["long_capture_ratio"] is not None and s["long_capture_ratio"] > 1.2:
-            parts.append(f"longest captures miss {s['long_capture_ratio']:.1f}× more")
-        if s.get("heldout_to_fit_ratio") is not None and s["heldout_to_fit_ratio"] > 1.15:
-            parts.append(f"the gap grows {s['heldout_to_fit_ratio']:.2f}× into later time")
-        parts.append("fitted gains " + ", ".join(f"{100 * g:.2g} % at τ = {t:g} s" for t, g in zip(p["tau_s"], p["gain"]))
-                     + f" (total {100 * p['total_gain']:.2g} %)")
-        parts.append(creep_character(p["tau_s"], p["gain"], s.get("drive_frequency_Hz")))
-    elif name == "asymmetry":
-        parts.append(f"{sig} (residual ∝ ŷ², ŷ³)")
-        if s["amplitude_exponent"] is not None:
-            parts.append(f"the gap grows with amplitude as A^{s['amplitude_exponent']:.2f}")
-        bow = p["mid_stroke_bow_out"]
-        parts.append(f"fitted bow: mid-stroke {abs(bow):.3g} {unit} {'above' if bow > 0 else 'below'} the straight line "
-                     f"through the stroke ends ({p['bow_pct_of_stroke']:.2g} % of the stroke)")
-    elif name == "drift":
-        parts.append(f"{sig} (an offset and a ramp per capture)")
-        if s.get("heldout_to_fit_ratio") is not None and s["heldout_to_fit_ratio"] > 1.15:
-            parts.append(f"the gap grows {s['heldout_to_fit_ratio']:.2f}× into later time")
-        parts.append(f"{100 * s['low_frequency_share']:.0f} % of the residual power above noise is below half the "
-                     "excitation frequency")
-        parts.append(f"fitted rates: median absolute rate {p['median_abs_rate_out_per_s']:.3g} {unit}/s")
-    parts.append(f"held out: RMSE {res['before']:.4g} → {res['after']:.4g} {unit} (reduction {res['reduction']:.2f}; "
-                 f"best placebo of the same size improves by {res['placebo']:.3g} {unit})")
-    return "; ".join(parts)
-
-
-# ----------------------------------------------------------------------------------------------
 # The diagnosis
 # ----------------------------------------------------------------------------------------------
 
@@ -1276,29 +1315,20 @@ def _groups(caps: Sequence[Capture], per_condition: bool) -> tuple[list, list, l
     return group_idx, labels, conds, group_of
 
 
-def _split_info(split_kind: str, split_why: str, caps, views, swept, held_out, settings) -> dict:
+def _split_info(split: SplitChoice, caps, views, swept, settings) -> dict:
     """The ``split`` section of diagnosis.json: the hold-out scheme, why, and per capture what was held out."""
     per_cap = [{"source": c.source, "fit_samples": int(v.fit.sum()), "heldout_samples": int((~v.fit).sum()),
                 "amplitude_changes": bool(sw), "heldout_whole": bool(h),
                 "split_time_s": float(c.t[v.fit_end - 1]) if v.fit_end else None}
-               for c, v, sw, h in zip(caps, views, swept, held_out)]
-    if split_kind == "capture":
-        split = {"kind": "capture", "why": split_why,
-                 "heldout_captures": [c.source for c, h in zip(caps, held_out) if h],
-                 "description": ("every fit (base, base + effect, placebo) uses the captures at the lowest and highest "
-                                 "drive frequencies; the captures at the frequencies in between are held out whole and "
-                                 "only they score 'heldout_*' (an interpolation in frequency, at every amplitude)"),
-                 "per_capture": per_cap}
+               for c, v, sw, h in zip(caps, views, swept, split.held_out)]
+    out = {"kind": split.kind, "why": split.why}
+    if split.kind == "capture":
+        out["heldout_captures"] = [c.source for c, h in zip(caps, split.held_out) if h]
     else:
-        split = {"kind": "temporal", "why": split_why,
-                 "fit_fraction": settings.fit_fraction,
-                 "description": ("every fit (base, base + effect, placebo) uses the first part of each capture: whole "
-                                 f"cycles (round({settings.fit_fraction:g} × cycles)) of periodic captures, the first "
-                                 f"{100 * settings.fit_fraction:.0f} % of the samples of the others; the remaining "
-                                 "samples of every capture are held out and only they score 'heldout_*' (the model is "
-                                 "simulated from the start of the capture, so its state at the split is its own)"),
-                 "per_capture": per_cap}
-    return split
+        out["fit_fraction"] = settings.fit_fraction
+    out["description"] = split_description(split.kind, settings.fit_fraction)
+    out["per_capture"] = per_cap
+    return out
 
 
 def _base_fit_jobs(caps, views, group_idx, labels, conds, by_cond) -> list[tuple]:
@@ -1366,70 +1396,102 @@ def _refined_floor(caps, preds, periodic, noise: dict, sigma: float) -> tuple[li
     return per, (float(np.median(finite)) if finite else sigma)
 
 
-def _calibration_pointer(caps, calib: list[dict], unit: str) -> str:
-    return ("per-capture calibration: " + "; ".join(
-        f"{Path(c.source).name} offset {cal['offset_out']:+.3g} {_display(unit)}, gain {cal['gain']:.4f}"
-        for c, cal in zip(caps, calib) if cal["calibration_differs"])
-        + " against the common fit — a sensor re-zeroed or re-scaled between recordings, not an effect of the "
-          "actuator: fitted per capture as part of the base before any effect was tested; identify with the "
-          "`drift` block (offsets) or align offsets (`simulate --align-offset`)")
+def _calibration_finding(caps, calib: Sequence[dict]) -> Finding:
+    """The per-capture offsets and gains of the captures whose calibration differs."""
+    return Finding("calibration", {"captures": [(c.name, cal["offset_out"], cal["gain"])
+                                                for c, cal in zip(caps, calib) if cal["calibration_differs"]]})
+
+
+@dataclass(frozen=True, eq=False)
+class _StepContext:
+    """What every candidate of one selection step is tested against: the current model, its held-out
+    and fit RMSE, its linearization and the placebo library, for one noise floor."""
+
+    state: _State
+    preds: list
+    before: float
+    fit_before: float
+    lin_cache: tuple
+    library: list
+    sigma: float
+    summary: dict
+
+
+def _placebo_gain(ctx: _StepContext, eff: Effect, cache: dict, caps, views, settings: "DiagnoseSettings",
+                  rng) -> tuple[float, float]:
+    """(best, mean) held-out improvement of random placebos with ``eff``'s parameter layout (drawn
+    once per layout and step, in the order the layouts are first met)."""
+    ks, kl = eff.layout()
+    key = (ks + eff.searched_bounds()[0].size, kl)
+    if key not in cache:
+        imps = []
+        for _ in range(settings.placebo_draws):
+            pl = Placebo.build(ctx.library, key[0], key[1], rng)
+            st_p, _ = _augment(ctx.state, pl, caps, views, ctx.lin_cache, 1)
+            imps.append(ctx.before - _rmse(_predictions(st_p, caps, views), views, "test"))
+        cache[key] = (max(imps), float(np.mean(imps)))
+    return cache[key]
+
+
+def _test_effect(ctx: _StepContext, eff: Effect, placebo: tuple[float, float], step: int, caps, views,
+                 settings: "DiagnoseSettings", unit: str) -> tuple[EffectResult, tuple]:
+    """``eff`` refitted on top of the current model and scored on held-out data: its
+    :class:`EffectResult` and the (state, predictions) of the model with it."""
+    pl_best, pl_mean = placebo
+    before, sigma = ctx.before, ctx.sigma
+    st_e, efit = _augment(ctx.state, eff, caps, views, ctx.lin_cache, settings.iterations)
+    preds_e = _predictions(st_e, caps, views)
+    after = _rmse(preds_e, views, "test")
+    fit_after = _rmse(preds_e, views, "fit")
+    denom = before - sigma
+    red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
+    pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
+    fitted = [i for i, v in enumerate(views) if v.fit_end >= 3]
+    share, r2 = signature_share(eff, [ctx.preds[i][: views[i].fit_end] for i in fitted],
+                                [views[i].head(views[i].fit_end) for i in fitted], sigma * sigma)
+    params = efit.params(views, [c.source for c in caps])
+    passes = {"reduction_at_least_threshold": red >= settings.threshold,
+              "beats_placebo": (before - after) > pl_best,
+              "gap_above_noise": _excess(before, sigma) >= settings.min_excess_ratio * sigma}
+    ev = Evidence.from_summary(eff.name, ctx.summary, signature_share=share, params=params, heldout_before=before,
+                               heldout_after=after, reduction=red, placebo=pl_best)
+    result = EffectResult(eff.name, eff.title, step + 1, before, after, ctx.fit_before, fit_after, red, pl_best,
+                          pl_mean, pl_red, efit.n_parameters, share, r2, params, evidence_text(ev, unit), passes,
+                          efit, ev)
+    return result, (st_e, preds_e)
+
+
+@dataclass(frozen=True, eq=False)
+class _Selection:
+    """The greedy selection for one noise floor: every step's results (best first), the effects
+    named in order, the equally good alternatives per step, and the final model's predictions."""
+
+    steps: tuple[tuple[EffectResult, ...], ...]
+    chosen: tuple[str, ...]
+    alternatives: tuple[tuple[str, ...], ...]
+    preds: list
 
 
 def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, cands, all_effects,
-                    settings: "DiagnoseSettings", seed: int, unit: str, advance, count_progress: bool):
+                    settings: "DiagnoseSettings", seed: int, unit: str, advance, count_progress: bool) -> _Selection:
     """The greedy selection of effects for one noise floor (the fits do not depend on it, the
     reductions and the verdict do)."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
-    steps: list[tuple[EffectResult, ...]] = []
-    chosen: list[str] = []
-    alternatives: list[tuple[str, ...]] = []
-    state = state0
-    preds_state = pred0
+    steps, chosen, alternatives = [], [], []
+    state, preds_state = state0, pred0
     remaining = list(cands)
     for step in range(settings.max_effects):
         if not remaining:
             break
-        before = _rmse(preds_state, views, "test")
-        fit_before = _rmse(preds_state, views, "fit")
-        lin_cache = _linearize(state, caps, views)
-        xs_full = _predictions(state, caps, views)
-        library = _library(all_effects, xs_full, views)
+        ctx = _StepContext(state, preds_state, _rmse(preds_state, views, "test"), _rmse(preds_state, views, "fit"),
+                           _linearize(state, caps, views),
+                           _library(all_effects, _predictions(state, caps, views), views), sigma, where["summary"])
         placebo_cache: dict = {}
-        results = []
-        states = {}
+        results, states = [], {}
         for eff in remaining:
-            ks, kl = eff.layout()
-            m = eff.searched_bounds()[0].size
-            key = (ks + m, kl)
-            if key not in placebo_cache:
-                imps = []
-                for _ in range(settings.placebo_draws):
-                    pl = Placebo.build(library, key[0], key[1], rng)
-                    st_p, _ = _augment(state, pl, caps, views, lin_cache, 1)
-                    imps.append(before - _rmse(_predictions(st_p, caps, views), views, "test"))
-                placebo_cache[key] = (max(imps), float(np.mean(imps)))
-            pl_best, pl_mean = placebo_cache[key]
-            st_e, efit = _augment(state, eff, caps, views, lin_cache, settings.iterations)
-            preds_e = _predictions(st_e, caps, views)
-            after = _rmse(preds_e, views, "test")
-            fit_after = _rmse(preds_e, views, "fit")
-            denom = before - sigma
-            red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
-            pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
-            fitted = [i for i, v in enumerate(views) if v.fit_end >= 3]
-            share, r2 = signature_share(eff, [preds_state[i][: views[i].fit_end] for i in fitted],
-                                        [views[i].head(views[i].fit_end) for i in fitted], sigma * sigma)
-            params = efit.params(views, [c.source for c in caps])
-            excess = _excess(before, sigma)
-            passes = {"reduction_at_least_threshold": red >= settings.threshold,
-                      "beats_placebo": (before - after) > pl_best,
-                      "gap_above_noise": excess >= settings.min_excess_ratio * sigma}
-            ev = _evidence(eff.name, {"signature_share": share, "params": params, "before": before, "after": after,
-                                      "reduction": red, "placebo": pl_best}, where, unit)
-            results.append(EffectResult(eff.name, eff.title, step + 1, before, after, fit_before, fit_after, red,
-                                        pl_best, pl_mean, pl_red, efit.n_parameters, share, r2, params, ev, passes,
-                                        efit))
-            states[eff.name] = (st_e, preds_e)
+            placebo = _placebo_gain(ctx, eff, placebo_cache, caps, views, settings, rng)
+            r, states[eff.name] = _test_effect(ctx, eff, placebo, step, caps, views, settings, unit)
+            results.append(r)
             if step == 0 and count_progress:
                 advance(f"effect {eff.name}")
         results.sort(key=lambda r: (-r.reduction, r.n_parameters))
@@ -1443,7 +1505,153 @@ def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, ca
         chosen.append(pick.effect)
         state, preds_state = states[pick.effect]
         remaining = [e for e in remaining if e.name != pick.effect]
-    return steps, chosen, alternatives, preds_state
+    return _Selection(tuple(steps), tuple(chosen), tuple(alternatives), preds_state)
+
+
+@dataclass(frozen=True, eq=False)
+class _Design:
+    """How the captures are used: per capture periodic and amplitude-swept flags, the hold-out
+    split, the views (fit masks), and the base model's parameter groups."""
+
+    periodic: tuple[bool, ...]
+    swept: tuple[bool, ...]
+    split: SplitChoice
+    views: tuple[CaptureView, ...]
+    group_idx: tuple[tuple[int, ...], ...]
+    labels: tuple[str, ...]
+    conds: tuple[tuple[float, float], ...]
+    group_of: tuple[int, ...]
+
+
+def _design(caps: Sequence[Capture], settings: "DiagnoseSettings", per_condition: bool) -> _Design:
+    """Periodicity, sweeps, the split and the fit masks of the captures, and the parameter groups."""
+    periodic = [is_periodic(c.u, c.dt, c.frequency_Hz) for c in caps]
+    swept = [is_swept(c.u, c.dt, c.frequency_Hz) for c in caps]
+    split = split_choice(caps, swept, settings, per_condition)
+    if split.kind == "capture":
+        masks = [np.full(c.n, not h) for c, h in zip(caps, split.held_out)]
+    else:
+        masks = fit_masks(caps, periodic, settings.fit_fraction)
+    views = [CaptureView(c.t, c.dt, c.y, m, float(c.frequency_Hz), p, i)
+             for i, (c, m, p) in enumerate(zip(caps, masks, periodic))]
+    group_idx, labels, conds, group_of = _groups(caps, per_condition)
+    return _Design(tuple(periodic), tuple(swept), split, tuple(views), tuple(group_idx), tuple(labels),
+                   tuple(conds), tuple(group_of))
+
+
+@dataclass(frozen=True, eq=False)
+class _Gap:
+    """Step 1: the base model fitted on everything — predictions, residuals (also of every condition
+    fitted alone), the noise floor and the RMSE over all samples."""
+
+    full_pred: list
+    residuals: list
+    residuals_alone: list | None
+    noise: dict
+    rmse_full: float
+
+
+def _gap_step(caps, d: _Design, base_fits: list, by_cond: dict | None) -> _Gap:
+    """The gap of the base model fitted on everything and the noise floor under it."""
+    G = len(d.group_idx)
+    full_pred = _per_capture(base_fits[:G], d.group_idx, len(caps))
+    residuals = [p - c.y for p, c in zip(full_pred, caps)]
+    noise = estimate_noise(caps, residuals, d.periodic)
+    rmse_full = math.sqrt(sum(float(r @ r) for r in residuals) / sum(r.size for r in residuals))
+    alone = _residuals_alone(caps, by_cond, base_fits[2 * G:]) if by_cond is not None else None
+    return _Gap(full_pred, residuals, alone, noise, rmse_full)
+
+
+@dataclass(frozen=True, eq=False)
+class _Base:
+    """Step 2: the base model fitted on the fit part (with the per-capture calibration when the
+    captures disagree), its predictions and its held-out and fit RMSE."""
+
+    state: _State
+    preds: list
+    before: float
+    fit_before: float
+    calibration: tuple[dict, ...]
+    calibrated: bool
+
+
+def _base_step(caps, d: _Design, fits: list, full_pred: list, sigma: float, settings: "DiagnoseSettings") -> _Base:
+    """The starting point of the selection: the base fitted on the fit part (plus the calibration)."""
+    views = list(d.views)
+    groups = [_Group(d.labels[gi], d.conds[gi], f.model, f.params, np.asarray(f.theta, float).copy(),
+                     np.array([p.lower for p in f.params]), np.array([p.upper for p in f.params]), idx)
+              for gi, (idx, f) in enumerate(zip(d.group_idx, fits))]
+    state0 = _State(groups, [], d.group_of)
+    calib = capture_calibration(caps, full_pred, sigma)
+    calibrated = len(caps) > 1 and any(c["calibration_differs"] for c in calib)
+    if calibrated:  # the sensor's per-capture offset and gain are part of the base, never an effect
+        state0, _ = _augment(state0, _Calibration(), caps, views, _linearize(state0, caps, views), settings.iterations)
+    pred0 = _predictions(state0, caps, views)
+    return _Base(state0, pred0, _rmse(pred0, views, "test"), _rmse(pred0, views, "fit"), tuple(calib), calibrated)
+
+
+def _complete_where(where: dict, sigma: float, caps, d: _Design, base: _Base, unit: str) -> list[Finding]:
+    """The split-dependent part of the where-analysis summary, and its findings (returned) and pointers."""
+    s = where["summary"]
+    ex_fit = _excess(base.fit_before, sigma)
+    s["heldout_to_fit_ratio"] = _excess(base.before, sigma) / ex_fit if ex_fit > 0 else None
+    s["split"] = d.split.kind
+    freqs = [c.frequency_Hz for c in caps if np.isfinite(c.frequency_Hz) and c.frequency_Hz > 0]
+    s["drive_frequency_Hz"] = float(np.median(freqs)) if freqs else None
+    s["amplitude_changes_within_capture"] = bool(any(d.swept))
+    found = findings(s, where["by_branch"], where["by_loop_position"], sigma)
+    where["pointers"] = pointers_text(found, unit)
+    return found
+
+
+@dataclass(frozen=True, eq=False)
+class _Outcome:
+    """Steps 3–4 for the final noise floor: the floor, the where-analysis, its findings and figure
+    data, and the selection."""
+
+    sigma: float
+    where: dict
+    findings: list
+    fig_where: dict
+    selection: _Selection
+
+
+def _where_and_select(caps, d: _Design, gap: _Gap, base: _Base, first: tuple[dict, dict], select,
+                      unit: str) -> _Outcome:
+    """The where-analysis and the selection, redone with a refined noise floor when the named effects
+    show that the base residual overstated it.
+
+    The floor was estimated from the base model's residual. Where that residual holds fast model
+    error (a ringing stage the base cannot draw), the scatter estimate of those captures is
+    inflated; the model with the named effects removes it. Re-estimate from the better of the two
+    residuals per capture and, when the floor drops by more than 5 %, redo the where-analysis and
+    the selection with it (the fits are the same; reductions and the verdict depend on it).
+    ``first`` is the where-analysis with the base model's floor."""
+    noise = gap.noise
+    sigma = noise["sigma"]
+    where, fig_where = first
+    found = _complete_where(where, sigma, caps, d, base, unit)
+    sel = select(sigma, where, True)
+    if sel.chosen:
+        per, refined = _refined_floor(caps, sel.preds, d.periodic, noise, sigma)
+        noise["sigma_base_model_out"] = sigma
+        noise["sigma_final_model_out"] = refined
+        if refined < 0.95 * sigma:
+            noise.update(sigma=refined, per_capture_out=per, refined=True, method=noise["method"] + NOISE_METHOD_REFINED)
+            sigma = refined
+            where, fig_where = where_analysis(caps, gap.residuals, sigma, d.periodic, gap.residuals_alone)
+            found = _complete_where(where, sigma, caps, d, base, unit)
+            sel = select(sigma, where, False)
+    noise.setdefault("refined", False)
+    return _Outcome(sigma, where, found, fig_where, sel)
+
+
+def _capture_info(caps, d: _Design, calib: Sequence[dict]) -> tuple[dict, ...]:
+    """The ``captures`` section: condition, sampling, periodicity, sweep and calibration per capture."""
+    return tuple({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
+                  "samples": c.n, "dt_s": c.dt, "duration_s": c.duration_s, "periodic": bool(p),
+                  "amplitude_changes": bool(sw), **cal}
+                 for c, p, sw, cal in zip(caps, d.periodic, d.swept, calib))
 
 
 def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0,
@@ -1473,124 +1681,56 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     t_start = time.perf_counter()
     check_seed(seed)
     caps, unit, names = _checked_inputs(captures, effects)
-    C = len(caps)
     model = prepare_shared(model, caps)  # shared structure from all captures, once (not per fit subset)
-    periodic = [is_periodic(c.u, c.dt, c.frequency_Hz) for c in caps]
-    swept = [is_swept(c.u, c.dt, c.frequency_Hz) for c in caps]
-    split_kind, held_out, split_why = choose_split(caps, swept, settings, per_condition)
-    if split_kind == "capture":
-        masks = [np.full(c.n, not h) for c, h in zip(caps, held_out)]
-    else:
-        masks = fit_masks(caps, periodic, settings.fit_fraction)
-    views = [CaptureView(c.t, c.dt, c.y, m, float(c.frequency_Hz), p, i)
-             for i, (c, m, p) in enumerate(zip(caps, masks, periodic))]
-
-    group_idx, labels, conds, group_of = _groups(caps, per_condition)
-    n_units = 2 * len(group_idx) + 1 + len(names) + 1
+    d = _design(caps, settings, per_condition)
+    G = len(d.group_idx)
     if progress:
-        progress("start", {"total": n_units})
+        progress("start", {"total": 2 * G + 1 + len(names) + 1})
 
     def advance(label: str) -> None:
         if progress:
             progress("advance", {"label": label})
 
     # the base fits (on everything, on the fit part, per condition alone) are the cells of the executor
-    G = len(group_idx)
     by_cond = group_by_condition(caps)
-    alone = not per_condition and len(by_cond) > 1
-    jobs = _base_fit_jobs(caps, views, group_idx, labels, conds, by_cond if alone else None)
+    alone = by_cond if not per_condition and len(by_cond) > 1 else None
+    jobs = _base_fit_jobs(caps, d.views, d.group_idx, d.labels, d.conds, alone)
     base_fits = _base_fits(jobs, G, model, optimizer, seed, executor, store, resume, advance, stats)
-
-    # 1. gap: base fitted on everything
-    full_pred = _per_capture(base_fits[:G], group_idx, C)
-    residuals = [p - c.y for p, c in zip(full_pred, caps)]
-    noise = estimate_noise(caps, residuals, periodic)
-    sigma = noise["sigma"]
-    rmse_full = math.sqrt(sum(float(r @ r) for r in residuals) / sum(r.size for r in residuals))
-    residuals_alone = _residuals_alone(caps, by_cond, base_fits[2 * G:]) if alone else None
-    where, fig_where = where_analysis(caps, residuals, sigma, periodic, residuals_alone)
+    gap = _gap_step(caps, d, base_fits, alone)   # 1. gap: base fitted on everything
+    first = where_analysis(caps, gap.residuals, gap.noise["sigma"], d.periodic, gap.residuals_alone)
     advance("where")
-    first_run = True
+    base = _base_step(caps, d, base_fits[G:2 * G], gap.full_pred, gap.noise["sigma"], settings)  # 2. fit part
+    cands = _configured(names, base.preds, d.views)  # the candidates, configured on the fit data
+    all_effects = _configured(list(EFFECTS), base.preds, d.views)
 
-    # 2. base fitted on the fit part only
-    groups = [_Group(labels[gi], conds[gi], f.model, f.params, np.asarray(f.theta, float).copy(),
-                     np.array([p.lower for p in f.params]), np.array([p.upper for p in f.params]), idx)
-              for gi, (idx, f) in enumerate(zip(group_idx, base_fits[G:2 * G]))]
-    state0 = _State(groups, [], tuple(group_of))
-    calib = capture_calibration(caps, full_pred, sigma)
-    calibrated = len(caps) > 1 and any(c["calibration_differs"] for c in calib)
-    if calibrated:  # the sensor's per-capture offset and gain are part of the base, never an effect
-        state0, _ = _augment(state0, _Calibration(), caps, views, _linearize(state0, caps, views), settings.iterations)
-    pred0 = _predictions(state0, caps, views)
-    before0 = _rmse(pred0, views, "test")
-    fit_before0 = _rmse(pred0, views, "fit")
+    def select(sigma: float, where: dict, count_progress: bool) -> _Selection:
+        return _select_effects(sigma, where, state0=base.state, pred0=base.preds, caps=caps, views=list(d.views),
+                               cands=cands, all_effects=all_effects, settings=settings, seed=seed, unit=unit,
+                               advance=advance, count_progress=count_progress)
 
-    def complete_where(where: dict, sigma: float) -> None:
-        ex_fit = _excess(fit_before0, sigma)
-        where["summary"]["heldout_to_fit_ratio"] = _excess(before0, sigma) / ex_fit if ex_fit > 0 else None
-        where["summary"]["split"] = split_kind
-        freqs = [c.frequency_Hz for c in caps if np.isfinite(c.frequency_Hz) and c.frequency_Hz > 0]
-        where["summary"]["drive_frequency_Hz"] = float(np.median(freqs)) if freqs else None
-        where["summary"]["amplitude_changes_within_capture"] = bool(any(swept))
-        where["pointers"] = _pointers(where["summary"], where["by_branch"], where["by_loop_position"], sigma, unit)
-
-    complete_where(where, sigma)
-
-    # configure the candidates on the fit data
-    cands = _configured(names, pred0, views)
-    all_effects = _configured(list(EFFECTS), pred0, views)
-
-    def select(sigma: float, where: dict):
-        return _select_effects(sigma, where, state0=state0, pred0=pred0, caps=caps, views=views, cands=cands,
-                               all_effects=all_effects, settings=settings, seed=seed, unit=unit, advance=advance,
-                               count_progress=first_run)
-
-    steps, chosen, alternatives, preds_state = select(sigma, where)
-    # The floor was estimated from the base model's residual. Where that residual holds fast model
-    # error (a ringing stage the base cannot draw), the scatter estimate of those captures is
-    # inflated; the model with the named effects removes it. Re-estimate from the better of the
-    # two residuals per capture and, when the floor drops by more than 5 %, redo the where-analysis
-    # and the selection with it (the fits are the same; reductions and the verdict depend on it).
-    if chosen:
-        per, refined = _refined_floor(caps, preds_state, periodic, noise, sigma)
-        noise["sigma_base_model_out"] = sigma
-        noise["sigma_final_model_out"] = refined
-        if refined < 0.95 * sigma:
-            first_run = False
-            noise.update(sigma=refined, per_capture_out=per, refined=True,
-                         method=noise["method"] + "; per capture the smaller of the estimates from the base model's "
-                         "and from the final model's residual (the base residual held fast model error)")
-            sigma = refined
-            where, fig_where = where_analysis(caps, residuals, sigma, periodic, residuals_alone)
-            complete_where(where, sigma)
-            steps, chosen, alternatives, preds_state = select(sigma, where)
-    noise.setdefault("refined", False)
-
+    out = _where_and_select(caps, d, gap, base, first, select, unit)  # 3. where and 4. which, how far
     advance("verdict")
-
-    verdict = chosen[0] if chosen else "none"
-    final_after = _rmse(preds_state, views, "test")
-    gap = _gap(rmse_full, before0, fit_before0, final_after, sigma)
-    split = _split_info(split_kind, split_why, caps, views, swept, held_out, settings)
-    if split_kind == "capture" and settings.split == "auto":  # the temporal split beside, for agreement
+    sel = out.selection
+    split = _split_info(d.split, caps, d.views, d.swept, settings)
+    if d.split.kind == "capture" and settings.split == "auto":  # the temporal split beside, for agreement
         split["other_scheme"] = _other_scheme(
             diagnose(caps, model, optimizer, seed=seed, per_condition=per_condition, effects=effects,
-                     settings=replace(settings, split="temporal")), chosen)
-    cap_info = tuple({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
-                      "samples": c.n, "dt_s": c.dt, "duration_s": c.duration_s, "periodic": bool(p),
-                      "amplitude_changes": bool(sw), **cal}
-                     for c, p, sw, cal in zip(caps, periodic, swept, calib))
-    if calibrated:
-        where.setdefault("pointers", []).append(_calibration_pointer(caps, calib, unit))
-    figures_data = {"captures": caps, "views": views, "full_predictions": full_pred, "residuals": residuals,
-                    "base_predictions": pred0, "explained_predictions": preds_state, "chosen": list(chosen),
-                    "spectra": fig_where["spectra"], "group_labels": labels}
+                     settings=replace(settings, split="temporal")), sel.chosen)
+    found = list(out.findings)
+    if base.calibrated:
+        found.append(_calibration_finding(caps, base.calibration))
+        out.where.setdefault("pointers", []).append(pointer_text(found[-1], unit))
+    figures_data = {"captures": caps, "views": list(d.views), "full_predictions": gap.full_pred,
+                    "residuals": gap.residuals, "base_predictions": base.preds, "explained_predictions": sel.preds,
+                    "chosen": list(sel.chosen), "spectra": out.fig_where["spectra"], "group_labels": list(d.labels)}
     return Diagnosis(base_model=model.name, optimizer=optimizer.name,
                      mode="per-condition" if per_condition else "global", unit=unit, seed=int(seed),
-                     settings=settings, noise=noise, gap=gap, where=where,
-                     effects=steps[0] if steps else (), steps=tuple(steps), verdict=verdict,
-                     explained_by=tuple(chosen), alternatives=tuple(alternatives), split=split, captures=cap_info,
-                     runtime_s=time.perf_counter() - t_start, figures_data=figures_data)
+                     settings=settings, noise=gap.noise, where=out.where,
+                     gap=_gap(gap.rmse_full, base.before, base.fit_before, _rmse(sel.preds, d.views, "test"), out.sigma),
+                     effects=sel.steps[0] if sel.steps else (), steps=sel.steps,
+                     verdict=sel.chosen[0] if sel.chosen else "none", explained_by=sel.chosen,
+                     alternatives=sel.alternatives, split=split, captures=_capture_info(caps, d, base.calibration),
+                     runtime_s=time.perf_counter() - t_start, figures_data=figures_data, findings=tuple(found))
 
 
 # ----------------------------------------------------------------------------------------------

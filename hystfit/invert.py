@@ -79,13 +79,15 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, ClassVar, Sequence
 
 import numpy as np
 import pandas as pd
 from ._jit import njit
 
+from .capture import UniformSamples
 from .conditions import LookupTable, detect_condition
 from .errors import ConfigError, InputError
 from .io import TARGET_NAMES, load_table
@@ -112,6 +114,8 @@ __all__ = [
     "apply_limits",
     "find_spans",
     "invert_target",
+    "InvertLimits",
+    "check_invert_options",
     "invert_cell",
     "simulate_cell",
     "preroll_voltage",
@@ -170,7 +174,7 @@ class Step:
 
 
 @dataclass(frozen=True, eq=False)
-class Target:
+class Target(UniformSamples):
     """A desired displacement trajectory.
 
     Attributes
@@ -193,14 +197,7 @@ class Target:
     kind: str
     segments: tuple[Segment, ...]
     steps: tuple[Step, ...] = ()
-
-    @property
-    def n(self) -> int:
-        return int(self.y.shape[0])
-
-    @property
-    def fs(self) -> float:
-        return 1.0 / self.dt
+    samples_field: ClassVar[str] = "y"
 
     @property
     def stroke(self) -> float:
@@ -950,6 +947,170 @@ def _crossfade_into(out: np.ndarray, prev: SegmentChoice, prev_arrays: dict[int,
     return m
 
 
+@dataclass(frozen=True)
+class InvertLimits:
+    """The checked options of :func:`invert_target`: voltage limits (V) and where they came from,
+    slew limit (V/s, None: none), the given initial voltage (V, None: the inverse of the first
+    target sample) and the forced condition (None: iterate)."""
+
+    vmin_V: float
+    vmax_V: float
+    vmin_source: str
+    vmax_source: str
+    max_slew: float | None
+    initial_voltage: float | None
+    condition: tuple[float, float] | None
+
+    def record(self, pf: ParamsFile) -> dict:
+        """The ``limits`` of :class:`InversionResult`."""
+        return {"vmin_V": self.vmin_V, "vmax_V": self.vmax_V, "vmin_source": self.vmin_source,
+                "vmax_source": self.vmax_source,
+                "default_rule": f"identification voltage range {min(c.scale.u_min for c in pf.cells):g}…"
+                                f"{max(c.scale.u_max for c in pf.cells):g} V ± {LIMIT_MARGIN * 100:g} %",
+                "max_slew_V_per_s": self.max_slew}
+
+
+def check_invert_options(pf: ParamsFile, target: Target, method: str, condition, initial_voltage, vmin, vmax,
+                         max_slew) -> InvertLimits:
+    """The options of :func:`invert_target` checked (one-line ConfigError) and completed with the
+    default limits."""
+    if target.unit != pf.unit:
+        raise ConfigError(f"the target is in {target.unit} but {pf.path} is in {pf.unit}; convert the target "
+                          f"(or name its column e.g. target_{pf.unit})")
+    if method not in ("interpolate", "nearest"):
+        raise ConfigError(f"method {method!r}: choose interpolate or nearest")
+    dlo, dhi = default_voltage_limits(pf)
+    lo = dlo if vmin is None else _finite("vmin", vmin)
+    hi = dhi if vmax is None else _finite("vmax", vmax)
+    if not lo < hi:
+        raise ConfigError(f"the voltage limits must satisfy vmin < vmax; got vmin = {lo:g} V, vmax = {hi:g} V")
+    if max_slew is not None:
+        max_slew = _positive("the slew-rate limit (V/s)", max_slew)
+    if initial_voltage is not None:
+        initial_voltage = _finite("initial voltage", initial_voltage)
+        if not lo <= initial_voltage <= hi:
+            raise ConfigError(f"the initial voltage {initial_voltage:g} V lies outside the voltage limits "
+                              f"[{lo:g}, {hi:g}] V; change --initial-voltage or the limits")
+    if condition is not None:
+        condition = (_positive("condition amplitude (V)", condition[0]), _positive("condition frequency (Hz)",
+                                                                                   condition[1]))
+    return InvertLimits(lo, hi, "default" if vmin is None else "given", "default" if vmax is None else "given",
+                        max_slew, initial_voltage, condition)
+
+
+@dataclass(frozen=True, eq=False)
+class _Desired:
+    """Step 1–4 of :func:`invert_target`: the blended inverse, the cells per segment and the rest voltage."""
+
+    voltage: np.ndarray
+    choices: tuple[SegmentChoice, ...]
+    v0: float
+
+
+def _desired_voltage(pf: ParamsFile, target: Target, opts: InvertLimits, method: str, progress: Progress) -> _Desired:
+    """Segment by segment: the table condition, the cells' inverses blended and cross-faded at the joins."""
+    y_d = target.y
+    u_range = search_range(pf, opts.vmin_V, opts.vmax_V)
+    initial_voltage = opts.initial_voltage
+    if progress:
+        progress("start", {"total": len(target.segments)})
+    choices: list[SegmentChoice] = []
+    u_des = np.empty(target.n)
+    v0 = float(initial_voltage) if initial_voltage is not None else float("nan")
+    prev: tuple[SegmentChoice, dict[int, np.ndarray]] | None = None
+    segs = target.segments
+    for k, seg in enumerate(segs):
+        a, b = seg.start, seg.stop
+        nxt = segs[k + 1] if k + 1 < len(segs) else None
+        # the cells of this segment are also needed for the cross-fade into the next one
+        stop = b if nxt is None else min(target.n, b + _crossfade(b - a, nxt.stop - nxt.start))
+        cache = _CellCache(pf, target, initial_voltage if k == 0 else v0, u_range, progress, stop=stop,
+                           history=None if k == 0 else u_des[:a])
+        ch = choose_condition(pf, target, seg, cache, method=method, condition=opts.condition)
+        arrays = {c.index: cache.get(c.index) for c in ch.cells}
+        _blend_into(u_des, ch.cells, arrays, a, b)
+        m = _crossfade_into(u_des, prev[0], prev[1], ch) if prev is not None else 0
+        if m:
+            # the cells entered the segment with the faded voltage, not their own: continue from it
+            hist = u_des[:a + m]
+            for c in ch.cells:
+                arrays[c.index] = np.concatenate([hist, invert_cell(pf.cells[c.index], y_d[a + m:stop], target.dt,
+                                                                    v0, u_range, hist)])
+            _blend_into(u_des, ch.cells, arrays, a + m, b)
+        if k == 0 and initial_voltage is None:
+            v0 = float(u_des[0])
+        del cache
+        prev = (ch, arrays)
+        choices.append(ch)
+        if progress:
+            progress("advance", {"label": seg.label})
+    return _Desired(u_des, tuple(choices), v0)
+
+
+@dataclass(frozen=True, eq=False)
+class _Preview:
+    """Step 5–6 of :func:`invert_target`: the limited voltage, where limits acted, and its forward preview."""
+
+    voltage: np.ndarray
+    clip_spans: tuple[Span, ...]
+    slew_spans: tuple[Span, ...]
+    predicted: np.ndarray
+    metrics: dict
+    metrics_unlimited: dict | None
+    segment_metrics: tuple[dict, ...]
+
+
+def _preview(pf: ParamsFile, target: Target, opts: InvertLimits, desired: _Desired) -> _Preview:
+    """Limits applied, then the table's forward model run on the voltage (and on the unlimited one
+    when a limit acted) and scored against the target, as a whole and per segment."""
+    y_d, choices, v0 = target.y, desired.choices, desired.v0
+    used = sorted({c.index for ch in choices for c in ch.cells})
+    u_app, clip_spans, slew_spans = apply_limits(desired.voltage, target.dt, opts.vmin_V, opts.vmax_V,
+                                                 opts.max_slew, v0)
+    y_pred = blend_segments({i: simulate_cell(pf.cells[i], u_app, target.dt, v0) for i in used}, choices, target.n)
+    metrics = tracking_metrics(y_pred, y_d, pf.unit)
+    metrics_unlim = None
+    if clip_spans or slew_spans:
+        y_unl = blend_segments({i: simulate_cell(pf.cells[i], desired.voltage, target.dt, v0) for i in used},
+                               choices, target.n)
+        metrics_unlim = tracking_metrics(y_unl, y_d, pf.unit)
+        del y_unl
+    seg_metrics = tuple({"segment": ch.segment.label, "start_s": ch.segment.start * target.dt,
+                         "stop_s": (ch.segment.stop - 1) * target.dt,
+                         **tracking_metrics(y_pred[ch.segment.start:ch.segment.stop],
+                                            y_d[ch.segment.start:ch.segment.stop], pf.unit,
+                                            stroke=float(np.ptp(y_d[ch.segment.start:ch.segment.stop])))}
+                        for ch in choices)
+    return _Preview(u_app, tuple(clip_spans), tuple(slew_spans), y_pred, metrics, metrics_unlim, seg_metrics)
+
+
+def _inversion_notes(pf: ParamsFile, target: Target, opts: InvertLimits, desired: _Desired,
+                     extrap: Sequence[dict]) -> tuple[str, ...]:
+    """The remarks of an inversion: a rest voltage outside the limits, a jump at t = 0, the
+    segments' notes and clamps, extrapolated cells."""
+    lo, hi, v0, initial_voltage = opts.vmin_V, opts.vmax_V, desired.v0, opts.initial_voltage
+    y_d = target.y
+    notes: list[str] = []
+    if initial_voltage is None and not lo <= v0 <= hi:
+        notes.append(f"the stage must rest at {v0:.4g} V for the target's first sample, outside the limits "
+                     f"[{lo:.4g}, {hi:.4g}] V")
+    if initial_voltage is not None:
+        y_rest = sum(c.weight * rest_output(pf.cells[c.index], initial_voltage, target.dt)
+                     for c in desired.choices[0].cells)
+        jump = float(y_d[0] - y_rest)
+        if abs(jump) > 1e-3 * max(target.stroke, 1e-12):
+            notes.append(f"at the initial voltage {initial_voltage:g} V the stage rests at {y_rest:.4g} {pf.unit} "
+                         f"(model), the target starts at {y_d[0]:.4g} {pf.unit}: a jump of {jump:+.4g} {pf.unit} "
+                         "at t = 0")
+    for ch in desired.choices:
+        if ch.note:
+            notes.append(f"segment {ch.segment.label}: {ch.note}")
+        if ch.clamped:
+            notes.append(f"segment {ch.segment.label}: {clamp_note(ch.condition, ch.query)}")
+    notes += [extrapolation_note(x) for x in extrap]
+    return tuple(notes)
+
+
 def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate",
                   condition: tuple[float, float] | None = None, initial_voltage: float | None = None,
                   vmin: float | None = None, vmax: float | None = None, max_slew: float | None = None,
@@ -979,107 +1140,17 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
         Unit mismatch, vmin ≥ vmax, non-positive slew rate, initial voltage outside the
         limits, or a model that cannot be inverted.
     """
-    import time
-
     t0 = time.perf_counter()
-    if target.unit != pf.unit:
-        raise ConfigError(f"the target is in {target.unit} but {pf.path} is in {pf.unit}; convert the target "
-                          f"(or name its column e.g. target_{pf.unit})")
-    if method not in ("interpolate", "nearest"):
-        raise ConfigError(f"method {method!r}: choose interpolate or nearest")
-    dlo, dhi = default_voltage_limits(pf)
-    lo = dlo if vmin is None else _finite("vmin", vmin)
-    hi = dhi if vmax is None else _finite("vmax", vmax)
-    if not lo < hi:
-        raise ConfigError(f"the voltage limits must satisfy vmin < vmax; got vmin = {lo:g} V, vmax = {hi:g} V")
-    if max_slew is not None:
-        max_slew = _positive("the slew-rate limit (V/s)", max_slew)
-    if initial_voltage is not None:
-        initial_voltage = _finite("initial voltage", initial_voltage)
-        if not lo <= initial_voltage <= hi:
-            raise ConfigError(f"the initial voltage {initial_voltage:g} V lies outside the voltage limits "
-                              f"[{lo:g}, {hi:g}] V; change --initial-voltage or the limits")
-    if condition is not None:
-        condition = (_positive("condition amplitude (V)", condition[0]), _positive("condition frequency (Hz)",
-                                                                                   condition[1]))
-    y_d = target.y
-    u_range = search_range(pf, lo, hi)
-    if progress:
-        progress("start", {"total": len(target.segments)})
-    choices: list[SegmentChoice] = []
-    u_des = np.empty(target.n)
-    v0 = float(initial_voltage) if initial_voltage is not None else float("nan")
-    prev: tuple[SegmentChoice, dict[int, np.ndarray]] | None = None
-    segs = target.segments
-    for k, seg in enumerate(segs):
-        a, b = seg.start, seg.stop
-        nxt = segs[k + 1] if k + 1 < len(segs) else None
-        # the cells of this segment are also needed for the cross-fade into the next one
-        stop = b if nxt is None else min(target.n, b + _crossfade(b - a, nxt.stop - nxt.start))
-        cache = _CellCache(pf, target, initial_voltage if k == 0 else v0, u_range, progress, stop=stop,
-                           history=None if k == 0 else u_des[:a])
-        ch = choose_condition(pf, target, seg, cache, method=method, condition=condition)
-        arrays = {c.index: cache.get(c.index) for c in ch.cells}
-        _blend_into(u_des, ch.cells, arrays, a, b)
-        m = _crossfade_into(u_des, prev[0], prev[1], ch) if prev is not None else 0
-        if m:
-            # the cells entered the segment with the faded voltage, not their own: continue from it
-            hist = u_des[:a + m]
-            for c in ch.cells:
-                arrays[c.index] = np.concatenate([hist, invert_cell(pf.cells[c.index], y_d[a + m:stop], target.dt,
-                                                                    v0, u_range, hist)])
-            _blend_into(u_des, ch.cells, arrays, a + m, b)
-        if k == 0 and initial_voltage is None:
-            v0 = float(u_des[0])
-        del cache
-        prev = (ch, arrays)
-        choices.append(ch)
-        if progress:
-            progress("advance", {"label": seg.label})
-    del prev, arrays  # the per-cell voltages are no longer needed
-    used = sorted({c.index for ch in choices for c in ch.cells})
-    v0_source = "given" if initial_voltage is not None else "rest voltage of the first target sample"
-    notes: list[str] = []
-    if initial_voltage is None and not lo <= v0 <= hi:
-        notes.append(f"the stage must rest at {v0:.4g} V for the target's first sample, outside the limits "
-                     f"[{lo:.4g}, {hi:.4g}] V")
-    u_app, clip_spans, slew_spans = apply_limits(u_des, target.dt, lo, hi, max_slew, v0)
-    y_pred = blend_segments({i: simulate_cell(pf.cells[i], u_app, target.dt, v0) for i in used}, choices, target.n)
-    metrics = tracking_metrics(y_pred, y_d, pf.unit)
-    metrics_unlim = None
-    if clip_spans or slew_spans:
-        y_unl = blend_segments({i: simulate_cell(pf.cells[i], u_des, target.dt, v0) for i in used}, choices,
-                                target.n)
-        metrics_unlim = tracking_metrics(y_unl, y_d, pf.unit)
-        del y_unl
-    seg_metrics = tuple({"segment": ch.segment.label, "start_s": ch.segment.start * target.dt,
-                         "stop_s": (ch.segment.stop - 1) * target.dt,
-                         **tracking_metrics(y_pred[ch.segment.start:ch.segment.stop],
-                                            y_d[ch.segment.start:ch.segment.stop], pf.unit,
-                                            stroke=float(np.ptp(y_d[ch.segment.start:ch.segment.stop])))}
-                        for ch in choices)
-    if initial_voltage is not None:
-        y_rest = sum(c.weight * rest_output(pf.cells[c.index], initial_voltage, target.dt) for c in choices[0].cells)
-        jump = float(y_d[0] - y_rest)
-        if abs(jump) > 1e-3 * max(target.stroke, 1e-12):
-            notes.append(f"at the initial voltage {initial_voltage:g} V the stage rests at {y_rest:.4g} {pf.unit} "
-                         f"(model), the target starts at {y_d[0]:.4g} {pf.unit}: a jump of {jump:+.4g} {pf.unit} "
-                         "at t = 0")
-    for ch in choices:
-        if ch.note:
-            notes.append(f"segment {ch.segment.label}: {ch.note}")
-        if ch.clamped:
-            notes.append(f"segment {ch.segment.label}: {clamp_note(ch.condition, ch.query)}")
-    extrap = _extrapolation(pf, choices, u_app)
-    notes += [extrapolation_note(x) for x in extrap]
-    limits = {"vmin_V": lo, "vmax_V": hi, "vmin_source": "default" if vmin is None else "given",
-              "vmax_source": "default" if vmax is None else "given",
-              "default_rule": f"identification voltage range {min(c.scale.u_min for c in pf.cells):g}…"
-                              f"{max(c.scale.u_max for c in pf.cells):g} V ± {LIMIT_MARGIN * 100:g} %",
-              "max_slew_V_per_s": max_slew}
-    return InversionResult(pf.path, pf.model_name, pf.unit, target, method, u_app, u_des, y_pred, metrics,
-                           metrics_unlim, seg_metrics, tuple(choices), limits, v0, v0_source, tuple(clip_spans),
-                           tuple(slew_spans), tuple(extrap), tuple(notes), time.perf_counter() - t0)
+    opts = check_invert_options(pf, target, method, condition, initial_voltage, vmin, vmax, max_slew)
+    desired = _desired_voltage(pf, target, opts, method, progress)
+    pv = _preview(pf, target, opts, desired)
+    extrap = _extrapolation(pf, desired.choices, pv.voltage)
+    notes = _inversion_notes(pf, target, opts, desired, extrap)
+    v0_source = "given" if opts.initial_voltage is not None else "rest voltage of the first target sample"
+    return InversionResult(pf.path, pf.model_name, pf.unit, target, method, pv.voltage, desired.voltage, pv.predicted,
+                           pv.metrics, pv.metrics_unlimited, pv.segment_metrics, desired.choices, opts.record(pf),
+                           desired.v0, v0_source, pv.clip_spans, pv.slew_spans, tuple(extrap), notes,
+                           time.perf_counter() - t0)
 
 
 def clamp_note(condition: tuple[float, float], query: tuple[float, float]) -> str:

@@ -98,7 +98,8 @@ from ._lazy import lazy_module
 from .errors import ConfigError
 from .identify import check_seed
 from .invert import (CellUse, InversionResult, SegmentChoice, Span, Target, blend_segments, find_spans,
-                     invert_target, preroll_voltage, select_cells, tracking_metrics)
+                     invert_target, preroll_voltage, select_cells, sine_target, target_from_array,
+                     tracking_metrics)
 from .models.pi import PI
 from .results import Cell, ParamsFile
 
@@ -118,6 +119,8 @@ __all__ = [
     "step_metrics",
     "simulate_loop",
     "track",
+    "ControllerDesign",
+    "design_controllers",
 ]
 
 #: Controller names accepted by :func:`track`.
@@ -917,6 +920,102 @@ def parse_controllers(text: str | Sequence[str]) -> list[str]:
     return names
 
 
+def _check_track_options(controllers: Sequence[str], *, anti_windup: str, noise_std: float, seed: int,
+                         max_slew: float | None, kp, ki, kd, bandwidth_Hz, smc_options, pf: ParamsFile,
+                         plant_pf: ParamsFile) -> None:
+    """The options of :func:`track` that :func:`invert_target` does not check (one-line ConfigError)."""
+    if anti_windup not in ("backcalc", "clamp"):
+        raise ConfigError(f"anti-windup {anti_windup!r}: choose backcalc or clamp")
+    if not (math.isfinite(noise_std) and noise_std >= 0):
+        raise ConfigError(f"--noise {noise_std!r}: the noise σ must be a finite number >= 0")
+    check_seed(seed)
+    if max_slew is not None and not (math.isfinite(float(max_slew)) and float(max_slew) > 0):
+        raise ConfigError(f"--max-slew {max_slew!r}: the slew-rate limit must be a finite number > 0 (V/s)")
+    for flag, g in (("--kp", kp), ("--ki", ki), ("--kd", kd)):
+        if g is not None and not (math.isfinite(g) and g >= 0):
+            raise ConfigError(f"{flag} {g:g}: PID gains must be finite and >= 0")
+    gains_given = any(g is not None for g in (kp, ki, kd))
+    if gains_given and not any(c in ("pid", "ff+pid") for c in controllers):
+        raise ConfigError("--kp/--ki/--kd apply to the pid and ff+pid controllers; add one to the controllers")
+    if smc_options and not any(c.startswith("smc") for c in controllers):
+        raise ConfigError("--smc-option applies to the smc and smc-noinv controllers; add one to the controllers")
+    if gains_given and bandwidth_Hz is not None and not any(c.startswith("smc") for c in controllers):
+        raise ConfigError("--bandwidth sets automatic gains (and the sliding mode); drop it or drop --kp/--ki/--kd")
+    if plant_pf.unit != pf.unit:
+        raise ConfigError(f"the plant {plant_pf.path} is in {plant_pf.unit} but {pf.path} is in {pf.unit}")
+
+
+def _plant_choices(pf: ParamsFile, plant_pf: ParamsFile, inv: InversionResult, method: str) -> list[SegmentChoice]:
+    """The plant's cells per segment: the feedforward's own, or ``plant_pf``'s at the conditions it settled on."""
+    if plant_pf is pf:
+        return list(inv.choices)
+    out = []
+    for ch in inv.choices:
+        cells, query, clamped = select_cells(plant_pf, ch.condition if all(map(math.isfinite, ch.condition))
+                                             else (1.0, ch.condition[1]), method)
+        out.append(SegmentChoice(ch.segment, ch.condition, query, clamped, cells, (), True, "plant"))
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class ControllerDesign:
+    """The controllers of one :func:`track` run, designed on the nominal plant (None: not needed)."""
+
+    nominal: NominalPlant
+    pid: PIDGains | None
+    smc: SMCDesign | None
+
+
+def design_controllers(nominal: NominalPlant, controllers: Sequence[str], voltage_span: float, *, kp=None,
+                       ki=None, kd=None, bandwidth_Hz: float | None = None, anti_windup: str = "backcalc",
+                       smc_options: dict | None = None) -> ControllerDesign:
+    """The PID (given gains, or :func:`auto_pid`) and the sliding mode (:func:`design_smc`) the
+    ``controllers`` need; the sliding mode's bandwidth defaults to the automatic PID's."""
+    pid = None
+    if any(c in ("pid", "ff+pid") for c in controllers):
+        pid = (given_pid(nominal, kp or 0.0, ki or 0.0, kd or 0.0, anti_windup=anti_windup)
+               if any(g is not None for g in (kp, ki, kd)) else auto_pid(nominal, bandwidth_Hz, anti_windup))
+    smc = None
+    if any(c.startswith("smc") for c in controllers):
+        bw = bandwidth_Hz if bandwidth_Hz is not None else auto_pid(nominal).bandwidth_Hz
+        smc = design_smc(nominal, bw, voltage_span, **check_smc_options(smc_options))
+    return ControllerDesign(nominal, pid, smc)
+
+
+def _run_details(name: str, design: ControllerDesign) -> dict:
+    """The ``details`` of a :class:`ControllerRun`: feedforward use and the controller's design."""
+    pid, smc = design.pid, design.smc
+    details: dict = {"uses_feedforward": name not in ("pid", "smc-noinv")}
+    if name in ("pid", "ff+pid") and pid is not None:
+        details["pid"] = {"kp": pid.kp, "ki": pid.ki, "kd": pid.kd, "tf_s": pid.tf_s, "tt_s": pid.tt_s,
+                          "anti_windup": pid.anti_windup, "rule": pid.rule, "bandwidth_Hz": pid.bandwidth_Hz,
+                          "gain_margin": pid.gain_margin, "phase_margin_deg": pid.phase_margin_deg}
+    if name.startswith("smc") and smc is not None:
+        details["smc"] = {"design": smc.describe(), "Mx": smc.Mx.tolist(), "Mp": smc.Mp, "G": smc.G.tolist(),
+                          "q_per_s": smc.q, "eps_V_per_s": smc.eps, "alpha_per_V": smc.alpha,
+                          "bandwidth_Hz": smc.bandwidth_Hz}
+    return details
+
+
+def _run_controller(name: str, plant: _Plant, target: Target, inv: InversionResult, design: ControllerDesign, *,
+                    max_slew: float | None, noise: np.ndarray, disturbance: np.ndarray | None,
+                    unit: str) -> ControllerRun:
+    """One closed loop of :func:`track` simulated and scored."""
+    dt = target.dt
+    t0 = time.perf_counter()
+    with np.errstate(all="ignore"):  # a diverging plant model is reported by track, not warned about
+        y, ym, volt, cmd, limited = simulate_loop(
+            plant, target.y, inv.initial_voltage_V, name, ff=inv.desired_voltage_V,
+            pid=design.pid if name in ("pid", "ff+pid") else None,
+            smc=design.smc if name.startswith("smc") else None, vmin=inv.limits["vmin_V"],
+            vmax=inv.limits["vmax_V"], max_slew=max_slew, noise=noise, dt=dt, disturbance=disturbance)
+    wall = time.perf_counter() - t0
+    spans = find_spans(limited, cmd - volt, dt, "limit")
+    return ControllerRun(name, target.y, y, ym, volt, cmd, tracking_metrics(y, target.y, unit),
+                         tuple(step_metrics(target, y)) if target.steps else (), tuple(spans), wall,
+                         _run_details(name, design))
+
+
 def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid",), *,
           plant_pf: ParamsFile | None = None, method: str = "interpolate",
           condition: tuple[float, float] | None = None, initial_voltage: float | None = None,
@@ -944,85 +1043,34 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
     disturbance : optional output disturbance (N,) in the unit of ``pf``, added to the plant output.
     """
     controllers = parse_controllers(list(controllers))
-    if anti_windup not in ("backcalc", "clamp"):
-        raise ConfigError(f"anti-windup {anti_windup!r}: choose backcalc or clamp")
-    if not (math.isfinite(noise_std) and noise_std >= 0):
-        raise ConfigError(f"--noise {noise_std!r}: the noise σ must be a finite number >= 0")
-    check_seed(seed)
-    if max_slew is not None and not (math.isfinite(float(max_slew)) and float(max_slew) > 0):
-        raise ConfigError(f"--max-slew {max_slew!r}: the slew-rate limit must be a finite number > 0 (V/s)")
-    for flag, g in (("--kp", kp), ("--ki", ki), ("--kd", kd)):
-        if g is not None and not (math.isfinite(g) and g >= 0):
-            raise ConfigError(f"{flag} {g:g}: PID gains must be finite and >= 0")
-    need_pid = any(c in ("pid", "ff+pid") for c in controllers)
-    gains_given = any(g is not None for g in (kp, ki, kd))
-    if gains_given and not need_pid:
-        raise ConfigError("--kp/--ki/--kd apply to the pid and ff+pid controllers; add one to the controllers")
-    if smc_options and not any(c.startswith("smc") for c in controllers):
-        raise ConfigError("--smc-option applies to the smc and smc-noinv controllers; add one to the controllers")
-    if gains_given and bandwidth_Hz is not None and not any(c.startswith("smc") for c in controllers):
-        raise ConfigError("--bandwidth sets automatic gains (and the sliding mode); drop it or drop --kp/--ki/--kd")
     plant_pf = pf if plant_pf is None else plant_pf
-    if plant_pf.unit != pf.unit:
-        raise ConfigError(f"the plant {plant_pf.path} is in {plant_pf.unit} but {pf.path} is in {pf.unit}")
+    _check_track_options(controllers, anti_windup=anti_windup, noise_std=noise_std, seed=seed, max_slew=max_slew,
+                         kp=kp, ki=ki, kd=kd, bandwidth_Hz=bandwidth_Hz, smc_options=smc_options, pf=pf,
+                         plant_pf=plant_pf)
     inv = invert_target(pf, target, method=method, condition=condition, initial_voltage=initial_voltage,
                         vmin=vmin, vmax=vmax, max_slew=None, progress=progress)
-    lo, hi = inv.limits["vmin_V"], inv.limits["vmax_V"]
     max_slew = None if max_slew is None else float(max_slew)
-    dt = target.dt
-    if plant_pf is pf:
-        plant_choices = list(inv.choices)
-    else:
-        plant_choices = []
-        for ch in inv.choices:
-            cells, query, clamped = select_cells(plant_pf, ch.condition if all(map(math.isfinite, ch.condition))
-                                                 else (1.0, ch.condition[1]), method)
-            plant_choices.append(SegmentChoice(ch.segment, ch.condition, query, clamped, cells, (), True, "plant"))
-    nominal = nominal_plant(pf, inv.choices, dt)
-    pid = None
-    if need_pid:
-        pid = (given_pid(nominal, kp or 0.0, ki or 0.0, kd or 0.0, anti_windup=anti_windup) if gains_given
-               else auto_pid(nominal, bandwidth_Hz, anti_windup))
-    smc = None
-    notes = list(inv.notes)
-    if any(c.startswith("smc") for c in controllers):
-        bw = bandwidth_Hz if bandwidth_Hz is not None else auto_pid(nominal).bandwidth_Hz
-        smc = design_smc(nominal, bw, hi - lo, **check_smc_options(smc_options))
+    plant_choices = _plant_choices(pf, plant_pf, inv, method)
+    design = design_controllers(nominal_plant(pf, inv.choices, target.dt), controllers,
+                                inv.limits["vmax_V"] - inv.limits["vmin_V"], kp=kp, ki=ki, kd=kd,
+                                bandwidth_Hz=bandwidth_Hz, anti_windup=anti_windup, smc_options=smc_options)
     rng = np.random.default_rng(seed)
     noise = rng.standard_normal(target.n) * noise_std if noise_std > 0 else np.zeros(target.n)
-    ff = inv.desired_voltage_V
+    notes = list(inv.notes)
     runs = []
     if progress:
         progress("start", {"total": len(controllers)})
     for name in controllers:
-        plant = _Plant(plant_pf, plant_choices, target.n, dt)
-        t0 = time.perf_counter()
-        with np.errstate(all="ignore"):  # a diverging plant model is reported below, not warned about
-            y, ym, volt, cmd, limited = simulate_loop(
-                plant, target.y, inv.initial_voltage_V, name, ff=ff, pid=pid if name in ("pid", "ff+pid") else None,
-                smc=smc if name.startswith("smc") else None, vmin=lo, vmax=hi, max_slew=max_slew, noise=noise,
-                dt=dt, disturbance=disturbance)
-        wall = time.perf_counter() - t0
-        if not np.all(np.isfinite(y)):
+        run = _run_controller(name, _Plant(plant_pf, plant_choices, target.n, target.dt), target, inv, design,
+                              max_slew=max_slew, noise=noise, disturbance=disturbance, unit=pf.unit)
+        if not np.all(np.isfinite(run.output)):
             notes.append(f"{name}: the closed loop diverged (non-finite output)")
-        spans = find_spans(limited, cmd - volt, dt, "limit")
-        details: dict = {"uses_feedforward": name not in ("pid", "smc-noinv")}
-        if name in ("pid", "ff+pid") and pid is not None:
-            details["pid"] = {"kp": pid.kp, "ki": pid.ki, "kd": pid.kd, "tf_s": pid.tf_s, "tt_s": pid.tt_s,
-                              "anti_windup": pid.anti_windup, "rule": pid.rule, "bandwidth_Hz": pid.bandwidth_Hz,
-                              "gain_margin": pid.gain_margin, "phase_margin_deg": pid.phase_margin_deg}
-        if name.startswith("smc") and smc is not None:
-            details["smc"] = {"design": smc.describe(), "Mx": smc.Mx.tolist(), "Mp": smc.Mp, "G": smc.G.tolist(),
-                              "q_per_s": smc.q, "eps_V_per_s": smc.eps, "alpha_per_V": smc.alpha,
-                              "bandwidth_Hz": smc.bandwidth_Hz}
-        run = ControllerRun(name, target.y, y, ym, volt, cmd, tracking_metrics(y, target.y, pf.unit),
-                            tuple(step_metrics(target, y)) if target.steps else (), tuple(spans), wall, details)
         runs.append(run)
         if progress:
             progress("advance", {"label": name})
     plant_cells = tuple((ch.segment.label, ch.cells) for ch in plant_choices)
     return TrackResult(pf.path, plant_pf.path, pf.model_name, plant_pf.model_name, pf.unit, target, inv, plant_cells,
-                       nominal, pid, smc, tuple(runs), float(noise_std), int(seed),
+                       design.nominal, design.pid, design.smc, tuple(runs), float(noise_std), int(seed),
                        dict(inv.limits, max_slew_V_per_s=max_slew), tuple(notes))
 
 
@@ -1077,8 +1125,6 @@ def measure_bandwidths(pf: ParamsFile, controllers: Sequence[str], *, amplitude:
     if freqs.size < 2 or not np.all(np.isfinite(freqs)) or np.any(freqs <= 0) or np.any(freqs >= fs / 2):
         raise ConfigError(f"bandwidth frequencies must be ≥ 2 values in (0, {fs / 2:g}) Hz")
     freqs = np.sort(freqs)
-    from .invert import sine_target, target_from_array
-
     T = {c: [] for c in controllers}
     S = {c: [] for c in controllers}
     for f in freqs:

@@ -349,3 +349,28 @@ def test_segments_continue_from_the_voltage_history():
     err = np.abs(res.predicted - tgt.y)
     assert err[s4.start + fade:s5.stop].max() < 1e-9 * tgt.stroke
     assert err[:tgt.segments[2].stop].max() < 1e-9 * tgt.stroke  # the first cell alone, from rest
+
+
+def test_check_invert_options_completes_the_default_limits():
+    from hystfit.invert import InvertLimits, check_invert_options, default_voltage_limits
+
+    pf = table([pi_cell()])
+    tgt = sine_target(10.0, 10.0, cycles=2, fs=1e4)
+    opts = check_invert_options(pf, tgt, "interpolate", None, None, None, 50.0, None)
+    lo, _ = default_voltage_limits(pf)
+    assert isinstance(opts, InvertLimits)
+    assert (opts.vmin_V, opts.vmax_V, opts.vmin_source, opts.vmax_source) == (lo, 50.0, "default", "given")
+    assert opts.record(pf)["max_slew_V_per_s"] is None and "± 10 %" in opts.record(pf)["default_rule"]
+    with pytest.raises(ConfigError, match="vmin < vmax"):
+        check_invert_options(pf, tgt, "interpolate", None, None, 5.0, 1.0, None)
+    with pytest.raises(ConfigError, match="choose interpolate or nearest"):
+        check_invert_options(pf, tgt, "cubic", None, None, None, None, None)
+
+
+def test_captures_and_targets_count_samples_one_way():
+    from hystfit.capture import Capture, UniformSamples
+
+    tgt = sine_target(10.0, 10.0, cycles=2, fs=1e4)
+    cap = Capture("c.csv", t=np.arange(5) * 1e-3, u=np.zeros(5), y=None, dt=1e-3)
+    assert isinstance(tgt, UniformSamples) and isinstance(cap, UniformSamples)
+    assert (tgt.n, tgt.fs) == (tgt.y.size, pytest.approx(1e4)) and (cap.n, cap.fs) == (5, pytest.approx(1e3))

@@ -361,3 +361,13 @@ def test_measured_bandwidths_of_feedback_and_feedforward():
     assert math.isnan(ff["tracking_bandwidth_Hz"])  # perfect model: |T| = 1 at every frequency
     assert ff["disturbance_bandwidth_Hz"] == 0.0 and np.allclose(ff["sensitivity_gain"], 1.0)  # no feedback
     assert 100.0 < noinv["tracking_bandwidth_Hz"] < 1000.0
+
+
+def test_design_controllers_designs_only_what_the_controllers_need():
+    from hystfit.track import ControllerDesign, design_controllers
+
+    nominal = nominal_plant(pi_table(), invert_target(pi_table(), sine_target(10.0, 10.0, 2, 1e4)).choices, 1e-4)
+    d = design_controllers(nominal, ["ff"], 60.0)
+    assert isinstance(d, ControllerDesign) and d.pid is None and d.smc is None
+    d = design_controllers(nominal, ["ff+pid", "smc"], 60.0, kp=0.5)
+    assert d.pid.kp == 0.5 and d.pid.ki == 0.0 and d.smc is not None

@@ -1,0 +1,255 @@
+"""The wording of ``hystfit diagnose``: every English sentence of a diagnosis, from its numbers.
+
+:mod:`hystfit.diagnose` computes records — :class:`hystfit.diagnose.Finding` (a strong finding of
+the where-analysis: a kind and its numbers), :class:`hystfit.diagnose.Evidence` (an effect's
+signature, fitted parameters and held-out numbers), reason codes of the hold-out split and of the
+reconciliation — and this module turns them into the sentences of ``diagnosis.json`` (``pointers``,
+``evidence``, ``split.why``, ``split.description``, ``noise.method``, the ``definition`` entries,
+``reconciliation[].why``), of the console and of ``diagnosis.md``. It reads records and plain
+numbers only and imports nothing from :mod:`hystfit.diagnose`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Iterable, Sequence
+
+import numpy as np
+
+from .plots import display_unit
+
+if TYPE_CHECKING:  # records only; this module never imports the orchestration at run time
+    from ..diagnose import Evidence, Finding
+
+__all__ = [
+    "NOISE_METHOD",
+    "NOISE_METHOD_REFINED",
+    "DEFINITIONS",
+    "split_why",
+    "split_description",
+    "pointer_text",
+    "pointers_text",
+    "evidence_text",
+    "creep_character",
+    "reconciliation_why",
+]
+
+#: ``noise.method``: how the floor was estimated.
+NOISE_METHOD = ("1.4826·MAD of the third difference (−1,3,−3,1)/√20 of the base residual, "
+                "median over the captures")
+#: appended to :data:`NOISE_METHOD` when the floor was refined with the final model's residual.
+NOISE_METHOD_REFINED = ("; per capture the smaller of the estimates from the base model's and from the final "
+                        "model's residual (the base residual held fast model error)")
+
+#: the ``definition`` entries of the where-analysis sections.
+DEFINITIONS = {
+    "by_loop_position": "near = within 10 % of the half-cycle stroke from a turning point of the input",
+    "by_time": "first cycle = the first period of a periodic capture, else the first 10 % of it",
+    "by_band": ("bands relative to each capture's excitation frequency f0: drift < f0/2, low harmonics "
+                "f0/2…5.5·f0, high harmonics 5.5·f0…50.5·f0, broadband above; shares of the residual "
+                "power above the white-noise expectation"),
+    "by_level": "mean residual per tenth of each capture's input range (0 = lowest input), per branch",
+}
+
+
+# ----------------------------------------------------------------------------------------------
+# The hold-out split
+# ----------------------------------------------------------------------------------------------
+
+
+def split_why(reason: str, swept_sources: Sequence[str] = ()) -> str:
+    """Why the hold-out scheme was chosen (``split.why``), from the reason code of
+    :func:`hystfit.diagnose.split_choice`."""
+    if reason == "swept":
+        return ("the amplitude of " + ", ".join(swept_sources) + " changes within the capture: a temporal split "
+                "would test an amplitude extrapolation, so whole captures at interior frequencies are held out")
+    return {"requested": "requested",
+            "stationary": "every capture is stationary",
+            "no_interior": ("a capture is non-stationary but no interior frequency can be held out (temporal split: "
+                            "the held-out part extrapolates in amplitude as well as in time)")}[reason]
+
+
+def split_description(kind: str, fit_fraction: float) -> str:
+    """What was fitted and what was held out (``split.description``)."""
+    if kind == "capture":
+        return ("every fit (base, base + effect, placebo) uses the captures at the lowest and highest drive "
+                "frequencies; the captures at the frequencies in between are held out whole and only they score "
+                "'heldout_*' (an interpolation in frequency, at every amplitude)")
+    return ("every fit (base, base + effect, placebo) uses the first part of each capture: whole cycles "
+            f"(round({fit_fraction:g} × cycles)) of periodic captures, the first {100 * fit_fraction:.0f} % of the "
+            "samples of the others; the remaining samples of every capture are held out and only they score "
+            "'heldout_*' (the model is simulated from the start of the capture, so its state at the split is its own)")
+
+
+# ----------------------------------------------------------------------------------------------
+# Where: the findings
+# ----------------------------------------------------------------------------------------------
+
+
+def _how(v: dict) -> str:
+    return " when every condition is fitted on its own" if v.get("alone") else ""
+
+
+def _calibration(v: dict, u: str) -> str:
+    return ("per-capture calibration: " + "; ".join(
+        f"{name} offset {offset:+.3g} {u}, gain {gain:.4f}" for name, offset, gain in v["captures"])
+        + " against the common fit — a sensor re-zeroed or re-scaled between recordings, not an effect of the "
+          "actuator: fitted per capture as part of the base before any effect was tested; identify with the "
+          "`drift` block (offsets) or align offsets (`simulate --align-offset`)")
+
+
+def _frequency_trend(band: str, verb: str):
+    return lambda v, u: (f"{band} frequencies: the gap above noise {verb} with the excitation frequency{_how(v)} "
+                         f"(∝ f^{v['exponent']:.2f})")
+
+
+def _later_time(v: dict, u: str) -> str:
+    return (f"later time: fitted on the first part of each capture, the model misses {v['ratio']:.2f}× more (above "
+            "noise) on the later part")
+
+
+#: One sentence per finding kind: a function of the finding's numbers and the displayed unit.
+_FINDINGS = {
+    "frequency_grows": _frequency_trend("high", "grows"),
+    "frequency_shrinks": _frequency_trend("low", "shrinks"),
+    "amplitude_large": lambda v, u: (f"large amplitudes: the gap grows with the square of the amplitude or faster"
+                                     f"{_how(v)} (∝ A^{v['exponent']:.2f}; a scale-invariant loop-shape error grows "
+                                     "∝ A)"),
+    "later_time_swept": lambda v, u: (_later_time(v, u) + " — but the drive amplitude changes within the captures, "
+                                      "so this compares small loops with large ones; it is not by itself evidence of "
+                                      "creep or drift"),
+    "later_time": _later_time,
+    "heldout_captures": lambda v, u: (f"held-out captures: fitted on the other drive frequencies, the model misses "
+                                      f"{v['ratio']:.2f}× more (above noise) on the interior frequencies it did not "
+                                      "see"),
+    "low_frequency_share": lambda v, u: (f"low frequencies: {100 * v['share']:.0f} % of the residual power above noise "
+                                         "lies below half the excitation frequency (slow trends)"),
+    "high_frequency_share": lambda v, u: (f"high frequencies: {100 * v['share']:.0f} % of the residual power above "
+                                          "noise lies above the fifth harmonic of the excitation (sharp features: "
+                                          "turning points, steps, ringing)"),
+    "long_captures": lambda v, u: (f"long captures: the longest captures miss {v['ratio']:.1f}× more (above noise) "
+                                   "than the others"),
+    "level_dependent": lambda v, u: (f"displacement level: the error follows the input level the same way on both "
+                                     f"branches ({v['level_rms']:.3g} {u} RMS, against {v['opposite_rms']:.3g} {u} "
+                                     "with opposite signs on the two branches): a static output nonlinearity"),
+    "branch_opposite": lambda v, u: (f"branches: at the same input level the error has opposite signs on the two "
+                                     f"branches ({v['opposite_rms']:.3g} {u} RMS, against {v['level_rms']:.3g} {u} "
+                                     "common to both): the loop is too narrow or too wide, a lag or lead"),
+    "branch_bias": lambda v, u: (f"branches: the model sits {v['ascending_mean']:+.3g} {u} on the ascending and "
+                                 f"{v['descending_mean']:+.3g} {u} on the descending branch on average (opposite "
+                                 "biases: lag or branch asymmetry)"),
+    "turning_points": lambda v, u: (f"turning points: the error near turning points is {v['ratio']:.1f}× the "
+                                    "mid-stroke error"),
+    "mid_stroke": lambda v, u: f"mid-stroke: the error mid-stroke is {v['ratio']:.1f}× the error near turning points",
+    "start_up": lambda v, u: f"start-up: the first cycle misses {v['ratio']:.1f}× more than the later ones",
+    "no_concentration": lambda v, u: ("no concentration: the residual is spread evenly over conditions, branches, time "
+                                      "and frequency"),
+    "calibration": _calibration,
+}
+
+
+def pointer_text(finding: "Finding", unit: str) -> str:
+    """One finding of the where-analysis as a plain sentence (``where.pointers``)."""
+    return _FINDINGS[finding.kind](finding.values, display_unit(unit))
+
+
+def pointers_text(findings: Iterable["Finding"], unit: str) -> list[str]:
+    """The findings as sentences, in order."""
+    return [pointer_text(f, unit) for f in findings]
+
+
+# ----------------------------------------------------------------------------------------------
+# Which: the evidence of an effect
+# ----------------------------------------------------------------------------------------------
+
+
+def creep_character(tau_s: Sequence[float], gain: Sequence[float], drive_Hz: float | None) -> str:
+    """What the fitted creep chain *is*, from where its gain sits: a relaxation within about one
+    drive period is rate dependence (the loop widens with frequency); one over many periods is slow
+    creep (the output keeps moving after a move)."""
+    g = np.asarray(gain, float)
+    t = np.asarray(tau_s, float)
+    if g.size == 0 or not np.any(g > 0):
+        return "no creep gain fitted"
+    tau = float(np.exp(np.sum(g * np.log(t)) / np.sum(g)))  # gain-weighted (geometric) mean time constant
+    if drive_Hz is not None and np.isfinite(drive_Hz) and drive_Hz > 0 and tau <= 2.0 / drive_Hz:
+        return (f"most of the gain relaxes within τ ≈ {1e3 * tau:.3g} ms, about {tau * drive_Hz:.2g} drive period(s): "
+                "a relaxation on the scale of the drive period — rate dependence of the loop rather than slow creep")
+    return f"most of the gain relaxes over τ ≈ {tau:.3g} s: slow creep (the output keeps moving after a move)"
+
+
+def _grows_in_time(ev: "Evidence") -> list[str]:
+    r = ev.heldout_to_fit_ratio
+    return [f"the gap grows {r:.2f}× into later time"] if r is not None and r > 1.15 else []
+
+
+def _slow_share(ev: "Evidence") -> str:
+    return (f"{100 * ev.low_frequency_share:.0f} % of the residual power above noise is below half the excitation "
+            "frequency")
+
+
+def _with_frequency(ev: "Evidence") -> list[str]:
+    b = ev.frequency_exponent
+    return [f"the gap grows with frequency as f^{b:.2f}"] if b is not None else []
+
+
+def _dynamics(ev: "Evidence", sig: str, u: str) -> list[str]:
+    p = ev.params
+    lag = (f" ({p['phase_lag_at_highest_excitation_deg']:.2f}° lag at {p['at_highest_excitation_Hz']:g} Hz)"
+           if "phase_lag_at_highest_excitation_deg" in p else "")
+    return [f"{sig} (lag ∝ dŷ/dt plus gain rise ∝ d²ŷ/dt²)", *_with_frequency(ev),
+            f"fitted stage: f_n = {p['fn_Hz']:.4g} Hz, ζ = {p['zeta']:.3g}{lag}"]
+
+
+def _delay(ev: "Evidence", sig: str, u: str) -> list[str]:
+    p = ev.params
+    return [f"{sig} (lag ∝ dŷ/dt)", *_with_frequency(ev),
+            f"fitted delay {p['delay_ms'] * 1e3:.4g} µs ({p['delay_samples']:.2f} samples)"]
+
+
+def _creep(ev: "Evidence", sig: str, u: str) -> list[str]:
+    p = ev.params
+    long = ([f"longest captures miss {ev.long_capture_ratio:.1f}× more"]
+            if ev.long_capture_ratio is not None and ev.long_capture_ratio > 1.2 else [])
+    return [f"{sig} (slow low-pass responses of the output)", _slow_share(ev), *long, *_grows_in_time(ev),
+            "fitted gains " + ", ".join(f"{100 * g:.2g} % at τ = {t:g} s" for t, g in zip(p["tau_s"], p["gain"]))
+            + f" (total {100 * p['total_gain']:.2g} %)",
+            creep_character(p["tau_s"], p["gain"], ev.drive_frequency_Hz)]
+
+
+def _asymmetry(ev: "Evidence", sig: str, u: str) -> list[str]:
+    p = ev.params
+    c = ev.amplitude_exponent
+    bow = p["mid_stroke_bow_out"]
+    return [f"{sig} (residual ∝ ŷ², ŷ³)", *([f"the gap grows with amplitude as A^{c:.2f}"] if c is not None else []),
+            f"fitted bow: mid-stroke {abs(bow):.3g} {u} {'above' if bow > 0 else 'below'} the straight line through "
+            f"the stroke ends ({p['bow_pct_of_stroke']:.2g} % of the stroke)"]
+
+
+def _drift(ev: "Evidence", sig: str, u: str) -> list[str]:
+    return [f"{sig} (an offset and a ramp per capture)", *_grows_in_time(ev), _slow_share(ev),
+            f"fitted rates: median absolute rate {ev.params['median_abs_rate_out_per_s']:.3g} {u}/s"]
+
+
+#: The effect-specific part of the evidence (effects not listed get the held-out numbers only).
+_EVIDENCE = {"dynamics": _dynamics, "delay": _delay, "creep": _creep, "asymmetry": _asymmetry, "drift": _drift}
+
+
+def evidence_text(ev: "Evidence", unit: str) -> str:
+    """Plain-language evidence of one effect: signature, where-pointer, parameters, held-out numbers."""
+    u = display_unit(unit)
+    sig = f"its signature explains {100 * ev.signature_share:.0f} % of the residual above noise"
+    parts = _EVIDENCE[ev.effect](ev, sig, u) if ev.effect in _EVIDENCE else []
+    parts.append(f"held out: RMSE {ev.heldout_before:.4g} → {ev.heldout_after:.4g} {u} (reduction "
+                 f"{ev.reduction:.2f}; best placebo of the same size improves by {ev.placebo:.3g} {u})")
+    return "; ".join(parts)
+
+
+def reconciliation_why(reason: str, reduction: float, threshold: float) -> str:
+    """Why an effect whose shape the residual shows was not named (``reconciliation[].why``)."""
+    if reason == "shared_shape":
+        return ("its shape is shared with the effect(s) named first, which remove it: refitted on top of them it "
+                "gains less")
+    if reason == "not_carried_over":
+        return (f"the refit does not carry the pattern over to held-out data (reduction {reduction:.2f} < "
+                f"{threshold:g})")
+    return "it passes the reduction but fails another rule (placebo or noise floor)"
