@@ -308,9 +308,9 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     if progress:
         progress("start", {"total": len(groups) * runs})
     model = prepare_shared(model, captures)  # structure shared by all conditions (e.g. stage dynamics)
-    summary = getattr(model, "structure_summary", None)
+    summary = model.structure_summary()
     if progress and summary is not None:  # say how the shared structure was found (e.g. which route)
-        progress("note", {"text": f"{model.name}: {summary()}"})
+        progress("note", {"text": f"{model.name}: {summary}"})
     cells = []
     for cell, (key, caps) in enumerate(groups.items()):
         if global_fit:

@@ -42,7 +42,7 @@ def time_constants(longest_s: float, dt: float) -> tuple[float, ...]:
     fit stage dynamics. The top one can exceed the capture length by up to 10×: within the
     capture it then looks like a gain change or a linear drift (set ``tau_s`` to bound it).
     """
-    top = min(max(10.0 ** math.ceil(math.log10(max(longest_s, 1e-3)) - 1e-9), 0.1), 100.0)
+    top = min(max(10.0 ** math.floor(math.log10(max(longest_s, 1e-3)) + 1e-9), 0.1), 100.0)
     taus = tuple(float(x) for x in 10.0 ** np.arange(-2, round(math.log10(top)) + 1))
     return tuple(t for t in taus if t >= 5.0 * dt) or (float(top),)
 

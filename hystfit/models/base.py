@@ -32,6 +32,9 @@ class Model(ABC):
     reference: ClassVar[str] = ""
     equation: ClassVar[str] = ""
     rate_dependent: ClassVar[bool] = False
+    #: the structure option that sets the model's resolution (e.g. the number of play operators),
+    #: or None; :meth:`refined` doubles it
+    resolution_option: ClassVar[str | None] = None
 
     # ----------------------------------------------------------------- structure
     def adapt(self, scale: DataScale) -> "Model":
@@ -127,6 +130,28 @@ class Model(ABC):
         the ``auto`` optimizer solves those exactly and searches only the rest.
         """
         return None
+
+    # ----------------------------------------------------------------- declared optional contracts
+    @classmethod
+    def example(cls, scale: DataScale) -> "Model":
+        """A ready-to-simulate instance for ``scale`` (tests, docs). The default adapts the default
+        structure; models whose structure is identified from data (e.g. hammerstein) override it."""
+        return cls().adapt(scale)
+
+    def structure_summary(self) -> str | None:
+        """One line on how the shared structure was identified (reports), or None when there is none."""
+        return None
+
+    def refined(self) -> "Model | None":
+        """The same model at twice its resolution (:attr:`resolution_option` doubled, at most 200),
+        or None when it has no resolution option, the structure is fixed (explicit thresholds) or it
+        is already at the maximum. ``diagnose`` uses it to tell the base's resolution from an
+        unmodelled effect."""
+        opt = self.resolution_option
+        if opt is None or getattr(self, "thresholds_V", None) is not None:
+            return None
+        n = int(getattr(self, opt))
+        return None if n >= 200 else dataclasses.replace(self, **{opt: min(2 * n, 200)})
 
     # ----------------------------------------------------------------- stepping (for inverses)
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:

@@ -93,9 +93,14 @@ class Composite(Model):
 
     def structure_summary(self) -> str:
         """How the shared structure was found (the base's, if it has any) and the block chain."""
-        summary = getattr(self.base, "structure_summary", None)
+        summary = self.base.structure_summary()
         chain = " → ".join(b.name for b in self.blocks)
-        return (f"{summary()}; then {chain}" if summary is not None else f"{self.base.name} followed by {chain}")
+        return f"{summary}; then {chain}" if summary is not None else f"{self.base.name} followed by {chain}"
+
+    def refined(self) -> "Composite | None":
+        """The composite with its base at twice the resolution (:meth:`Model.refined`), or None."""
+        base = self.base.refined()
+        return None if base is None else replace(self, base=base)
 
     def describe_blocks(self, theta: np.ndarray, unit: str) -> list[dict[str, Any]]:
         """Per block: name, structure and parameter values (units in the names) for params.json."""

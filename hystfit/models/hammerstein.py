@@ -93,6 +93,7 @@ class Hammerstein(Model):
     reference = "paper 003 eq. 1–3 (PI), eq. 4–12 (correlation, Hankel SVD), §4.2 (stable inverse; ZPETC near the unit circle)"
     equation = "v = Σ_j w_j F_{r_j}[u],  x_{k+1} = A x_k + B v_k,  y_k = C x_k + D v_k + y0  (G(1) = 1)"
     rate_dependent = True
+    resolution_option = "n_operators"
 
     n_operators: int = 10
     placement: str = "uniform"

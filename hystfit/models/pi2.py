@@ -263,6 +263,7 @@ class PI2(Model):
                 "s_r = max(γ_l(u) − r, min(γ_r(u) + r, s_r(k−1))),  γ_l = a1 tanh(a2 u + a3) + a4,  "
                 "γ_r = b1 tanh(b2 u + b3) + b4,  r_j = α_r j")
     rate_dependent = True
+    resolution_option = "n_operators"
 
     n_operators: int = 10
     identification: str = "two-step"

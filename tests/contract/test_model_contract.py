@@ -28,10 +28,7 @@ def prepared(name):
     y_like = 0.3 * u + 0.02 * np.sin(2 * np.pi * 10 * np.arange(u.size) / FS)
     scale = DataScale.from_arrays([u], [y_like], [DT])
     cls = models.get(name)
-    if hasattr(cls, "example"):  # models whose structure is identified from data (e.g. hammerstein)
-        model = cls.example(scale)
-    else:
-        model = cls().adapt(scale)
+    model = cls.example(scale)  # declared on Model; hammerstein/pi2 identify their structure from data
     return model, model.params(scale), u, scale
 
 
@@ -204,7 +201,7 @@ def test_default_bounds_and_output_follow_the_data_units(name):
     y_like = 0.3 * u + 0.02 * np.sin(2 * np.pi * 10 * np.arange(u.size) / FS)
     scale2 = DataScale.from_arrays([k_u * u], [k_y * y_like], [DT])
     cls = models.get(name)
-    model2 = cls.example(scale2) if hasattr(cls, "example") else cls().adapt(scale2)
+    model2 = cls.example(scale2)
     params2 = model2.params(scale2)
     factors = []
     for p, q in zip(params, params2):
@@ -251,3 +248,16 @@ def test_every_model_has_the_one_invert_signature(name):
 
     params = list(inspect.signature(models.get(name).invert).parameters)
     assert params[:5] == ["self", "theta", "y_target", "dt", "u_range"]
+
+
+@pytest.mark.parametrize("name", models.names())
+def test_refined_doubles_the_declared_resolution(name):
+    cls = models.get(name)
+    model = cls()
+    fine = model.refined()
+    if cls.resolution_option is None:
+        assert fine is None
+        return
+    assert type(fine) is cls
+    assert getattr(fine, cls.resolution_option) == 2 * getattr(model, cls.resolution_option)
+    assert fine.refined() is not None  # 20 → 40 is still below the cap

@@ -22,7 +22,7 @@ def _model_and_theta(name):
     scale = DataScale(u_min=0.0, u_max=40.0, y_min=0.0, y_max=12.0, dt=1 / FS,
                       rate_max=float(np.max(np.abs(np.diff(u)))) * FS)
     cls = models.get(name)
-    model = cls.example(scale) if hasattr(cls, "example") else cls().adapt(scale)
+    model = cls.example(scale)
     params = model.params(scale)
     rng = np.random.default_rng(7)
     lo, hi = np.array([p.lower for p in params]), np.array([p.upper for p in params])

@@ -141,7 +141,7 @@ def _default_cell(name):
     u = 30.0 * (1 - np.cos(2 * np.pi * 10 * np.arange(2001) * DT))
     sc = DataScale.from_arrays([u], [0.3 * u + 0.25], [DT])
     cls = models.get(name)
-    model = cls.example(sc) if hasattr(cls, "example") else cls().adapt(sc)
+    model = cls.example(sc)
     theta = np.array([p.default for p in model.params(sc)])
     return Cell("60V_10Hz", 60.0, 10.0, model, theta, sc), u
 

@@ -274,7 +274,7 @@ def test_every_registered_model_runs_as_a_plant(name):
     u = 30.0 * (1 - np.cos(2 * np.pi * 10 * np.arange(2001) * dt))
     sc = DataScale.from_arrays([u], [0.3 * u + 0.25], [dt])
     cls = models.get(name)
-    model = cls.example(sc) if hasattr(cls, "example") else cls().adapt(sc)
+    model = cls.example(sc)
     theta = np.array([p.default for p in model.params(sc)])
     pf = ParamsFile("m.json", name, "um", "global", (Cell("global", float("nan"), float("nan"), model, theta, sc),),
                     {})
