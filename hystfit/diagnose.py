@@ -118,6 +118,13 @@ class DiagnoseSettings:
         its verdict reported beside (``split.other_scheme``).
     iterations : Gauss–Newton iterations of the joint base + effect refit, 2 (the second is skipped
         when the linearization was exact, e.g. PI).
+    resolution_check : True (default): when a gap above the noise remains after the named effects and
+        the base has a resolution (:meth:`hystfit.models.base.Model.refined`, e.g. the number of play
+        operators), refit the base at twice the resolution with the same effects; when that removes at
+        least ``threshold`` of the remaining held-out gap, the base's resolution — not a missing
+        effect — is what the coarse base lacked, and the diagnosis is made again with the finer base
+        (``resolution`` section; the recommended model carries the option). An effect is otherwise
+        judged against a gap that the base's own discretization error dilutes.
     """
 
     fit_fraction: float = 0.6
@@ -128,6 +135,7 @@ class DiagnoseSettings:
     max_effects: int = 3
     iterations: int = 2
     split: str = "auto"
+    resolution_check: bool = True
 
     def __post_init__(self) -> None:
         checks = [("fit_fraction", 0.1 <= self.fit_fraction <= 0.9, "in [0.1, 0.9]"),
@@ -242,6 +250,7 @@ class Diagnosis:
     runtime_s: float
     figures_data: dict = field(repr=False, compare=False, default_factory=dict)
     findings: tuple[Finding, ...] = field(repr=False, compare=False, default=())  # where.pointers as records
+    resolution: dict | None = None  # the base-resolution check (:func:`resolution_check`), None when not run
 
     def to_dict(self) -> dict:
         """The JSON document (``diagnosis.json``); unit-bearing names end in the output unit."""
@@ -286,6 +295,8 @@ class Diagnosis:
             "recommended_model": self.recommended_model,
             "reconciliation": self.reconciliation,
             f"heldout_rmse_with_named_effects_{u}": _num(self.heldout_rmse_named),
+            "recommended_model_options": self.recommended_options,
+            "resolution": unit_keys(self.resolution, u) if self.resolution is not None else None,
         })
 
     @property
@@ -313,6 +324,13 @@ class Diagnosis:
         """The model expression to identify next: the base followed by the named effects as blocks,
         in the order a signal meets them (:data:`SIGNAL_ORDER`)."""
         return recommend_expression(self.base_model, self.explained_by)
+
+    @property
+    def recommended_options(self) -> dict:
+        """``--model-option`` values the recommended model needs beyond the caller's: the finer
+        resolution when the resolution check adopted it (e.g. ``{"n_operators": 20}``)."""
+        r = self.resolution
+        return {r["option"]: r["to"]} if r is not None and r.get("adopted") else {}
 
     @property
     def heldout_rmse_named(self) -> float:
@@ -355,7 +373,7 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
 
     if not d.explained_by:
         return None
-    opts = dict(model_options or {})
+    opts = {**dict(model_options or {}), **d.recommended_options}
     rec = make_model(d.recommended_model, opts)
     return identify(captures, rec, optimizer, seed=seed, global_fit=d.mode != "per-condition",
                     model_options=opts, progress=progress, executor=executor, store=store, resume=resume)
@@ -1646,6 +1664,36 @@ def _where_and_select(caps, d: _Design, gap: _Gap, base: _Base, first: tuple[dic
     return _Outcome(sigma, where, found, fig_where, sel)
 
 
+def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, gap: _Gap, sel: _Selection,
+                     sigma: float, settings: "DiagnoseSettings", executor=None) -> dict | None:
+    """Is the base's resolution, rather than a missing effect, what limits the model with the named
+    effects? The base at twice its resolution (:meth:`Model.refined`) is fitted on the fit part, the
+    named effects are refitted on it in the order they were named, and the held-out RMSE is compared
+    with the coarse base's. None when the base has no resolution option or no gap above the noise
+    remains; otherwise the check's numbers and ``adopted`` (the finer base removes at least
+    ``settings.threshold`` of the remaining held-out gap above the noise)."""
+    fine = model.refined()
+    before = _rmse(sel.preds, d.views, "test")
+    if fine is None or not _excess(before, sigma) >= settings.min_excess_ratio * sigma:
+        return None
+    G = len(d.group_idx)
+    jobs = _base_fit_jobs(caps, d.views, d.group_idx, d.labels, d.conds, None)[G:]
+    fits = _base_fits(jobs, 0, fine, optimizer, seed, executor, None, False, lambda label: None)
+    base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
+    views = list(d.views)
+    state = base.state
+    for eff in _configured(list(sel.chosen), base.preds, views):
+        state, _ = _augment(state, eff, caps, views, _linearize(state, caps, views), settings.iterations)
+    after = _rmse(_predictions(state, caps, views), views, "test")
+    denom = before - sigma
+    red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
+    opt = model.composition[0].resolution_option if model.composition is not None else model.resolution_option
+    return {"option": opt, "from": int(getattr(model.composition[0] if model.composition is not None else model, opt)),
+            "to": int(getattr(fine.composition[0] if fine.composition is not None else fine, opt)),
+            "effects": list(sel.chosen), "heldout_rmse_before_out": before, "heldout_rmse_after_out": after,
+            "reduction": red, "threshold": settings.threshold, "adopted": bool(red >= settings.threshold)}
+
+
 def _capture_info(caps, d: _Design, calib: Sequence[dict]) -> tuple[dict, ...]:
     """The ``captures`` section: condition, sampling, periodicity, sweep and calibration per capture."""
     return tuple({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
@@ -1711,6 +1759,12 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     out = _where_and_select(caps, d, gap, base, first, select, unit)  # 3. where and 4. which, how far
     advance("verdict")
     sel = out.selection
+    resolution = (resolution_check(caps, d, model, optimizer, seed, gap, sel, out.sigma, settings, executor)
+                  if settings.resolution_check else None)
+    if resolution is not None and resolution["adopted"]:  # the diagnosis again, on the finer base
+        fine = diagnose(caps, model.refined(), optimizer, seed=seed, per_condition=per_condition, effects=effects,
+                        settings=replace(settings, resolution_check=False), executor=executor)
+        return replace(fine, resolution=resolution, runtime_s=time.perf_counter() - t_start)
     split = _split_info(d.split, caps, d.views, d.swept, settings)
     if d.split.kind == "capture" and settings.split == "auto":  # the temporal split beside, for agreement
         split["other_scheme"] = _other_scheme(
@@ -1730,7 +1784,8 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                      effects=sel.steps[0] if sel.steps else (), steps=sel.steps,
                      verdict=sel.chosen[0] if sel.chosen else "none", explained_by=sel.chosen,
                      alternatives=sel.alternatives, split=split, captures=_capture_info(caps, d, base.calibration),
-                     runtime_s=time.perf_counter() - t_start, figures_data=figures_data, findings=tuple(found))
+                     runtime_s=time.perf_counter() - t_start, figures_data=figures_data, findings=tuple(found),
+                     resolution=resolution)
 
 
 # ----------------------------------------------------------------------------------------------
