@@ -160,37 +160,34 @@ def _stats(values: list[float], prefix: str, suffix: str = "") -> dict[str, floa
             f"{prefix} std{suffix}": float(a.std(ddof=1)) if a.size > 1 else 0.0}
 
 
+def _cell_table(res: CompareResult, columns) -> pd.DataFrame:
+    """One row per successful cell: model, optimizer, condition, runs, then ``columns(cell)``."""
+    return pd.DataFrame([{"model": c.model, "optimizer": c.optimizer, "condition": c.label, "runs": len(c.runs),
+                          **columns(c)} for c in res.cells if c.ok])
+
+
 def optimizer_table(res: CompareResult) -> pd.DataFrame:
     """004 Table 2: per model, optimizer and condition, the final J and RMSE over runs
     (min / max / mean / std, after the polish if any), the median time and mean evaluations."""
     u = res.unit
-    rows = []
-    for c in res.cells:
-        if not c.ok:
-            continue
-        row = {"model": c.model, "optimizer": c.optimizer, "condition": c.label, "runs": len(c.runs)}
-        row.update(_stats([r.j for r in c.runs], "J"))
-        row.update(_stats([r.metrics.get(f"rmse_{u}", np.nan) for r in c.runs], "RMSE", f" ({u})"))
-        row["time median (s)"] = float(np.median([r.wall_time_s for r in c.runs]))
-        row["evaluations mean"] = float(np.mean([r.nfev for r in c.runs]))
-        row["search evaluations mean"] = float(np.mean([r.search_nfev for r in c.runs]))
-        rows.append(row)
-    return pd.DataFrame(rows)
+
+    def columns(c: CellResult) -> dict:
+        return {**_stats([r.j for r in c.runs], "J"),
+                **_stats([r.metrics.get(f"rmse_{u}", np.nan) for r in c.runs], "RMSE", f" ({u})"),
+                "time median (s)": float(np.median([r.wall_time_s for r in c.runs])),
+                "evaluations mean": float(np.mean([r.nfev for r in c.runs])),
+                "search evaluations mean": float(np.mean([r.search_nfev for r in c.runs]))}
+
+    return _cell_table(res, columns)
 
 
 def search_table(res: CompareResult) -> pd.DataFrame:
     """The global search alone (before the least-squares polish): J over runs per model, optimizer
     and condition. Equal to :func:`optimizer_table`'s J without a polish, and for ``auto`` and
     ``lsq`` (which are not polished again)."""
-    rows = []
-    for c in res.cells:
-        if not c.ok:
-            continue
-        row = {"model": c.model, "optimizer": c.optimizer, "condition": c.label, "runs": len(c.runs)}
-        row.update(_stats([r.search_j for r in c.runs], "J"))
-        row["runs the polish improved by > 0.1 %"] = int(sum(r.j < r.search_j * (1 - 1e-3) for r in c.runs))
-        rows.append(row)
-    return pd.DataFrame(rows)
+    return _cell_table(res, lambda c: {
+        **_stats([r.search_j for r in c.runs], "J"),
+        "runs the polish improved by > 0.1 %": int(sum(r.j < r.search_j * (1 - 1e-3) for r in c.runs))})
 
 
 def _note(t: NeighbourTest | None) -> str:
