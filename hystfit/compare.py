@@ -414,8 +414,8 @@ class RankRow:
     versus_next: NeighbourTest | None = None
 
     def to_dict(self) -> dict:
-        return {"position": self.position, "name": self.name, "mean": self.mean, "median": self.median,
-                "n_samples": self.n_samples,
+        return {"position": self.position, "name": self.name, "mean": _json_number(self.mean),
+                "median": _json_number(self.median), "n_samples": self.n_samples,
                 "versus_next": self.versus_next.to_dict() if self.versus_next is not None else None}
 
 
