@@ -356,3 +356,224 @@ def _failed_cell(spec: CellSpec, failure: CellFailed) -> CellResult:
     """A cell whose every attempt crashed (or whose worker was lost), recorded with its error."""
     return CellResult(spec.model, spec.optimizer, spec.key[0], spec.key[1], spec.label, 0,
                       error=f"{failure.error} (after {failure.attempts} attempts)")
+
+
+# ----------------------------------------------------------------------------------------------
+# Ranking: which model (per optimizer) and which optimizer (per model) is ahead, and whether the
+# difference to the next one holds beyond the run-to-run spread. report/compare_report renders it.
+
+#: significance level of the neighbour tests (two-sided)
+RANK_ALPHA = 0.05
+#: paired samples: the Wilcoxon signed-rank test needs at least this many conditions
+WILCOXON_MIN_CONDITIONS = 6
+#: unpaired samples: the Mann–Whitney U test needs at least this many runs per group
+MANN_WHITNEY_MIN_RUNS = 3
+
+
+def _json_number(v):
+    return None if isinstance(v, float) and v != v else v
+
+
+@dataclass(frozen=True)
+class NeighbourTest:
+    """How a ranked entry (the lower mean) compares with the next one, ``other``.
+
+    ``verdict`` is one of: ``tied`` (means equal to 1e-6 relative); paired samples (one value per
+    condition): ``consistently_below`` / ``not_consistently_below`` (Wilcoxon signed-rank over
+    conditions, ``p_value``) or ``lower_count`` (too few conditions for the test: only
+    ``lower_at`` of ``n_conditions``); unpaired samples (values over runs): ``better`` /
+    ``not_distinguishable`` (two-sided Mann–Whitney U, ``p_value``), with two runs
+    ``within_spread`` / ``beyond_spread`` (``gap`` against ``two_sigma``, twice the larger
+    standard deviation), with one run ``unknown_spread``. ``gap`` and ``two_sigma`` are in the
+    ranking's unit; NaN/None where they do not apply.
+    """
+
+    other: str
+    verdict: str
+    gap: float
+    test: str = ""  # "wilcoxon", "mann_whitney" or "" (no test)
+    p_value: float = float("nan")
+    lower_at: int | None = None  # paired: conditions where this entry is lower
+    n_conditions: int | None = None
+    two_sigma: float = float("nan")
+
+    def to_dict(self) -> dict:
+        return {k: _json_number(getattr(self, k)) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class RankRow:
+    """One ranked entry: its place (1 = lowest mean), the mean (and for models the median of the
+    best-run RMSE over conditions) in the ranking's unit, and the test against the next entry."""
+
+    position: int
+    name: str
+    mean: float
+    n_samples: int
+    median: float | None = None
+    versus_next: NeighbourTest | None = None
+
+    def to_dict(self) -> dict:
+        return {"position": self.position, "name": self.name, "mean": _json_number(self.mean),
+                "median": _json_number(self.median), "n_samples": self.n_samples,
+                "versus_next": self.versus_next.to_dict() if self.versus_next is not None else None}
+
+
+@dataclass(frozen=True)
+class Ranking:
+    """One ranking: the models with one optimizer (``kind="models"``, by the RMSE in ``unit``) or
+    the optimizers on one model (``kind="optimizers"``, by the J of the search alone — the final J
+    when no polish follows, ``polished`` False).
+
+    ``paired``: the samples are one value per condition (single runs), else one per run (the
+    metric averaged over conditions). ``not_ranked``: entries that failed on some condition.
+    ``final_j_spread_pct``: optimizers with a polish, how far apart their mean final J are (% of
+    the lowest).
+    """
+
+    kind: str
+    within: str
+    metric: str  # "rmse" or "search_j"
+    unit: str  # of mean, median, gap ("" for J)
+    n_conditions: int
+    runs: int
+    paired: bool
+    rows: tuple[RankRow, ...]
+    not_ranked: tuple[str, ...] = ()
+    polished: bool = False
+    final_j_spread_pct: float | None = None
+
+    def to_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        d.update(rows=[r.to_dict() for r in self.rows], not_ranked=list(self.not_ranked),
+                 final_j_spread_pct=_json_number(self.final_j_spread_pct))
+        return d
+
+
+@dataclass(frozen=True)
+class CompareRanking:
+    """The result of :func:`rank`: the model rankings (one per optimizer, when several models were
+    compared), then the optimizer rankings (one per model, when several optimizers were)."""
+
+    groups: tuple[Ranking, ...]
+    alpha: float = RANK_ALPHA
+
+    def to_dict(self) -> dict:
+        return {"alpha": self.alpha, "groups": [g.to_dict() for g in self.groups]}
+
+
+def neighbour_test(a: np.ndarray, b: np.ndarray, paired: bool, other: str,
+                   alpha: float = RANK_ALPHA) -> NeighbourTest:
+    """Compare group ``a`` (the lower mean) with the next one ``b`` (see :class:`NeighbourTest`)."""
+    from scipy.stats import mannwhitneyu, wilcoxon
+
+    gap = float(np.mean(b) - np.mean(a))
+    if gap <= 1e-6 * max(abs(float(np.mean(a))), 1e-300):
+        return NeighbourTest(other, "tied", gap)
+    if paired:
+        d = b - a
+        lower = int(np.sum(d > 0))
+        if d.size >= WILCOXON_MIN_CONDITIONS and np.any(d != 0):
+            p = float(wilcoxon(a, b).pvalue)
+            verdict = "consistently_below" if p < alpha else "not_consistently_below"
+            return NeighbourTest(other, verdict, gap, "wilcoxon", p, lower, int(d.size))
+        return NeighbourTest(other, "lower_count", gap, lower_at=lower, n_conditions=int(d.size))
+    if min(a.size, b.size) >= MANN_WHITNEY_MIN_RUNS:
+        p = float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
+        return NeighbourTest(other, "better" if p < alpha else "not_distinguishable", gap, "mann_whitney", p)
+    if min(a.size, b.size) == 2:
+        two_sigma = 2 * max(np.std(a, ddof=1), np.std(b, ddof=1))
+        return NeighbourTest(other, "within_spread" if gap <= two_sigma else "beyond_spread", gap,
+                             two_sigma=float(two_sigma))
+    return NeighbourTest(other, "unknown_spread", gap)
+
+
+def _ranked_rows(names: list[str], samples: list[np.ndarray], paired: bool, alpha: float,
+                 medians: list[float] | None = None) -> tuple[RankRow, ...]:
+    """Order by the mean of each group's samples (stable); test each against the next."""
+    means = [float(np.mean(s)) for s in samples]
+    order = np.argsort(means, kind="stable")
+    rows = []
+    for pos, i in enumerate(order):
+        test = None
+        if pos + 1 < len(order):
+            j = order[pos + 1]
+            test = neighbour_test(np.asarray(samples[i], float), np.asarray(samples[j], float), paired, names[j],
+                                  alpha)
+        rows.append(RankRow(pos + 1, names[i], means[i], len(samples[i]),
+                            medians[i] if medians is not None else None, test))
+    return tuple(rows)
+
+
+def _complete_cells(res: CompareResult, model: str, optimizer: str) -> list[CellResult] | None:
+    """The successful cells of (model, optimizer), None unless every condition succeeded."""
+    cells = [c for c in res.cells if c.model == model and c.optimizer == optimizer and c.ok]
+    return cells if len(cells) == len(res.conditions) else None
+
+
+def _model_ranking(res: CompareResult, optimizer: str, alpha: float) -> Ranking:
+    """The models with ``optimizer`` by RMSE: per run the RMSE averaged over conditions, or with
+    single runs the best RMSE per condition (paired across models by condition)."""
+    u = res.unit
+    names, samples, medians = [], [], []
+    for m in res.models:
+        cells = _complete_cells(res, m, optimizer)
+        if cells is None:
+            continue
+        names.append(m)
+        best = np.array([c.best.metrics[f"rmse_{u}"] for c in cells])
+        medians.append(float(np.median(best)))
+        if res.runs > 1:
+            nr = min(len(c.runs) for c in cells)
+            samples.append(np.array([np.mean([c.runs[r].metrics[f"rmse_{u}"] for c in cells]) for r in range(nr)]))
+        else:
+            samples.append(best)
+    return Ranking("models", optimizer, "rmse", u, len(res.conditions), res.runs, res.runs == 1,
+                   _ranked_rows(names, samples, res.runs == 1, alpha, medians),
+                   tuple(m for m in res.models if m not in names))
+
+
+def _optimizer_ranking(res: CompareResult, model: str, alpha: float) -> Ranking:
+    """The optimizers on ``model`` by the search's J per run (averaged over conditions); with a
+    polish after the search, also how far apart the mean final J are."""
+    polished = res.polish and any(o not in res.self_polishing for o in res.optimizers)
+    names, samples = [], []
+    for o in res.optimizers:
+        cells = _complete_cells(res, model, o)
+        if cells is None:
+            continue
+        names.append(o)
+        nr = min(len(c.runs) for c in cells)
+        samples.append(np.array([np.mean([c.runs[r].search_j for c in cells]) for r in range(nr)]))
+    spread = None
+    if polished and names:
+        fin = [np.mean([r.j for c in res.cells if c.model == model and c.optimizer == o and c.ok for r in c.runs])
+               for o in names]
+        spread = float(100 * (max(fin) - min(fin)) / min(fin)) if min(fin) > 0 else float("nan")
+    return Ranking("optimizers", model, "search_j", "", len(res.conditions), res.runs, False,
+                   _ranked_rows(names, samples, False, alpha), tuple(o for o in res.optimizers if o not in names),
+                   polished, spread)
+
+
+def rank(result: CompareResult, *, alpha: float = RANK_ALPHA) -> CompareRanking:
+    """Rank the models per optimizer and the optimizers per model of a comparison.
+
+    Models (when more than one was compared) are ranked by RMSE: with repeated runs by the mean
+    over runs of the RMSE averaged over conditions, neighbours compared by the Mann–Whitney U
+    test over runs; with single runs by the mean over conditions of the best run's RMSE,
+    neighbours compared condition by condition (Wilcoxon signed-rank test from 6 conditions).
+    Optimizers (when more than one was compared) are ranked by the mean J of their search over
+    runs, averaged over conditions. A model or optimizer that failed on some condition is listed
+    in ``not_ranked``. ``alpha`` is the significance level of the tests.
+
+    Returns
+    -------
+    CompareRanking
+        Frozen; ``to_dict()`` gives its JSON form (NaN as None).
+    """
+    groups = []
+    if len(result.models) > 1:
+        groups += [_model_ranking(result, o, alpha) for o in result.optimizers]
+    if len(result.optimizers) > 1:
+        groups += [_optimizer_ranking(result, m, alpha) for m in result.models]
+    return CompareRanking(tuple(groups), alpha)

@@ -28,7 +28,7 @@ import os
 from dataclasses import asdict, dataclass, field, replace
 from io import BytesIO
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 from .errors import ConfigError
@@ -123,6 +123,15 @@ def _duration_time(duration_s: float, fs_Hz: float) -> np.ndarray:
     return np.arange(n, dtype=np.float64) / fs_Hz
 
 
+def _periodic_wave(amplitude_V: float, frequency_Hz: float, cycles: float, fs_Hz: float,
+                   shape: Callable[[np.ndarray, float], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The time base t ∈ [0, cycles/f] of a periodic excitation and ``u = shape(t, A)`` on it
+    (A checked to be ≥ 0)."""
+    amplitude_V = _check_nonneg("amplitude_V", amplitude_V)
+    t = _periodic_time(frequency_Hz, cycles, fs_Hz)
+    return t, shape(t, amplitude_V)
+
+
 def raised_cosine(
     amplitude_V: float, frequency_Hz: float, cycles: float = 5, fs_Hz: float = 10_000
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -133,10 +142,8 @@ def raised_cosine(
     amplitude_V : peak voltage A (V), ≥ 0; the input spans 0 … A.
     frequency_Hz : f (Hz).  cycles : number of periods (5 in 002).  fs_Hz : sampling rate (Hz).
     """
-    amplitude_V = _check_nonneg("amplitude_V", amplitude_V)
-    t = _periodic_time(frequency_Hz, cycles, fs_Hz)
-    u = 0.5 * amplitude_V * (1.0 - np.cos(2.0 * np.pi * frequency_Hz * t))
-    return t, u
+    return _periodic_wave(amplitude_V, frequency_Hz, cycles, fs_Hz,
+                          lambda t, a: 0.5 * a * (1.0 - np.cos(2.0 * np.pi * frequency_Hz * t)))
 
 
 def rising_sine(
@@ -153,40 +160,33 @@ def rising_sine(
     amplitude_V = _check_nonneg("amplitude_V", amplitude_V)
     if not 0.0 <= start_fraction <= 1.0:
         raise ConfigError(f"start_fraction must lie in [0, 1]. Got {start_fraction!r}.")
-    t = _periodic_time(frequency_Hz, cycles, fs_Hz)
-    T = max(cycles - 0.5, 0.5) / frequency_Hz
-    crest = amplitude_V * np.minimum(start_fraction + (1.0 - start_fraction) * t / T, 1.0)
-    return t, 0.5 * crest * (1.0 - np.cos(2.0 * np.pi * frequency_Hz * t))
+
+    def shape(t: np.ndarray, a: float) -> np.ndarray:
+        T = max(cycles - 0.5, 0.5) / frequency_Hz
+        crest = a * np.minimum(start_fraction + (1.0 - start_fraction) * t / T, 1.0)
+        return 0.5 * crest * (1.0 - np.cos(2.0 * np.pi * frequency_Hz * t))
+
+    return _periodic_wave(amplitude_V, frequency_Hz, cycles, fs_Hz, shape)
 
 
 def sine(
-    amplitude_V: float,
-    frequency_Hz: float,
-    cycles: float = 5,
-    fs_Hz: float = 10_000,
-    offset_V: float = 0.0,
+    amplitude_V: float, frequency_Hz: float, cycles: float = 5, fs_Hz: float = 10_000, offset_V: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sine u = offset_V + A sin 2πft (bipolar about ``offset_V``), t ∈ [0, cycles/f]."""
-    amplitude_V = _check_nonneg("amplitude_V", amplitude_V)
-    t = _periodic_time(frequency_Hz, cycles, fs_Hz)
-    u = float(offset_V) + amplitude_V * np.sin(2.0 * np.pi * frequency_Hz * t)
-    return t, u
+    return _periodic_wave(amplitude_V, frequency_Hz, cycles, fs_Hz,
+                          lambda t, a: float(offset_V) + a * np.sin(2.0 * np.pi * frequency_Hz * t))
 
 
 def triangle(
-    amplitude_V: float,
-    frequency_Hz: float,
-    cycles: float = 5,
-    fs_Hz: float = 10_000,
-    offset_V: float = 0.0,
+    amplitude_V: float, frequency_Hz: float, cycles: float = 5, fs_Hz: float = 10_000, offset_V: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Triangle 0 → A → 0 (the raised cosine's constant-rate counterpart): u = offset_V + A·(1 −
     |1 − 2·frac(ft)|), so |du/dt| = 2Af everywhere; t ∈ [0, cycles/f]."""
-    amplitude_V = _check_nonneg("amplitude_V", amplitude_V)
-    t = _periodic_time(frequency_Hz, cycles, fs_Hz)
-    phase = np.mod(frequency_Hz * t, 1.0)
-    u = float(offset_V) + amplitude_V * (1.0 - np.abs(1.0 - 2.0 * phase))
-    return t, u
+    def shape(t: np.ndarray, a: float) -> np.ndarray:
+        phase = np.mod(frequency_Hz * t, 1.0)
+        return float(offset_V) + a * (1.0 - np.abs(1.0 - 2.0 * phase))
+
+    return _periodic_wave(amplitude_V, frequency_Hz, cycles, fs_Hz, shape)
 
 
 def prbs(

@@ -1,15 +1,21 @@
 """The typer application and its error boundary.
 
 Command modules (``hystfit/cli/<command>.py``) register themselves on :data:`app` when imported
-(``hystfit/cli/__init__.py`` imports them all). Each command body is wrapped by :func:`guarded`,
-which turns every :class:`~hystfit.errors.HystfitError` into one line on stderr and exit code 2 —
-so the same behaviour holds under the console script and under typer's ``CliRunner``.
+(``hystfit/cli/__init__.py`` imports them all) with :func:`command`. Each command body is wrapped
+by :func:`guarded`, which turns every :class:`~hystfit.errors.HystfitError` into one line on stderr
+and exit code 2 — so the same behaviour holds under the console script and under typer's
+``CliRunner``. Options that several commands share as a set (how to read captures, what to write)
+are declared once as an :class:`OptionGroup` and expanded into each command's options by
+:func:`expand_option_groups`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import inspect
 import sys
+import typing
 from typing import Callable, TypeVar
 
 import typer
@@ -79,6 +85,55 @@ def guarded(fn: F) -> F:
             raise typer.Exit(130) from None
 
     return wrapper  # type: ignore[return-value]
+
+
+class OptionGroup:
+    """Base of a frozen dataclass whose fields are options several commands share as a set.
+
+    Each field is annotated with its ``Annotated[type, typer.Option(...)]`` alias and has its
+    default. A command parameter annotated with the group (``capture: CaptureArgs =
+    CaptureArgs()``) stands, in ``--help`` and on the command line, for the group's options at
+    that place, and the command receives them as one instance (:func:`expand_option_groups`).
+    """
+
+
+def expand_option_groups(fn: F) -> F:
+    """Let typer see the fields of every :class:`OptionGroup` parameter of ``fn`` as options in
+    its place (same order, annotations and defaults), and call ``fn`` with the group built from
+    them. Commands without a group are returned unchanged."""
+    sig = inspect.signature(fn, eval_str=True)
+    params: list[inspect.Parameter] = []
+    groups: dict[str, tuple[type, list[str]]] = {}
+    for p in sig.parameters.values():
+        if not (isinstance(p.annotation, type) and issubclass(p.annotation, OptionGroup)):
+            params.append(p)
+            continue
+        hints = typing.get_type_hints(p.annotation, include_extras=True)
+        fields = dataclasses.fields(p.annotation)
+        groups[p.name] = (p.annotation, [f.name for f in fields])
+        params += [inspect.Parameter(f.name, p.kind, default=f.default, annotation=hints[f.name]) for f in fields]
+    if not groups:
+        return fn
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        for name, (group, names) in groups.items():
+            kwargs[name] = group(**{n: kwargs.pop(n) for n in names})
+        return fn(*args, **kwargs)
+
+    wrapper.__signature__ = sig.replace(parameters=params)  # type: ignore[attr-defined]
+    return wrapper  # type: ignore[return-value]
+
+
+def command(name: str | None = None, *, on: typer.Typer | None = None) -> Callable[[F], F]:
+    """Register a command on :data:`app` (or the sub-app ``on``): its option groups expanded
+    (:func:`expand_option_groups`) and its errors mapped to one line (:func:`guarded`)."""
+    register = (on or app).command(name)
+
+    def decorate(fn: F) -> F:
+        return register(guarded(expand_option_groups(fn)))
+
+    return decorate
 
 
 def _show_version(value: bool) -> None:

@@ -5,13 +5,15 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from .app import app, click_exceptions, error_line, guarded
-from .common import ExecutorOpt, JsonOut, Quiet, Resume, Scheduler, print_json, stderr, stdout
+from .app import app, click_exceptions, command, error_line
+from .common import ExecutorOpt, JsonOut, Quiet, Resume, Scheduler, jobs_option, print_json, stderr, stdout
+
+BatchJobs = jobs_option("Parallel processes of every job that has none of its own (the numbers do not depend on it).")
 
 #: exit code → what it means for a job (see docs/scale.md)
 JOB_STATUS = {0: "ok", 2: "bad input", 3: "no result", 4: "some cells failed", 130: "interrupted"}
@@ -65,15 +67,12 @@ def _run(root, argv: list[str]) -> int:
         return exc.code if isinstance(exc.code, int) else 1
 
 
-@app.command()
-@guarded
+@command()
 def batch(
     jobs_file: Annotated[Path, typer.Argument(help="TOML batch file: a defaults table and job tables "
                                                    "(see docs/scale.md).", show_default=False)],
     resume: Resume = False,
-    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default="all cores",
-                                                help="Parallel processes of every job that has none of its own "
-                                                     "(the numbers do not depend on it).")] = None,
+    jobs: BatchJobs = None,
     executor: ExecutorOpt = "local",
     scheduler: Scheduler = None,
     json_out: JsonOut = False,

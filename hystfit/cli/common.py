@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Iterator, Optional
 
@@ -13,6 +14,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ..errors import ConfigError
+from .app import OptionGroup
 
 stderr = Console(stderr=True)
 stdout = Console()
@@ -62,8 +64,14 @@ Pop = Annotated[Optional[int], typer.Option("--pop", min=1, show_default="the op
                                                                 "(>= 1).")]
 Iters = Annotated[Optional[int], typer.Option("--iters", min=1, show_default="the optimizer's own, see 'hystfit "
                                               "optimizers'", help="Iterations of iterative optimizers (>= 1).")]
-Jobs = Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default="all cores",
-                                             help="Parallel processes (the numbers do not depend on it).")]
+
+
+def jobs_option(help: str, show_default: str = "all cores"):
+    """``--jobs/-j`` (>= 1) with a command's own help and default text."""
+    return Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default=show_default, help=help)]
+
+
+Jobs = jobs_option("Parallel processes (the numbers do not depend on it).")
 ExecutorOpt = Annotated[str, typer.Option("--executor", help="Where the cells run: local (a process pool of --jobs "
                                                            "processes) or dask (a Dask LocalCluster of --jobs "
                                                            "workers, or the cluster at --scheduler; needs "
@@ -76,6 +84,7 @@ Resume = Annotated[bool, typer.Option("--resume", help="Continue an interrupted 
                                                        "unchanged) and compute only the rest.")]
 Runs = Annotated[int, typer.Option("--runs", min=1, help="Independent seeded runs per condition; the best is kept "
                                                          "(>= 1).")]
+Polish = Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after the global search.")]
 Plots = Annotated[bool, typer.Option("--plots/--no-plots", help="Write the figures.")]
 FiguresAlias = Annotated[Optional[bool], typer.Option("--figures/--no-figures", hidden=True,
                                                       help="Deprecated spelling of --plots/--no-plots.")]
@@ -85,6 +94,14 @@ Force = Annotated[bool, typer.Option("--force", help="Replace an existing output
 PerCondition = Annotated[bool, typer.Option("--per-condition/--global",
                                             help="One parameter set per operating condition (look-up table) or "
                                                  "one for all captures.")]
+Bounds = Annotated[Optional[list[str]], typer.Option("--bounds", help="Override a bound: NAME=LOWER:UPPER "
+                                                                    "(repeatable).")]
+ModelOptions = Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE, "
+                                                           "e.g. n_operators=12 (repeatable).")]
+OptOptions = Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE, e.g. "
+                                                         "stall_iter=50 (repeatable).")]
+OutDir = Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, "
+                                                   "unless --force).")]
 Method = Annotated[str, typer.Option("--method", help="Look-up-table cells: interpolate (bilinear blend of the "
                                                       "nearest cells) or nearest.")]
 
@@ -113,9 +130,18 @@ class CellRun:
         return f"local ({self.jobs or default_jobs()} process(es) at most)"
 
 
+@dataclass(frozen=True)
+class ExecutorArgs(OptionGroup):
+    """Where the cells run and whether an interrupted run continues: ``--jobs`` … ``--resume``."""
+
+    jobs: Jobs = None
+    executor: ExecutorOpt = "local"
+    scheduler: Scheduler = None
+    resume: Resume = False
+
+
 @contextmanager
-def cell_run(out: Path, executor: str, jobs: Optional[int], scheduler: Optional[str], resume: bool,
-             enabled: bool = True) -> Iterator[CellRun]:
+def cell_run(out: Path, run: ExecutorArgs, enabled: bool = True) -> Iterator[CellRun]:
     """Start the executor and open the cell store ``OUT.partial`` around a command's work.
 
     Without ``--resume`` stored cells are not read (a forgotten ``--resume`` must not throw away an
@@ -126,6 +152,7 @@ def cell_run(out: Path, executor: str, jobs: Optional[int], scheduler: Optional[
     from ..cells import CellStore, partial_dir
     from ..parallel import make_executor
 
+    executor, jobs, scheduler, resume = run.executor, run.jobs, run.scheduler, run.resume
     store = CellStore(partial_dir(out))
     if enabled and len(store):
         _line(f"resuming: {len(store)} stored cell(s) in {store.root}" if resume else
@@ -156,11 +183,6 @@ def print_cell_summary(stats, executor_text: str, quiet: bool) -> None:
           f"{stats.wall_time_s:.1f} s on {executor_text}")
 
 
-def plots_flag(plots: bool, figures_alias: Optional[bool]) -> bool:
-    """``--plots``, unless the deprecated ``--figures/--no-figures`` spelling was given."""
-    return plots if figures_alias is None else figures_alias
-
-
 def parse_col(value: Optional[str]) -> str | int | None:
     if value is None:
         return None
@@ -180,23 +202,104 @@ def parse_condition(value: Optional[str]) -> tuple[float, float] | None:
     return (a, f)
 
 
-def load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                 require_output: bool = True, start: float | None = None, stop: float | None = None,
-                 warmup: float = 0.0):
-    from ..io import LoadOptions
+@dataclass(frozen=True)
+class CaptureArgs(OptionGroup):
+    """How to read the captures: ``--time-col`` … ``--stop``, as given on the command line."""
 
-    if start is not None and not start >= 0:
-        raise ConfigError(f"--start {start:g}: must be >= 0 s (time from the capture's first row)")
-    if stop is not None and not stop > (start or 0.0):
-        raise ConfigError(f"--stop {stop:g}: must be after --start ({start or 0:g} s)")
-    if fs is not None and not fs > 0:
-        raise ConfigError(f"--fs {fs:g}: the sample rate must be positive (Hz)")
-    if output_unit is not None and output_unit not in ("nm", "um", "mm", "m"):
-        raise ConfigError(f"--output-unit {output_unit!r}: choose one of nm, um, mm, m")
-    return LoadOptions(time_col=parse_col(time_col), input_col=parse_col(input_col), output_col=parse_col(output_col),
-                       no_header=no_header, fs=fs, drop_nonfinite=drop_nonfinite,
-                       condition=parse_condition(condition), output_unit=output_unit, require_output=require_output,
-                       start_s=start, stop_s=stop, warmup_s=warmup)
+    time_col: TimeCol = None
+    input_col: InputCol = None
+    output_col: OutputCol = None
+    no_header: NoHeader = False
+    fs: Fs = None
+    drop_nonfinite: DropNonfinite = False
+    condition: Condition = None
+    output_unit: OutputUnit = None
+    recursive: Recursive = False
+    start: Start = None
+    stop: Stop = None
+
+    @property
+    def warmup_s(self) -> float:
+        return 0.0
+
+    def load_options(self, require_output: bool = True):
+        """The loader's :class:`~hystfit.io.LoadOptions`; one-line errors for values it cannot take."""
+        from ..io import LoadOptions
+
+        start, stop, fs = self.start, self.stop, self.fs
+        if start is not None and not start >= 0:
+            raise ConfigError(f"--start {start:g}: must be >= 0 s (time from the capture's first row)")
+        if stop is not None and not stop > (start or 0.0):
+            raise ConfigError(f"--stop {stop:g}: must be after --start ({start or 0:g} s)")
+        if fs is not None and not fs > 0:
+            raise ConfigError(f"--fs {fs:g}: the sample rate must be positive (Hz)")
+        if self.output_unit is not None and self.output_unit not in ("nm", "um", "mm", "m"):
+            raise ConfigError(f"--output-unit {self.output_unit!r}: choose one of nm, um, mm, m")
+        return LoadOptions(time_col=parse_col(self.time_col), input_col=parse_col(self.input_col),
+                           output_col=parse_col(self.output_col), no_header=self.no_header, fs=fs,
+                           drop_nonfinite=self.drop_nonfinite, condition=parse_condition(self.condition),
+                           output_unit=self.output_unit, require_output=require_output, start_s=start, stop_s=stop,
+                           warmup_s=self.warmup_s)
+
+
+@dataclass(frozen=True)
+class FitCaptureArgs(CaptureArgs):
+    """:class:`CaptureArgs` and ``--warmup``, for the commands that fit."""
+
+    warmup: Warmup = 0.0
+
+    @property
+    def warmup_s(self) -> float:
+        return self.warmup
+
+
+@dataclass(frozen=True)
+class FitArgs(OptionGroup):
+    """The fit's structure and settings: ``--per-condition``, ``--bounds``, ``--model-option``,
+    ``--opt-option``, as given (see the methods for them parsed)."""
+
+    per_condition: PerCondition = True
+    bounds: Bounds = None
+    model_option: ModelOptions = None
+    opt_option: OptOptions = None
+
+    def model_options(self) -> dict[str, object]:
+        return parse_key_values(self.model_option or [], "--model-option")
+
+    def optimizer_options(self) -> dict[str, object]:
+        return parse_key_values(self.opt_option or [], "--opt-option")
+
+    def bound_overrides(self) -> dict:
+        from ..params import parse_bound_overrides
+
+        return parse_bound_overrides(self.bounds or [])
+
+
+@dataclass(frozen=True)
+class OutputArgs(OptionGroup):
+    """What a command writes and prints: ``--plots``, ``--json``, ``--quiet``, ``--force``."""
+
+    plots: Plots = True
+    json_out: JsonOut = False
+    quiet: Quiet = False
+    force: Force = False
+
+    @property
+    def chatty(self) -> bool:
+        """Progress and phase lines on stderr (neither ``--quiet`` nor ``--json``)."""
+        return not self.quiet and not self.json_out
+
+
+@dataclass(frozen=True)
+class FigureOutputArgs(OutputArgs):
+    """:class:`OutputArgs` and the deprecated spelling ``--figures/--no-figures`` (hidden), which,
+    when given, sets ``plots``."""
+
+    figures_alias: FiguresAlias = None
+
+    def __post_init__(self) -> None:
+        if self.figures_alias is not None:
+            object.__setattr__(self, "plots", self.figures_alias)
 
 
 def parse_key_values(items: list[str], what: str) -> dict[str, object]:
@@ -349,25 +452,26 @@ def print_capture_notes(captures) -> None:
                 stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
-def load_for_command(data, options, *, recursive: bool, quiet: bool, json_out: bool, figures: bool):
-    """The captures of a command: loaded with a progress line when slow, the loader's notes printed;
-    with figures ahead, matplotlib is imported in a background thread meanwhile."""
+def load_for_command(data, options, output: OutputArgs, *, recursive: bool, figures: bool | None = None):
+    """The captures of a command (``options``: :meth:`CaptureArgs.load_options`): loaded with a
+    progress line when slow, the loader's notes printed; with figures ahead (default:
+    ``output.plots``), matplotlib is imported in a background thread meanwhile."""
     from ..io import load_captures
 
-    if figures:
+    if output.plots if figures is None else figures:
         from ..report.render import preload
 
         preload()
-    with phase(not quiet and not json_out, "loading the captures"):
+    with phase(output.chatty, "loading the captures"):
         captures = load_captures(data, options, recursive=recursive)
-    if not quiet:
+    if not output.quiet:
         print_capture_notes(captures)
     return captures
 
 
-def writing(out, quiet: bool, json_out: bool, figures: bool):
+def writing(out, output: OutputArgs):
     """The phase line of writing a command's outputs."""
-    return phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if figures else ""))
+    return phase(output.chatty, f"writing {out}" + (" (figures)" if output.plots else ""))
 
 
 def print_json(data: dict) -> None:

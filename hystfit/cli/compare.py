@@ -2,18 +2,31 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 from rich.table import Table
 
-from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, ExecutorOpt, FiguresAlias, Force, Fs, InputCol, Iters, Jobs,
-                     JsonOut, MapeFloor, NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive,
-                     Resume, Runs, Scheduler, Seed, Start, Stop, TimeCol, Warmup, cell_run, load_for_command,
-                     load_options, parse_key_values, plots_flag, print_cell_summary, print_json, progress_bar,
-                     stdout, writing)
+from .app import command
+from .common import (DataArg, ExecutorArgs, FigureOutputArgs, FitArgs, FitCaptureArgs, Iters, MapeFloor, OutDir,
+                     Polish, Pop, Runs, Seed, cell_run, load_for_command, print_cell_summary, print_json,
+                     progress_bar, stdout, writing)
+
+
+@dataclass(frozen=True)
+class CompareFitArgs(FitArgs):
+    """:class:`FitArgs` whose items may be scoped to one model or optimizer (``MODEL.KEY=VALUE``)."""
+
+    bounds: Annotated[Optional[list[str]], typer.Option("--bounds", help="Override a bound: NAME=LOWER:UPPER, or "
+                                                        "MODEL.NAME=LOWER:UPPER for one model (repeatable).")] = None
+    model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option "
+                                                              "KEY=VALUE for every model, or MODEL.KEY=VALUE for one "
+                                                              "(repeatable).")] = None
+    opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE for "
+                                                            "every optimizer, e.g. max_evals=3000, or OPT.KEY=VALUE "
+                                                            "for one (repeatable).")] = None
 
 
 def _names(text: str, what: str) -> list[str]:
@@ -27,35 +40,22 @@ def _names(text: str, what: str) -> list[str]:
     return names
 
 
-@app.command()
-@guarded
+@command()
 def compare(
     data: DataArg,
     models: Annotated[str, typer.Option("--models", help="Comma-separated model names or expressions (pi,pi+creep+delay), or 'all'.")] = "pi,bw",
     opts: Annotated[str, typer.Option("--opts", help="Comma-separated optimizer names.")] = "auto",
     runs: Runs = 1,
-    out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-compare"),
+    out: OutDir = Path("hystfit-compare"),
     seed: Seed = 0,
     mape_floor: MapeFloor = 0.01,
-    jobs: Jobs = None,
-    executor: ExecutorOpt = "local",
-    scheduler: Scheduler = None,
-    resume: Resume = False,
+    execution: ExecutorArgs = ExecutorArgs(),
     pop: Pop = None,
     iters: Iters = None,
-    polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after the global search.")] = True,
-    per_condition: PerCondition = True,
-    bounds: Annotated[Optional[list[str]], typer.Option("--bounds", help="Override a bound: NAME=LOWER:UPPER, or MODEL.NAME=LOWER:UPPER for one model (repeatable).")] = None,
-    model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE for every model, or MODEL.KEY=VALUE for one (repeatable).")] = None,
-    opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE for every optimizer, e.g. max_evals=3000, or OPT.KEY=VALUE for one (repeatable).")] = None,
-    plots: Plots = True,
-    json_out: JsonOut = False,
-    quiet: Quiet = False,
-    force: Force = False,
-    figures_alias: FiguresAlias = None,
-    time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
-    fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False, start: Start = None, stop: Stop = None, warmup: Warmup = 0.0,
+    polish: Polish = True,
+    fit: CompareFitArgs = CompareFitArgs(),
+    output: FigureOutputArgs = FigureOutputArgs(),
+    capture: FitCaptureArgs = FitCaptureArgs(),
 ) -> None:
     """Compare models and optimizers on the captures: every model × optimizer × condition (× runs).
 
@@ -68,36 +68,31 @@ def compare(
     from ..registry import models as model_registry
     from ..registry import optimizers as optimizer_registry
     from ..report.compare_report import write_compare_outputs
-    from ..params import parse_bound_overrides
     from ..factory import budget_options, make_model, model_option_names, model_param_names
 
     model_names = model_registry.names() if models.strip().lower() == "all" else _names(models, "models")
     opt_names = _names(opts, "opts")
     opt_classes = {o: optimizer_registry.get(o) for o in opt_names}
-    mopts = scoped_options(parse_key_values(model_option or [], "--model-option"),
-                           {m: model_option_names(m) for m in model_names}, "--model-option")
+    mopts = scoped_options(fit.model_options(), {m: model_option_names(m) for m in model_names}, "--model-option")
     for m in model_names:  # bad expressions or structure options: exit 2 before any data is read
         make_model(m, mopts[m])
-    opt_options = scoped_options(parse_key_values(opt_option or [], "--opt-option"),
-                                 {o: c.option_names() for o, c in opt_classes.items()}, "--opt-option")
+    opt_options = scoped_options(fit.optimizer_options(), {o: c.option_names() for o, c in opt_classes.items()},
+                                 "--opt-option")
     for o, c in opt_classes.items():  # --pop/--iters: the same budget for every population search
         if c.takes_budget_flags():
             opt_options[o].update(budget_options(c, pop=pop, iters=iters, max_evals=opt_options[o].get("max_evals")))
-    bnds = parse_bound_overrides(bounds or [])
-    bnds = scoped_options(bnds, {m: model_param_names(m) for m in model_names}, "--bounds")
-    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                           start=start, stop=stop, warmup=warmup)
-    make_plots = plots_flag(plots, figures_alias)
-    with cell_run(out, executor, jobs, scheduler, resume, not quiet) as cr, staged_output_dir(out, force) as stage:
-        captures = load_for_command(data, options, recursive=recursive, quiet=quiet, json_out=json_out,
-                                    figures=make_plots)
-        with progress_bar(not quiet and not json_out, "compare") as cb:
-            res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=jobs, polish=polish,
-                              model_options=mopts, optimizer_options=opt_options, bounds=bnds,
-                              global_fit=not per_condition, progress=cb, executor=cr.executor, store=cr.store,
-                              resume=resume, mape_floor=mape_floor)
-        with writing(out, quiet, json_out, make_plots):
-            write_compare_outputs(res, stage, make_figures=make_plots, n_jobs=jobs)
+    bnds = scoped_options(fit.bound_overrides(), {m: model_param_names(m) for m in model_names}, "--bounds")
+    options = capture.load_options()
+    quiet, json_out = output.quiet, output.json_out
+    with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force) as stage:
+        captures = load_for_command(data, options, output, recursive=capture.recursive)
+        with progress_bar(output.chatty, "compare") as cb:
+            res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=execution.jobs,
+                              polish=polish, model_options=mopts, optimizer_options=opt_options, bounds=bnds,
+                              global_fit=not fit.per_condition, progress=cb, executor=cr.executor, store=cr.store,
+                              resume=execution.resume, mape_floor=mape_floor)
+        with writing(out, output):
+            write_compare_outputs(res, stage, make_figures=output.plots, n_jobs=execution.jobs)
     print_cell_summary(res.cell_stats, cr.describe(), quiet or json_out)
     some_failed = _failures(res, out)
     if json_out:

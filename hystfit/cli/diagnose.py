@@ -2,17 +2,28 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 from rich.table import Table
 
-from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, ExecutorOpt, FiguresAlias, Force, Fs, InputCol, JsonOut,
-                     NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Quiet, Recursive, Resume, Scheduler, Start,
-                     Stop, Seed, TimeCol, cell_run, load_options, parse_key_values, plots_flag, print_capture_notes,
-                     phase, print_cell_summary, print_json, progress_bar, stdout)
+from .app import command
+from .common import (CaptureArgs, DataArg, ExecutorArgs, FigureOutputArgs, OutDir, PerCondition, Seed, cell_run,
+                     jobs_option, load_for_command, parse_key_values, print_cell_summary, print_json, progress_bar,
+                     stdout, writing)
+
+
+DiagnoseJobs = jobs_option("Parallel processes for the base fits of --per-condition (the numbers do not depend on "
+                           "it).", show_default="1")
+
+
+@dataclass(frozen=True)
+class DiagnoseExecutorArgs(ExecutorArgs):
+    """:class:`ExecutorArgs` with diagnose's own ``--jobs`` (the base fits of ``--per-condition``; one by default)."""
+
+    jobs: DiagnoseJobs = None
 
 
 def _parse_effects(value: Optional[str]) -> list[str] | None:
@@ -26,35 +37,23 @@ def _parse_effects(value: Optional[str]) -> list[str] | None:
     return names
 
 
-@app.command()
-@guarded
+@command()
 def diagnose(
     data: DataArg,
     model: Annotated[str, typer.Option("--model", "-m", help="Base model: a name or BASE+BLOCK+... (see 'hystfit models').")] = "pi",
     opt: Annotated[str, typer.Option("--opt", "-o", help="Optimizer of the base fits (see 'hystfit optimizers').")] = "auto",
-    out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-diagnose"),
+    out: OutDir = Path("hystfit-diagnose"),
     per_condition: PerCondition = False,
     effects: Annotated[Optional[str], typer.Option("--effects", help="Candidate effects, comma-separated (default: dynamics,creep,asymmetry,drift,delay).")] = None,
     seed: Seed = 0,
-    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default="1",
-                                                help="Parallel processes for the base fits of --per-condition (the "
-                                                     "numbers do not depend on it).")] = None,
-    executor: ExecutorOpt = "local",
-    scheduler: Scheduler = None,
-    resume: Resume = False,
+    execution: DiagnoseExecutorArgs = DiagnoseExecutorArgs(),
     fit_fraction: Annotated[float, typer.Option("--fit-fraction", help="Share of every capture used to fit; the rest is held out.")] = 0.6,
     threshold: Annotated[float, typer.Option("--threshold", help="Minimum held-out reduction for naming an effect.")] = 0.3,
     max_effects: Annotated[int, typer.Option("--max-effects", help="How many effects may be named, in order (>= 1).")] = 3,
     model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE (repeatable).")] = None,
     opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE (repeatable).")] = None,
-    plots: Plots = True,
-    json_out: JsonOut = False,
-    quiet: Quiet = False,
-    force: Force = False,
-    figures_alias: FiguresAlias = None,
-    time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
-    fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False, start: Start = None, stop: Stop = None,
+    output: FigureOutputArgs = FigureOutputArgs(),
+    capture: CaptureArgs = CaptureArgs(),
 ) -> None:
     """Diagnose the gap between MODEL and the captures: noise floor, where it lies, which unmodelled
     effect (dynamics, creep, asymmetry, drift, delay) causes it, and how much of it each removes on
@@ -65,7 +64,7 @@ def diagnose(
     from ..diagnose import DiagnoseSettings, check_seed, fit_recommended
     from ..parallel import CellStats
     from ..diagnose import diagnose as run_diagnose
-    from ..io import load_captures, staged_output_dir
+    from ..io import staged_output_dir
     from ..registry import optimizers
     from ..report.diagnose_report import next_step_line, write_diagnose_outputs
     from ..factory import make_model, make_optimizer
@@ -77,26 +76,21 @@ def diagnose(
     names = _parse_effects(effects)
     settings = DiagnoseSettings(fit_fraction=fit_fraction, threshold=threshold, max_effects=max_effects)
     check_seed(seed)
-    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                           start=start, stop=stop)
+    options = capture.load_options()
+    quiet, json_out, resume = output.quiet, output.json_out, execution.resume
     stats = CellStats()
-    with cell_run(out, executor, jobs, scheduler, resume, not quiet) as cr, \
-            staged_output_dir(out, force) as stage:
-        with phase(not quiet and not json_out, "loading the captures"):
-            captures = load_captures(data, options, recursive=recursive)
-        if not quiet:
-            print_capture_notes(captures)
-        with progress_bar(not quiet and not json_out, f"diagnose {m.name}") as cb:
+    with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force) as stage:
+        captures = load_for_command(data, options, output, recursive=capture.recursive, figures=False)
+        with progress_bar(output.chatty, f"diagnose {m.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb, executor=cr.pool(default_jobs=1), store=cr.store,
                              resume=resume, stats=stats)
-        with progress_bar(not quiet and not json_out and bool(d.explained_by),
+        with progress_bar(output.chatty and bool(d.explained_by),
                           f"identify {d.recommended_model} on all the data") as cb:
             rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb,
                                   executor=cr.executor, store=cr.store, resume=resume)
-        make_plots = plots_flag(plots, figures_alias)
-        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if make_plots else "")):
-            write_diagnose_outputs(d, stage, make_figures=make_plots, recommended=rec)
+        with writing(out, output):
+            write_diagnose_outputs(d, stage, make_figures=output.plots, recommended=rec)
     if rec is not None:
         stats.add(rec.cell_stats)
     print_cell_summary(stats, cr.describe(), quiet or json_out)

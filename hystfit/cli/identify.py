@@ -3,48 +3,33 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, ExecutorOpt, FiguresAlias, Force, Fs, InputCol, Iters, Jobs,
-                     JsonOut, MapeFloor, NoHeader, OutputCol, OutputUnit, PerCondition, Plots, Pop, Quiet, Recursive,
-                     Resume, Runs, Scheduler, Seed, Start, Stop, TimeCol, Warmup, cell_run, load_for_command,
-                     load_options, parse_key_values, plots_flag, print_cell_summary, print_json, progress_bar, stderr,
-                     stdout, writing)
+from .app import command
+from .common import (DataArg, ExecutorArgs, FigureOutputArgs, FitArgs, FitCaptureArgs, Iters, MapeFloor, OutDir,
+                     Polish, Pop, Runs, Seed, cell_run, load_for_command, print_cell_summary, print_json,
+                     progress_bar, stderr, stdout, writing)
 
 
-@app.command()
-@guarded
+@command()
 def identify(
     data: DataArg,
     model: Annotated[str, typer.Option("--model", "-m", help="Model: a name or BASE+BLOCK+... (e.g. pi+creep+delay; see 'hystfit models').")] = "pi",
     opt: Annotated[str, typer.Option("--opt", "-o", help="Optimizer name (see 'hystfit optimizers'); auto = exact linear solves + search over the nonlinear parameters.")] = "auto",
-    out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, unless --force).")] = Path("hystfit-out"),
+    out: OutDir = Path("hystfit-out"),
     seed: Seed = 0,
     mape_floor: MapeFloor = 0.01,
     pop: Pop = None,
     iters: Iters = None,
     runs: Runs = 1,
-    polish: Annotated[bool, typer.Option("--polish/--no-polish", help="Least-squares polish after the global search.")] = True,
-    jobs: Jobs = None,
-    executor: ExecutorOpt = "local",
-    scheduler: Scheduler = None,
-    resume: Resume = False,
-    per_condition: PerCondition = True,
-    bounds: Annotated[Optional[list[str]], typer.Option("--bounds", help="Override a bound: NAME=LOWER:UPPER (repeatable).")] = None,
-    model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE, e.g. n_operators=12 (repeatable).")] = None,
-    opt_option: Annotated[Optional[list[str]], typer.Option("--opt-option", help="Optimizer setting KEY=VALUE, e.g. stall_iter=50 (repeatable).")] = None,
-    plots: Plots = True,
-    json_out: JsonOut = False,
-    quiet: Quiet = False,
-    force: Force = False,
-    figures_alias: FiguresAlias = None,
-    time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
-    fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False, start: Start = None, stop: Stop = None, warmup: Warmup = 0.0,
+    polish: Polish = True,
+    execution: ExecutorArgs = ExecutorArgs(),
+    fit: FitArgs = FitArgs(),
+    output: FigureOutputArgs = FigureOutputArgs(),
+    capture: FitCaptureArgs = FitCaptureArgs(),
 ) -> None:
     """Identify MODEL on the captures, one parameter set per operating condition (look-up table).
 
@@ -52,29 +37,26 @@ def identify(
     """
     from ..identify import identify as run_identify
     from ..io import staged_output_dir
-    from ..params import parse_bound_overrides
     from ..registry import optimizers
     from ..report.identify_report import write_identify_outputs
     from ..factory import make_model, make_optimizer
 
     opt_cls = optimizers.get(opt)
-    mopts = parse_key_values(model_option or [], "--model-option")
-    oopts = parse_key_values(opt_option or [], "--opt-option")
+    mopts = fit.model_options()
     m = make_model(model, mopts)
-    o = make_optimizer(opt_cls, oopts, pop=pop, iters=iters)
-    bnds = parse_bound_overrides(bounds or [])
-    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                           start=start, stop=stop, warmup=warmup)
-    make_plots = plots_flag(plots, figures_alias)
-    with cell_run(out, executor, jobs, scheduler, resume, not quiet) as cr, staged_output_dir(out, force) as stage:
-        captures = load_for_command(data, options, recursive=recursive, quiet=quiet, json_out=json_out,
-                                    figures=make_plots)
-        with progress_bar(not quiet and not json_out, f"identify {m.name} / {opt_cls.name}") as cb:
-            res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=not per_condition,
-                               bounds=bnds, progress=cb, model_options=mopts, jobs=jobs, executor=cr.executor,
-                               store=cr.store, resume=resume, mape_floor=mape_floor)
-        with writing(out, quiet, json_out, make_plots):
-            write_identify_outputs(res, stage, make_plots=make_plots, n_jobs=jobs)
+    o = make_optimizer(opt_cls, fit.optimizer_options(), pop=pop, iters=iters)
+    bnds = fit.bound_overrides()
+    options = capture.load_options()
+    quiet, json_out = output.quiet, output.json_out
+    with cell_run(out, execution, not quiet) as cr, \
+            staged_output_dir(out, output.force) as stage:
+        captures = load_for_command(data, options, output, recursive=capture.recursive)
+        with progress_bar(output.chatty, f"identify {m.name} / {opt_cls.name}") as cb:
+            res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=not fit.per_condition,
+                               bounds=bnds, progress=cb, model_options=mopts, jobs=execution.jobs, executor=cr.executor,
+                               store=cr.store, resume=execution.resume, mape_floor=mape_floor)
+        with writing(out, output):
+            write_identify_outputs(res, stage, make_plots=output.plots, n_jobs=execution.jobs)
     print_cell_summary(res.cell_stats, cr.describe(), quiet or json_out)
     some_failed = None
     if res.failed:

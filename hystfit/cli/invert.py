@@ -15,9 +15,9 @@ import typer
 from rich.table import Table
 
 from ..errors import ConfigError, OutputError
-from .app import app, guarded
-from .common import (Condition, Force, JsonOut, Method, OutputUnit, Plots, Quiet, TimeCol, parse_condition, phase,
-                     print_json, progress_bar, stderr, stdout)
+from .app import command
+from .common import (Condition, Method, OutputArgs, OutputUnit, TimeCol, parse_condition, print_json, progress_bar,
+                     stderr, stdout, writing)
 
 TargetArg = Annotated[Optional[Path], typer.Argument(
     help="Target file (CSV/TXT/Parquet): time and desired displacement (target, reference, displacement_um, y, ...). "
@@ -130,8 +130,7 @@ def limit_warnings(res) -> list[str]:
 OUTPUT_SUFFIXES = (".csv", ".tsv", ".txt", ".parquet", ".pq")
 
 
-@app.command()
-@guarded
+@command()
 def invert(
     params: Annotated[Path, typer.Argument(help="params.json written by 'hystfit identify'.", show_default=False)],
     out: Annotated[Path, typer.Option("--out", help="Voltage file to write: .csv, .tsv, .txt or .parquet "
@@ -144,10 +143,7 @@ def invert(
     report_dir: Annotated[Optional[Path], typer.Option("--report-dir", help="Report directory (default: "
                                                        "<out stem>_report next to the output).")] = None,
     time_col: TimeCol = None, target_col: TargetCol = None, output_unit: OutputUnit = None,
-    plots: Plots = True,
-    json_out: JsonOut = False,
-    quiet: Quiet = False,
-    force: Force = False,
+    output: OutputArgs = OutputArgs(),
 ) -> None:
     """Voltages that make the identified model follow TARGET, and the tracking error they predict.
 
@@ -166,7 +162,7 @@ def invert(
                           f"{', '.join(OUTPUT_SUFFIXES)}")
     if out.is_dir():
         raise OutputError(f"{out}: is a directory; --out takes a file name such as voltages.csv")
-    if out.exists() and not force:
+    if out.exists() and not output.force:
         raise OutputError(f"{out}: exists; pass --force to replace it or choose another --out")
     check_writable_file(out)
     if method not in ("interpolate", "nearest"):
@@ -178,17 +174,17 @@ def invert(
     cond = parse_condition(condition)
     tgt = build_target(pf, target, sine=sine, triangle=triangle, steps=steps, multi=multi, offset=offset, fs=fs,
                        time_col=time_col, target_col=target_col, output_unit=output_unit)
-    command = command_text("invert", params, target, out=out, sine=sine, triangle=triangle, steps=steps, multi=multi,
-                           offset=offset, fs=fs, condition=condition, method=method, initial_voltage=initial_voltage,
-                           vmin=vmin, vmax=vmax, max_slew=max_slew, report_dir=report_dir, time_col=time_col,
-                           target_col=target_col, output_unit=output_unit)
+    cmd = command_text("invert", params, target, out=out, sine=sine, triangle=triangle, steps=steps, multi=multi,
+                       offset=offset, fs=fs, condition=condition, method=method, initial_voltage=initial_voltage,
+                       vmin=vmin, vmax=vmax, max_slew=max_slew, report_dir=report_dir, time_col=time_col,
+                       target_col=target_col, output_unit=output_unit)
     existed = rdir.exists()
-    with staged_output_dir(rdir, force) as stage:
-        with progress_bar(not quiet and not json_out, "invert") as cb:
+    with staged_output_dir(rdir, output.force) as stage:
+        with progress_bar(output.chatty, "invert") as cb:
             res = invert_target(pf, tgt, method=method, condition=cond, initial_voltage=initial_voltage, vmin=vmin,
                                 vmax=vmax, max_slew=max_slew, progress=cb)
-        with phase(not quiet and not json_out, f"writing {rdir}" + (" (figures)" if plots else "")):
-            summary = write_invert_report(res, stage, make_plots=plots, command=command, output_file=str(out))
+        with writing(rdir, output):
+            summary = write_invert_report(res, stage, make_plots=output.plots, command=cmd, output_file=str(out))
     try:
         write_table(out, res.to_frame())
     except BaseException:
@@ -197,10 +193,10 @@ def invert(
         raise
     for line in limit_warnings(res):
         stderr.print(line, markup=False, highlight=False)
-    if json_out:
+    if output.json_out:
         print_json(dict(summary, out=str(out), report_dir=str(rdir)))
         return
-    if quiet:
+    if output.quiet:
         return
     from ..invert import condition_text
     from ..report.plots import display_unit

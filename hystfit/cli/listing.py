@@ -7,13 +7,16 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from .app import app, guarded
+from .app import command
 from .common import print_json, stdout
 
 
-@app.command("models")
-@guarded
-def list_models(json_out: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False) -> None:
+#: ``--json`` of the listings
+ListJson = Annotated[bool, typer.Option("--json", help="Machine-readable output.")]
+
+
+@command("models")
+def list_models(json_out: ListJson = False) -> None:
     """List the registered hysteresis models and blocks with their parameters (units, default bounds) and references."""
     from ..catalog import block_catalog, model_catalog
 
@@ -96,9 +99,8 @@ def optimizer_rules(cls) -> dict[str, str]:
     return {"stop_rules": stop, "bounds_handling": _doc_paragraph(doc, "Bounds:")}
 
 
-@app.command("optimizers")
-@guarded
-def list_optimizers(json_out: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False) -> None:
+@command("optimizers")
+def list_optimizers(json_out: ListJson = False) -> None:
     """List the registered optimizers: settings and defaults, stop rules, bounds handling, references."""
     from ..catalog import optimizer_catalog
     from ..registry import optimizers

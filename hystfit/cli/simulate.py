@@ -8,14 +8,11 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from .app import app, guarded
-from .common import (Condition, DataArg, DropNonfinite, Force, Fs, InputCol, JsonOut, Method, NoHeader, OutputCol,
-                     OutputUnit, Plots, Quiet, Recursive, Start, Stop, TimeCol, load_options, phase, print_json, stderr,
-                     stdout)
+from .app import command
+from .common import CaptureArgs, DataArg, Method, OutputArgs, phase, print_json, stderr, stdout, writing
 
 
-@app.command()
-@guarded
+@command()
 def simulate(
     params: Annotated[Path, typer.Argument(help="params.json written by 'hystfit identify'.", show_default=False)],
     data: DataArg,
@@ -25,13 +22,8 @@ def simulate(
                                                "(e.g. a sensor zero that moved between recording days); reported "
                                                "in the table, report.md and the JSON.")] = False,
     fmt: Annotated[str, typer.Option("--format", help="Prediction file format: csv or parquet.")] = "csv",
-    plots: Plots = True,
-    json_out: JsonOut = False,
-    quiet: Quiet = False,
-    force: Force = False,
-    time_col: TimeCol = None, input_col: InputCol = None, output_col: OutputCol = None, no_header: NoHeader = False,
-    fs: Fs = None, drop_nonfinite: DropNonfinite = False, condition: Condition = None, output_unit: OutputUnit = None,
-    recursive: Recursive = False, start: Start = None, stop: Stop = None,
+    output: OutputArgs = OutputArgs(),
+    capture: CaptureArgs = CaptureArgs(),
 ) -> None:
     """Predict the output of captures with the identified look-up table (out-of-sample validation).
 
@@ -51,22 +43,21 @@ def simulate(
     if fmt not in ("csv", "parquet"):
         raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
     pf = load_params(params)
-    options = load_options(time_col, input_col, output_col, no_header, fs, drop_nonfinite, condition, output_unit,
-                           require_output=False, start=start, stop=stop)
-    with staged_output_dir(out, force) as stage:
-        with phase(not quiet and not json_out, "loading the captures"):
-            captures = load_captures(data, options, recursive=recursive)
-        with phase(not quiet and not json_out, f"predicting {len(captures)} capture(s)"):
+    options = capture.load_options(require_output=False)
+    with staged_output_dir(out, output.force) as stage:
+        with phase(output.chatty, "loading the captures"):
+            captures = load_captures(data, options, recursive=capture.recursive)
+        with phase(output.chatty, f"predicting {len(captures)} capture(s)"):
             preds = [predict_capture(pf, c, method, align_offset=align_offset) for c in captures]
-        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if plots else "")):
-            summary = write_simulate_outputs(pf, preds, stage, fmt=fmt, make_plots=plots)
+        with writing(out, output):
+            summary = write_simulate_outputs(pf, preds, stage, fmt=fmt, make_plots=output.plots)
     for s in summary:
         for note in s["notes"]:
             stderr.print(f"note: {Path(s['capture']).name}: {note}", markup=False, highlight=False, soft_wrap=True)
-    if json_out:
+    if output.json_out:
         print_json({"out": str(out), "params": str(params), "captures": summary})
         return
-    if quiet:
+    if output.quiet:
         return
     u = pf.unit
     t = Table(title=f"{pf.model_name}: predictions written to {out}")

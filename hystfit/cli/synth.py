@@ -9,7 +9,7 @@ from typing import Annotated, Optional
 import typer
 
 from ..errors import ConfigError, OutputError
-from .app import app, guarded
+from .app import app, command
 from .common import seed_callback
 
 synth_app = typer.Typer(
@@ -59,8 +59,7 @@ def _plant(effects: str, strength: float, noise_um: float | None = None):
     return synth.Plant.default().with_effects(eff)
 
 
-@synth_app.command("campaign")
-@guarded
+@command("campaign", on=synth_app)
 def campaign(
     out: Annotated[Path, typer.Option("--out", help="Output folder (created if missing).", show_default=False)],
     seed: Seed = 0,
@@ -87,8 +86,7 @@ def campaign(
         typer.echo(str(path))
 
 
-@synth_app.command("capture")
-@guarded
+@command("capture", on=synth_app)
 def capture(
     output: Annotated[Path, typer.Argument(help="File to write (.csv, or .parquet).", show_default=False)],
     amplitude: Annotated[

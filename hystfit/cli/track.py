@@ -9,9 +9,9 @@ import typer
 from rich.table import Table
 
 from ..errors import ConfigError
-from .app import app, guarded
-from .common import (Condition, Force, JsonOut, OutputUnit, Plots, Quiet, Seed, TimeCol, parse_condition,
-                     parse_key_values, phase, print_json, progress_bar, stderr, stdout)
+from .app import command
+from .common import (Condition, OutDir, OutputArgs, OutputUnit, Seed, TimeCol, parse_condition, parse_key_values, phase,
+                     print_json, progress_bar, stderr, stdout, writing)
 
 # --noise is in µm (as in 'hystfit synth'); the loop runs in the parameter file's unit.
 UM_PER_UNIT_INV = {"nm": 1e3, "um": 1.0, "mm": 1e-3, "m": 1e-6}
@@ -19,8 +19,7 @@ from .invert import (InitialVoltage, MaxSlew, Method, Multi, Offset, Sine, Steps
                      Triangle, Vmax, Vmin, build_target, command_text)
 
 
-@app.command()
-@guarded
+@command()
 def track(
     params: Annotated[Path, typer.Argument(help="params.json of the controller's model (feedforward inverse, "
                                                 "nominal plant).", show_default=False)],
@@ -56,13 +55,9 @@ def track(
     fs: TargetFs = None, condition: Condition = None, method: Method = "interpolate",
     initial_voltage: InitialVoltage = None, vmin: Vmin = None, vmax: Vmax = None, max_slew: MaxSlew = None,
     time_col: TimeCol = None, target_col: TargetCol = None, output_unit: OutputUnit = None,
-    out: Annotated[Path, typer.Option("--out", help="Output directory (refused if it exists and is not empty, "
-                                                    "unless --force).")] = Path("hystfit-track"),
+    out: OutDir = Path("hystfit-track"),
     fmt: Annotated[str, typer.Option("--format", help="Time-series file format: csv or parquet.")] = "csv",
-    plots: Plots = True,
-    json_out: JsonOut = False,
-    quiet: Quiet = False,
-    force: Force = False,
+    output: OutputArgs = OutputArgs(),
 ) -> None:
     """Simulate the closed loop around an identified plant and compare controllers (paper 002 Tables 4–6).
 
@@ -82,29 +77,29 @@ def track(
     cond = parse_condition(condition)
     tgt = build_target(pf, target, sine=sine, triangle=triangle, steps=steps, multi=multi, offset=offset, fs=fs,
                        time_col=time_col, target_col=target_col, output_unit=output_unit)
-    command = command_text("track", params, target, controller=controller, plant=plant, noise=noise or None,
-                           seed=seed or None, kp=kp, ki=ki, kd=kd, bandwidth=bandwidth,
-                           anti_windup=None if anti_windup == "backcalc" else anti_windup, sine=sine,
-                           triangle=triangle, steps=steps, multi=multi, offset=offset, fs=fs, condition=condition,
-                           method=method, initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
-                           time_col=time_col, target_col=target_col, output_unit=output_unit, out=out,
-                           smc_option=" ".join(smc_option or []) or None, measure_bandwidth=measure_bandwidth)
-    with staged_output_dir(out, force) as stage:
-        with progress_bar(not quiet and not json_out, "track") as cb:
+    cmd = command_text("track", params, target, controller=controller, plant=plant, noise=noise or None,
+                       seed=seed or None, kp=kp, ki=ki, kd=kd, bandwidth=bandwidth,
+                       anti_windup=None if anti_windup == "backcalc" else anti_windup, sine=sine,
+                       triangle=triangle, steps=steps, multi=multi, offset=offset, fs=fs, condition=condition,
+                       method=method, initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
+                       time_col=time_col, target_col=target_col, output_unit=output_unit, out=out,
+                       smc_option=" ".join(smc_option or []) or None, measure_bandwidth=measure_bandwidth)
+    with staged_output_dir(out, output.force) as stage:
+        with progress_bar(output.chatty, "track") as cb:
             res = run_track(pf, tgt, names, plant_pf=plant_pf, method=method, condition=cond,
                             initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
                             noise_std=noise * UM_PER_UNIT_INV[pf.unit], seed=seed, kp=kp, ki=ki, kd=kd, bandwidth_Hz=bandwidth,
                             anti_windup=anti_windup, smc_options=smc_opts, progress=cb)
         bw = None
         if measure_bandwidth:
-            with phase(not quiet and not json_out, "measuring the bandwidths"):
+            with phase(output.chatty, "measuring the bandwidths"):
                 bw = measure_bandwidths(pf, names, amplitude=float(tgt.y.max() - tgt.y.min()), offset=float(tgt.y.min()),
                                         fs=1.0 / tgt.dt, plant_pf=plant_pf, method=method, condition=cond,
                                         vmin=vmin, vmax=vmax, max_slew=max_slew,
                                         noise_std=noise * UM_PER_UNIT_INV[pf.unit], seed=seed, kp=kp, ki=ki, kd=kd,
                                         bandwidth_Hz=bandwidth, anti_windup=anti_windup, smc_options=smc_opts)
-        with phase(not quiet and not json_out, f"writing {out}" + (" (figures)" if plots else "")):
-            summary = write_track_outputs(res, stage, make_plots=plots, fmt_ext=fmt, command=command, bandwidth=bw)
+        with writing(out, output):
+            summary = write_track_outputs(res, stage, make_plots=output.plots, fmt_ext=fmt, command=cmd, bandwidth=bw)
             if bw is not None:
                 summary["bandwidth"] = bw
     for run in res.runs:
@@ -112,10 +107,10 @@ def track(
             n = sum(s.n for s in run.limit_spans)
             stderr.print(f"warning: {run.controller}: the voltage limits acted on {n} sample(s) in "
                          f"{len(run.limit_spans)} span(s); see the report", markup=False, highlight=False)
-    if json_out:
+    if output.json_out:
         print_json(dict(summary, out=str(out)))
         return
-    if quiet:
+    if output.quiet:
         return
     _print_tables(res, bw, out)
     for note in res.notes:

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from .. import __version__
-from ..compare import CellResult, CompareResult
+from ..compare import CellResult, CompareResult, NeighbourTest, Ranking, rank
 from ..io import atomic_write_text, write_table
 from ..optimizers.base import STOP_RULE_NAMES
 from . import plots
@@ -160,155 +160,108 @@ def _stats(values: list[float], prefix: str, suffix: str = "") -> dict[str, floa
             f"{prefix} std{suffix}": float(a.std(ddof=1)) if a.size > 1 else 0.0}
 
 
+def _cell_table(res: CompareResult, columns) -> pd.DataFrame:
+    """One row per successful cell: model, optimizer, condition, runs, then ``columns(cell)``."""
+    return pd.DataFrame([{"model": c.model, "optimizer": c.optimizer, "condition": c.label, "runs": len(c.runs),
+                          **columns(c)} for c in res.cells if c.ok])
+
+
 def optimizer_table(res: CompareResult) -> pd.DataFrame:
     """004 Table 2: per model, optimizer and condition, the final J and RMSE over runs
     (min / max / mean / std, after the polish if any), the median time and mean evaluations."""
     u = res.unit
-    rows = []
-    for c in res.cells:
-        if not c.ok:
-            continue
-        row = {"model": c.model, "optimizer": c.optimizer, "condition": c.label, "runs": len(c.runs)}
-        row.update(_stats([r.j for r in c.runs], "J"))
-        row.update(_stats([r.metrics.get(f"rmse_{u}", np.nan) for r in c.runs], "RMSE", f" ({u})"))
-        row["time median (s)"] = float(np.median([r.wall_time_s for r in c.runs]))
-        row["evaluations mean"] = float(np.mean([r.nfev for r in c.runs]))
-        row["search evaluations mean"] = float(np.mean([r.search_nfev for r in c.runs]))
-        rows.append(row)
-    return pd.DataFrame(rows)
+
+    def columns(c: CellResult) -> dict:
+        return {**_stats([r.j for r in c.runs], "J"),
+                **_stats([r.metrics.get(f"rmse_{u}", np.nan) for r in c.runs], "RMSE", f" ({u})"),
+                "time median (s)": float(np.median([r.wall_time_s for r in c.runs])),
+                "evaluations mean": float(np.mean([r.nfev for r in c.runs])),
+                "search evaluations mean": float(np.mean([r.search_nfev for r in c.runs]))}
+
+    return _cell_table(res, columns)
 
 
 def search_table(res: CompareResult) -> pd.DataFrame:
     """The global search alone (before the least-squares polish): J over runs per model, optimizer
     and condition. Equal to :func:`optimizer_table`'s J without a polish, and for ``auto`` and
     ``lsq`` (which are not polished again)."""
-    rows = []
-    for c in res.cells:
-        if not c.ok:
-            continue
-        row = {"model": c.model, "optimizer": c.optimizer, "condition": c.label, "runs": len(c.runs)}
-        row.update(_stats([r.search_j for r in c.runs], "J"))
-        row["runs the polish improved by > 0.1 %"] = int(sum(r.j < r.search_j * (1 - 1e-3) for r in c.runs))
-        rows.append(row)
-    return pd.DataFrame(rows)
+    return _cell_table(res, lambda c: {
+        **_stats([r.search_j for r in c.runs], "J"),
+        "runs the polish improved by > 0.1 %": int(sum(r.j < r.search_j * (1 - 1e-3) for r in c.runs))})
 
 
-def _compare_note(a: np.ndarray, b: np.ndarray, paired: bool, name_b: str, what: str) -> str:
-    """How group ``a`` (the better mean) compares with the next one, ``b``.
-
-    Unpaired samples (values over runs): the two-sided Mann–Whitney U test with at least 3 values
-    per group; with 2, the gap against twice the larger standard deviation; with 1, the spread
-    is unknown and the note says so. Paired samples (one value per condition, single runs): the
-    Wilcoxon signed-rank test over conditions with at least 6 conditions, else a count of the
-    conditions where ``a`` is lower.
-    """
-    from scipy.stats import mannwhitneyu, wilcoxon
-
-    gap = float(np.mean(b) - np.mean(a))
-    if gap <= 1e-6 * max(abs(float(np.mean(a))), 1e-300):
-        return f" — tied with `{name_b}`"
-    if paired:
-        d = b - a
-        lower = int(np.sum(d > 0))
-        if d.size >= 6 and np.any(d != 0):
-            p = float(wilcoxon(a, b).pvalue)
-            verdict = "consistently below" if p < 0.05 else "not consistently below"
-            return (f" — {verdict} `{name_b}` (lower at {lower} of {d.size} conditions, "
-                    f"Wilcoxon signed-rank over conditions p = {p:.2g})")
-        return f" — lower than `{name_b}` at {lower} of {d.size} conditions"
-    if min(a.size, b.size) >= 3:
-        p = float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
-        verdict = "better than" if p < 0.05 else "not distinguishable from"
-        return f" — {verdict} `{name_b}` (Mann–Whitney U over runs, p = {p:.2g})"
-    if min(a.size, b.size) == 2:
-        spread = max(np.std(a, ddof=1), np.std(b, ddof=1))
-        if gap <= 2 * spread:
-            return f" — within run-to-run spread of `{name_b}` (gap {fmt(gap)} ≤ 2σ = {fmt(2 * spread)})"
-        return f" — below `{name_b}` by more than twice the run-to-run spread ({fmt(gap)} > {fmt(2 * spread)})"
+def _note(t: NeighbourTest | None) -> str:
+    """The words for a neighbour test of :func:`hystfit.compare.rank`."""
+    if t is None:
+        return ""
+    b = f"`{t.other}`"
+    if t.verdict == "tied":
+        return f" — tied with {b}"
+    if t.test == "wilcoxon":
+        verdict = "consistently below" if t.verdict == "consistently_below" else "not consistently below"
+        return (f" — {verdict} {b} (lower at {t.lower_at} of {t.n_conditions} conditions, "
+                f"Wilcoxon signed-rank over conditions p = {t.p_value:.2g})")
+    if t.verdict == "lower_count":
+        return f" — lower than {b} at {t.lower_at} of {t.n_conditions} conditions"
+    if t.test == "mann_whitney":
+        verdict = "better than" if t.verdict == "better" else "not distinguishable from"
+        return f" — {verdict} {b} (Mann–Whitney U over runs, p = {t.p_value:.2g})"
+    if t.verdict == "within_spread":
+        return f" — within run-to-run spread of {b} (gap {fmt(t.gap)} ≤ 2σ = {fmt(t.two_sigma)})"
+    if t.verdict == "beyond_spread":
+        return f" — below {b} by more than twice the run-to-run spread ({fmt(t.gap)} > {fmt(t.two_sigma)})"
     return ""
 
 
-def _rank_text(names: list[str], samples: list[np.ndarray], what: str, unit: str, *, paired: bool = False,
-               medians: list[float] | None = None) -> list[str]:
-    """Rank by the mean of each group's samples; between neighbours say whether the difference is
-    beyond the spread (:func:`_compare_note`)."""
-    means = [float(np.mean(s)) for s in samples]
-    order = np.argsort(means, kind="stable")
+def _rank_lines(g: Ranking, what: str) -> list[str]:
+    """One numbered line per ranked entry: its mean (and median), and how it compares with the next."""
     lines = []
-    for pos, i in enumerate(order):
-        note = ""
-        if pos + 1 < len(order):
-            j = order[pos + 1]
-            note = _compare_note(np.asarray(samples[i], float), np.asarray(samples[j], float), paired, names[j], what)
+    for r in g.rows:
         med = ""
-        if medians is not None:
-            med = f", median {fmt(medians[i])}"
-            if means[i] > 2 * medians[i]:
+        if r.median is not None:
+            med = f", median {fmt(r.median)}"
+            if r.mean > 2 * r.median:
                 med += " (the mean is dominated by a few conditions; see the worst cases below)"
-        lines.append(f"{pos + 1}. `{names[i]}`: mean {what} {fmt(means[i])}{(' ' + unit) if unit else ''}{med}{note}")
+        unit = f" {g.unit}" if g.unit else ""
+        lines.append(f"{r.position}. `{r.name}`: mean {what} {fmt(r.mean)}{unit}{med}{_note(r.versus_next)}")
     return lines
 
 
-def ranking(res: CompareResult) -> list[str]:
-    u = res.unit
-    out = []
-    if len(res.models) > 1:
-        for o in res.optimizers:
-            names, samples, medians = [], [], []
-            for m in res.models:
-                cells = [c for c in res.cells if c.model == m and c.optimizer == o and c.ok]
-                if len(cells) != len(res.conditions):
-                    continue
-                names.append(m)
-                best = np.array([c.best.metrics[f"rmse_{u}"] for c in cells])
-                medians.append(float(np.median(best)))
-                if res.runs > 1:  # per run: the RMSE averaged over conditions
-                    nr = min(len(c.runs) for c in cells)
-                    samples.append(np.array([np.mean([c.runs[r].metrics[f"rmse_{u}"] for c in cells])
-                                             for r in range(nr)]))
-                else:  # one value per condition, paired across models by condition
-                    samples.append(best)
-            skipped = [m for m in res.models if m not in names]
-            if names:
-                out += [f"Models with `{o}`, by mean RMSE over the {len(res.conditions)} condition(s):", ""]
-                if res.runs == 1:
-                    out += ["One run per cell: the run-to-run spread is unknown (rerun with `--runs 3` or more to "
-                            "test it). Neighbours are compared condition by condition instead, which shows whether "
-                            "one model is consistently better, not whether a rerun would change the order.", ""]
-                else:
-                    out += [f"Each model's mean is over runs of the RMSE averaged over conditions "
-                            f"({res.runs} runs).", ""]
-                out += _rank_text(names, samples, "RMSE", u, paired=res.runs == 1, medians=medians)
-                if skipped:
-                    out += [f"- not ranked (failed on some condition): {', '.join(f'`{m}`' for m in skipped)}"]
-                out += [""]
-    if len(res.optimizers) > 1:
-        polished = res.polish and any(o not in res.self_polishing for o in res.optimizers)
-        for m in res.models:
-            names, samples = [], []
-            for o in res.optimizers:
-                cells = [c for c in res.cells if c.model == m and c.optimizer == o and c.ok]
-                if len(cells) != len(res.conditions):
-                    continue
-                names.append(o)
-                nr = min(len(c.runs) for c in cells)
-                samples.append(np.array([np.mean([c.runs[r].search_j for c in cells]) for r in range(nr)]))
-            if names:
-                what = "J of the search (before the polish)" if polished else "final J"
-                out += [f"Optimizers on `{m}`, by mean {what} over runs (averaged over conditions):", ""]
-                out += _rank_text(names, samples, "J", "") + [""]
-                if polished:
-                    fin = [np.mean([c.runs[r].j for c in res.cells if c.model == m and c.optimizer == o and c.ok
-                                    for r in range(len(c.runs))]) for o in names]
-                    spread = 100 * (max(fin) - min(fin)) / min(fin) if min(fin) > 0 else np.nan
-                    verdict = ("the polish, not the search, sets the final accuracy here; the search decides the "
-                               "basin and the time" if spread < 1 else "the search still matters after the polish")
-                    by = f"{fmt(spread)} %" if spread >= 0.01 else "less than 0.01 %"
-                    out += [f"After the least-squares polish the mean final J of these optimizers differ by "
-                            f"{by} (004 Table 2 style table below): {verdict}.", ""]
-    if not out:
-        out = ["One model and one optimizer: nothing to rank.", ""]
+def _model_ranking_text(g: Ranking) -> list[str]:
+    out = [f"Models with `{g.within}`, by mean RMSE over the {g.n_conditions} condition(s):", ""]
+    if g.paired:
+        out += ["One run per cell: the run-to-run spread is unknown (rerun with `--runs 3` or more to "
+                "test it). Neighbours are compared condition by condition instead, which shows whether "
+                "one model is consistently better, not whether a rerun would change the order.", ""]
+    else:
+        out += [f"Each model's mean is over runs of the RMSE averaged over conditions ({g.runs} runs).", ""]
+    out += _rank_lines(g, "RMSE")
+    if g.not_ranked:
+        out += [f"- not ranked (failed on some condition): {', '.join(f'`{m}`' for m in g.not_ranked)}"]
+    return out + [""]
+
+
+def _optimizer_ranking_text(g: Ranking) -> list[str]:
+    what = "J of the search (before the polish)" if g.polished else "final J"
+    out = [f"Optimizers on `{g.within}`, by mean {what} over runs (averaged over conditions):", ""]
+    out += _rank_lines(g, "J") + [""]
+    if g.polished:
+        spread = g.final_j_spread_pct
+        verdict = ("the polish, not the search, sets the final accuracy here; the search decides the "
+                   "basin and the time" if spread < 1 else "the search still matters after the polish")
+        by = f"{fmt(spread)} %" if spread >= 0.01 else "less than 0.01 %"
+        out += [f"After the least-squares polish the mean final J of these optimizers differ by "
+                f"{by} (004 Table 2 style table below): {verdict}.", ""]
     return out
+
+
+def ranking(res: CompareResult) -> list[str]:
+    """The ranking section's lines: :func:`hystfit.compare.rank` in words."""
+    out = []
+    for g in rank(res).groups:
+        if g.rows:
+            out += _model_ranking_text(g) if g.kind == "models" else _optimizer_ranking_text(g)
+    return out or ["One model and one optimizer: nothing to rank.", ""]
 
 
 def _figures(res: CompareResult, fig_dir: Path, n_jobs: int | None = None) -> list[str]:

@@ -21,7 +21,7 @@ from ..invert import InversionResult, Span, condition_text
 from ..io import atomic_write_bytes, atomic_write_text
 from ..results import dumps, json_safe
 from .plots import MAX_POINTS, display_unit
-from .tables import fmt
+from .tables import fmt, notes_and_figures
 
 #: Spans listed in the Markdown report (all are in the JSON up to :data:`MAX_SPANS_JSON`).
 MAX_SPANS_MD = 20
@@ -307,11 +307,7 @@ def invert_markdown(res: InversionResult, figures: Sequence[str], command: str |
           f"{sum(s.n for s in res.clip_spans)} samples", ""] + span_table(res.clip_spans)
     L += ["", f"Slew-rate limited: {len(res.slew_spans)} span(s), {sum(s.n for s in res.slew_spans)} samples", ""]
     L += span_table(res.slew_spans)
-    if res.notes:
-        L += ["", "## Notes", ""] + [f"- {n}" for n in res.notes]
-    if figures:
-        L += ["", "## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in figures]
-    L.append("")
+    L += notes_and_figures(res.notes, figures)
     return "\n".join(L)
 
 

@@ -1,9 +1,9 @@
 """Figures for reports, written as PNG files.
 
-Every function takes plain arrays, a unit and a title, draws one figure, writes it atomically
-(:func:`hystfit.io.atomic_write_bytes`: a hidden temporary file in the target directory, then
-:func:`os.replace`, so a reader never sees a half-written PNG) and returns the
-:class:`~pathlib.Path` written. Nothing is printed and nothing is shown on screen.
+Every function takes plain arrays, a unit and a title (and ``dpi``, the resolution, default 110),
+draws one figure, writes it atomically (:func:`hystfit.io.atomic_write_bytes`: a hidden temporary
+file in the target directory, then :func:`os.replace`, so a reader never sees a half-written PNG)
+and returns the :class:`~pathlib.Path` written. Nothing is printed and nothing is shown on screen.
 
 Figures are built with the object-oriented :class:`matplotlib.figure.Figure` API and rendered by
 the Agg canvas directly, without :mod:`matplotlib.pyplot`: no global backend is selected and no
@@ -457,11 +457,6 @@ def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str
         Figure title.
     labels : (str, str)
         Legend labels of the measured and model curves.
-    dpi : int, default 110
-
-    Returns
-    -------
-    Path
     """
     caps = _captures({"u": u_V, "y_meas": y_meas, "y_model": y_model})
     margins = _margins(0.75, 0.15, 0.55, 0.12, title)
@@ -494,11 +489,6 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
         Measured and model output in ``unit`` (same length as ``t_s``).
     unit : str, default "um"
     title : str
-    dpi : int, default 110
-
-    Returns
-    -------
-    Path
     """
     ym = np.asarray(y_meas, dtype=float).ravel()
     yp = np.asarray(y_model, dtype=float).ravel()
@@ -556,11 +546,6 @@ def convergence_figure(path, history_best, history_mean=None, *, title: str = ""
         Logarithmic y axis; silently linear when a plotted value is ≤ 0.
     runs : list of array_like, optional
         Best-so-far histories of several runs (seeds), overlaid as thin lines.
-    dpi : int, default 110
-
-    Returns
-    -------
-    Path
 
     Notes
     -----
@@ -674,11 +659,6 @@ def overview_figure(path, panels: Sequence[dict], *, unit: str = "um", title: st
     unit : str, default "um"
     title : str
         Figure title.
-    dpi : int, default 110
-
-    Returns
-    -------
-    Path
 
     Raises
     ------
@@ -735,11 +715,6 @@ def parity_figure(path, y_meas, y_model, *, unit: str = "um", title: str = "", d
         Measured and model output in ``unit``; lists (several captures) are pooled.
     unit : str, default "um"
     title : str
-    dpi : int, default 110
-
-    Returns
-    -------
-    Path
     """
     caps = _captures({"y_meas": y_meas, "y_model": y_model})
     ym = np.concatenate([c[0] for c in caps])
@@ -805,11 +780,6 @@ def heatmap_figure(path, matrix, row_labels: Sequence[str], col_labels: Sequence
     color_matrix : array_like, shape (R, C), optional
         Values that set the colours, when they differ from the annotated ones (e.g. colour by
         1 − R² on a log scale, annotate R²).
-    dpi : int, default 110
-
-    Returns
-    -------
-    Path
 
     Raises
     ------
@@ -887,11 +857,6 @@ def boxplot_figure(path, groups: Mapping[str, Sequence[float]], *, title: str = 
     title, ylabel : str
     log : bool, default False
         Logarithmic y axis.
-    dpi : int, default 110
-
-    Returns
-    -------
-    Path
 
     Raises
     ------
@@ -944,7 +909,6 @@ def loop_overlay_figure(path, u_V, y_meas, models: Mapping[str, np.ndarray], *, 
     models : mapping of str to array_like
         Model name → model output for the same input.
     unit, title : str
-    dpi : int, default 110
     """
     u = np.asarray(u_V, float).ravel()
     fig = _new_figure(6.8, 5.0, _margins(0.75, 0.15, 0.55, 0.12, title), dpi=dpi)
@@ -972,7 +936,6 @@ def convergence_compare_figure(path, histories: Mapping[str, Sequence[Sequence[f
         Optimizer name → its runs' best-so-far histories; the median over runs is drawn bold.
     title, ylabel : str
     log : bool, default True
-    dpi : int, default 110
     """
     fig = _new_figure(6.8, 4.6)
     ax = fig.add_subplot()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -88,3 +89,11 @@ def distinct_names(paths: Sequence[str]) -> list[str]:
             k += 1
         out.append("/".join(pp[-k:]))
     return out
+
+
+def notes_and_figures(notes: Sequence[str], figures: Sequence[str]) -> list[str]:
+    """The closing sections of a report: its notes, its figures (when any), and a final empty line."""
+    lines = (["", "## Notes", ""] + [f"- {n}" for n in notes]) if notes else []
+    if figures:
+        lines += ["", "## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in figures]
+    return lines + [""]

@@ -13,7 +13,7 @@ from ..track import TrackResult
 from .invert_report import (detail_windows, error_comparison_figure, invert_summary, span_dicts, span_table,
                             tracking_detail_figure, tracking_figure)
 from .plots import display_unit
-from .tables import fmt
+from .tables import fmt, notes_and_figures
 
 
 def _file_stem(name: str) -> str:
@@ -103,11 +103,7 @@ def track_markdown(res: TrackResult, figures: list[str], command: str | None = N
     for run in res.runs:
         if run.limit_spans:
             L += ["", f"### {run.controller}: voltage limited", ""] + span_table(run.limit_spans)
-    if res.notes:
-        L += ["", "## Notes", ""] + [f"- {n}" for n in res.notes]
-    if figures:
-        L += ["", "## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in figures]
-    L.append("")
+    L += notes_and_figures(res.notes, figures)
     return "\n".join(L)
 
 

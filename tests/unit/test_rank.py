@@ -1,0 +1,85 @@
+"""``hystfit.compare.rank``: the ranking of a comparison as data (the report only renders it)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from hystfit.compare import CellResult, CompareRanking, CompareResult, RunMetrics, neighbour_test, rank
+
+
+def _cell(model, opt, a, f, rmses, js=None, search=None):
+    js = js or [1.0] * len(rmses)
+    runs = tuple(RunMetrics(i, 100 + i, j, j, {"rmse_um": r, "r2": 0.99}, 1.0, 10, np.empty(0),
+                            search[i] if search else j, search[i] if search else j)
+                 for i, (r, j) in enumerate(zip(rmses, js)))
+    return CellResult(model, opt, a, f, f"{a:g}V_{f:g}Hz", 5, runs, int(np.argmin(js)))
+
+
+CONDS = tuple(((a, f), f"{a:g}V_{f:g}Hz") for a in (20.0, 60.0) for f in (10.0, 40.0, 80.0))
+
+
+def test_models_ranked_by_mean_rmse_with_known_order_and_paired_tests():
+    rmse = {"m1": 0.3, "m2": 0.1, "m3": 0.2}  # known order: m2 < m3 < m1, every condition alike
+    cells = [_cell(m, "o1", a, f, [r + 0.001 * f]) for (a, f), _ in CONDS for m, r in rmse.items()]
+    res = CompareResult(tuple(rmse), ("o1",), CONDS, {}, tuple(cells), runs=1)
+    out = rank(res)
+    assert isinstance(out, CompareRanking) and len(out.groups) == 1
+    g = out.groups[0]
+    assert (g.kind, g.within, g.metric, g.unit, g.paired, g.n_conditions) == ("models", "o1", "rmse", "um", True, 6)
+    assert [r.name for r in g.rows] == ["m2", "m3", "m1"] and [r.position for r in g.rows] == [1, 2, 3]
+    assert g.rows[0].mean == pytest.approx(0.1 + 0.001 * np.mean([10, 40, 80]))
+    assert g.rows[0].median == pytest.approx(0.1 + 0.001 * 40)
+    t = g.rows[0].versus_next
+    assert (t.other, t.test, t.verdict, t.lower_at, t.n_conditions) == ("m3", "wilcoxon", "consistently_below", 6, 6)
+    assert t.p_value < 0.05 and t.gap == pytest.approx(0.1)
+    assert g.rows[-1].versus_next is None
+
+
+def test_ties_keep_the_given_order_and_are_marked_tied():
+    cells = [_cell(m, "o1", a, f, [0.2]) for (a, f), _ in CONDS for m in ("b", "a")]
+    g = rank(CompareResult(("b", "a"), ("o1",), CONDS, {}, tuple(cells), runs=1)).groups[0]
+    assert [r.name for r in g.rows] == ["b", "a"]  # stable: a tie keeps the models' order
+    assert g.rows[0].versus_next.verdict == "tied" and g.rows[0].versus_next.test == ""
+    assert math.isnan(g.rows[0].versus_next.p_value)
+
+
+def test_failed_model_is_not_ranked_and_few_conditions_give_a_count():
+    conds = CONDS[:2]
+    cells = [_cell(m, "o1", a, f, [r]) for (a, f), _ in conds for m, r in (("m1", 0.1), ("m2", 0.2))]
+    cells.append(CellResult("m3", "o1", 20.0, 10.0, "20V_10Hz", 5, error="boom"))
+    g = rank(CompareResult(("m1", "m2", "m3"), ("o1",), conds, {}, tuple(cells), runs=1)).groups[0]
+    assert g.not_ranked == ("m3",) and [r.name for r in g.rows] == ["m1", "m2"]
+    t = g.rows[0].versus_next
+    assert (t.verdict, t.lower_at, t.n_conditions, t.test) == ("lower_count", 2, 2, "")
+
+
+def test_optimizers_ranked_over_runs_mann_whitney_spread_and_json():
+    cond = (((60.0, 80.0), "60V_80Hz"),)
+    search = {"o1": [5.0, 5.1, 5.2], "o2": [1.0, 1.1, 1.2], "o3": [1.0, 1.1, 1.2]}
+    cells = [_cell("m1", o, 60.0, 80.0, [0.1] * 3, js=[1.0, 1.0, 1.02], search=s) for o, s in search.items()]
+    out = rank(CompareResult(("m1",), tuple(search), cond, {}, tuple(cells), runs=3))
+    (g,) = out.groups
+    assert (g.kind, g.within, g.metric, g.paired, g.polished) == ("optimizers", "m1", "search_j", False, True)
+    assert [r.name for r in g.rows] == ["o2", "o3", "o1"]
+    assert g.rows[0].versus_next.verdict == "tied"
+    t = g.rows[1].versus_next
+    assert (t.test, t.verdict) == ("mann_whitney", "not_distinguishable") and t.p_value == pytest.approx(0.1)
+    assert g.final_j_spread_pct == pytest.approx(0.0)
+    d = json.loads(json.dumps(out.to_dict(), allow_nan=False))
+    assert d["alpha"] == 0.05 and d["groups"][0]["rows"][1]["versus_next"]["p_value"] == pytest.approx(0.1)
+    assert d["groups"][0]["rows"][0]["versus_next"]["p_value"] is None
+
+
+def test_two_runs_compare_the_gap_with_twice_the_spread():
+    t = neighbour_test(np.array([1.0, 1.2]), np.array([3.0, 3.2]), False, "x")
+    assert t.verdict == "beyond_spread" and t.gap == pytest.approx(2.0)
+    assert t.two_sigma == pytest.approx(2 * np.std([1.0, 1.2], ddof=1))
+    assert neighbour_test(np.array([1.0, 2.0]), np.array([1.5, 2.6]), False, "x").verdict == "within_spread"
+    assert neighbour_test(np.array([1.0]), np.array([2.0]), False, "x").verdict == "unknown_spread"
+
+
+def test_one_model_one_optimizer_has_nothing_to_rank():
+    cells = [_cell("m1", "o1", a, f, [0.1]) for (a, f), _ in CONDS]
+    assert rank(CompareResult(("m1",), ("o1",), CONDS, {}, tuple(cells), runs=1)).groups == ()
