@@ -122,9 +122,10 @@ class DiagnoseSettings:
         the base has a resolution (:meth:`hystfit.models.base.Model.refined`, e.g. the number of play
         operators), refit the base at twice the resolution with the same effects; when that removes at
         least ``threshold`` of the remaining held-out gap, the base's resolution — not a missing
-        effect — is what the coarse base lacked, and the diagnosis is made again with the finer base
-        (``resolution`` section; the recommended model carries the option). An effect is otherwise
-        judged against a gap that the base's own discretization error dilutes.
+        effect — is what the coarse base lacked: the finer base is adopted (``resolution`` section;
+        the recommended model carries the option) and the selection goes on from it with the effects
+        not yet named. An effect is otherwise judged against a gap that the base's own
+        discretization error dilutes.
     """
 
     fit_fraction: float = 0.6
@@ -336,6 +337,9 @@ class Diagnosis:
     def heldout_rmse_named(self) -> float:
         """Held-out RMSE of the base with every named effect (the last named step); the base's own
         held-out RMSE when none is named."""
+        final = self.gap.get("heldout_rmse_after_explained_out")
+        if final is not None and self.explained_by:  # the final model (on the finer base when it was adopted)
+            return float(final)
         if not self.explained_by or len(self.steps) < len(self.explained_by):
             return self.effects[0].heldout_rmse_before if self.effects else float("nan")
         last = self.explained_by[-1]
@@ -1491,10 +1495,11 @@ class _Selection:
 
 
 def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, cands, all_effects,
-                    settings: "DiagnoseSettings", seed: int, unit: str, advance, count_progress: bool) -> _Selection:
+                    settings: "DiagnoseSettings", seed: int, unit: str, advance, count_progress: bool,
+                    first_step: int = 0) -> _Selection:
     """The greedy selection of effects for one noise floor (the fits do not depend on it, the
-    reductions and the verdict do)."""
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+    reductions and the verdict do). ``first_step``: steps already taken (a continuation)."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7] + ([first_step] if first_step else [])))
     steps, chosen, alternatives = [], [], []
     state, preds_state = state0, pred0
     remaining = list(cands)
@@ -1508,7 +1513,7 @@ def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, ca
         results, states = [], {}
         for eff in remaining:
             placebo = _placebo_gain(ctx, eff, placebo_cache, caps, views, settings, rng)
-            r, states[eff.name] = _test_effect(ctx, eff, placebo, step, caps, views, settings, unit)
+            r, states[eff.name] = _test_effect(ctx, eff, placebo, first_step + step, caps, views, settings, unit)
             results.append(r)
             if step == 0 and count_progress:
                 advance(f"effect {eff.name}")
@@ -1664,8 +1669,18 @@ def _where_and_select(caps, d: _Design, gap: _Gap, base: _Base, first: tuple[dic
     return _Outcome(sigma, where, found, fig_where, sel)
 
 
+@dataclass(frozen=True, eq=False)
+class _Resolution:
+    """The base-resolution check: its numbers (the JSON ``resolution`` section) and the finer base
+    with the named effects refitted on it (where the selection continues when it is adopted)."""
+
+    info: dict
+    state: _State
+    preds: list
+
+
 def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, gap: _Gap, sel: _Selection,
-                     sigma: float, settings: "DiagnoseSettings", executor=None) -> dict | None:
+                     sigma: float, settings: "DiagnoseSettings", executor=None) -> _Resolution | None:
     """Is the base's resolution, rather than a missing effect, what limits the model with the named
     effects? The base at twice its resolution (:meth:`Model.refined`) is fitted on the fit part, the
     named effects are refitted on it in the order they were named, and the held-out RMSE is compared
@@ -1684,14 +1699,28 @@ def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed:
     state = base.state
     for eff in _configured(list(sel.chosen), base.preds, views):
         state, _ = _augment(state, eff, caps, views, _linearize(state, caps, views), settings.iterations)
-    after = _rmse(_predictions(state, caps, views), views, "test")
+    preds = _predictions(state, caps, views)
+    after = _rmse(preds, views, "test")
     denom = before - sigma
     red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
     opt = model.composition[0].resolution_option if model.composition is not None else model.resolution_option
-    return {"option": opt, "from": int(getattr(model.composition[0] if model.composition is not None else model, opt)),
+    info = {"option": opt, "from": int(getattr(model.composition[0] if model.composition is not None else model, opt)),
             "to": int(getattr(fine.composition[0] if fine.composition is not None else fine, opt)),
             "effects": list(sel.chosen), "heldout_rmse_before_out": before, "heldout_rmse_after_out": after,
             "reduction": red, "threshold": settings.threshold, "adopted": bool(red >= settings.threshold)}
+    return _Resolution(info, state, preds)
+
+
+def _continue_on_finer_base(res: _Resolution, sel: _Selection, select_from) -> _Selection:
+    """The selection after an adopted resolution check: the steps that named effects on the coarse
+    base, then the greedy selection continued from the finer base with the effects not yet named
+    (the coarse base's last, unsuccessful step is superseded by it)."""
+    k = len(sel.chosen)
+    more = select_from(res.state, res.preds, list(sel.chosen), k)
+    if more is None:
+        return _Selection(sel.steps[:k], sel.chosen, sel.alternatives[:k], res.preds)
+    return _Selection(sel.steps[:k] + more.steps, sel.chosen + more.chosen, sel.alternatives[:k] + more.alternatives,
+                      more.preds)
 
 
 def _capture_info(caps, d: _Design, calib: Sequence[dict]) -> tuple[dict, ...]:
@@ -1759,12 +1788,19 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     out = _where_and_select(caps, d, gap, base, first, select, unit)  # 3. where and 4. which, how far
     advance("verdict")
     sel = out.selection
-    resolution = (resolution_check(caps, d, model, optimizer, seed, gap, sel, out.sigma, settings, executor)
-                  if settings.resolution_check else None)
-    if resolution is not None and resolution["adopted"]:  # the diagnosis again, on the finer base
-        fine = diagnose(caps, model.refined(), optimizer, seed=seed, per_condition=per_condition, effects=effects,
-                        settings=replace(settings, resolution_check=False), executor=executor)
-        return replace(fine, resolution=resolution, runtime_s=time.perf_counter() - t_start)
+    res = (resolution_check(caps, d, model, optimizer, seed, gap, sel, out.sigma, settings, executor)
+           if settings.resolution_check else None)
+    if res is not None and res.info["adopted"]:  # go on from the finer base with the effects not yet named
+        def select_from(state, preds, named, first_step):
+            left = [e for e in cands if e.name not in named]
+            if not left or first_step >= settings.max_effects:
+                return None
+            return _select_effects(out.sigma, out.where, state0=state, pred0=preds, caps=caps, views=list(d.views),
+                                   cands=left, all_effects=all_effects, seed=seed, unit=unit, advance=advance,
+                                   count_progress=False, first_step=first_step,
+                                   settings=replace(settings, max_effects=settings.max_effects - first_step))
+        sel = _continue_on_finer_base(res, sel, select_from)
+    resolution = res.info if res is not None else None
     split = _split_info(d.split, caps, d.views, d.swept, settings)
     if d.split.kind == "capture" and settings.split == "auto":  # the temporal split beside, for agreement
         split["other_scheme"] = _other_scheme(

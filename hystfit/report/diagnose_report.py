@@ -17,10 +17,11 @@ import numpy as np
 from ..diagnose import Diagnosis, EffectResult
 from ..effects import EFFECTS
 from ..io import atomic_write_text
-from ..results import dumps
+from ..results import dumps, identify_to_dict
 from . import plots
 from .plots import _decimate, _decimate_minmax, _new_figure, _save, _stride, display_unit
 from .tables import fmt
+from .diagnose_wording import resolution_text
 
 #: What each candidate effect means, in one plain sentence.
 PLAIN = {
@@ -713,6 +714,8 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
                       "a copy of the velocity; its share is how much of the error above the noise that shape alone "
                       "matches, before any refit.)"]
             L += [""]
+    if d.resolution is not None:
+        L += [resolution_text(d.resolution, d.unit), ""]
     rec = d.reconciliation
     if rec:
         L += ["Where the error's shape and the refit disagree:", ""]
@@ -765,14 +768,18 @@ def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
     """The report's last line: the effects named, the held-out error of the base with all of
     them, and what to run next."""
     u = d.unit
+    opts = "".join(f" --model-option {k}={v}" for k, v in d.recommended_options.items())
     if not d.explained_by:
+        if opts:
+            return (f"next: no effect named; the base's resolution limits it (held-out RMSE "
+                    f"{d.heldout_rmse_named:.4g} {u} with{opts}): identify with --model {d.base_model}{opts}")
         return (f"next: no effect named; {d.base_model} is as good as any augmentation on held-out data "
                 f"(held-out RMSE {d.heldout_rmse_named:.4g} {u}).")
     params = f"{out_dir}/params.json" if out_dir is not None else "params.json"
-    return (f"next: named {', '.join(d.explained_by)}; held-out RMSE of {d.recommended_model} "
+    return (f"next: named {', '.join(d.explained_by)}; held-out RMSE of {d.recommended_model}{opts} "
             f"{d.heldout_rmse_named:.4g} {u}. {d.recommended_model} fitted on all the data is in {params}: "
             f"hystfit invert {params} --sine AMPLITUDE,FREQUENCY --out v.csv, or identify it anew with "
-            f"--model {d.recommended_model}")
+            f"--model {d.recommended_model}{opts}")
 
 
 def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = True,
@@ -789,8 +796,6 @@ def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = 
         paths["figures"] = out_dir / "figures"
     md = markdown(d, figs)
     if recommended is not None:
-        from ..results import identify_to_dict
-
         paths["params"] = out_dir / "params.json"
         atomic_write_text(paths["params"], dumps(identify_to_dict(recommended)))
         rms = ", ".join(f"{f.label}: {f.metrics[f'rmse_{d.unit}']:.4g} {d.unit}" for f in recommended.fits)

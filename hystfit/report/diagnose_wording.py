@@ -253,3 +253,18 @@ def reconciliation_why(reason: str, reduction: float, threshold: float) -> str:
         return (f"the refit does not carry the pattern over to held-out data (reduction {reduction:.2f} < "
                 f"{threshold:g})")
     return "it passes the reduction but fails another rule (placebo or noise floor)"
+
+
+def resolution_text(r: dict, unit: str) -> str:
+    """The base-resolution check (:func:`hystfit.diagnose.resolution_check`) in one paragraph."""
+    u = "µm" if unit == "um" else unit
+    before, after = r["heldout_rmse_before_out"], r["heldout_rmse_after_out"]
+    with_effects = f" with {' + '.join(r['effects'])}" if r["effects"] else ""
+    head = (f"Resolution of the base: {r['option']} {r['from']} → {r['to']}{with_effects} takes the held-out RMSE "
+            f"from {before:.4g} to {after:.4g} {u} (reduction {r['reduction']:.2f} of the gap above the noise; "
+            f"threshold {r['threshold']:.2f}).")
+    if r["adopted"]:
+        return (head + f" The coarse base's own discretization was a large part of what remained, so the finer base "
+                f"is adopted: the effects after step {len(r['effects'])} were tested on it, and the recommended model "
+                f"uses --model-option {r['option']}={r['to']}.")
+    return head + " The base's resolution is not what limits the model; it is kept."

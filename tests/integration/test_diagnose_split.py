@@ -97,3 +97,34 @@ def test_a_re_zeroed_and_re_scaled_sensor_is_calibration_not_an_effect():
     assert max(gains) / min(gains) == pytest.approx(1.03, rel=0.005)
     assert any("per-capture calibration" in p for p in d.where["pointers"])
     assert "offset_um" in d.to_dict()["captures"][0]
+
+
+@pytest.mark.slow
+def test_rising_sines_with_three_effects_name_all_three_on_a_base_of_adequate_resolution():
+    """The default ten PI operators (thresholds at 0, 6, … 54 V) cannot draw the plant's loops (0 … 45 V)
+    finely enough: after delay and asymmetry, the remaining held-out gap is mostly the base's own
+    discretization, which dilutes creep's share below the threshold. The resolution check finds that
+    twenty operators remove most of it, adopts them and names creep on the finer base."""
+    caps = _rising(synth.Effects(asymmetry=True, creep=True, delay=True, delay_s=3e-4, noise=True,
+                                 noise_sigma_um=0.01), cycles=50)
+    d = diagnose(caps, make_model("pi"), make_optimizer(optimizers.get("auto")))
+    assert set(d.explained_by) == {"asymmetry", "creep", "delay"}
+    r = d.resolution
+    assert r is not None and r["adopted"] and (r["option"], r["from"], r["to"]) == ("n_operators", 10, 20)
+    assert r["heldout_rmse_after_out"] < 0.7 * r["heldout_rmse_before_out"]
+    assert d.to_dict()["resolution"]["heldout_rmse_after_um"] == r["heldout_rmse_after_out"]
+    assert d.recommended_options == {"n_operators": 20}
+    assert d.to_dict()["recommended_model_options"] == {"n_operators": 20}
+    assert d.heldout_rmse_named < r["heldout_rmse_after_out"]  # creep removes part of what is left
+    assert [s[0].step for s in d.steps] == list(range(1, len(d.steps) + 1))
+
+
+def test_no_resolution_check_for_a_fixed_structure_or_when_switched_off():
+    caps = _rising(synth.Effects(noise=True, noise_sigma_um=0.01), freqs=(20.0, 40.0, 100.0), cycles=6)
+    fixed = make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)})
+    assert fixed.refined() is None
+    d = diagnose(caps, fixed, make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=1))
+    assert d.resolution is None and d.to_dict()["resolution"] is None and d.recommended_options == {}
+    d = diagnose(caps, make_model("pi"), make_optimizer(optimizers.get("auto")),
+                 settings=DiagnoseSettings(max_effects=1, resolution_check=False))
+    assert d.resolution is None
