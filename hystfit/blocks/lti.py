@@ -22,7 +22,7 @@ from .._lazy import lazy_module
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
 from ..registry import blocks
-from .base import Block
+from .base import Block, captures_at_one_rate
 
 # scipy submodules are imported on first use: keeps start-up fast
 signal = lazy_module("scipy.signal")
@@ -729,6 +729,44 @@ def check_era_options(max_order, n_markov, feedthrough, correlation, era_order) 
         raise ConfigError(f"correlation must be 'exact' or 'toeplitz', got {correlation!r}")
 
 
+@dataclass(frozen=True)
+class LinearPartFields:
+    """The structure fields of an identified linear part, defined once for the ``lti`` block and
+    the Hammerstein model: the stored state space (``order``, ``A`` row-major, ``B``, ``C``,
+    ``D``, its sample period ``dt_s``, the Hankel ``singular_values`` it was cut from) and the
+    options of its identification by ERA (:func:`identify_linear_era`). Each class adds the
+    field naming how the part was obtained (``method``, ``linear_method``)."""
+
+    order: int = 0
+    A: tuple[float, ...] = ()
+    B: tuple[float, ...] = ()
+    C: tuple[float, ...] = ()
+    D: float = 0.0
+    dt_s: float | None = None
+    singular_values: tuple[float, ...] = ()
+    max_order: int = 8
+    n_markov: int | None = None
+    feedthrough: "bool | str" = "auto"
+    correlation: str = "exact"
+    era_order: int | None = None
+
+    def check_linear_part(self) -> None:
+        """The one check of these fields: ConfigError for an ERA option
+        (:func:`check_era_options`), ValueError for an inconsistent state space."""
+        check_era_options(self.max_order, self.n_markov, self.feedthrough, self.correlation, self.era_order)
+        r = self.order
+        if not isinstance(r, int) or isinstance(r, bool) or r < 0:
+            raise ValueError(f"order must be a non-negative integer, got {r!r}")
+        if len(self.A) != r * r or len(self.B) != r or len(self.C) != r:
+            raise ValueError(f"a linear part of order {r} needs {r * r} A, {r} B and {r} C entries "
+                             f"(got {len(self.A)}, {len(self.B)}, {len(self.C)})")
+        vals = np.r_[np.asarray(self.A, float), np.asarray(self.B, float), np.asarray(self.C, float), float(self.D)]
+        if not np.all(np.isfinite(vals)):
+            raise ValueError("the linear part has non-finite entries")
+        if r > 0 and not (self.dt_s is not None and self.dt_s > 0):
+            raise ValueError("a linear part needs its sample period dt_s > 0")
+
+
 def is_broadband(u: np.ndarray, min_bins: int = 64, level: float = 1e-3) -> bool:
     """True when the input excites many frequencies (PRBS, multisine, chirp, steps), not a few lines.
 
@@ -747,7 +785,7 @@ def is_broadband(u: np.ndarray, min_bins: int = 64, level: float = 1e-3) -> bool
 
 @blocks.register
 @dataclass(frozen=True)
-class Lti(Block):
+class Lti(Block, LinearPartFields):
     r"""An identified linear stage after the hysteresis: paper 003's discrete state space.
 
     .. math:: s_{k+1} = A s_k + B x_k,\qquad y_k = C s_k + D x_k \quad (G(1) = 1)
@@ -785,29 +823,10 @@ class Lti(Block):
     reference: ClassVar[str] = "paper 003 eq. 4–12 (correlation, Hankel SVD), §4.2 (stable inverse; ZPETC near the unit circle)"
     candidate: ClassVar[bool] = False
 
-    order: int = 0
-    A: tuple[float, ...] = ()
-    B: tuple[float, ...] = ()
-    C: tuple[float, ...] = ()
-    D: float = 0.0
-    dt_s: float | None = None
     method: str = "none"
-    singular_values: tuple[float, ...] = ()
-    max_order: int = 8
-    n_markov: int | None = None
-    feedthrough: "bool | str" = "auto"
-    correlation: str = "exact"
-    era_order: int | None = None
 
     def __post_init__(self) -> None:
-        check_era_options(self.max_order, self.n_markov, self.feedthrough, self.correlation, self.era_order)
-        r = self.order
-        if not isinstance(r, int) or isinstance(r, bool) or r < 0:
-            raise ValueError(f"order must be a non-negative integer, got {r!r}")
-        if len(self.A) != r * r or len(self.B) != r or len(self.C) != r:
-            raise ValueError(f"a linear part of order {r} needs {r * r} A, {r} B and {r} C entries")
-        if r > 0 and not (self.dt_s is not None and self.dt_s > 0):
-            raise ValueError("a linear part needs its sample period dt_s > 0")
+        self.check_linear_part()
 
     # ------------------------------------------------------------------ structure
     @property
@@ -824,11 +843,7 @@ class Lti(Block):
         """Identify the state space from the broadband captures (unless already identified)."""
         if self.order > 0:
             return self
-        caps = [c for c in captures if c.y is not None]
-        dts = {round(c.dt, 12) for c in caps}
-        if len(dts) != 1:
-            raise ConfigError(f"lti: the captures have different sample periods ({sorted(dts)} s); "
-                              "resample them to one rate")
+        caps = captures_at_one_rate(captures, "lti")
         broad = [c for c in caps if is_broadband(c.u)]
         if not broad:
             raise ConfigError("lti: no broadband capture (PRBS, multisine, steps) to identify the linear stage from; "

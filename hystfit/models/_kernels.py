@@ -31,19 +31,7 @@ def play_matrix(u, r):
     -------
     (N, n) float64 operator outputs (V).
     """
-    N = u.shape[0]
-    n = r.shape[0]
-    out = np.empty((N, n))
-    if N == 0:
-        return out
-    for j in range(n):
-        out[0, j] = max(u[0] - r[j], min(u[0] + r[j], 0.0))
-    for k in range(1, N):
-        uk = u[k]
-        for j in range(n):
-            prev = out[k - 1, j]
-            out[k, j] = max(uk - r[j], min(uk + r[j], prev))
-    return out
+    return play_matrix_from(u, r, np.zeros(r.shape[0]))
 
 
 @njit(cache=True)
@@ -54,11 +42,12 @@ def play_matrix_from(u, r, state0):
     out = np.empty((N, n))
     if N == 0:
         return out
-    for k in range(N):
+    for j in range(n):
+        out[0, j] = max(u[0] - r[j], min(u[0] + r[j], state0[j]))
+    for k in range(1, N):
         uk = u[k]
         for j in range(n):
-            prev = state0[j] if k == 0 else out[k - 1, j]
-            out[k, j] = max(uk - r[j], min(uk + r[j], prev))
+            out[k, j] = max(uk - r[j], min(uk + r[j], out[k - 1, j]))
     return out
 
 
@@ -380,6 +369,15 @@ def store_sums(out, p0, acc, ncols):
             out[p0 + i, col] = a[i]
 
 
+@njit(cache=True, inline="always")
+def candidate_block(b, n_blocks, P):
+    """Candidates p0:p1 of block b when P candidates are split into ``n_blocks`` equal blocks
+    (the last ones may be shorter or empty: p0 ≥ p1) — the split of every threaded kernel."""
+    size = (P + n_blocks - 1) // n_blocks
+    p0 = b * size
+    return p0, min(P, p0 + size)
+
+
 @njit(cache=True)
 def _bw_serial(u, y, kv, alpha, beta, gamma, y0, mode, out):
     _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, 0, alpha.shape[0])
@@ -388,11 +386,8 @@ def _bw_serial(u, y, kv, alpha, beta, gamma, y0, mode, out):
 @njit(cache=True, parallel=True)
 def _bw_parallel(u, y, kv, alpha, beta, gamma, y0, mode, out, n_blocks):
     """:func:`_bw_serial` with ``n_blocks`` candidate blocks spread over threads."""
-    P = alpha.shape[0]
-    size = (P + n_blocks - 1) // n_blocks
     for b in prange(n_blocks):
-        p0 = b * size
-        p1 = min(P, p0 + size)
+        p0, p1 = candidate_block(b, n_blocks, alpha.shape[0])
         if p0 < p1:
             _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1)
 

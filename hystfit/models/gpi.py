@@ -13,7 +13,9 @@ from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
 from .base import Model
-from .separable import Separable
+from .inverse import invert_by_stepping
+from .pi import PI
+from .separable import scaled_response
 
 #: |tanh argument| at which an envelope counts as saturated (tanh(6) = 1 − 1.2e-5): the default
 #: search range of the numerical inverse ends there.
@@ -209,49 +211,18 @@ class GPI(Model):
 
     def separable(self):
         """ρ and y0 enter linearly: y = ρ·z(a, b, τ, α_r) + y0; the other ten are searched."""
-        lin = (8, 11)
         nl = (0, 1, 2, 3, 4, 5, 6, 7, 9, 10)
 
-        def factory(u, dt):
-            u = np.ascontiguousarray(u, dtype=np.float64)
-
-            def basis(theta_nl):
+        def response(u, dt):
+            def z(theta_nl):
                 theta_nl = np.atleast_2d(theta_nl)
-                P = theta_nl.shape[0]
-                full = np.zeros((P, 12))
+                full = np.zeros((theta_nl.shape[0], 12))
                 full[:, nl] = theta_nl
-                z = self._z(full, u)  # (N, P)
-                B = np.empty((P, u.shape[0], 2))
-                B[:, :, 0] = z.T
-                B[:, :, 1] = 1.0
-                return B
+                return self._z(full, u)  # (N, P)
 
-            return basis
+            return z
 
-        def gram_factory(u, dt, y):
-            """Normal equations of (ρ, y0) from z (N, P) directly: Σz², Σz, Σz·y per candidate."""
-            u = np.ascontiguousarray(u, dtype=np.float64)
-            y = np.ascontiguousarray(y, dtype=np.float64)
-            n, sy, yy = float(u.shape[0]), float(y.sum()), float(y @ y)
-
-            def gram(theta_nl):
-                theta_nl = np.atleast_2d(theta_nl)
-                P = theta_nl.shape[0]
-                full = np.zeros((P, 12))
-                full[:, nl] = theta_nl
-                z = self._z(full, u)  # (N, P)
-                G = np.empty((P, 2, 2))
-                G[:, 0, 0] = np.einsum("np,np->p", z, z)
-                G[:, 0, 1] = G[:, 1, 0] = z.sum(axis=0)
-                G[:, 1, 1] = n
-                c = np.empty((P, 2))
-                c[:, 0] = y @ z
-                c[:, 1] = sy
-                return G, c, yy
-
-            return gram
-
-        return Separable(lin, nl, factory, gram_factory)
+        return scaled_response((8, 11), nl, response)
 
     # ------------------------------------------------------------------ stepping
     def _unpack(self, theta: np.ndarray):
@@ -320,14 +291,10 @@ class GPI(Model):
         y_target = np.asarray(y_target, dtype=np.float64)
         if self.envelopes_equal(t):
             return self._invert_equal(t, y_target)
-        from .inverse import invert_by_stepping
-
         return invert_by_stepping(_VirginStart(self), t, y_target, dt,
                                   u_range=u_range or self._inverse_range(t, y_target))
 
     def _invert_equal(self, t: np.ndarray, y_target: np.ndarray) -> np.ndarray:
-        from .pi import PI
-
         r, p = self._operators(t)
         if t[10] > 0 and self.n_operators > 1:
             pi = PI(self.n_operators, thresholds_V=tuple(float(x) for x in r))
