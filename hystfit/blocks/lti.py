@@ -471,35 +471,7 @@ def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | Non
         raise ConfigError(f"identify_linear_era: feedthrough must be true, false or 'auto', got {feedthrough!r}")
     if correlation not in ("exact", "toeplitz"):
         raise ConfigError(f"identify_linear_era: correlation must be 'exact' or 'toeplitz', got {correlation!r}")
-    if correlation == "toeplitz":
-        ruu = np.zeros(M + 1)
-        ryu = np.zeros(M + 1)
-        n_tot = 0
-        for a, b in zip(vs, ys):
-            r1, r2 = _correlations(a - a.mean(), b - b.mean(), M)
-            ruu += r1
-            ryu += r2
-            n_tot += a.shape[0]
-        ruu /= n_tot
-        ryu /= n_tot
-        if not ruu[0] > 0:
-            raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
-        col = ruu.copy()
-        col[0] *= 1.0 + ridge
-        solve_d = lambda: linalg.solve_toeplitz(col, ryu)  # noqa: E731  α(0) … α(M)
-        solve_0 = lambda: np.r_[0.0, linalg.solve_toeplitz(col[:M], ryu[1:])]  # noqa: E731  α(0) = 0
-    else:
-        G = np.zeros((M + 1, M + 1))
-        g = np.zeros(M + 1)
-        for a, b in zip(vs, ys):
-            G1, g1, _ = _windowed_normal_equations(a, b, M)
-            G += G1
-            g += g1
-        if not G[0, 0] > 0:
-            raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
-        G[np.diag_indices_from(G)] += ridge * np.trace(G) / (M + 1)
-        solve_d = lambda: linalg.solve(G, g, assume_a="pos")  # noqa: E731
-        solve_0 = lambda: np.r_[0.0, linalg.solve(G[1:, 1:], g[1:], assume_a="pos")]  # noqa: E731
+    solve_d, solve_0 = (_toeplitz_solvers if correlation == "toeplitz" else _exact_solvers)(vs, ys, M, ridge)
     if feedthrough is True:
         return _realize(solve_d(), dt, max_order, order)
     lin0 = _realize(solve_0(), dt, max_order, order)
@@ -508,6 +480,48 @@ def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | Non
     lin_d = _realize(solve_d(), dt, max_order, order)
     sse_d, sse_0 = _simulation_sse(lin_d, vs, ys), _simulation_sse(lin0, vs, ys)
     return lin_d if sse_d < FEEDTHROUGH_SSE_RATIO * sse_0 else lin0
+
+
+def _toeplitz_solvers(vs, ys, M: int, ridge: float):
+    """Step 2 of :func:`identify_linear_era` by paper 003's route: eq. 4's correlations over the
+    whole records, pooled, and a symmetric Toeplitz (Levinson) solve. Returns the solves of the
+    impulse response α(0) … α(M) with D = α(0) estimated and with α(0) = 0 (functions: each is
+    done only when needed)."""
+    ruu = np.zeros(M + 1)
+    ryu = np.zeros(M + 1)
+    n_tot = 0
+    for a, b in zip(vs, ys):
+        r1, r2 = _correlations(a - a.mean(), b - b.mean(), M)
+        ruu += r1
+        ryu += r2
+        n_tot += a.shape[0]
+    ruu /= n_tot
+    ryu /= n_tot
+    if not ruu[0] > 0:
+        raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
+    col = ruu.copy()
+    col[0] *= 1.0 + ridge
+    solve_d = lambda: linalg.solve_toeplitz(col, ryu)  # noqa: E731  α(0) … α(M)
+    solve_0 = lambda: np.r_[0.0, linalg.solve_toeplitz(col[:M], ryu[1:])]  # noqa: E731  α(0) = 0
+    return solve_d, solve_0
+
+
+def _exact_solvers(vs, ys, M: int, ridge: float):
+    """Step 2 of :func:`identify_linear_era` by the covariance method: the exact least-squares
+    normal equations of the records (:func:`_windowed_normal_equations`, pooled), solved by
+    Cholesky. Returns the two solves like :func:`_toeplitz_solvers`."""
+    G = np.zeros((M + 1, M + 1))
+    g = np.zeros(M + 1)
+    for a, b in zip(vs, ys):
+        G1, g1, _ = _windowed_normal_equations(a, b, M)
+        G += G1
+        g += g1
+    if not G[0, 0] > 0:
+        raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
+    G[np.diag_indices_from(G)] += ridge * np.trace(G) / (M + 1)
+    solve_d = lambda: linalg.solve(G, g, assume_a="pos")  # noqa: E731
+    solve_0 = lambda: np.r_[0.0, linalg.solve(G[1:, 1:], g[1:], assume_a="pos")]  # noqa: E731
+    return solve_d, solve_0
 
 
 #: ``feedthrough="auto"`` keeps D only when it multiplies the simulation SSE by less than this

@@ -29,6 +29,40 @@ def _tanh(x):
     return 1.0 - 2.0 / (math.exp(2.0 * x) + 1.0)
 
 
+@njit(cache=True, inline="always")
+def gpi_operators(alpha, tau, n, p0, p1):
+    """Thresholds r_j = α j and density weights e^{−τ r_j} (n, m) of the candidates p0:p1 of a
+    population kernel (:func:`gpi_population`, :func:`hystfit.models.pi2._gpi2_block`)."""
+    m = p1 - p0
+    r = np.empty((n, m))
+    q = np.empty((n, m))
+    for j in range(n):
+        for i in range(m):
+            p = p0 + i
+            r[j, i] = alpha[p] * j
+            q[j, i] = math.exp(-tau[p] * alpha[p] * j)
+    return r, q
+
+
+@njit(cache=True, inline="always")
+def gpi_sample(uk, a1, a2, a3, a4, b1, b2, b3, b4, p0, r, q, s, gl, gr, z):
+    """One sample u_k of the generalized play operators of the candidates p0:p0 + m (m = len(z)):
+    the envelopes γ_l, γ_r into ``gl``, ``gr``, the operator states ``s`` (n, m) advanced,
+    s_j = max(γ_l − r_j, min(γ_r + r_j, s_j)), and z = Σ_j q_j s_j into ``z``. The one home of
+    the gPI recurrence of the population kernels (candidates innermost)."""
+    m = z.shape[0]
+    for i in range(m):
+        p = p0 + i
+        gl[i] = a1[p] * _tanh(a2[p] * uk + a3[p]) + a4[p]
+        gr[i] = b1[p] * _tanh(b2[p] * uk + b3[p]) + b4[p]
+        z[i] = 0.0
+    for j in range(s.shape[0]):
+        for i in range(m):
+            v = max(gl[i] - r[j, i], min(gr[i] + r[j, i], s[j, i]))
+            s[j, i] = v
+            z[i] += q[j, i] * v
+
+
 @njit(cache=True)
 def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n):
     """Density-weighted sum of generalized play operators for a population of candidates.
@@ -58,26 +92,12 @@ def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n):
     P = a1.shape[0]
     out = np.empty((N, P))
     s = np.zeros((n, P))
-    r = np.empty((n, P))
-    q = np.empty((n, P))
-    for j in range(n):
-        for p in range(P):
-            r[j, p] = alpha[p] * j
-            q[j, p] = math.exp(-tau[p] * alpha[p] * j)
+    r, q = gpi_operators(alpha, tau, n, 0, P)
     gl = np.empty(P)
     gr = np.empty(P)
     acc = np.empty(P)
     for k in range(N):
-        uk = u[k]
-        for p in range(P):
-            gl[p] = a1[p] * _tanh(a2[p] * uk + a3[p]) + a4[p]
-            gr[p] = b1[p] * _tanh(b2[p] * uk + b3[p]) + b4[p]
-            acc[p] = 0.0
-        for j in range(n):
-            for p in range(P):
-                v = max(gl[p] - r[j, p], min(gr[p] + r[j, p], s[j, p]))
-                s[j, p] = v
-                acc[p] += q[j, p] * v
+        gpi_sample(u[k], a1, a2, a3, a4, b1, b2, b3, b4, 0, r, q, s, gl, gr, acc)
         for p in range(P):
             out[k, p] = acc[p]
     return out

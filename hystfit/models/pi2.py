@@ -18,7 +18,7 @@ from ..registry import models
 from ._kernels import PARALLEL_MIN_POP, candidate_block, play_matrix, store_sums, thread_blocks
 from .base import Model
 from .separable import scaled_response
-from .gpi import GPI, _tanh
+from .gpi import GPI, gpi_operators, gpi_sample
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
 
@@ -50,13 +50,7 @@ def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f
     N = u.shape[0]
     m = p1 - p0
     s = np.zeros((n, m))
-    q = np.empty((n, m))
-    r = np.empty((n, m))
-    for j in range(n):
-        for i in range(m):
-            p = p0 + i
-            r[j, i] = alpha[p] * j
-            q[j, i] = math.exp(-tau[p] * alpha[p] * j)
+    r, q = gpi_operators(alpha, tau, n, p0, p1)
     z0 = np.zeros(m)
     d1 = np.zeros(m)
     d2 = np.zeros(m)
@@ -70,16 +64,7 @@ def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f
     z = np.empty(m)
     for k in range(N):
         uk = u[k]
-        for i in range(m):
-            p = p0 + i
-            gl[i] = a1[p] * _tanh(a2[p] * uk + a3[p]) + a4[p]
-            gr[i] = b1[p] * _tanh(b2[p] * uk + b3[p]) + b4[p]
-            z[i] = 0.0
-        for j in range(n):
-            for i in range(m):
-                v = max(gl[i] - r[j, i], min(gr[i] + r[j, i], s[j, i]))
-                s[j, i] = v
-                z[i] += q[j, i] * v
+        gpi_sample(uk, a1, a2, a3, a4, b1, b2, b3, b4, p0, r, q, s, gl, gr, z)
         if k == 0:
             for i in range(m):
                 z0[i] = z[i]
