@@ -59,21 +59,12 @@ class Block(Effect):
 
     def structure(self) -> dict[str, Any]:
         """JSON-serialisable constructor arguments (the inverse of :meth:`from_structure`)."""
-        out = {}
-        for f in dataclasses.fields(self):  # type: ignore[arg-type]
-            if not f.init or not f.compare:
-                continue
-            v = getattr(self, f.name)
-            out[f.name] = list(v) if isinstance(v, tuple) else v
-        return out
+        return structure_of(self)
 
     @classmethod
     def from_structure(cls, data: dict[str, Any]) -> "Block":
-        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-        unknown = set(data) - names
-        if unknown:
-            raise ConfigError(f"block {cls.name!r}: unknown option(s) {sorted(unknown)}; valid: {', '.join(sorted(names))}")
-        kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+        kwargs = structure_kwargs(cls, data, lambda unknown, names: (
+            f"block {cls.name!r}: unknown option(s) {sorted(unknown)}; valid: {', '.join(sorted(names))}"))
         try:
             return cls(**kwargs)
         except (TypeError, ValueError) as exc:
@@ -135,3 +126,40 @@ def frequency_of_excitation(scale: DataScale) -> float:
     For a periodic drive that is its fundamental; for a rising-amplitude sine, the drive frequency.
     """
     return float(scale.rate_max / (np.pi * scale.u_range))
+
+
+def structure_of(obj) -> dict[str, Any]:
+    """The constructor arguments of a frozen dataclass (a model or a block), JSON-serialisable:
+    tuples as lists; fields that are not constructor arguments or not compared are left out."""
+    out = {}
+    for f in dataclasses.fields(obj):
+        if not f.init or not f.compare:
+            continue
+        v = getattr(obj, f.name)
+        out[f.name] = list(v) if isinstance(v, tuple) else v
+    return out
+
+
+def structure_kwargs(cls, data: dict[str, Any], unknown_message) -> dict[str, Any]:
+    """The keyword arguments that rebuild ``cls`` from :func:`structure_of`'s ``data`` (lists as
+    tuples). Keys that are not fields of ``cls``: ConfigError(``unknown_message(unknown, names)``)."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(data) - names
+    if unknown:
+        raise ConfigError(unknown_message(unknown, names))
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+
+
+def captures_at_one_rate(captures, who: str, advice: str = "") -> list:
+    """The captures with a measured output, checked to share one sample period (the shared
+    structure identified from them — a linear stage — is discrete at that rate).
+
+    Raises ConfigError "``who``: the captures have different sample periods (…); resample them to
+    one rate``advice``" otherwise.
+    """
+    caps = [c for c in captures if c.y is not None]
+    dts = {round(c.dt, 12) for c in caps}
+    if len(dts) != 1:
+        raise ConfigError(f"{who}: the captures have different sample periods ({sorted(dts)} s); "
+                          f"resample them to one rate{advice}")
+    return caps

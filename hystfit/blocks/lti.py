@@ -22,7 +22,7 @@ from .._lazy import lazy_module
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
 from ..registry import blocks
-from .base import Block
+from .base import Block, captures_at_one_rate
 
 # scipy submodules are imported on first use: keeps start-up fast
 signal = lazy_module("scipy.signal")
@@ -471,35 +471,7 @@ def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | Non
         raise ConfigError(f"identify_linear_era: feedthrough must be true, false or 'auto', got {feedthrough!r}")
     if correlation not in ("exact", "toeplitz"):
         raise ConfigError(f"identify_linear_era: correlation must be 'exact' or 'toeplitz', got {correlation!r}")
-    if correlation == "toeplitz":
-        ruu = np.zeros(M + 1)
-        ryu = np.zeros(M + 1)
-        n_tot = 0
-        for a, b in zip(vs, ys):
-            r1, r2 = _correlations(a - a.mean(), b - b.mean(), M)
-            ruu += r1
-            ryu += r2
-            n_tot += a.shape[0]
-        ruu /= n_tot
-        ryu /= n_tot
-        if not ruu[0] > 0:
-            raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
-        col = ruu.copy()
-        col[0] *= 1.0 + ridge
-        solve_d = lambda: linalg.solve_toeplitz(col, ryu)  # noqa: E731  α(0) … α(M)
-        solve_0 = lambda: np.r_[0.0, linalg.solve_toeplitz(col[:M], ryu[1:])]  # noqa: E731  α(0) = 0
-    else:
-        G = np.zeros((M + 1, M + 1))
-        g = np.zeros(M + 1)
-        for a, b in zip(vs, ys):
-            G1, g1, _ = _windowed_normal_equations(a, b, M)
-            G += G1
-            g += g1
-        if not G[0, 0] > 0:
-            raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
-        G[np.diag_indices_from(G)] += ridge * np.trace(G) / (M + 1)
-        solve_d = lambda: linalg.solve(G, g, assume_a="pos")  # noqa: E731
-        solve_0 = lambda: np.r_[0.0, linalg.solve(G[1:, 1:], g[1:], assume_a="pos")]  # noqa: E731
+    solve_d, solve_0 = (_toeplitz_solvers if correlation == "toeplitz" else _exact_solvers)(vs, ys, M, ridge)
     if feedthrough is True:
         return _realize(solve_d(), dt, max_order, order)
     lin0 = _realize(solve_0(), dt, max_order, order)
@@ -508,6 +480,48 @@ def identify_linear_era(v, y, dt: float, max_order: int = 8, n_markov: int | Non
     lin_d = _realize(solve_d(), dt, max_order, order)
     sse_d, sse_0 = _simulation_sse(lin_d, vs, ys), _simulation_sse(lin0, vs, ys)
     return lin_d if sse_d < FEEDTHROUGH_SSE_RATIO * sse_0 else lin0
+
+
+def _toeplitz_solvers(vs, ys, M: int, ridge: float):
+    """Step 2 of :func:`identify_linear_era` by paper 003's route: eq. 4's correlations over the
+    whole records, pooled, and a symmetric Toeplitz (Levinson) solve. Returns the solves of the
+    impulse response α(0) … α(M) with D = α(0) estimated and with α(0) = 0 (functions: each is
+    done only when needed)."""
+    ruu = np.zeros(M + 1)
+    ryu = np.zeros(M + 1)
+    n_tot = 0
+    for a, b in zip(vs, ys):
+        r1, r2 = _correlations(a - a.mean(), b - b.mean(), M)
+        ruu += r1
+        ryu += r2
+        n_tot += a.shape[0]
+    ruu /= n_tot
+    ryu /= n_tot
+    if not ruu[0] > 0:
+        raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
+    col = ruu.copy()
+    col[0] *= 1.0 + ridge
+    solve_d = lambda: linalg.solve_toeplitz(col, ryu)  # noqa: E731  α(0) … α(M)
+    solve_0 = lambda: np.r_[0.0, linalg.solve_toeplitz(col[:M], ryu[1:])]  # noqa: E731  α(0) = 0
+    return solve_d, solve_0
+
+
+def _exact_solvers(vs, ys, M: int, ridge: float):
+    """Step 2 of :func:`identify_linear_era` by the covariance method: the exact least-squares
+    normal equations of the records (:func:`_windowed_normal_equations`, pooled), solved by
+    Cholesky. Returns the two solves like :func:`_toeplitz_solvers`."""
+    G = np.zeros((M + 1, M + 1))
+    g = np.zeros(M + 1)
+    for a, b in zip(vs, ys):
+        G1, g1, _ = _windowed_normal_equations(a, b, M)
+        G += G1
+        g += g1
+    if not G[0, 0] > 0:
+        raise InputError("identify_linear_era: the input is constant; the linear part needs an excitation")
+    G[np.diag_indices_from(G)] += ridge * np.trace(G) / (M + 1)
+    solve_d = lambda: linalg.solve(G, g, assume_a="pos")  # noqa: E731
+    solve_0 = lambda: np.r_[0.0, linalg.solve(G[1:, 1:], g[1:], assume_a="pos")]  # noqa: E731
+    return solve_d, solve_0
 
 
 #: ``feedthrough="auto"`` keeps D only when it multiplies the simulation SSE by less than this
@@ -729,6 +743,44 @@ def check_era_options(max_order, n_markov, feedthrough, correlation, era_order) 
         raise ConfigError(f"correlation must be 'exact' or 'toeplitz', got {correlation!r}")
 
 
+@dataclass(frozen=True)
+class LinearPartFields:
+    """The structure fields of an identified linear part, defined once for the ``lti`` block and
+    the Hammerstein model: the stored state space (``order``, ``A`` row-major, ``B``, ``C``,
+    ``D``, its sample period ``dt_s``, the Hankel ``singular_values`` it was cut from) and the
+    options of its identification by ERA (:func:`identify_linear_era`). Each class adds the
+    field naming how the part was obtained (``method``, ``linear_method``)."""
+
+    order: int = 0
+    A: tuple[float, ...] = ()
+    B: tuple[float, ...] = ()
+    C: tuple[float, ...] = ()
+    D: float = 0.0
+    dt_s: float | None = None
+    singular_values: tuple[float, ...] = ()
+    max_order: int = 8
+    n_markov: int | None = None
+    feedthrough: "bool | str" = "auto"
+    correlation: str = "exact"
+    era_order: int | None = None
+
+    def check_linear_part(self) -> None:
+        """The one check of these fields: ConfigError for an ERA option
+        (:func:`check_era_options`), ValueError for an inconsistent state space."""
+        check_era_options(self.max_order, self.n_markov, self.feedthrough, self.correlation, self.era_order)
+        r = self.order
+        if not isinstance(r, int) or isinstance(r, bool) or r < 0:
+            raise ValueError(f"order must be a non-negative integer, got {r!r}")
+        if len(self.A) != r * r or len(self.B) != r or len(self.C) != r:
+            raise ValueError(f"a linear part of order {r} needs {r * r} A, {r} B and {r} C entries "
+                             f"(got {len(self.A)}, {len(self.B)}, {len(self.C)})")
+        vals = np.r_[np.asarray(self.A, float), np.asarray(self.B, float), np.asarray(self.C, float), float(self.D)]
+        if not np.all(np.isfinite(vals)):
+            raise ValueError("the linear part has non-finite entries")
+        if r > 0 and not (self.dt_s is not None and self.dt_s > 0):
+            raise ValueError("a linear part needs its sample period dt_s > 0")
+
+
 def is_broadband(u: np.ndarray, min_bins: int = 64, level: float = 1e-3) -> bool:
     """True when the input excites many frequencies (PRBS, multisine, chirp, steps), not a few lines.
 
@@ -747,7 +799,7 @@ def is_broadband(u: np.ndarray, min_bins: int = 64, level: float = 1e-3) -> bool
 
 @blocks.register
 @dataclass(frozen=True)
-class Lti(Block):
+class Lti(Block, LinearPartFields):
     r"""An identified linear stage after the hysteresis: paper 003's discrete state space.
 
     .. math:: s_{k+1} = A s_k + B x_k,\qquad y_k = C s_k + D x_k \quad (G(1) = 1)
@@ -785,29 +837,10 @@ class Lti(Block):
     reference: ClassVar[str] = "paper 003 eq. 4–12 (correlation, Hankel SVD), §4.2 (stable inverse; ZPETC near the unit circle)"
     candidate: ClassVar[bool] = False
 
-    order: int = 0
-    A: tuple[float, ...] = ()
-    B: tuple[float, ...] = ()
-    C: tuple[float, ...] = ()
-    D: float = 0.0
-    dt_s: float | None = None
     method: str = "none"
-    singular_values: tuple[float, ...] = ()
-    max_order: int = 8
-    n_markov: int | None = None
-    feedthrough: "bool | str" = "auto"
-    correlation: str = "exact"
-    era_order: int | None = None
 
     def __post_init__(self) -> None:
-        check_era_options(self.max_order, self.n_markov, self.feedthrough, self.correlation, self.era_order)
-        r = self.order
-        if not isinstance(r, int) or isinstance(r, bool) or r < 0:
-            raise ValueError(f"order must be a non-negative integer, got {r!r}")
-        if len(self.A) != r * r or len(self.B) != r or len(self.C) != r:
-            raise ValueError(f"a linear part of order {r} needs {r * r} A, {r} B and {r} C entries")
-        if r > 0 and not (self.dt_s is not None and self.dt_s > 0):
-            raise ValueError("a linear part needs its sample period dt_s > 0")
+        self.check_linear_part()
 
     # ------------------------------------------------------------------ structure
     @property
@@ -824,11 +857,7 @@ class Lti(Block):
         """Identify the state space from the broadband captures (unless already identified)."""
         if self.order > 0:
             return self
-        caps = [c for c in captures if c.y is not None]
-        dts = {round(c.dt, 12) for c in caps}
-        if len(dts) != 1:
-            raise ConfigError(f"lti: the captures have different sample periods ({sorted(dts)} s); "
-                              "resample them to one rate")
+        caps = captures_at_one_rate(captures, "lti")
         broad = [c for c in caps if is_broadband(c.u)]
         if not broad:
             raise ConfigError("lti: no broadband capture (PRBS, multisine, steps) to identify the linear stage from; "

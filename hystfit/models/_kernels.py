@@ -31,19 +31,7 @@ def play_matrix(u, r):
     -------
     (N, n) float64 operator outputs (V).
     """
-    N = u.shape[0]
-    n = r.shape[0]
-    out = np.empty((N, n))
-    if N == 0:
-        return out
-    for j in range(n):
-        out[0, j] = max(u[0] - r[j], min(u[0] + r[j], 0.0))
-    for k in range(1, N):
-        uk = u[k]
-        for j in range(n):
-            prev = out[k - 1, j]
-            out[k, j] = max(uk - r[j], min(uk + r[j], prev))
-    return out
+    return play_matrix_from(u, r, np.zeros(r.shape[0]))
 
 
 @njit(cache=True)
@@ -54,11 +42,12 @@ def play_matrix_from(u, r, state0):
     out = np.empty((N, n))
     if N == 0:
         return out
-    for k in range(N):
+    for j in range(n):
+        out[0, j] = max(u[0] - r[j], min(u[0] + r[j], state0[j]))
+    for k in range(1, N):
         uk = u[k]
         for j in range(n):
-            prev = state0[j] if k == 0 else out[k - 1, j]
-            out[k, j] = max(uk - r[j], min(uk + r[j], prev))
+            out[k, j] = max(uk - r[j], min(uk + r[j], out[k - 1, j]))
     return out
 
 
@@ -178,6 +167,148 @@ def _bw_next(kind, h, mcp, mcn, sa, q, psi):
 _BW_STATES, _BW_SSE, _BW_MOMENTS = 0, 1, 2
 
 
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_regimes(alpha, beta, gamma, p0, p1):
+    """Per-block constants of :func:`_bw_block` for the candidates p0:p1.
+
+    Returns a, β, γ (copies), per input direction j (0: s = +1, 1: s = −1) s·a and −c for
+    h ≥ +0 (``mcp``) / h ≤ −0 (``mcn``), and the largest |c| (1e300 when a candidate is NaN/inf:
+    the squaring count saturates and that candidate's own output is NaN/inf).
+    """
+    m = p1 - p0
+    a = alpha[p0:p1].copy()
+    be = beta[p0:p1].copy()
+    ga = gamma[p0:p1].copy()
+    cabs_max = 0.0
+    for i in range(m):
+        cabs_max = max(cabs_max, abs(be[i] + ga[i]), abs(be[i] - ga[i]))
+    if not np.isfinite(cabs_max):
+        cabs_max = 1e300
+    sa = np.empty((2, m))
+    mcp = np.empty((2, m))
+    mcn = np.empty((2, m))
+    for i in range(m):
+        sa[0, i] = a[i]
+        sa[1, i] = -a[i]
+        mcp[0, i] = -(be[i] + ga[i])
+        mcn[0, i] = -(be[i] - ga[i])
+        mcp[1, i] = -(be[i] - ga[i])
+        mcn[1, i] = -(be[i] + ga[i])
+    return a, be, ga, sa, mcp, mcn, cabs_max
+
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_series_kind(xmax, dv):
+    """Series of ψ for a sample whose largest argument is ``xmax`` = max|c|·Δv: 7, 11 or 0 (halving)."""
+    kind = 7 if xmax <= _BW_SERIES_MAX else (11 if xmax <= _BW_SERIES11_MAX else 0)
+    if dv > 1e20:
+        kind = 0  # keep the powers of dv in the series coefficients finite
+    return kind
+
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_psi_halved(F, X, H, c, mcp, mcn, j, dv, xmax):
+    """ψ = Δv·φ(c·Δv) per candidate into ``F`` for a large argument: c·Δv is halved ``nsq`` times
+    to ≤ 0.35, φ by :func:`_bw_phi11`, then φ(2x) = φ(x)·(1 + e^{−x})/2 with e^{−x} = 1 − x·φ(x)
+    is applied ``nsq`` times (relative error ≲ 2^nsq · 1e-16)."""
+    m = F.shape[0]
+    nsq = 0
+    v = xmax
+    while v > _BW_SERIES11_MAX and nsq < 64:
+        v *= 0.5
+        nsq += 1
+    dvs = dv * 0.5 ** nsq
+    for i in range(m):
+        x = -(mcn[j, i] if _bw_neg(H[c, i]) else mcp[j, i]) * dvs
+        X[i] = x
+        F[i] = _bw_phi11(x)
+    for _ in range(nsq):
+        for i in range(m):
+            e = 1.0 - X[i] * F[i]
+            F[i] = F[i] * (1.0 + e) * 0.5
+            X[i] = 2.0 * X[i]
+    for i in range(m):
+        F[i] *= dv
+
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_take(mode, i, kvi, hn, offi, bad, uk, yk, acc, out, k, p0):
+    """Add candidate i's contribution at sample k (state ``hn``, Kv ``kvi``, offset ``offi``) to
+    the kernel's output (``mode``); a ``bad`` state (wrong regime, redone later) adds nothing
+    to the sums. The callers read ``kvi``, ``hn``, ``offi`` in the order their loops always did:
+    with ``reassoc``, the order of the loads decides how LLVM associates the sum."""
+    if mode == _BW_SSE:
+        e = kvi * uk + hn + offi - yk
+        acc[0][i] += 0.0 if bad else e * e
+    elif mode == _BW_MOMENTS:
+        hm = 0.0 if bad else hn
+        acc[0][i] += hm * hm
+        acc[1][i] += hm * uk
+        acc[2][i] += hm
+        acc[3][i] += hm * yk
+    else:
+        out[k, p0 + i] = kvi * uk + hn + offi
+
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_candidate(mode, kind, i, H, c, sa, mcp, mcn, j, q, F, uk, yk, k_v, off, acc, out, k, p0):
+    """Advance candidate i by one sample (:func:`_bw_next`, series ``kind``) from row c of ``H``
+    into row 1 − c and add its contribution (:func:`_bw_take`); True when its state changed its
+    sign bit (then it is left out of the sums and redone)."""
+    hi = H[c, i]
+    hn = _bw_next(kind, hi, mcp[j, i], mcn[j, i], sa[j, i], q, F[i])
+    H[1 - c, i] = hn
+    bad = _bw_neg(hi) != _bw_neg(hn)
+    _bw_take(mode, i, k_v[i], hn, off[i], bad, uk, yk, acc, out, k, p0)
+    return bad
+
+
+@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+def _bw_time_loop(mode, u, y, H, X, F, a, be, ga, sa, mcp, mcn, cabs_max, k_v, off, acc, out, p0):
+    """The time loop of :func:`_bw_block`, inlined once per ``mode`` (a constant there, so every
+    candidate loop is specialised). Arrays are handed to helpers only outside the time loop and
+    inside the candidate loops (where numba prunes the reference counting); the one exception,
+    :func:`_bw_psi_halved`, runs only for large input steps."""
+    m = F.shape[0]
+    c = 0
+    has_y = mode != _BW_STATES
+    for k in range(u.shape[0]):
+        uk = u[k]
+        yk = y[k] if has_y else 0.0
+        du = uk - u[k - 1] if k > 0 else 0.0
+        if du == 0.0:  # no input change (or k = 0): the states stay
+            for i in range(m):
+                _bw_take(mode, i, k_v[i], H[c, i], off[i], False, uk, yk, acc, out, k, p0)
+            continue
+        dv = abs(du)
+        j = 0 if du > 0.0 else 1
+        xmax = cabs_max * dv
+        kind = _bw_series_kind(xmax, dv)
+        q7 = _bw_coefs7(dv if kind != 0 else 0.0)
+        q11 = _bw_coefs11(q7, dv if kind == 11 else 0.0)
+        nbad = False
+        if kind == 7:
+            for i in range(m):
+                nbad |= _bw_candidate(mode, 7, i, H, c, sa, mcp, mcn, j, q7, F, uk, yk, k_v, off, acc, out, k, p0)
+        elif kind == 11:
+            for i in range(m):
+                nbad |= _bw_candidate(mode, 11, i, H, c, sa, mcp, mcn, j, q11, F, uk, yk, k_v, off, acc, out, k, p0)
+        else:
+            _bw_psi_halved(F, X, H, c, mcp, mcn, j, dv, xmax)
+            for i in range(m):
+                nbad |= _bw_candidate(mode, 0, i, H, c, sa, mcp, mcn, j, q7, F, uk, yk, k_v, off, acc, out, k, p0)
+        d = 1 - c
+        if nbad:  # the few candidates whose state changed its sign bit: redo exactly
+            for i in range(m):
+                hi = H[c, i]
+                if _bw_neg(hi) != _bw_neg(H[d, i]):
+                    hn = _bw_advance(hi, du, a[i], be[i], ga[i])
+                    H[d, i] = hn
+                    _bw_take(mode, i, k_v[i], hn, off[i], False, uk, yk, acc, out, k, p0)
+        c = d
+
+
 @njit(cache=True, fastmath=_BW_FASTMATH)
 def _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1):
     """Bouc–Wen (n = 1, h(0) = 0) over the candidates p0:p1, time loop outside, candidates inside.
@@ -189,224 +320,62 @@ def _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1):
     - ``_BW_MOMENTS``: ``out`` (P, 4) receives Σh², Σh·u, Σh, Σh·y (for the exact solve of the
       parameters that enter linearly, see :meth:`hystfit.models.bw.BoucWen.separable`).
 
-    Per sample, every candidate's state is advanced exactly by :func:`_bw_next` and its
-    contribution to the output is added in the same loop (contiguous arrays, branch-free: the
-    loops vectorize across candidates). ψ comes from one series chosen for the whole block by the
-    largest argument max|c|·|Δu|: degree 7 up to 0.1, degree 11 up to 0.35; beyond, c·Δu is halved
-    ``nsq`` times to ≤ 0.35 and φ(2x) = φ(x)·(1 + e^{−x})/2 with e^{−x} = 1 − x·φ(x) is applied
-    ``nsq`` times (relative error ≲ 2^nsq · 1e-16). A candidate whose state changes its sign bit
-    in the segment has used the wrong regime (or, from a zero state, the regime that the sign of
-    a excludes): its contribution is left out of the loop and it is redone by :func:`_bw_advance`,
-    which locates the zero crossing exactly. The states alternate between the two rows of ``H``,
-    so the previous ones stay available for that.
+    Per sample (:func:`_bw_time_loop`), every candidate's state is advanced exactly by
+    :func:`_bw_next` and its contribution to the output is added in the same loop
+    (:func:`_bw_candidate`; contiguous arrays, branch-free: the loops vectorize across
+    candidates). ψ comes from one series chosen for the whole block by the largest argument
+    max|c|·|Δu|: degree 7 up to 0.1, degree 11 up to 0.35; beyond, :func:`_bw_psi_halved`. A
+    candidate whose state changes its sign bit in the segment has used the wrong regime (or, from
+    a zero state, the regime that the sign of a excludes): its contribution is left out of the
+    loop and it is redone by :func:`_bw_advance`, which locates the zero crossing exactly. The
+    states alternate between the two rows of ``H``, so the previous ones stay available for that.
 
     What makes the loops fast (measured; see ``../shared/PERFORMANCE.md`` for the layout rule):
     the regime and the sign-change test use sign bits only (a masked load and an integer xor, no
     floating-point work); the coefficients of ψ as a polynomial in c are computed once per sample;
-    and no array is handed to a helper inside the time loop, because each such call costs atomic
-    reference-count updates per sample.
+    the mode and the series kind are constants of each candidate loop; and no array is handed to
+    a helper per sample (numba's atomic reference counting of array arguments cost 14–35 % of the
+    kernel's time — also for ``inline="always"`` helpers that contain a loop).
     """
-    N = u.shape[0]
     m = p1 - p0
     H = np.zeros((2, m))  # states before (row c) and after (row 1 − c) the sample
-    c = 0
     X = np.empty(m)
     F = np.empty(m)
-    a = alpha[p0:p1].copy()
-    be = beta[p0:p1].copy()
-    ga = gamma[p0:p1].copy()
-    cabs_max = 0.0
-    for i in range(m):
-        cabs_max = max(cabs_max, abs(be[i] + ga[i]), abs(be[i] - ga[i]))
-    if not np.isfinite(cabs_max):
-        cabs_max = 1e300  # a NaN/inf candidate: the squaring count saturates, its own output is NaN/inf
-    # per input direction j (0: s = +1, 1: s = −1): s·a and −c for h ≥ +0 / h ≤ −0
-    sa = np.empty((2, m))
-    mcp = np.empty((2, m))
-    mcn = np.empty((2, m))
-    for i in range(m):
-        sa[0, i] = a[i]
-        sa[1, i] = -a[i]
-        mcp[0, i] = -(be[i] + ga[i])
-        mcn[0, i] = -(be[i] - ga[i])
-        mcp[1, i] = -(be[i] - ga[i])
-        mcn[1, i] = -(be[i] + ga[i])
-    acc0 = np.zeros(m)
-    acc1 = np.zeros(m)
-    acc2 = np.zeros(m)
-    acc3 = np.zeros(m)
+    a, be, ga, sa, mcp, mcn, cabs_max = _bw_regimes(alpha, beta, gamma, p0, p1)
+    acc = (np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m))
     if mode != _BW_MOMENTS:
         k_v = kv[p0:p1].copy()
         off = y0[p0:p1].copy()
     else:
         k_v = np.zeros(m)
         off = np.zeros(m)
-    has_y = mode != _BW_STATES
-    for k in range(N):
-        uk = u[k]
-        yk = y[k] if has_y else 0.0
-        du = uk - u[k - 1] if k > 0 else 0.0
-        d = 1 - c
-        nbad = False
-        if du == 0.0:  # no input change (or k = 0): the states stay
-            if mode == _BW_SSE:
-                for i in range(m):
-                    e = k_v[i] * uk + H[c, i] + off[i] - yk
-                    acc0[i] += e * e
-            elif mode == _BW_MOMENTS:
-                for i in range(m):
-                    hi = H[c, i]
-                    acc0[i] += hi * hi
-                    acc1[i] += hi * uk
-                    acc2[i] += hi
-                    acc3[i] += hi * yk
-            else:
-                for i in range(m):
-                    out[k, p0 + i] = k_v[i] * uk + H[c, i] + off[i]
-            continue
-        dv = abs(du)
-        j = 0 if du > 0.0 else 1
-        xmax = cabs_max * dv
-        kind = 7 if xmax <= _BW_SERIES_MAX else (11 if xmax <= _BW_SERIES11_MAX else 0)
-        if dv > 1e20:
-            kind = 0  # keep the powers of dv in the series coefficients finite
-        q7 = _bw_coefs7(dv if kind != 0 else 0.0)
-        q11 = _bw_coefs11(q7, dv if kind == 11 else 0.0)
-        if kind == 0:
-            nsq = 0
-            v = xmax
-            while v > _BW_SERIES11_MAX and nsq < 64:
-                v *= 0.5
-                nsq += 1
-            dvs = dv * 0.5 ** nsq
-            for i in range(m):
-                x = -(mcn[j, i] if _bw_neg(H[c, i]) else mcp[j, i]) * dvs
-                X[i] = x
-                F[i] = _bw_phi11(x)
-            for _ in range(nsq):
-                for i in range(m):
-                    e = 1.0 - X[i] * F[i]
-                    F[i] = F[i] * (1.0 + e) * 0.5
-                    X[i] = 2.0 * X[i]
-            for i in range(m):
-                F[i] *= dv
-        # The update loop is written out once per (mode, series kind) on purpose: with the kind and
-        # the accumulation fixed inside each loop LLVM vectorizes it, and no helper that takes
-        # arrays is called per sample (numba's reference counting of array arguments cost 14–35 %
-        # of the kernel's time when it was factored that way).
-        if mode == _BW_SSE:
-            if kind == 7:
-                for i in range(m):
-                    hi = H[c, i]
-                    hn = _bw_next(7, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, 0.0)
-                    H[d, i] = hn
-                    bad = _bw_neg(hi) != _bw_neg(hn)
-                    nbad |= bad
-                    e = k_v[i] * uk + hn + off[i] - yk
-                    acc0[i] += 0.0 if bad else e * e
-            elif kind == 11:
-                for i in range(m):
-                    hi = H[c, i]
-                    hn = _bw_next(11, hi, mcp[j, i], mcn[j, i], sa[j, i], q11, 0.0)
-                    H[d, i] = hn
-                    bad = _bw_neg(hi) != _bw_neg(hn)
-                    nbad |= bad
-                    e = k_v[i] * uk + hn + off[i] - yk
-                    acc0[i] += 0.0 if bad else e * e
-            else:
-                for i in range(m):
-                    hi = H[c, i]
-                    hn = _bw_next(0, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, F[i])
-                    H[d, i] = hn
-                    bad = _bw_neg(hi) != _bw_neg(hn)
-                    nbad |= bad
-                    e = k_v[i] * uk + hn + off[i] - yk
-                    acc0[i] += 0.0 if bad else e * e
-        elif mode == _BW_MOMENTS:
-            if kind == 7:
-                for i in range(m):
-                    hi = H[c, i]
-                    hn = _bw_next(7, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, 0.0)
-                    H[d, i] = hn
-                    bad = _bw_neg(hi) != _bw_neg(hn)
-                    nbad |= bad
-                    hm = 0.0 if bad else hn
-                    acc0[i] += hm * hm
-                    acc1[i] += hm * uk
-                    acc2[i] += hm
-                    acc3[i] += hm * yk
-            elif kind == 11:
-                for i in range(m):
-                    hi = H[c, i]
-                    hn = _bw_next(11, hi, mcp[j, i], mcn[j, i], sa[j, i], q11, 0.0)
-                    H[d, i] = hn
-                    bad = _bw_neg(hi) != _bw_neg(hn)
-                    nbad |= bad
-                    hm = 0.0 if bad else hn
-                    acc0[i] += hm * hm
-                    acc1[i] += hm * uk
-                    acc2[i] += hm
-                    acc3[i] += hm * yk
-            else:
-                for i in range(m):
-                    hi = H[c, i]
-                    hn = _bw_next(0, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, F[i])
-                    H[d, i] = hn
-                    bad = _bw_neg(hi) != _bw_neg(hn)
-                    nbad |= bad
-                    hm = 0.0 if bad else hn
-                    acc0[i] += hm * hm
-                    acc1[i] += hm * uk
-                    acc2[i] += hm
-                    acc3[i] += hm * yk
-        else:
-            if kind == 7:
-                for i in range(m):
-                    hi = H[c, i]
-                    hn = _bw_next(7, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, 0.0)
-                    H[d, i] = hn
-                    nbad |= _bw_neg(hi) != _bw_neg(hn)
-                    out[k, p0 + i] = k_v[i] * uk + hn + off[i]
-            elif kind == 11:
-                for i in range(m):
-                    hi = H[c, i]
-                    hn = _bw_next(11, hi, mcp[j, i], mcn[j, i], sa[j, i], q11, 0.0)
-                    H[d, i] = hn
-                    nbad |= _bw_neg(hi) != _bw_neg(hn)
-                    out[k, p0 + i] = k_v[i] * uk + hn + off[i]
-            else:
-                for i in range(m):
-                    hi = H[c, i]
-                    hn = _bw_next(0, hi, mcp[j, i], mcn[j, i], sa[j, i], q7, F[i])
-                    H[d, i] = hn
-                    nbad |= _bw_neg(hi) != _bw_neg(hn)
-                    out[k, p0 + i] = k_v[i] * uk + hn + off[i]
-        if nbad:  # the few candidates whose state changed its sign bit: redo exactly
-            for i in range(m):
-                hi = H[c, i]
-                if _bw_neg(hi) != _bw_neg(H[d, i]):
-                    hn = _bw_advance(hi, du, a[i], be[i], ga[i])
-                    H[d, i] = hn
-                    if mode == _BW_SSE:
-                        e = k_v[i] * uk + hn + off[i] - yk
-                        acc0[i] += e * e
-                    elif mode == _BW_MOMENTS:
-                        acc0[i] += hn * hn
-                        acc1[i] += hn * uk
-                        acc2[i] += hn
-                        acc3[i] += hn * yk
-                    else:
-                        out[k, p0 + i] = k_v[i] * uk + hn + off[i]
-        c = d
     if mode == _BW_SSE:
-        for i in range(m):
-            out[p0 + i, 0] = acc0[i]
+        _bw_time_loop(_BW_SSE, u, y, H, X, F, a, be, ga, sa, mcp, mcn, cabs_max, k_v, off, acc, out, p0)
+        store_sums(out, p0, acc, 1)
     elif mode == _BW_MOMENTS:
-        for i in range(m):
-            out[p0 + i, 0] = acc0[i]
-            out[p0 + i, 1] = acc1[i]
-            out[p0 + i, 2] = acc2[i]
-            out[p0 + i, 3] = acc3[i]
+        _bw_time_loop(_BW_MOMENTS, u, y, H, X, F, a, be, ga, sa, mcp, mcn, cabs_max, k_v, off, acc, out, p0)
+        store_sums(out, p0, acc, 4)
+    else:
+        _bw_time_loop(_BW_STATES, u, y, H, X, F, a, be, ga, sa, mcp, mcn, cabs_max, k_v, off, acc, out, p0)
+
+
+@njit(cache=True, inline="always")
+def store_sums(out, p0, acc, ncols):
+    """Write the first ``ncols`` per-candidate sums ``acc`` (a tuple of (m,) arrays) of a block
+    kernel into columns 0..ncols−1 of rows p0.. of ``out`` (P, ≥ ncols)."""
+    for col in range(ncols):
+        a = acc[col]
+        for i in range(a.shape[0]):
+            out[p0 + i, col] = a[i]
+
+
+@njit(cache=True, inline="always")
+def candidate_block(b, n_blocks, P):
+    """Candidates p0:p1 of block b when P candidates are split into ``n_blocks`` equal blocks
+    (the last ones may be shorter or empty: p0 ≥ p1) — the split of every threaded kernel."""
+    size = (P + n_blocks - 1) // n_blocks
+    p0 = b * size
+    return p0, min(P, p0 + size)
 
 
 @njit(cache=True)
@@ -417,11 +386,8 @@ def _bw_serial(u, y, kv, alpha, beta, gamma, y0, mode, out):
 @njit(cache=True, parallel=True)
 def _bw_parallel(u, y, kv, alpha, beta, gamma, y0, mode, out, n_blocks):
     """:func:`_bw_serial` with ``n_blocks`` candidate blocks spread over threads."""
-    P = alpha.shape[0]
-    size = (P + n_blocks - 1) // n_blocks
     for b in prange(n_blocks):
-        p0 = b * size
-        p1 = min(P, p0 + size)
+        p0, p1 = candidate_block(b, n_blocks, alpha.shape[0])
         if p0 < p1:
             _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1)
 

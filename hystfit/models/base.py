@@ -14,14 +14,15 @@ file reads them back (:class:`hystfit.results.Cell`).
 
 from __future__ import annotations
 
-import dataclasses
 from abc import ABC, abstractmethod
 from typing import Any, Callable, ClassVar
 
 import numpy as np
 
+from ..blocks.base import structure_kwargs, structure_of
 from ..errors import ConfigError
 from ..params import DataScale, Param
+from .inverse import invert_by_stepping
 
 
 class Model(ABC):
@@ -57,11 +58,7 @@ class Model(ABC):
 
     def structure(self) -> dict[str, Any]:
         """JSON-serialisable constructor arguments (the inverse of :meth:`from_structure`)."""
-        out = {}
-        for f in dataclasses.fields(self):  # type: ignore[arg-type]
-            v = getattr(self, f.name)
-            out[f.name] = list(v) if isinstance(v, tuple) else v
-        return out
+        return structure_of(self)
 
     def as_options(self) -> dict[str, Any]:
         """The structure as ``--model-option`` keys: ``make_model(self.name, self.as_options())``
@@ -70,12 +67,8 @@ class Model(ABC):
 
     @classmethod
     def from_structure(cls, data: dict[str, Any]) -> "Model":
-        names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-        unknown = set(data) - names
-        if unknown:
-            raise ConfigError(f"model {cls.name!r}: unknown structure field(s) {sorted(unknown)}")
-        kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
-        return cls(**kwargs)
+        return cls(**structure_kwargs(cls, data, lambda unknown, names: (
+            f"model {cls.name!r}: unknown structure field(s) {sorted(unknown)}")))
 
     # ----------------------------------------------------------------- parameters
     @abstractmethod
@@ -179,8 +172,6 @@ class Model(ABC):
         the search (default: a wide range around the identification data). Models with an
         analytic inverse override this.
         """
-        from .inverse import invert_by_stepping
-
         return invert_by_stepping(self, np.asarray(theta, float).ravel(), np.asarray(y_target, float), dt,
                                   u_range=u_range)
 
@@ -191,6 +182,23 @@ class Model(ABC):
         if theta.ndim != 2 or theta.shape[1] != d:
             raise ValueError(f"theta must have shape (P, {d}), got {theta.shape}")
         return theta
+
+
+class OptionalOffset:
+    """Mixin of a model whose last parameter, the output offset y0, is optional: the model
+    declares the structure field ``offset: bool`` (with its own default) and
+    :attr:`n_params_without_offset`; the check of the flag and :attr:`n_params` live here."""
+
+    #: the number of parameters without the offset
+    n_params_without_offset: ClassVar[int] = 0
+
+    def check_offset(self) -> None:
+        if not isinstance(self.offset, bool):
+            raise ConfigError(f"{self.name}: offset must be true or false, got {self.offset!r}")
+
+    @property
+    def n_params(self) -> int:
+        return self.n_params_without_offset + (1 if self.offset else 0)
 
 
 def linear_sse_evaluator(model: Model, u: np.ndarray, dt: float, y: np.ndarray):

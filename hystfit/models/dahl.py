@@ -12,6 +12,7 @@ from .._jit import njit
 from ..params import DataScale, Param
 from ..registry import models
 from .base import Model
+from .inverse import invert_from_rest
 from .separable import separable_by_simulation
 
 
@@ -197,16 +198,8 @@ class Dahl(Model):
         first sample is the static inverse u_0 = (y_0 − d0)/k and the per-sample search
         (:func:`hystfit.models.inverse.invert_by_stepping`) continues from there.
         """
-        from .inverse import invert_by_stepping
-
         th = np.asarray(theta, float).ravel()
-        y = np.asarray(y_target, float)
-        if y.size == 0:
-            return np.empty(0)
-        u0 = (float(y[0]) - th[4]) / th[0] if th[0] != 0 else 0.0
-        if u_range is not None:
-            u0 = min(max(u0, min(u_range)), max(u_range))
-        return invert_by_stepping(self, th, y, dt, u_range=u_range, u0=u0)
+        return invert_from_rest(self, th, y_target, dt, th[0], th[4], u_range)
 
     def _inverse_range(self, theta: np.ndarray, y_target: np.ndarray) -> tuple[float, float]:
         """Search window of the numerical inverse: the static inverse ± the hysteresis, widened."""

@@ -11,7 +11,7 @@ from .._lazy import lazy_module
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from .base import Model
+from .base import Model, OptionalOffset
 from .separable import separable_by_simulation
 
 sfft = lazy_module("scipy.fft")  # imported on first use: keeps start-up fast
@@ -93,7 +93,7 @@ def gl_filter_population(x, w, c0, c1, d0, d1):
 
 @models.register
 @dataclass(frozen=True)
-class FractionalZener(Model):
+class FractionalZener(OptionalOffset, Model):
     r"""Four-parameter fractional derivative (fractional Zener) model of Pritz (1996).
 
     .. math::
@@ -158,6 +158,7 @@ class FractionalZener(Model):
     reference = "Pritz 1996 (four-parameter fractional derivative model); shared/papers/README.md; paper 002 'FP'"
     equation = "y + τ^a·D^a y = E0·u + E∞·τ^a·D^a u (+ y0),  D^a by Grünwald–Letnikov over memory_s"
     rate_dependent = True
+    n_params_without_offset = 4
 
     memory_s: float = 1.0
     offset: bool = True
@@ -166,12 +167,7 @@ class FractionalZener(Model):
         m = self.memory_s
         if isinstance(m, bool) or not isinstance(m, (int, float)) or not np.isfinite(m) or m <= 0:
             raise ConfigError(f"fp: memory_s must be a positive number of seconds, got {m!r}")
-        if not isinstance(self.offset, bool):
-            raise ConfigError(f"fp: offset must be true or false, got {self.offset!r}")
-
-    @property
-    def n_params(self) -> int:
-        return 5 if self.offset else 4
+        self.check_offset()
 
     def memory_samples(self, dt: float) -> int:
         """Number of past samples in the GL window at sample period ``dt``."""

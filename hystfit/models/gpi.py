@@ -13,7 +13,9 @@ from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
 from .base import Model
-from .separable import Separable
+from .inverse import invert_by_stepping
+from .pi import PI
+from .separable import scaled_response
 
 #: |tanh argument| at which an envelope counts as saturated (tanh(6) = 1 − 1.2e-5): the default
 #: search range of the numerical inverse ends there.
@@ -25,6 +27,40 @@ def _tanh(x):
     """tanh(x) = 1 − 2/(e^{2x} + 1): exact to ~1e-16 absolute, about twice as fast as libm tanh in
     the population loop (e^{2x} overflowing to inf gives 1, underflowing to 0 gives −1)."""
     return 1.0 - 2.0 / (math.exp(2.0 * x) + 1.0)
+
+
+@njit(cache=True, inline="always")
+def gpi_operators(alpha, tau, n, p0, p1):
+    """Thresholds r_j = α j and density weights e^{−τ r_j} (n, m) of the candidates p0:p1 of a
+    population kernel (:func:`gpi_population`, :func:`hystfit.models.pi2._gpi2_block`)."""
+    m = p1 - p0
+    r = np.empty((n, m))
+    q = np.empty((n, m))
+    for j in range(n):
+        for i in range(m):
+            p = p0 + i
+            r[j, i] = alpha[p] * j
+            q[j, i] = math.exp(-tau[p] * alpha[p] * j)
+    return r, q
+
+
+@njit(cache=True, inline="always")
+def gpi_sample(uk, a1, a2, a3, a4, b1, b2, b3, b4, p0, r, q, s, gl, gr, z):
+    """One sample u_k of the generalized play operators of the candidates p0:p0 + m (m = len(z)):
+    the envelopes γ_l, γ_r into ``gl``, ``gr``, the operator states ``s`` (n, m) advanced,
+    s_j = max(γ_l − r_j, min(γ_r + r_j, s_j)), and z = Σ_j q_j s_j into ``z``. The one home of
+    the gPI recurrence of the population kernels (candidates innermost)."""
+    m = z.shape[0]
+    for i in range(m):
+        p = p0 + i
+        gl[i] = a1[p] * _tanh(a2[p] * uk + a3[p]) + a4[p]
+        gr[i] = b1[p] * _tanh(b2[p] * uk + b3[p]) + b4[p]
+        z[i] = 0.0
+    for j in range(s.shape[0]):
+        for i in range(m):
+            v = max(gl[i] - r[j, i], min(gr[i] + r[j, i], s[j, i]))
+            s[j, i] = v
+            z[i] += q[j, i] * v
 
 
 @njit(cache=True)
@@ -56,26 +92,12 @@ def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n):
     P = a1.shape[0]
     out = np.empty((N, P))
     s = np.zeros((n, P))
-    r = np.empty((n, P))
-    q = np.empty((n, P))
-    for j in range(n):
-        for p in range(P):
-            r[j, p] = alpha[p] * j
-            q[j, p] = math.exp(-tau[p] * alpha[p] * j)
+    r, q = gpi_operators(alpha, tau, n, 0, P)
     gl = np.empty(P)
     gr = np.empty(P)
     acc = np.empty(P)
     for k in range(N):
-        uk = u[k]
-        for p in range(P):
-            gl[p] = a1[p] * _tanh(a2[p] * uk + a3[p]) + a4[p]
-            gr[p] = b1[p] * _tanh(b2[p] * uk + b3[p]) + b4[p]
-            acc[p] = 0.0
-        for j in range(n):
-            for p in range(P):
-                v = max(gl[p] - r[j, p], min(gr[p] + r[j, p], s[j, p]))
-                s[j, p] = v
-                acc[p] += q[j, p] * v
+        gpi_sample(u[k], a1, a2, a3, a4, b1, b2, b3, b4, 0, r, q, s, gl, gr, acc)
         for p in range(P):
             out[k, p] = acc[p]
     return out
@@ -210,49 +232,18 @@ class GPI(Model):
 
     def separable(self):
         """ρ and y0 enter linearly: y = ρ·z(a, b, τ, α_r) + y0; the other ten are searched."""
-        lin = (8, 11)
         nl = (0, 1, 2, 3, 4, 5, 6, 7, 9, 10)
 
-        def factory(u, dt):
-            u = np.ascontiguousarray(u, dtype=np.float64)
-
-            def basis(theta_nl):
+        def response(u, dt):
+            def z(theta_nl):
                 theta_nl = np.atleast_2d(theta_nl)
-                P = theta_nl.shape[0]
-                full = np.zeros((P, 12))
+                full = np.zeros((theta_nl.shape[0], 12))
                 full[:, nl] = theta_nl
-                z = self._z(full, u)  # (N, P)
-                B = np.empty((P, u.shape[0], 2))
-                B[:, :, 0] = z.T
-                B[:, :, 1] = 1.0
-                return B
+                return self._z(full, u)  # (N, P)
 
-            return basis
+            return z
 
-        def gram_factory(u, dt, y):
-            """Normal equations of (ρ, y0) from z (N, P) directly: Σz², Σz, Σz·y per candidate."""
-            u = np.ascontiguousarray(u, dtype=np.float64)
-            y = np.ascontiguousarray(y, dtype=np.float64)
-            n, sy, yy = float(u.shape[0]), float(y.sum()), float(y @ y)
-
-            def gram(theta_nl):
-                theta_nl = np.atleast_2d(theta_nl)
-                P = theta_nl.shape[0]
-                full = np.zeros((P, 12))
-                full[:, nl] = theta_nl
-                z = self._z(full, u)  # (N, P)
-                G = np.empty((P, 2, 2))
-                G[:, 0, 0] = np.einsum("np,np->p", z, z)
-                G[:, 0, 1] = G[:, 1, 0] = z.sum(axis=0)
-                G[:, 1, 1] = n
-                c = np.empty((P, 2))
-                c[:, 0] = y @ z
-                c[:, 1] = sy
-                return G, c, yy
-
-            return gram
-
-        return Separable(lin, nl, factory, gram_factory)
+        return scaled_response((8, 11), nl, response)
 
     # ------------------------------------------------------------------ stepping
     def _unpack(self, theta: np.ndarray):
@@ -321,14 +312,10 @@ class GPI(Model):
         y_target = np.asarray(y_target, dtype=np.float64)
         if self.envelopes_equal(t):
             return self._invert_equal(t, y_target)
-        from .inverse import invert_by_stepping
-
         return invert_by_stepping(_VirginStart(self), t, y_target, dt,
                                   u_range=u_range or self._inverse_range(t, y_target))
 
     def _invert_equal(self, t: np.ndarray, y_target: np.ndarray) -> np.ndarray:
-        from .pi import PI
-
         r, p = self._operators(t)
         if t[10] > 0 and self.n_operators > 1:
             pi = PI(self.n_operators, thresholds_V=tuple(float(x) for x in r))

@@ -7,16 +7,17 @@ from typing import Callable, Sequence
 
 import numpy as np
 from .._lazy import lazy_module
-from ..blocks.lti import (LinearSS, Lti, _as_list, _fundamental, _zoh_second_order,  # noqa: F401
-                          check_era_options, fit_linear_to_sine,
+from ..blocks.base import captures_at_one_rate
+from ..blocks.lti import (LinearPartFields, LinearSS, Lti, _as_list, _fundamental, _zoh_second_order,  # noqa: F401
+                          fit_linear_to_sine,
                           identify_linear_era, is_broadband, measure_gain_phase, ss_columns)
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
 from ..registry import models
 from ._kernels import play_matrix
 from .base import Model
-from .separable import Separable
-from .pi import PI
+from .separable import linear_in_all
+from .pi import PI, PlayOperators
 
 # scipy submodules are imported on first use: keeps start-up fast
 signal = lazy_module("scipy.signal")
@@ -37,7 +38,7 @@ optimize = lazy_module("scipy.optimize")
 
 @models.register
 @dataclass(frozen=True)
-class Hammerstein(Model):
+class Hammerstein(Model, LinearPartFields, PlayOperators):
     r"""Hammerstein model: static PI hysteresis, then a fixed, identified linear discrete state space.
 
     .. math::
@@ -95,45 +96,17 @@ class Hammerstein(Model):
     rate_dependent = True
     resolution_option = "n_operators"
 
-    n_operators: int = 10
-    placement: str = "uniform"
-    thresholds_V: tuple[float, ...] | None = None
-    nonnegative: bool = True
-    order: int = 0
-    A: tuple[float, ...] = ()
-    B: tuple[float, ...] = ()
-    C: tuple[float, ...] = ()
-    D: float = 0.0
-    dt_s: float | None = None
     linear_method: str = "none"
-    singular_values: tuple[float, ...] = ()
-    max_order: int = 8
-    n_markov: int | None = None
-    feedthrough: "bool | str" = "auto"
-    correlation: str = "exact"
-    era_order: int | None = None
 
     def __post_init__(self) -> None:
         try:
-            check_era_options(self.max_order, self.n_markov, self.feedthrough, self.correlation, self.era_order)
-        except ConfigError as exc:
+            self.check_linear_part()
+        except (ConfigError, ValueError) as exc:
             raise ConfigError(f"hammerstein: {exc}") from None
         try:
             self.pi
         except ConfigError as exc:
             raise ConfigError(f"hammerstein: {str(exc).removeprefix('pi: ')}") from None
-        r = self.order
-        if not isinstance(r, int) or isinstance(r, bool) or r < 0:
-            raise ConfigError(f"hammerstein: order must be a non-negative integer, got {r!r}")
-        if len(self.A) != r * r or len(self.B) != r or len(self.C) != r:
-            raise ConfigError(
-                f"hammerstein: a linear part of order {r} needs {r * r} A, {r} B and {r} C entries "
-                f"(got {len(self.A)}, {len(self.B)}, {len(self.C)})")
-        vals = np.r_[np.asarray(self.A, float), np.asarray(self.B, float), np.asarray(self.C, float), float(self.D)]
-        if not np.all(np.isfinite(vals)):
-            raise ConfigError("hammerstein: the linear part has non-finite entries")
-        if r > 0 and not (self.dt_s is not None and self.dt_s > 0):
-            raise ConfigError("hammerstein: a linear part needs its sample period dt_s > 0")
 
     # ------------------------------------------------------------------ structure
     @property
@@ -199,11 +172,7 @@ class Hammerstein(Model):
         """
         if self.order > 0 or self.linear_method != "none":
             return self
-        caps = [c for c in captures if c.y is not None]
-        dts = {round(c.dt, 12) for c in caps}
-        if len(dts) != 1:
-            raise ConfigError("hammerstein: the captures have different sample periods "
-                              f"({sorted(dts)} s); resample them to one rate before identifying the linear part")
+        caps = captures_at_one_rate(captures, "hammerstein", " before identifying the linear part")
         fitted = type(self).from_data([c.u for c in caps], [c.y for c in caps], caps[0].dt, self.n_operators,
                                       placement=self.placement, nonnegative=self.nonnegative,
                                       max_order=self.max_order, n_markov=self.n_markov, feedthrough=self.feedthrough,
@@ -244,13 +213,7 @@ class Hammerstein(Model):
 
     def separable(self):
         """Every parameter is linear (thresholds and linear part fixed): one bounded least-squares solve."""
-        d = self.n_operators + 1
-
-        def factory(u, dt):
-            B = self.design_matrix(u, dt)[None, :, :]
-            return lambda theta_nl: B
-
-        return Separable(tuple(range(d)), (), factory)
+        return linear_in_all(self.design_matrix, self.n_operators + 1)
 
     def fit_weights(self, us: Sequence[np.ndarray], ys: Sequence[np.ndarray], dt: float) -> np.ndarray:
         """Least-squares θ = [w, y0] pooled over captures (weights ≥ 0 if ``nonnegative``): the exact optimum."""

@@ -133,3 +133,17 @@ def refine_inverse(model, theta: np.ndarray, y_target: np.ndarray, dt: float, u_
             if lam < 1e-4:
                 break
     return best
+
+
+def invert_from_rest(model, theta: np.ndarray, y_target: np.ndarray, dt: float, gain: float, offset: float,
+                     u_range: tuple[float, float] | None = None) -> np.ndarray:
+    """:func:`invert_by_stepping` for a model whose :meth:`simulate` starts at rest at the first
+    input (zero state, no rate): the first sample is the static inverse u_0 = (y_0 − offset)/gain
+    (0 for a zero gain; clipped to ``u_range``), the per-sample search continues from there."""
+    y = np.asarray(y_target, float)
+    if y.size == 0:
+        return np.empty(0)
+    u0 = (float(y[0]) - offset) / gain if gain != 0 else 0.0
+    if u_range is not None:
+        u0 = min(max(u0, min(u_range)), max(u_range))
+    return invert_by_stepping(model, theta, y, dt, u_range=u_range, u0=u0)

@@ -9,10 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 from .._jit import njit
 
-from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from .base import Model
+from .base import Model, OptionalOffset
+from .inverse import invert_from_rest, refine_inverse
 from .separable import separable_by_simulation
 
 
@@ -94,7 +94,7 @@ def lugre_step(z0, u_prev, u_new, dt, k, s0, s1, s2, fc, fs, vs):
 
 @models.register
 @dataclass(frozen=True)
-class LuGre(Model):
+class LuGre(OptionalOffset, Model):
     r"""LuGre model: linear gain plus a LuGre bristle state with Stribeck-type level.
 
     .. math::
@@ -163,16 +163,12 @@ class LuGre(Model):
     equation = ("y = k·u + σ0·z + σ1·dz/dt + σ2·du/dt,  dz/dt = du/dt − |σ0|·|du/dt|·z/g(du/dt),"
                 "  g = Fc + (Fs − Fc)·exp(−(du/dt / vs)²)")
     rate_dependent = True
+    n_params_without_offset = 7
 
     offset: bool = False
 
     def __post_init__(self) -> None:
-        if not isinstance(self.offset, bool):
-            raise ConfigError(f"lugre: offset must be true or false, got {self.offset!r}")
-
-    @property
-    def n_params(self) -> int:
-        return 8 if self.offset else 7
+        self.check_offset()
 
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         g, yr, R = scale.gain, scale.y_range, scale.rate_max
@@ -230,23 +226,16 @@ class LuGre(Model):
         first sample is the static inverse u_0 = (y_0 − y0)/k and the per-sample search
         (:func:`hystfit.models.inverse.invert_by_stepping`) continues from there.
         """
-        from .inverse import invert_by_stepping
-
         th = np.asarray(theta, float).ravel()
         y = np.asarray(y_target, float)
         if y.size == 0:
             return np.empty(0)
-        u0 = (float(y[0]) - (th[7] if self.offset else 0.0)) / th[0] if th[0] != 0 else 0.0
-        if u_range is not None:
-            u0 = min(max(u0, min(u_range)), max(u_range))
-        u = invert_by_stepping(self, th, y, dt, u_range=u_range, u0=u0)
+        u = invert_from_rest(self, th, y, dt, th[0], th[7] if self.offset else 0.0, u_range)
         # safeguard: with σ2 < 0 (or σ1 ż acting like it) the per-sample recursion can be unstable;
         # check by simulation and, if it misses, refine over the whole trajectory
         with np.errstate(all="ignore"):
             miss = y - self.simulate_one(th, u, dt)
         if not np.all(np.isfinite(miss)) or np.sqrt(np.mean(miss ** 2)) > 1e-3 * max(float(np.ptp(y)), 1e-300):
-            from .inverse import refine_inverse
-
             start = np.where(np.isfinite(u), u, (y - (th[7] if self.offset else 0.0)) / th[0])
             static = (y - (th[7] if self.offset else 0.0)) / th[0]
             cand = [refine_inverse(self, th, y, dt, s0, gain=th[0], u_range=u_range) for s0 in (start, static)]

@@ -13,7 +13,7 @@ from .._jit import njit
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from .base import Model
+from .base import Model, OptionalOffset
 from .separable import Separable
 
 INVERSE_METHODS = ("auto", "causal", "noncausal")
@@ -169,7 +169,7 @@ def nt_inverse_backward(yd, k0, c, k1, k2, u_last):
 
 @models.register
 @dataclass(frozen=True)
-class NT(Model):
+class NT(OptionalOffset, Model):
     r"""NT model: stiffness, damping and a softsign nonlinear transformation (paper 002 eq. 2).
 
     .. math::
@@ -224,16 +224,12 @@ class NT(Model):
     reference = "paper 002 eq. 2 (model), eq. 4–10 (discrete inverse)"
     equation = "y = k0·u + c0·du/dt + k1·k2·u/(1 + |k2·u|) (+ y0),  du/dt by backward difference"
     rate_dependent = True
+    n_params_without_offset = 4
 
     offset: bool = True
 
     def __post_init__(self) -> None:
-        if not isinstance(self.offset, bool):
-            raise ConfigError(f"nt: offset must be true or false, got {self.offset!r}")
-
-    @property
-    def n_params(self) -> int:
-        return 5 if self.offset else 4
+        self.check_offset()
 
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         g, yr, R, U = scale.gain, scale.y_range, scale.rate_max, scale.u_abs_max

@@ -12,14 +12,26 @@ from ..params import DataScale, Param
 from ..registry import models
 from ._kernels import play_matrix, play_matrix_from
 from .base import Model
-from .separable import Separable
+from .separable import linear_in_all
 
 THRESHOLD_PLACEMENTS = ("uniform", "quadratic")
 
 
+@dataclass(frozen=True)
+class PlayOperators:
+    """The structure fields of a classical PI's play operators, defined once for :class:`PI` and
+    the static part of the Hammerstein model: how many, how their thresholds are placed (or the
+    thresholds themselves, in V) and whether the weights are kept ≥ 0."""
+
+    n_operators: int = 10
+    placement: str = "uniform"
+    thresholds_V: tuple[float, ...] | None = None
+    nonnegative: bool = True
+
+
 @models.register
 @dataclass(frozen=True)
-class PI(Model):
+class PI(Model, PlayOperators):
     r"""Classical Prandtl–Ishlinskii hysteresis: a weighted sum of play operators.
 
     .. math::
@@ -64,10 +76,6 @@ class PI(Model):
     rate_dependent = False
     resolution_option = "n_operators"
 
-    n_operators: int = 10
-    placement: str = "uniform"
-    thresholds_V: tuple[float, ...] | None = None
-    nonnegative: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.n_operators, int) or not 1 <= self.n_operators <= 200:
@@ -135,13 +143,7 @@ class PI(Model):
 
     def separable(self):
         """Every parameter is linear (thresholds fixed): the optimum is one bounded least-squares solve."""
-        d = self.n_operators + 1
-
-        def factory(u, dt):
-            B = self.design_matrix(u, dt)[None, :, :]
-            return lambda theta_nl: B
-
-        return Separable(tuple(range(d)), (), factory)
+        return linear_in_all(self.design_matrix, self.n_operators + 1)
 
     # ------------------------------------------------------------------ inverse
     @staticmethod

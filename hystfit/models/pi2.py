@@ -10,14 +10,15 @@ import numpy as np
 
 from .._jit import njit, prange
 from .._lazy import lazy_module
+from ..blocks.base import captures_at_one_rate
 from ..blocks.dynamics import bilinear_biquad, biquad_columns, fn_search_range, invert_second_order
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels import PARALLEL_MIN_POP, play_matrix, thread_blocks
+from ._kernels import PARALLEL_MIN_POP, candidate_block, play_matrix, store_sums, thread_blocks
 from .base import Model
-from .separable import Separable
-from .gpi import GPI, _tanh
+from .separable import scaled_response
+from .gpi import GPI, gpi_operators, gpi_sample
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
 
@@ -49,13 +50,7 @@ def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f
     N = u.shape[0]
     m = p1 - p0
     s = np.zeros((n, m))
-    q = np.empty((n, m))
-    r = np.empty((n, m))
-    for j in range(n):
-        for i in range(m):
-            p = p0 + i
-            r[j, i] = alpha[p] * j
-            q[j, i] = math.exp(-tau[p] * alpha[p] * j)
+    r, q = gpi_operators(alpha, tau, n, p0, p1)
     z0 = np.zeros(m)
     d1 = np.zeros(m)
     d2 = np.zeros(m)
@@ -69,16 +64,7 @@ def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f
     z = np.empty(m)
     for k in range(N):
         uk = u[k]
-        for i in range(m):
-            p = p0 + i
-            gl[i] = a1[p] * _tanh(a2[p] * uk + a3[p]) + a4[p]
-            gr[i] = b1[p] * _tanh(b2[p] * uk + b3[p]) + b4[p]
-            z[i] = 0.0
-        for j in range(n):
-            for i in range(m):
-                v = max(gl[i] - r[j, i], min(gr[i] + r[j, i], s[j, i]))
-                s[j, i] = v
-                z[i] += q[j, i] * v
+        gpi_sample(uk, a1, a2, a3, a4, b1, b2, b3, b4, p0, r, q, s, gl, gr, z)
         if k == 0:
             for i in range(m):
                 z0[i] = z[i]
@@ -101,25 +87,16 @@ def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f
                 acc0[i] += zf * zf
                 acc1[i] += zf
                 acc2[i] += zf * yk
-    if mode == _SSE:
-        for i in range(m):
-            out[p0 + i, 0] = acc0[i]
-    elif mode == _MOMENTS:
-        for i in range(m):
-            out[p0 + i, 0] = acc0[i]
-            out[p0 + i, 1] = acc1[i]
-            out[p0 + i, 2] = acc2[i]
+    if mode != _OUTPUT:
+        store_sums(out, p0, (acc0, acc1, acc2), 1 if mode == _SSE else 3)
 
 
 @njit(cache=True, parallel=True)
 def _gpi2_parallel(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n, mode, out,
                    n_blocks):
     """:func:`_gpi2_block` over ``n_blocks`` candidate blocks spread over threads."""
-    P = a1.shape[0]
-    size = (P + n_blocks - 1) // n_blocks
     for b in prange(n_blocks):
-        p0 = b * size
-        p1 = min(P, p0 + size)
+        p0, p1 = candidate_block(b, n_blocks, a1.shape[0])
         if p0 < p1:
             _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n, mode, out,
                         p0, p1)
@@ -324,11 +301,7 @@ class PI2(Model):
         """Two-step route, step 1: identify the stage once from all captures (unless given)."""
         if self.joint or self.fn_Hz is not None:
             return self
-        caps = [c for c in captures if c.y is not None]
-        dts = {round(c.dt, 12) for c in caps}
-        if len(dts) != 1:
-            raise ConfigError(f"pi2: the captures have different sample periods ({sorted(dts)} s); resample them "
-                              "to one rate, or use --model-option identification=joint")
+        caps = captures_at_one_rate(captures, "pi2", ", or use --model-option identification=joint")
         fn, z, _ = fit_stage_with_classical_pi([c.u for c in caps], [c.y for c in caps], caps[0].dt)
         return replace(self, fn_Hz=float(fn), zeta=float(z))
 
@@ -404,42 +377,24 @@ class PI2(Model):
             th[:, 8] = 1.0  # unit density scale: the kernel's output is then z_f (y0 = 0)
             return th
 
-        def factory(u, dt):
-            u = np.ascontiguousarray(u, dtype=np.float64)
-
-            def basis(theta_nl):
+        def response(u, dt):
+            def z_f(theta_nl):
                 th = full(theta_nl)
                 fn, z = self._stage(th)
-                zf = gpi2_run(u, None, th[:, :12], fn, z, dt, self.n_operators, _OUTPUT)  # (N, P)
-                B = np.empty((th.shape[0], u.shape[0], 2))
-                B[:, :, 0] = zf.T
-                B[:, :, 1] = 1.0
-                return B
+                return gpi2_run(u, None, th[:, :12], fn, z, dt, self.n_operators, _OUTPUT)  # (N, P)
 
-            return basis
+            return z_f
 
-        def gram_factory(u, dt, y):
-            u = np.ascontiguousarray(u, dtype=np.float64)
-            y = np.ascontiguousarray(y, dtype=np.float64)
-            n, sy, yy = float(u.shape[0]), float(y.sum()), float(y @ y)
-
-            def gram(theta_nl):
+        def moments(u, dt, y):
+            def sums(theta_nl):
                 th = full(theta_nl)
                 fn, z = self._stage(th)
                 M = gpi2_run(u, y, th[:, :12], fn, z, dt, self.n_operators, _MOMENTS)
-                P = M.shape[0]
-                G = np.empty((P, 2, 2))
-                G[:, 0, 0] = M[:, 0]
-                G[:, 0, 1] = G[:, 1, 0] = M[:, 1]
-                G[:, 1, 1] = n
-                c = np.empty((P, 2))
-                c[:, 0] = M[:, 2]
-                c[:, 1] = sy
-                return G, c, yy
+                return M[:, 0], M[:, 1], M[:, 2]
 
-            return gram
+            return sums
 
-        return Separable(lin, nl, factory, gram_factory, gram_fused=True)
+        return scaled_response(lin, nl, response, moments)
 
     # ------------------------------------------------------------------ stepping
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:

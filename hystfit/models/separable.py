@@ -103,3 +103,72 @@ def separable_by_simulation(model, linear: Sequence[int], d: int) -> Separable:
         return gram
 
     return Separable(linear, nonlinear, factory, gram_factory)
+
+
+#: response(u, dt) → z(theta_nl (P, m)) → (N, P) the unit-scale output of each candidate
+ResponseFactory = Callable[[np.ndarray, float], Callable[[np.ndarray], np.ndarray]]
+#: moments(u, dt, y) → m(theta_nl (P, m)) → (P, 3): Σz², Σz, Σz·y per candidate
+MomentsFactory = Callable[[np.ndarray, float, np.ndarray], Callable[[np.ndarray], np.ndarray]]
+
+
+def scaled_response(linear: tuple[int, int], nonlinear: tuple[int, ...], response: ResponseFactory,
+                    moments: MomentsFactory | None = None) -> Separable:
+    """A :class:`Separable` for y = ρ·z(θ_nl) + y0, ``linear`` = the indices of (ρ, y0) in θ.
+
+    The basis is [z, 1]; its normal equations come from the moments Σz², Σz, Σz·y — computed from
+    z (``response``) or, when given, by ``moments`` (a fused kernel that never stores z: then
+    ``gram_fused``).
+    """
+
+    def factory(u, dt):
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        z_of = response(u, dt)
+
+        def basis(theta_nl):
+            z = z_of(theta_nl)  # (N, P)
+            B = np.empty((z.shape[1], u.shape[0], 2))
+            B[:, :, 0] = z.T
+            B[:, :, 1] = 1.0
+            return B
+
+        return basis
+
+    def gram_factory(u, dt, y):
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        y = np.ascontiguousarray(y, dtype=np.float64)
+        n, sy, yy = float(u.shape[0]), float(y.sum()), float(y @ y)
+        if moments is not None:
+            moments_of = moments(u, dt, y)
+        else:
+            z_of = response(u, dt)
+
+            def moments_of(theta_nl):
+                z = z_of(theta_nl)  # (N, P)
+                return np.einsum("np,np->p", z, z), z.sum(axis=0), y @ z
+
+        def gram(theta_nl):
+            M = moments_of(theta_nl)
+            P = M[0].shape[0]
+            G = np.empty((P, 2, 2))
+            G[:, 0, 0] = M[0]
+            G[:, 0, 1] = G[:, 1, 0] = M[1]
+            G[:, 1, 1] = n
+            c = np.empty((P, 2))
+            c[:, 0] = M[2]
+            c[:, 1] = sy
+            return G, c, yy
+
+        return gram
+
+    return Separable(tuple(linear), tuple(nonlinear), factory, gram_factory, gram_fused=moments is not None)
+
+
+def linear_in_all(design_matrix: Callable[[np.ndarray, float], np.ndarray], d: int) -> Separable:
+    """A :class:`Separable` for a model whose output is linear in all ``d`` parameters,
+    y = Φ(u) θ with the regressors ``design_matrix(u, dt)`` (N, d): one bounded least-squares solve."""
+
+    def factory(u, dt):
+        B = design_matrix(u, dt)[None, :, :]
+        return lambda theta_nl: B
+
+    return Separable(tuple(range(d)), (), factory)
