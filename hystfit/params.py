@@ -7,8 +7,9 @@ Bounds may scale with the data: a model builds its table from a :class:`DataScal
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -155,3 +156,25 @@ def apply_bound_overrides(params: Sequence[Param], overrides: Mapping[str, tuple
             p = replace(p, lower=lo, upper=hi, default=min(max(p.default, lo), hi))
         out.append(p)
     return tuple(out)
+
+
+def structure_of(obj) -> dict[str, Any]:
+    """The constructor arguments of a frozen dataclass (a model or a block), JSON-serialisable:
+    tuples as lists; fields that are not constructor arguments or not compared are left out."""
+    out = {}
+    for f in dataclasses.fields(obj):
+        if not f.init or not f.compare:
+            continue
+        v = getattr(obj, f.name)
+        out[f.name] = list(v) if isinstance(v, tuple) else v
+    return out
+
+
+def structure_kwargs(cls, data: dict[str, Any], unknown_message) -> dict[str, Any]:
+    """The keyword arguments that rebuild ``cls`` from :func:`structure_of`'s ``data`` (lists as
+    tuples). Keys that are not fields of ``cls``: ConfigError(``unknown_message(unknown, names)``)."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(data) - names
+    if unknown:
+        raise ConfigError(unknown_message(unknown, names))
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}

@@ -24,7 +24,6 @@ Units: time s, input V, output in the capture's unit (``out`` in parameter units
 
 from __future__ import annotations
 
-import dataclasses
 from abc import abstractmethod
 from typing import Any, ClassVar
 
@@ -32,7 +31,7 @@ import numpy as np
 
 from ..effects import Effect
 from ..errors import ConfigError
-from ..params import DataScale, Param
+from ..params import DataScale, Param, structure_kwargs, structure_of
 
 
 class Block(Effect):
@@ -126,28 +125,6 @@ def frequency_of_excitation(scale: DataScale) -> float:
     For a periodic drive that is its fundamental; for a rising-amplitude sine, the drive frequency.
     """
     return float(scale.rate_max / (np.pi * scale.u_range))
-
-
-def structure_of(obj) -> dict[str, Any]:
-    """The constructor arguments of a frozen dataclass (a model or a block), JSON-serialisable:
-    tuples as lists; fields that are not constructor arguments or not compared are left out."""
-    out = {}
-    for f in dataclasses.fields(obj):
-        if not f.init or not f.compare:
-            continue
-        v = getattr(obj, f.name)
-        out[f.name] = list(v) if isinstance(v, tuple) else v
-    return out
-
-
-def structure_kwargs(cls, data: dict[str, Any], unknown_message) -> dict[str, Any]:
-    """The keyword arguments that rebuild ``cls`` from :func:`structure_of`'s ``data`` (lists as
-    tuples). Keys that are not fields of ``cls``: ConfigError(``unknown_message(unknown, names)``)."""
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(data) - names
-    if unknown:
-        raise ConfigError(unknown_message(unknown, names))
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
 
 
 def captures_at_one_rate(captures, who: str, advice: str = "") -> list:

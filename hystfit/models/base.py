@@ -14,14 +14,14 @@ file reads them back (:class:`hystfit.results.Cell`).
 
 from __future__ import annotations
 
+import dataclasses
 from abc import ABC, abstractmethod
 from typing import Any, Callable, ClassVar
 
 import numpy as np
 
-from ..blocks.base import structure_kwargs, structure_of
 from ..errors import ConfigError
-from ..params import DataScale, Param
+from ..params import DataScale, Param, structure_kwargs, structure_of
 from .inverse import invert_by_stepping
 
 
