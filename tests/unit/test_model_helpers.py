@@ -6,7 +6,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hystfit.blocks.base import captures_at_one_rate, structure_kwargs, structure_of
+from hystfit.blocks.base import captures_at_one_rate
+from hystfit.params import structure_kwargs, structure_of
 from hystfit.blocks.lti import LinearPartFields, Lti
 from hystfit.capture import Capture
 from hystfit.errors import ConfigError
