@@ -20,6 +20,7 @@ sends the jobs there (the server forks the pool); this process never imports mat
 from __future__ import annotations
 
 import atexit
+import importlib
 import math
 import multiprocessing as mp
 import os
@@ -47,7 +48,8 @@ class FigureJob:
     Parameters
     ----------
     function : str
-        Name of a figure function of :mod:`hystfit.report.plots` (e.g. ``"loop_figure"``).
+        Name of a figure function of :mod:`hystfit.report.plots` (e.g. ``"loop_figure"``), or
+        ``"module:function"`` for one elsewhere (e.g. ``"hystfit.report.diagnose_report:_fig_time"``).
     path : Path
         PNG file to write.
     args : tuple
@@ -178,9 +180,9 @@ def _join_preload() -> None:
 
 
 def _render(job: FigureJob) -> Path:
-    from . import plots
-
-    return Path(getattr(plots, job.function)(job.path, *job.args, **job.kwargs))
+    module, _, name = job.function.rpartition(":")
+    where = importlib.import_module(module or f"{__package__}.plots")
+    return Path(getattr(where, name)(job.path, *job.args, **job.kwargs))
 
 
 def _default_workers() -> int:

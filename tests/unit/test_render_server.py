@@ -66,3 +66,11 @@ def test_preload_with_other_threads_imports_in_a_thread(monkeypatch):
     render.preload()
     assert render._server is None
     render._join_preload()
+
+
+def test_a_job_may_name_a_figure_function_outside_plots(tmp_path, rng):
+    t = np.arange(100) / 100
+    job = FigureJob("hystfit.report.plots:timeseries_figure", tmp_path / "ts.png", (t, t, t), {})
+    plain = FigureJob("timeseries_figure", tmp_path / "ts2.png", (t, t, t), {})
+    a, b = render._draw_here([job, plain], 1)
+    assert a.read_bytes() == b.read_bytes()
