@@ -16,6 +16,7 @@ import numpy as np
 
 from .capture import Capture
 from .errors import ConfigError
+from .minimize1d import minimize_bounded
 
 ConditionKey = tuple[float, float]
 
@@ -87,15 +88,12 @@ def _refine_Hz(u: np.ndarray, dt: float, f0: float) -> float:
     Long inputs are decimated (stride) to at most ~50 000 samples when that keeps ≥ 8 samples
     per period of ``f0``.
     """
-    from scipy.optimize import minimize_scalar
-
     stride = max(1, int(math.ceil(u.size / 50_000)))
     while stride > 1 and f0 * dt * stride > 1.0 / 8:
         stride //= 2
     x = np.asarray(u[::stride], dtype=np.float64)
     tdt = np.arange(x.size, dtype=np.float64) * (dt * stride)
-    res = minimize_scalar(lambda f: _sine_fit_residual(x, tdt, f), bounds=(0.75 * f0, 1.25 * f0),
-                          method="bounded", options={"xatol": 1e-6 * f0})
+    res = minimize_bounded(lambda f: _sine_fit_residual(x, tdt, f), 0.75 * f0, 1.25 * f0, xatol=1e-6 * f0)
     if res.success and res.fun <= _sine_fit_residual(x, tdt, f0):
         return float(res.x)
     return f0

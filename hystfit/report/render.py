@@ -9,14 +9,23 @@ of processes.
 Workers are forked, not spawned: a spawned worker would spend ≈ 0.5–0.8 s importing numpy and
 matplotlib again, more than the figures of a small report take. A figure job touches neither numba
 nor BLAS (whose thread pools are not fork-safe), only numpy and matplotlib's Agg canvas, which are
-imported in the parent first (:func:`preload`) so every child starts with them. Where ``fork`` is
-not available the figures are drawn in this process.
+imported before the pool is forked so every child starts with them. Where ``fork`` is not available
+the figures are drawn in this process.
+
+A command that will draw calls :func:`preload` first: it forks a figure server that imports
+matplotlib on the other core while this process loads and fits, and :func:`render_figures` then
+sends the jobs there (the server forks the pool); this process never imports matplotlib.
 """
 
 from __future__ import annotations
 
+import atexit
+import importlib
 import math
 import multiprocessing as mp
+import os
+import signal
+import sys
 import threading
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -29,6 +38,7 @@ __all__ = ["FigureJob", "preload", "render_figures", "MIN_JOBS_PER_WORKER"]
 MIN_JOBS_PER_WORKER = 3
 
 _preload_thread: threading.Thread | None = None
+_server: "_FigureServer | None" = None
 
 
 @dataclass(frozen=True)
@@ -38,7 +48,8 @@ class FigureJob:
     Parameters
     ----------
     function : str
-        Name of a figure function of :mod:`hystfit.report.plots` (e.g. ``"loop_figure"``).
+        Name of a figure function of :mod:`hystfit.report.plots` (e.g. ``"loop_figure"``), or
+        ``"module:function"`` for one elsewhere (e.g. ``"hystfit.report.diagnose_report:_fig_time"``).
     path : Path
         PNG file to write.
     args : tuple
@@ -63,16 +74,103 @@ def _import_plotting() -> None:
     font_manager.get_font(font_manager.findfont(font_manager.FontProperties()))  # the first text loads the font
 
 
-def preload() -> None:
-    """Start importing matplotlib in a background thread (≈ 0.3–0.5 s), e.g. while a fit runs.
+class _FigureServer:
+    """A forked process that imports matplotlib at once, then draws each batch of jobs it is sent.
 
-    The fitting code waits on its process pool or runs numba kernels that release the CPU to that
-    thread in between; :func:`render_figures` joins the thread before drawing. Calling it twice is harmless.
+    Forked by :func:`preload` before the captures are loaded, it imports matplotlib on another core
+    while this process loads and fits (a thread would take turns with the fit for the interpreter
+    lock), and this process never imports matplotlib at all. Each batch is drawn as
+    :func:`render_figures` would draw it here (its own pool, forked from the server, so its workers
+    start with matplotlib). The server ignores SIGINT and leaves when this process closes its end
+    of the pipe or exits; it never returns into the caller's code (``os._exit``).
     """
-    global _preload_thread
-    if _preload_thread is None:
+
+    def __init__(self) -> None:
+        self.conn, child = mp.Pipe()
+        for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
+            stream.flush()
+        self.pid = os.fork()
+        if self.pid == 0:  # the server
+            code = 0
+            try:
+                self.conn.close()
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                _serve(child)
+            except BaseException:  # noqa: BLE001 - the parent falls back to drawing itself
+                code = 1
+            finally:
+                os._exit(code)
+        child.close()
+
+    def draw(self, jobs: list[FigureJob], n_jobs: int | None) -> list[Path] | None:
+        """The batch drawn by the server, or None when the server is gone (draw here instead)."""
+        try:
+            self.conn.send((jobs, n_jobs))
+            status, value = self.conn.recv()
+        except (OSError, EOFError):
+            self.close()
+            return None
+        except BaseException:  # Ctrl-C while the server draws: stop it, do not wait for the batch
+            self.close(stop=True)
+            raise
+        if status == "error":
+            raise value
+        return value
+
+    def close(self, stop: bool = False) -> None:
+        """Close the pipe (the server leaves) and reap the server; ``stop`` terminates it first."""
+        self.conn.close()
+        try:
+            if stop:
+                os.kill(self.pid, signal.SIGTERM)
+            os.waitpid(self.pid, 0)
+        except (ChildProcessError, ProcessLookupError):  # already gone
+            pass
+
+
+def _serve(conn) -> None:
+    """The server's loop: import matplotlib, then answer each ``(jobs, n_jobs)`` until the pipe closes."""
+    _import_plotting()
+    while True:
+        try:
+            jobs, n_jobs = conn.recv()
+        except EOFError:
+            return
+        try:
+            reply = ("ok", _draw_here(jobs, n_jobs))
+        except Exception as exc:  # noqa: BLE001 - raised again in the caller
+            reply = ("error", exc)
+        try:
+            conn.send(reply)
+        except Exception as exc:  # noqa: BLE001 - e.g. an exception that does not pickle
+            conn.send(("error", RuntimeError(f"drawing the figures failed: {exc!r}")))
+
+
+def preload() -> None:
+    """Start importing matplotlib away from this process's work (≈ 0.3–0.5 s), e.g. while a fit runs.
+
+    Where ``fork`` is available and this process runs no other thread (a fork copies locks held by
+    other threads), a figure server is forked (:class:`_FigureServer`) and :func:`render_figures`
+    hands its jobs to it; otherwise matplotlib is imported in a background thread here. Calling it
+    again replaces a server that has not drawn yet.
+    """
+    global _preload_thread, _server
+    _close_server()
+    if "fork" in mp.get_all_start_methods() and threading.active_count() == 1:
+        _server = _FigureServer()
+    elif _preload_thread is None:
         _preload_thread = threading.Thread(target=_import_plotting, name="hystfit-preload-matplotlib", daemon=True)
         _preload_thread.start()
+
+
+def _close_server() -> None:
+    global _server
+    if _server is not None:
+        _server.close()
+        _server = None
+
+
+atexit.register(_close_server)
 
 
 def _join_preload() -> None:
@@ -82,9 +180,9 @@ def _join_preload() -> None:
 
 
 def _render(job: FigureJob) -> Path:
-    from . import plots
-
-    return Path(getattr(plots, job.function)(job.path, *job.args, **job.kwargs))
+    module, _, name = job.function.rpartition(":")
+    where = importlib.import_module(module or f"{__package__}.plots")
+    return Path(getattr(where, name)(job.path, *job.args, **job.kwargs))
 
 
 def _default_workers() -> int:
@@ -108,6 +206,15 @@ def render_figures(jobs: Sequence[FigureJob], n_jobs: int | None = None) -> list
     Whatever the figure function raises (the first failing job in order), e.g. ``OutputError``.
     """
     jobs = list(jobs)
+    if _server is not None:
+        drawn = _server.draw(jobs, n_jobs)
+        if drawn is not None:
+            return drawn
+    return _draw_here(jobs, n_jobs)
+
+
+def _draw_here(jobs: list[FigureJob], n_jobs: int | None) -> list[Path]:
+    """:func:`render_figures` in this process: a forked pool, or serially when that cannot pay off."""
     _join_preload()
     n = _default_workers() if n_jobs is None else max(1, int(n_jobs))
     n = min(n, math.ceil(len(jobs) / MIN_JOBS_PER_WORKER))

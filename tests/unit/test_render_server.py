@@ -1,0 +1,85 @@
+"""The figure server of report.render: forked early, it draws the same bytes as this process does."""
+
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from hystfit.errors import OutputError
+from hystfit.report import render
+from hystfit.report.render import FigureJob, render_figures
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="the figure server needs fork")
+
+
+def _jobs(out, rng, n=4):
+    t = np.arange(4000) / 4000
+    jobs = []
+    for i in range(n):
+        u = 30.0 * (1 - np.cos(2 * np.pi * (2 + i) * t))
+        y = 0.1 * u + rng.normal(0, 0.01, t.size)
+        jobs.append(FigureJob("loop_figure", out / f"loop_{i}.png", (u, y, y + 0.01), {"title": f"c{i}"}))
+        jobs.append(FigureJob("timeseries_figure", out / f"ts_{i}.png", (t, y, y + 0.01), {"unit": "nm"}))
+    return jobs
+
+
+@pytest.fixture
+def server():
+    render._close_server()
+    render._server = render._FigureServer()
+    yield render._server
+    render._close_server()
+
+
+@pytest.mark.parametrize("n_jobs", [1, 2])
+def test_server_draws_the_same_bytes_as_this_process(tmp_path, rng, server, n_jobs):
+    seed = int(rng.integers(1 << 30))
+    here = render._draw_here(_jobs(tmp_path / "here", np.random.default_rng(seed)), 1)
+    there = render_figures(_jobs(tmp_path / "there", np.random.default_rng(seed)), n_jobs)
+    assert [p.name for p in here] == [p.name for p in there]
+    assert [p.read_bytes() for p in here] == [p.read_bytes() for p in there]
+    again = render_figures(_jobs(tmp_path / "again", np.random.default_rng(seed)), n_jobs)  # a second batch
+    assert [p.name for p in again] == [p.name for p in here]
+    assert all(p.read_bytes().startswith(b"\x89PNG") for p in again)
+
+
+def test_server_error_reaches_the_caller(tmp_path, rng, server):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    jobs = _jobs(tmp_path / "ok", rng, 2)
+    jobs.insert(1, FigureJob("loop_figure", blocker / "x.png", (np.arange(10.0), np.arange(10.0)), {}))
+    with pytest.raises(OutputError):
+        render_figures(jobs, 2)
+    assert render_figures(_jobs(tmp_path / "after", rng, 1), 1)[0].exists()  # the server still serves
+
+
+def test_a_lost_server_means_drawing_here(tmp_path, rng, server):
+    os.kill(server.pid, signal.SIGKILL)
+    os.waitpid(server.pid, 0)
+    paths = render_figures(_jobs(tmp_path / "x", rng, 1), 1)
+    assert all(p.exists() for p in paths)
+
+
+def test_preload_with_other_threads_imports_in_a_thread(monkeypatch):
+    render._close_server()
+    monkeypatch.setattr(render.threading, "active_count", lambda: 2)
+    render.preload()
+    assert render._server is None
+    render._join_preload()
+
+
+def test_a_job_may_name_a_figure_function_outside_plots(tmp_path, monkeypatch):
+    import hystfit.report.plots as plots_module
+
+    calls = []
+
+    def fake(path, *args, **kwargs):
+        calls.append((path.name, args, kwargs))
+        return path
+
+    monkeypatch.setattr(plots_module, "timeseries_figure", fake)
+    jobs = [FigureJob("hystfit.report.plots:timeseries_figure", tmp_path / "a.png", (1,), {"k": 2}),
+            FigureJob("timeseries_figure", tmp_path / "b.png", (3,), {})]
+    assert render._draw_here(jobs, 1) == [tmp_path / "a.png", tmp_path / "b.png"]
+    assert calls == [("a.png", (1,), {"k": 2}), ("b.png", (3,), {})]
