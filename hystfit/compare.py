@@ -231,7 +231,7 @@ def scoped_options(items: Mapping[str, object], valid: Mapping[str, Sequence[str
     return out
 
 
-def _prepare_shared_structure(captures, model_names, model_options: dict) -> list[str]:
+def _prepare_shared_structure(captures, model_names, model_options: dict, store=None, resume: bool = False) -> list[str]:
     """Identify every model's shared structure (a Hammerstein model's stage) once from all captures
     and hand it to the cells as fixed options (``model_options`` updated in place); the notes say
     how it was found. A model that fails here fails in its cells, with its own message."""
@@ -239,12 +239,12 @@ def _prepare_shared_structure(captures, model_names, model_options: dict) -> lis
     for m in model_names:
         try:
             base = make_model(m, model_options[m])
-            prepared = prepare_shared(base, captures)
-            if prepared is not base:
+            prepared = prepare_shared(base, captures, store, resume)
+            if prepared != base:
                 model_options[m] = prepared.as_options()
-                summary = getattr(prepared, "structure_summary", None)
+                summary = prepared.structure_summary()
                 if summary is not None:
-                    notes.append(f"`{m}`: {summary()}")
+                    notes.append(f"`{m}`: {summary}")
         except HystfitError:
             pass
     return notes
@@ -306,7 +306,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     # structure shared by all conditions (e.g. a Hammerstein model's stage dynamics) is identified
     # once from all captures here and handed to every cell as fixed structure
     model_options = {m: dict((model_options or {}).get(m, {})) for m in model_names}
-    notes = _prepare_shared_structure(captures, model_names, model_options)
+    notes = _prepare_shared_structure(captures, model_names, model_options, store, resume)
     _check_bounds(captures, model_names, model_options, bounds)
     specs = []
     for ci, (key, caps) in enumerate(groups.items()):

@@ -1758,7 +1758,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     t_start = time.perf_counter()
     check_seed(seed)
     caps, unit, names = _checked_inputs(captures, effects)
-    model = prepare_shared(model, caps)  # shared structure from all captures, once (not per fit subset)
+    model = prepare_shared(model, caps, store, resume)  # shared structure from all captures, once (not per subset)
     d = _design(caps, settings, per_condition)
     G = len(d.group_idx)
     if progress:

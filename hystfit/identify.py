@@ -232,11 +232,27 @@ def _nuisance_fields(coef: np.ndarray | None, unit: str) -> dict[str, float]:
     return {f"drift_offset_{unit}": float(coef[0]), f"drift_rate_{unit}_per_s": float(coef[1])}
 
 
-def prepare_shared(model: Model, captures: Sequence[Capture]) -> Model:
+def prepare_shared(model: Model, captures: Sequence[Capture], store: CellStore | None = None,
+                   resume: bool = False) -> Model:
     """The one step that identifies structure shared by every condition (a Hammerstein model's or an
-    ``lti`` block's linear stage) from *all* the captures; identify, compare and diagnose call it
-    once, before any per-condition or per-subset fit (a no-op for a model already prepared)."""
-    return model.prepare(captures)
+    ``lti`` block's linear stage, pi2's stage) from *all* the captures; identify, compare and diagnose
+    call it once, before any per-condition or per-subset fit (a no-op for a model already prepared).
+
+    With a ``store`` the prepared model is kept like a finished cell (keyed by the captures' content,
+    the model and its options, and the hystfit version) and ``resume`` reuses it: an interrupted
+    batch does not identify the shared structure again (on 200 captures pi2's stage takes minutes)."""
+    if store is None:
+        return model.prepare(captures)
+    shared = CellStore(store.root / "shared")  # beside the cells, not counted among them
+    key = cell_key("prepare", captures=list(captures), model=model.name, model_options=model.as_options())
+    if resume:
+        kept = shared.get(key)
+        if isinstance(kept, Model):
+            return kept
+    prepared = model.prepare(captures)
+    if prepared != model:
+        shared.put(key, prepared)
+    return prepared
 
 
 def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int, cell: int = 0,
@@ -307,7 +323,7 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         groups = group_by_condition(captures)
     if progress:
         progress("start", {"total": len(groups) * runs})
-    model = prepare_shared(model, captures)  # structure shared by all conditions (e.g. stage dynamics)
+    model = prepare_shared(model, captures, store, resume)  # structure shared by all conditions (e.g. stage dynamics)
     summary = model.structure_summary()
     if progress and summary is not None:  # say how the shared structure was found (e.g. which route)
         progress("note", {"text": f"{model.name}: {summary}"})

@@ -315,3 +315,19 @@ def test_diagnose_per_condition_gives_the_same_diagnosis_on_every_executor_and_r
         assert d.verdict == serial.verdict == "creep"
         assert d.gap == serial.gap and d.noise == serial.noise
         assert [r.heldout_rmse_after for r in d.effects] == [r.heldout_rmse_after for r in serial.effects]
+
+
+def test_resume_reuses_the_prepared_shared_structure(captures, tmp_path, monkeypatch):
+    """pi2's stage is identified once from all captures (minutes on a large campaign): a resumed run
+    takes it from the store instead of identifying it again, and gets the same numbers."""
+    store = CellStore(tmp_path / "store")
+    kw = dict(runs=1, seed=4, optimizer_options=PSO, jobs=1, store=store)
+    first = compare(captures, ["pi2"], ["pso"], **kw)
+    calls = []
+    original = type(make_model("pi2")).prepare
+    monkeypatch.setattr(type(make_model("pi2")), "prepare", lambda self, caps: calls.append(1) or original(self, caps))
+    again = compare(captures, ["pi2"], ["pso"], resume=True, **kw)
+    assert calls == [] and again.cell_stats.reused == first.cell_stats.computed
+    fresh = compare(captures, ["pi2"], ["pso"], runs=1, seed=4, optimizer_options=PSO, jobs=1)
+    assert calls  # without the store the stage is identified again
+    assert [r.fun for c in again.cells for r in c.runs] == [r.fun for c in fresh.cells for r in c.runs]
