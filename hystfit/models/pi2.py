@@ -158,23 +158,24 @@ def fit_stage_with_classical_pi(us, ys, dt: float, n_operators: int = 20,
         fn_bounds_Hz = fn_search_range(dt, rate / (math.pi * (hi_u - lo_u)))
     lo_f, hi_f = fn_bounds_Hz
     N_total = sum(u.size for u in us)
+    yc = [y - y.mean() for y in ys]  # one free offset per capture: solved by centring each capture
 
     def cost(x):
         fn, z = math.exp(x[0]), x[1]
         if not (lo_f <= fn <= hi_f and zeta_bounds[0] <= z <= zeta_bounds[1]):
             return math.inf
         coef = [np.full(n_cols, a[0]) for a in bilinear_biquad(fn, z, dt)]
-        rows, rhs = [], []
-        for i, (F, y) in enumerate(zip(plays, ys)):
-            Ff = biquad_columns(F, *coef)
-            off = np.zeros((y.size, len(us)))
-            off[:, i] = 1.0
-            rows.append(np.hstack([Ff, off]))
-            rhs.append(y)
-        A, b = np.vstack(rows), np.concatenate(rhs)
-        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-        res = A @ sol - b
-        return float(res @ res) / N_total
+        # the pooled least squares through its normal equations (K × K, K = n + 2): the stacked
+        # (N_total × K) SVD solve cost 0.4 s per candidate on 24 captures, this a few ms
+        cols = [biquad_columns(F, *coef) for F in plays]
+        cols = [Ff - Ff.mean(axis=0) for Ff in cols]
+        G = sum(Fc.T @ Fc for Fc in cols)
+        g = sum(Fc.T @ y for Fc, y in zip(cols, yc))
+        scale = np.sqrt(np.maximum(np.diag(G), 1e-300))
+        sol, *_ = np.linalg.lstsq(G / np.outer(scale, scale), g / scale, rcond=1e-12)
+        sol = sol / scale
+        sse = sum(float(r @ r) for r in (Fc @ sol - y for Fc, y in zip(cols, yc)))
+        return sse / N_total
 
     grid = [(math.log(f), z) for f in np.geomspace(lo_f, hi_f, 10) for z in (0.05, 0.2, 0.5, 1.0)]
     start = min(grid, key=cost)
