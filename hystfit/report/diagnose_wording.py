@@ -70,6 +70,11 @@ def split_why(reason: str, swept_sources: Sequence[str] = ()) -> str:
 
 def split_description(kind: str, fit_fraction: float) -> str:
     """What was fitted and what was held out (``split.description``)."""
+    if kind == "cycles":
+        return ("every fit (base, base + effect, placebo) uses the cycles before and after the middle "
+                f"{100 * (1 - fit_fraction):.0f} % of each capture's cycles; those middle cycles are held out and only "
+                "they score 'heldout_*' (an interpolation in time and, for a rising-amplitude sine, in amplitude; the "
+                "model is simulated from the start, so its state everywhere is its own)")
     if kind == "capture":
         return ("every fit (base, base + effect, placebo) uses the captures at the lowest and highest drive "
                 "frequencies; the captures at the frequencies in between are held out whole and only they score "

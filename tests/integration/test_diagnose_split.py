@@ -128,3 +128,26 @@ def test_no_resolution_check_for_a_fixed_structure_or_when_switched_off():
     d = diagnose(caps, make_model("pi"), make_optimizer(optimizers.get("auto")),
                  settings=DiagnoseSettings(max_effects=1, resolution_check=False))
     assert d.resolution is None
+
+
+def test_cycles_split_holds_out_the_middle_cycles_and_fits_around_them():
+    from hystfit.diagnose import _fit_segments, interior_masks
+
+    caps = _rising(synth.Effects(noise=True), cycles=10)
+    m = interior_masks(caps, [True] * 3, 0.6)[0]
+    P = int(round(1 / (caps[0].frequency_Hz * DT)))
+    held = np.flatnonzero(~m)
+    assert held[0] == 3 * P and held[-1] == 7 * P - 1  # cycles 3…6 of 10 held out
+    segs = _fit_segments(caps[0], m)
+    assert [s.n for s in segs] == [3 * P, caps[0].n] and [s.warmup_samples for s in segs] == [0, 7 * P]
+    assert sum(s.n - s.warmup_samples for s in segs) == int(m.sum())
+
+
+@pytest.mark.slow
+def test_cycles_split_names_a_single_effect_on_rising_sines_in_per_condition_mode():
+    caps = _rising(synth.Effects(delay=True, delay_s=3e-4, noise=True, noise_sigma_um=0.01))
+    d = diagnose(caps, make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)}),
+                 make_optimizer(optimizers.get("auto")), per_condition=True,
+                 settings=DiagnoseSettings(max_effects=1, split="cycles"))
+    assert d.split["kind"] == "cycles" and d.explained_by and d.explained_by[0] in ("delay", "dynamics")
+    assert all(c["heldout_samples"] > 0 and c["fit_samples"] > c["heldout_samples"] for c in d.split["per_capture"])
