@@ -21,8 +21,10 @@ The procedure (issue 7), for captures and a base model of any kind:
 Everything is deterministic for a given seed. This module never prints; progress goes through
 an optional callback ``progress(event, info)`` (events ``start``, ``advance``, ``note``). It
 computes numbers and records (:class:`Finding`, :class:`Evidence`, :class:`SplitChoice`, reason
-codes); every sentence of a diagnosis (``where.pointers``, ``evidence``, ``split.why``, ...) is
-worded from them by :mod:`hystfit.report.diagnose_wording`.
+codes, a noise-method code) and holds no prose: every sentence of a diagnosis (``where.pointers``,
+``evidence``, ``split.why``, ...) is worded from them by :mod:`hystfit.report.diagnose_wording`, and
+the JSON document (``diagnosis.json``) is built by
+:func:`hystfit.report.diagnose_report.diagnosis_document` (data flow one way: orchestration → report).
 """
 
 from __future__ import annotations
@@ -42,10 +44,6 @@ from .errors import ConfigError, InputError, NoResultError
 from .identify import fit_captures, prepare_shared
 from .models.base import Model
 from .objective import Objective, Series
-from .report.diagnose_wording import (DEFINITIONS, NOISE_METHOD, NOISE_METHOD_REFINED, evidence_text,
-                                      pointer_text, pointers_text, reconciliation_why,
-                                      split_description, split_why)
-from .results import json_safe, unit_keys
 from .optimizers.base import Optimizer
 
 __all__ = [
@@ -173,7 +171,7 @@ class Evidence:
     """The evidence of one candidate effect, as numbers: how much of the residual above noise its
     signature explains, its fitted parameters (:meth:`EffectFit.params`), the held-out RMSE before
     and after (output unit), its reduction, the best placebo's improvement, and the shape of the gap
-    that points at it (from ``where.summary``). The sentence of :attr:`EffectResult.evidence` is
+    that points at it (from ``where.summary``). Its sentence (``evidence`` of diagnosis.json) is
     :func:`hystfit.report.diagnose_wording.evidence_text`."""
 
     effect: str
@@ -202,7 +200,8 @@ class Evidence:
 class EffectResult:
     """One candidate effect tested on top of the current model (one step of the selection).
 
-    RMSE values are in the output unit; ``improvement`` = before − after (held out).
+    RMSE values are in the output unit; ``improvement`` = before − after (held out); ``evidence``
+    is the :class:`Evidence` record (worded by :func:`hystfit.report.diagnose_wording.evidence_text`).
     """
 
     effect: str
@@ -220,10 +219,9 @@ class EffectResult:
     signature_share: float
     signature_r2: float
     params: dict
-    evidence: str
+    evidence: Evidence | None
     passes: dict
     fit: EffectFit = field(repr=False, compare=False, default=None)
-    evidence_record: Evidence | None = field(repr=False, compare=False, default=None)
 
     @property
     def improvement(self) -> float:
@@ -236,7 +234,11 @@ class EffectResult:
 
 @dataclass(frozen=True)
 class Diagnosis:
-    """The outcome of :func:`diagnose` (see :meth:`to_dict` for the JSON contract)."""
+    """The outcome of :func:`diagnose`: numbers, codes and records only. The JSON contract
+    (``diagnosis.json``, with the prose fields worded) is
+    :func:`hystfit.report.diagnose_report.diagnosis_document`. ``noise["method"]`` is a code
+    (:data:`NOISE_METHOD_CODE`); ``split`` holds the numbers of the hold-out and ``split_choice`` its
+    record (reason code); ``findings`` are the where-analysis' findings (``where.pointers``)."""
 
     base_model: str
     optimizer: str
@@ -258,53 +260,7 @@ class Diagnosis:
     figures_data: dict = field(repr=False, compare=False, default_factory=dict)
     findings: tuple[Finding, ...] = field(repr=False, compare=False, default=())  # where.pointers as records
     resolution: dict | None = None  # the base-resolution check (:func:`resolution_check`), None when not run
-
-    def to_dict(self) -> dict:
-        """The JSON document (``diagnosis.json``); unit-bearing names end in the output unit."""
-        u = self.unit
-
-        def eff(r: EffectResult) -> dict:
-            return {"effect": r.effect, "title": r.title,
-                    f"heldout_rmse_before_{u}": _num(r.heldout_rmse_before),
-                    f"heldout_rmse_after_{u}": _num(r.heldout_rmse_after),
-                    "reduction": _num(r.reduction),
-                    f"improvement_{u}": _num(r.improvement),
-                    f"placebo_improvement_{u}": _num(r.placebo_improvement),
-                    "placebo_reduction": _num(r.placebo_reduction),
-                    f"fit_rmse_before_{u}": _num(r.fit_rmse_before),
-                    f"fit_rmse_after_{u}": _num(r.fit_rmse_after),
-                    "n_parameters": r.n_parameters,
-                    "signature_share": _num(r.signature_share),
-                    "evidence": r.evidence,
-                    "params": json_safe(unit_keys(r.params, u)),
-                    "passes": dict(r.passes), "eligible": r.eligible}
-
-        return json_safe({
-            "schema": "hystfit.diagnosis", "schema_version": 1,
-            "base_model": self.base_model, "optimizer": self.optimizer, "mode": self.mode,
-            "seed": self.seed, "units": {"input": "V", "output": u, "time": "s"},
-            f"noise_floor_{u}": self.noise["sigma"],
-            "noise": unit_keys(self.noise, u),
-            "gap": unit_keys(self.gap, u),
-            "where": unit_keys(self.where, u),
-            "effects": [eff(r) for r in self.effects],
-            "verdict": self.verdict,
-            "explained_by": list(self.explained_by),
-            "steps": [{"step": i + 1, "named": self.explained_by[i] if i < len(self.explained_by) else None,
-                       "equally_good": list(self.alternatives[i]) if i < len(self.alternatives) else [],
-                       "effects": [eff(r) for r in step]} for i, step in enumerate(self.steps)],
-            "split": self.split,
-            "rule": {"threshold": self.settings.threshold, "occam_tolerance": self.settings.occam_tolerance,
-                     "min_excess_ratio": self.settings.min_excess_ratio,
-                     "placebo_draws": self.settings.placebo_draws, "max_effects": self.settings.max_effects},
-            "captures": [unit_keys(c, u) for c in self.captures],
-            "runtime_s": self.runtime_s,
-            "recommended_model": self.recommended_model,
-            "reconciliation": self.reconciliation,
-            f"heldout_rmse_with_named_effects_{u}": _num(self.heldout_rmse_named),
-            "recommended_model_options": self.recommended_options,
-            "resolution": unit_keys(self.resolution, u) if self.resolution is not None else None,
-        })
+    split_choice: SplitChoice | None = field(repr=False, compare=False, default=None)  # the hold-out, as a record
 
     @property
     def reconciliation(self) -> list[dict]:
@@ -312,7 +268,8 @@ class Diagnosis:
         step-1 candidate whose first-order signature explains at least a quarter of the gap above
         the noise but that was not named — its held-out reduction, and whether the named effects
         already explain what its signature matched (a shared shape) or the pattern does not carry
-        over to held-out data."""
+        over to held-out data: ``reason`` is ``"shared_shape"``, ``"not_carried_over"`` or ``"other_rule"``
+        (worded by :func:`hystfit.report.diagnose_wording.reconciliation_why`)."""
         out = []
         for r in self.effects:
             if r.effect in self.explained_by or not (r.signature_share >= 0.25):
@@ -323,7 +280,7 @@ class Diagnosis:
             reason = ("shared_shape" if explained else "not_carried_over" if r.reduction < self.settings.threshold
                       else "other_rule")
             out.append({"effect": r.effect, "signature_share": r.signature_share, "reduction": r.reduction,
-                        "why": reconciliation_why(reason, r.reduction, self.settings.threshold)})
+                        "reason": reason})
         return out
 
     @property
@@ -394,11 +351,6 @@ def check_seed(seed) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2 ** 32:
         raise ConfigError(f"diagnose: seed must be an integer in [0, 4294967295]. Got {seed!r} instead.")
     return int(seed)
-
-
-def _num(x):
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -510,10 +462,6 @@ class SplitChoice:
     reason: str
     swept_sources: tuple[str, ...] = ()
 
-    @property
-    def why(self) -> str:
-        return split_why(self.reason, self.swept_sources)
-
 
 def split_choice(captures: Sequence[Capture], swept: Sequence[bool], settings: "DiagnoseSettings",
                  per_condition: bool) -> SplitChoice:
@@ -537,9 +485,9 @@ def split_choice(captures: Sequence[Capture], swept: Sequence[bool], settings: "
 
 def choose_split(captures: Sequence[Capture], swept: Sequence[bool], settings: "DiagnoseSettings",
                  per_condition: bool) -> tuple[str, list[bool], str]:
-    """(kind, held-out flags per capture, why) of the hold-out: :func:`split_choice` as a tuple."""
+    """(kind, held-out flags per capture, reason code) of the hold-out: :func:`split_choice` as a tuple."""
     s = split_choice(captures, swept, settings, per_condition)
-    return s.kind, list(s.held_out), s.why
+    return s.kind, list(s.held_out), s.reason
 
 
 @dataclass(frozen=True)
@@ -623,6 +571,11 @@ def _fit_segments(c: Capture, fit: np.ndarray) -> list[Capture]:
 # Noise floor
 # ----------------------------------------------------------------------------------------------
 
+#: ``noise.method`` of :func:`estimate_noise`: 1.4826·MAD of the third difference of the base residual,
+#: median over the captures (worded by :func:`hystfit.report.diagnose_wording.noise_method_text`; with
+#: ``noise.refined`` the floor was refined with the final model's residual).
+NOISE_METHOD_CODE = "mad_third_difference"
+
 #: Third-order difference with unit gain for white noise: (−1, 3, −3, 1)/√20.
 _D3 = np.array([-1.0, 3.0, -3.0, 1.0]) / math.sqrt(20.0)
 
@@ -684,7 +637,7 @@ def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
     steps = np.concatenate([np.abs(np.diff(c.y)) for c in captures])
     steps = steps[steps > 0]
     q = float(steps.min()) if steps.size else 0.0
-    return {"sigma": sigma, "method": NOISE_METHOD,
+    return {"sigma": sigma, "method": NOISE_METHOD_CODE,
             "per_capture_out": per, "repeatability_out": repeat, "quantization_step_out": q}
 
 
@@ -813,8 +766,7 @@ def _level_section(caps: Sequence[Capture], res: Sequence[np.ndarray]) -> dict:
         for name, sel in (("ascending", asc), ("descending", desc)):
             np.add.at(level_sum[name], lv[sel], r[sel])
             np.add.at(level_n[name], lv[sel], 1)
-    by_level = {"definition": DEFINITIONS["by_level"],
-                "mean_by_level_out": {k: [float(q / n) if n else None for q, n in zip(level_sum[k], level_n[k])]
+    by_level = {"mean_by_level_out": {k: [float(q / n) if n else None for q, n in zip(level_sum[k], level_n[k])]
                                       for k in level_sum}}
     asc, desc = (np.array([np.nan if v is None else v for v in by_level["mean_by_level_out"][k]]) for k in _BRANCHES)
     both = np.isfinite(asc) & np.isfinite(desc)
@@ -844,7 +796,6 @@ def _loop_section(caps: Sequence[Capture], res: Sequence[np.ndarray]) -> dict:
     nr, mr = np.concatenate(near), np.concatenate(mid)
     return {"near_turning_points": {"rmse_out": _rms(nr), "n_samples": int(nr.size)},
             "mid_stroke": {"rmse_out": _rms(mr), "n_samples": int(mr.size)},
-            "definition": DEFINITIONS["by_loop_position"],
             "rmse_by_position_out": {k: [float(math.sqrt(q / n)) if n else None for q, n in zip(pos_sq[k], pos_n[k])]
                                      for k in pos_sq}}
 
@@ -865,7 +816,6 @@ def _time_section(caps: Sequence[Capture], res: Sequence[np.ndarray], periodic: 
     fr, lr = np.concatenate(first), np.concatenate(later)
     return {"first_cycle": {"rmse_out": _rms(fr), "mean_out": float(np.mean(fr)), "n_samples": int(fr.size)},
             "later": {"rmse_out": _rms(lr), "mean_out": float(np.mean(lr)), "n_samples": int(lr.size)},
-            "definition": DEFINITIONS["by_time"],
             "mean_by_tenth_out": [float(s / n) if n else None for s, n in zip(tenth_sum, tenth_n)],
             "rmse_by_tenth_out": [float(math.sqrt(q / n)) if n else None for q, n in zip(tenth_sq, tenth_n)]}
 
@@ -890,7 +840,6 @@ def _band_section(caps: Sequence[Capture], res: Sequence[np.ndarray], sigma: flo
     tot_above = sum(above.values())
     by_band = {k: {"rms_out": math.sqrt(band_tot[k] / n_all), "expected_noise_rms_out": math.sqrt(band_noise[k] / n_all),
                    "share_above_noise": (above[k] / tot_above) if tot_above > 0 else 0.0} for k in band_tot}
-    by_band["definition"] = DEFINITIONS["by_band"]
     return by_band
 
 
@@ -920,9 +869,10 @@ def where_analysis(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
         white-noise expectation in the drift band below f0/2, the fundamental and low harmonics up
         to 5.5 f0, the high harmonics up to 50.5 f0, and broadband above), and ``summary``
         (exponents of the gap vs frequency and amplitude, low/high frequency shares, long-capture
-        ratio, first-cycle ratio) with ``pointers``, plain sentences (the :func:`findings` worded by
-        :mod:`hystfit.report.diagnose_wording`). ``data`` holds arrays for the figures and the
-        ``findings``.
+        ratio, first-cycle ratio). ``data`` holds arrays for the figures and the ``findings``
+        (:func:`findings`; :func:`hystfit.report.diagnose_wording.pointers_text` words them as the
+        ``pointers`` of diagnosis.json). Sections hold numbers only (their ``definition`` sentences
+        are :data:`hystfit.report.diagnose_wording.DEFINITIONS`).
 
         With ``residuals_alone`` (the residuals of the base model fitted to each condition on its
         own), ``by_condition_alone`` and the ``*_alone`` exponents describe the gap *within* a
@@ -952,7 +902,6 @@ def where_analysis(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
         where["by_condition_alone"] = by_condition_alone
     where["summary"] = summary
     found = findings(summary, by_branch, by_loop, sigma)
-    where["pointers"] = pointers_text(found, caps[0].y_unit if caps else "um")
     return where, {"spectra": _spectra(caps, res, periodic), "findings": found}
 
 
@@ -1381,17 +1330,17 @@ def _groups(caps: Sequence[Capture], per_condition: bool) -> tuple[list, list, l
 
 
 def _split_info(split: SplitChoice, caps, views, swept, settings) -> dict:
-    """The ``split`` section of diagnosis.json: the hold-out scheme, why, and per capture what was held out."""
+    """The numbers of the ``split`` section of diagnosis.json: the hold-out scheme and per capture what
+    was held out (``why`` and ``description`` are worded from :class:`SplitChoice` by the report)."""
     per_cap = [{"source": c.source, "fit_samples": int(v.fit.sum()), "heldout_samples": int((~v.fit).sum()),
                 "amplitude_changes": bool(sw), "heldout_whole": bool(h),
                 "split_time_s": float(c.t[v.fit_end - 1]) if v.fit_end else None}
                for c, v, sw, h in zip(caps, views, swept, split.held_out)]
-    out = {"kind": split.kind, "why": split.why}
+    out = {"kind": split.kind}
     if split.kind == "capture":
         out["heldout_captures"] = [c.source for c, h in zip(caps, split.held_out) if h]
     else:
         out["fit_fraction"] = settings.fit_fraction
-    out["description"] = split_description(split.kind, settings.fit_fraction)
     out["per_capture"] = per_cap
     return out
 
@@ -1499,7 +1448,7 @@ def _placebo_gain(ctx: _StepContext, eff: Effect, cache: dict, caps, views, sett
 
 
 def _test_effect(ctx: _StepContext, eff: Effect, placebo: tuple[float, float], step: int, caps, views,
-                 settings: "DiagnoseSettings", unit: str) -> tuple[EffectResult, tuple]:
+                 settings: "DiagnoseSettings") -> tuple[EffectResult, tuple]:
     """``eff`` refitted on top of the current model and scored on held-out data: its
     :class:`EffectResult` and the (state, predictions) of the model with it."""
     pl_best, pl_mean = placebo
@@ -1521,8 +1470,7 @@ def _test_effect(ctx: _StepContext, eff: Effect, placebo: tuple[float, float], s
     ev = Evidence.from_summary(eff.name, ctx.summary, signature_share=share, params=params, heldout_before=before,
                                heldout_after=after, reduction=red, placebo=pl_best)
     result = EffectResult(eff.name, eff.title, step + 1, before, after, ctx.fit_before, fit_after, red, pl_best,
-                          pl_mean, pl_red, efit.n_parameters, share, r2, params, evidence_text(ev, unit), passes,
-                          efit, ev)
+                          pl_mean, pl_red, efit.n_parameters, share, r2, params, ev, passes, efit)
     return result, (st_e, preds_e)
 
 
@@ -1538,7 +1486,7 @@ class _Selection:
 
 
 def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, cands, all_effects,
-                    settings: "DiagnoseSettings", seed: int, unit: str, advance, count_progress: bool,
+                    settings: "DiagnoseSettings", seed: int, advance, count_progress: bool,
                     first_step: int = 0) -> _Selection:
     """The greedy selection of effects for one noise floor (the fits do not depend on it, the
     reductions and the verdict do). ``first_step``: steps already taken (a continuation)."""
@@ -1556,7 +1504,7 @@ def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, ca
         results, states = [], {}
         for eff in remaining:
             placebo = _placebo_gain(ctx, eff, placebo_cache, caps, views, settings, rng)
-            r, states[eff.name] = _test_effect(ctx, eff, placebo, first_step + step, caps, views, settings, unit)
+            r, states[eff.name] = _test_effect(ctx, eff, placebo, first_step + step, caps, views, settings)
             results.append(r)
             if step == 0 and count_progress:
                 advance(f"effect {eff.name}")
@@ -1658,8 +1606,8 @@ def _base_step(caps, d: _Design, fits: list, full_pred: list, sigma: float, sett
     return _Base(state0, pred0, _rmse(pred0, views, "test"), _rmse(pred0, views, "fit"), tuple(calib), calibrated)
 
 
-def _complete_where(where: dict, sigma: float, caps, d: _Design, base: _Base, unit: str) -> list[Finding]:
-    """The split-dependent part of the where-analysis summary, and its findings (returned) and pointers."""
+def _complete_where(where: dict, sigma: float, caps, d: _Design, base: _Base) -> list[Finding]:
+    """The split-dependent part of the where-analysis summary, and its findings (returned)."""
     s = where["summary"]
     ex_fit = _excess(base.fit_before, sigma)
     s["heldout_to_fit_ratio"] = _excess(base.before, sigma) / ex_fit if ex_fit > 0 else None
@@ -1667,9 +1615,7 @@ def _complete_where(where: dict, sigma: float, caps, d: _Design, base: _Base, un
     freqs = [c.frequency_Hz for c in caps if np.isfinite(c.frequency_Hz) and c.frequency_Hz > 0]
     s["drive_frequency_Hz"] = float(np.median(freqs)) if freqs else None
     s["amplitude_changes_within_capture"] = bool(any(d.swept))
-    found = findings(s, where["by_branch"], where["by_loop_position"], sigma)
-    where["pointers"] = pointers_text(found, unit)
-    return found
+    return findings(s, where["by_branch"], where["by_loop_position"], sigma)
 
 
 @dataclass(frozen=True, eq=False)
@@ -1684,8 +1630,7 @@ class _Outcome:
     selection: _Selection
 
 
-def _where_and_select(caps, d: _Design, gap: _Gap, base: _Base, first: tuple[dict, dict], select,
-                      unit: str) -> _Outcome:
+def _where_and_select(caps, d: _Design, gap: _Gap, base: _Base, first: tuple[dict, dict], select) -> _Outcome:
     """The where-analysis and the selection, redone with a refined noise floor when the named effects
     show that the base residual overstated it.
 
@@ -1698,17 +1643,17 @@ def _where_and_select(caps, d: _Design, gap: _Gap, base: _Base, first: tuple[dic
     noise = gap.noise
     sigma = noise["sigma"]
     where, fig_where = first
-    found = _complete_where(where, sigma, caps, d, base, unit)
+    found = _complete_where(where, sigma, caps, d, base)
     sel = select(sigma, where, True)
     if sel.chosen:
         per, refined = _refined_floor(caps, sel.preds, d.periodic, noise, sigma)
         noise["sigma_base_model_out"] = sigma
         noise["sigma_final_model_out"] = refined
         if refined < 0.95 * sigma:
-            noise.update(sigma=refined, per_capture_out=per, refined=True, method=noise["method"] + NOISE_METHOD_REFINED)
+            noise.update(sigma=refined, per_capture_out=per, refined=True)  # ``refined`` qualifies ``method``
             sigma = refined
             where, fig_where = where_analysis(caps, gap.residuals, sigma, d.periodic, gap.residuals_alone)
-            found = _complete_where(where, sigma, caps, d, base, unit)
+            found = _complete_where(where, sigma, caps, d, base)
             sel = select(sigma, where, False)
     noise.setdefault("refined", False)
     return _Outcome(sigma, where, found, fig_where, sel)
@@ -1827,10 +1772,10 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
 
     def select(sigma: float, where: dict, count_progress: bool) -> _Selection:
         return _select_effects(sigma, where, state0=base.state, pred0=base.preds, caps=caps, views=list(d.views),
-                               cands=cands, all_effects=all_effects, settings=settings, seed=seed, unit=unit,
+                               cands=cands, all_effects=all_effects, settings=settings, seed=seed,
                                advance=advance, count_progress=count_progress)
 
-    out = _where_and_select(caps, d, gap, base, first, select, unit)  # 3. where and 4. which, how far
+    out = _where_and_select(caps, d, gap, base, first, select)  # 3. where and 4. which, how far
     advance("verdict")
     sel = out.selection
     res = (resolution_check(caps, d, model, optimizer, seed, gap, sel, out.sigma, settings, executor)
@@ -1841,7 +1786,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
             if not left or first_step >= settings.max_effects:
                 return None
             return _select_effects(out.sigma, out.where, state0=state, pred0=preds, caps=caps, views=list(d.views),
-                                   cands=left, all_effects=all_effects, seed=seed, unit=unit, advance=advance,
+                                   cands=left, all_effects=all_effects, seed=seed, advance=advance,
                                    count_progress=False, first_step=first_step,
                                    settings=replace(settings, max_effects=settings.max_effects - first_step))
         sel = _continue_on_finer_base(res, sel, select_from)
@@ -1854,7 +1799,6 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     found = list(out.findings)
     if base.calibrated:
         found.append(_calibration_finding(caps, base.calibration))
-        out.where.setdefault("pointers", []).append(pointer_text(found[-1], unit))
     figures_data = {"captures": caps, "views": list(d.views), "full_predictions": gap.full_pred,
                     "residuals": gap.residuals, "base_predictions": base.preds, "explained_predictions": sel.preds,
                     "chosen": list(sel.chosen), "spectra": out.fig_where["spectra"], "group_labels": list(d.labels)}
@@ -1866,7 +1810,7 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                      verdict=sel.chosen[0] if sel.chosen else "none", explained_by=sel.chosen,
                      alternatives=sel.alternatives, split=split, captures=_capture_info(caps, d, base.calibration),
                      runtime_s=time.perf_counter() - t_start, figures_data=figures_data, findings=tuple(found),
-                     resolution=resolution)
+                     resolution=resolution, split_choice=d.split)
 
 
 # ----------------------------------------------------------------------------------------------

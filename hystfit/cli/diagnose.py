@@ -66,7 +66,8 @@ def diagnose(
     from ..diagnose import diagnose as run_diagnose
     from ..io import staged_output_dir
     from ..registry import optimizers
-    from ..report.diagnose_report import next_step_line, write_diagnose_outputs
+    from ..report.diagnose_report import diagnosis_document, next_step_line, write_diagnose_outputs
+    from ..report.diagnose_wording import pointers_text
     from ..factory import make_model, make_optimizer
 
     opt_cls = optimizers.get(opt)
@@ -95,7 +96,7 @@ def diagnose(
         stats.add(rec.cell_stats)
     print_cell_summary(stats, cr.describe(), quiet or json_out)
     if json_out:
-        print_json({**d.to_dict(), "params": str(out / "params.json") if d.explained_by else None})
+        print_json({**diagnosis_document(d), "params": str(out / "params.json") if d.explained_by else None})
         return
     if quiet:
         return
@@ -108,7 +109,7 @@ def diagnose(
         table.add_row(r.effect, f"{r.heldout_rmse_before:.4g}", f"{r.heldout_rmse_after:.4g}", f"{r.reduction:.2f}",
                       f"{r.placebo_improvement:.3g}", "yes" if r.eligible else "no")
     stdout.print(table)
-    for p in d.where["pointers"]:
+    for p in pointers_text(d.findings, d.unit):
         stdout.print(f"where: {p}")
     stdout.print(f"explained by (in order): {', '.join(d.explained_by) or 'none'}; report: {out / 'diagnosis.md'}")
     stdout.print(next_step_line(d, out))

@@ -17,11 +17,12 @@ import numpy as np
 from ..diagnose import Diagnosis, EffectResult
 from ..effects import EFFECTS
 from ..io import atomic_write_text
-from ..results import dumps, identify_to_dict
+from ..results import dumps, identify_to_dict, json_safe, schema_header, unit_keys
 from . import plots
 from .plots import _decimate, _decimate_minmax, _new_figure, _save, _stride, display_unit
 from .tables import fmt
-from .diagnose_wording import resolution_text
+from .diagnose_wording import (DEFINITIONS, evidence_text, noise_method_text, pointers_text, reconciliation_why,
+                               resolution_text, split_description, split_why)
 
 #: What each candidate effect means, in one plain sentence.
 PLAIN = {
@@ -557,7 +558,7 @@ def _md_intro(d: Diagnosis, figs: dict[str, str]) -> list[str]:
           + "; ".join(f"`{n}` — {PLAIN[n]}" for n in EFFECTS) + ".",
           (("5. **How far, honestly.** Every fit used only the captures at the lowest and highest drive frequencies; "
             "the captures in between (" + ", ".join(f"`{Path(x).name}`" for x in d.split.get("heldout_captures", [])) + ") were "
-            f"held out whole — {d.split.get('why', '')}. ")
+            f"held out whole — {split_why_text(d)}. ")
            if d.split.get("kind") == "capture" else
            ("5. **How far, honestly.** Every fit used only the first part of each capture: the first "
             f"round({s.fit_fraction:g} × number of cycles) whole cycles of a periodic capture, the first "
@@ -615,7 +616,7 @@ def _md_where(d: Diagnosis, figs: dict[str, str]) -> list[str]:
     u = _u(d.unit)
     w = d.where
     L = ["## 2. Where the model misses", "", "Main findings:", ""]
-    L += [f"- {p}" for p in w["pointers"]] + [""]
+    L += [f"- {p}" for p in pointers_text(d.findings, d.unit)] + [""]
     L += ["### By operating condition", ""]
     rows = [[f"{r['amplitude_V']:g} V, {r['frequency_Hz']:g} Hz", r["rmse_out"], r["excess_rmse_out"],
              "yes" if r["periodic"] else "no"] for r in w["by_condition"]]
@@ -708,7 +709,7 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
             L += ["Evidence per effect:", ""]
             for r in step:
                 failed = [k.replace("_", " ") for k, ok in r.passes.items() if not ok]
-                L += [f"- **{r.effect}** ({PLAIN.get(r.effect, '')}): {r.evidence}."
+                L += [f"- **{r.effect}** ({PLAIN.get(r.effect, '')}): {evidence_text(r.evidence, d.unit)}."
                       + (f" Not named: fails {', '.join(failed)}." if failed else "")]
             L += ["", "(*Signature*: the shape this effect would add to the error to first order — e.g. a lag adds "
                       "a copy of the velocity; its share is how much of the error above the noise that shape alone "
@@ -716,7 +717,7 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
             L += [""]
     if d.resolution is not None:
         L += [resolution_text(d.resolution, d.unit), ""]
-    rec = d.reconciliation
+    rec = reconciliation_document(d)
     if rec:
         L += ["Where the error's shape and the refit disagree:", ""]
         for c in rec:
@@ -782,6 +783,114 @@ def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
             f"--model {d.recommended_model}{opts}")
 
 
+# ----------------------------------------------------------------------------------------------
+# The JSON document
+# ----------------------------------------------------------------------------------------------
+
+
+def _insert(d: dict, key: str, value, after: str | None) -> dict:
+    """``d`` with ``key: value`` placed right after the entry ``after`` (first when None): the prose
+    fields sit where the contract of diagnosis.json has always had them."""
+    items = list(d.items())
+    i = 0 if after is None else [k for k, _ in items].index(after) + 1
+    return dict(items[:i] + [(key, value)] + items[i:])
+
+
+#: The where-analysis sections with a ``definition`` entry, and the entry it follows (None: first).
+_DEFINITION_AFTER = {"by_loop_position": "mid_stroke", "by_level": None, "by_time": "later", "by_band": "broadband"}
+
+
+def where_document(d: Diagnosis) -> dict:
+    """The ``where`` section of diagnosis.json (before the unit renaming): the numbers of
+    :attr:`Diagnosis.where` with each section's ``definition`` and the findings worded as ``pointers``."""
+    w = {k: _insert(v, "definition", DEFINITIONS[k], _DEFINITION_AFTER[k]) if k in _DEFINITION_AFTER else v
+         for k, v in d.where.items()}
+    w["pointers"] = pointers_text(d.findings, d.unit)
+    return w
+
+
+def split_why_text(d: Diagnosis) -> str:
+    """Why the hold-out scheme was chosen (``split.why``), from the diagnosis' :class:`SplitChoice`."""
+    return split_why(d.split_choice.reason, d.split_choice.swept_sources)
+
+
+def split_document(d: Diagnosis) -> dict:
+    """The ``split`` section of diagnosis.json: the numbers of :attr:`Diagnosis.split` with ``why``
+    and ``description`` worded."""
+    kind = d.split["kind"]
+    out = _insert(d.split, "why", split_why_text(d), "kind")
+    return _insert(out, "description", split_description(kind, d.settings.fit_fraction),
+                   "heldout_captures" if kind == "capture" else "fit_fraction")
+
+
+def reconciliation_document(d: Diagnosis) -> list[dict]:
+    """``reconciliation`` of diagnosis.json: :attr:`Diagnosis.reconciliation` with each reason
+    code worded as ``why``."""
+    return [{**{k: v for k, v in c.items() if k != "reason"},
+             "why": reconciliation_why(c["reason"], c["reduction"], d.settings.threshold)}
+            for c in d.reconciliation]
+
+
+def _num(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def effect_document(r: EffectResult, unit: str) -> dict:
+    """One tested effect in diagnosis.json (``effects``, ``steps[].effects``), its evidence worded."""
+    u = unit
+    return {"effect": r.effect, "title": r.title,
+            f"heldout_rmse_before_{u}": _num(r.heldout_rmse_before),
+            f"heldout_rmse_after_{u}": _num(r.heldout_rmse_after),
+            "reduction": _num(r.reduction),
+            f"improvement_{u}": _num(r.improvement),
+            f"placebo_improvement_{u}": _num(r.placebo_improvement),
+            "placebo_reduction": _num(r.placebo_reduction),
+            f"fit_rmse_before_{u}": _num(r.fit_rmse_before),
+            f"fit_rmse_after_{u}": _num(r.fit_rmse_after),
+            "n_parameters": r.n_parameters,
+            "signature_share": _num(r.signature_share),
+            "evidence": evidence_text(r.evidence, u),
+            "params": json_safe(unit_keys(r.params, u)),
+            "passes": dict(r.passes), "eligible": r.eligible}
+
+
+def diagnosis_document(d: Diagnosis) -> dict:
+    """The JSON document ``diagnosis.json`` (schema ``hystfit.diagnosis`` v1; unit-bearing names end
+    in the output unit): the diagnosis' numbers and codes with every prose field worded by
+    :mod:`hystfit.report.diagnose_wording`. Written by :func:`write_diagnose_outputs` and printed by
+    ``hystfit diagnose --json``."""
+    u = d.unit
+    s = d.settings
+    header = schema_header("diagnosis")
+    return json_safe({
+        "schema": header["schema"], "schema_version": header["schema_version"],
+        "base_model": d.base_model, "optimizer": d.optimizer, "mode": d.mode,
+        "seed": d.seed, "units": {"input": "V", "output": u, "time": "s"},
+        f"noise_floor_{u}": d.noise["sigma"],
+        "noise": unit_keys({**d.noise, "method": noise_method_text(d.noise)}, u),
+        "gap": unit_keys(d.gap, u),
+        "where": unit_keys(where_document(d), u),
+        "effects": [effect_document(r, u) for r in d.effects],
+        "verdict": d.verdict,
+        "explained_by": list(d.explained_by),
+        "steps": [{"step": i + 1, "named": d.explained_by[i] if i < len(d.explained_by) else None,
+                   "equally_good": list(d.alternatives[i]) if i < len(d.alternatives) else [],
+                   "effects": [effect_document(r, u) for r in step]} for i, step in enumerate(d.steps)],
+        "split": split_document(d),
+        "rule": {"threshold": s.threshold, "occam_tolerance": s.occam_tolerance,
+                 "min_excess_ratio": s.min_excess_ratio, "placebo_draws": s.placebo_draws,
+                 "max_effects": s.max_effects},
+        "captures": [unit_keys(c, u) for c in d.captures],
+        "runtime_s": d.runtime_s,
+        "recommended_model": d.recommended_model,
+        "reconciliation": reconciliation_document(d),
+        f"heldout_rmse_with_named_effects_{u}": _num(d.heldout_rmse_named),
+        "recommended_model_options": d.recommended_options,
+        "resolution": unit_keys(d.resolution, u) if d.resolution is not None else None,
+    })
+
+
 def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = True,
                            recommended=None) -> dict[str, Path]:
     """Write diagnosis.json, diagnosis.md, (optionally) figures/ and — when effects were named and
@@ -789,7 +898,7 @@ def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = 
     ``hystfit identify`` writes) into ``out_dir`` (which must exist)."""
     out_dir = Path(out_dir)
     paths = {"json": out_dir / "diagnosis.json", "md": out_dir / "diagnosis.md"}
-    atomic_write_text(paths["json"], dumps(d.to_dict()))
+    atomic_write_text(paths["json"], dumps(diagnosis_document(d)))
     figs: dict[str, str] = {}
     if make_figures:
         figs = write_figures(d, out_dir / "figures")

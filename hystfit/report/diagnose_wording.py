@@ -5,7 +5,8 @@ the where-analysis: a kind and its numbers), :class:`hystfit.diagnose.Evidence` 
 signature, fitted parameters and held-out numbers), reason codes of the hold-out split and of the
 reconciliation — and this module turns them into the sentences of ``diagnosis.json`` (``pointers``,
 ``evidence``, ``split.why``, ``split.description``, ``noise.method``, the ``definition`` entries,
-``reconciliation[].why``), of the console and of ``diagnosis.md``. It reads records and plain
+``reconciliation[].why``; :func:`hystfit.report.diagnose_report.diagnosis_document` places them),
+of the console and of ``diagnosis.md``. It reads records and plain
 numbers only and imports nothing from :mod:`hystfit.diagnose`.
 """
 
@@ -24,6 +25,7 @@ __all__ = [
     "NOISE_METHOD",
     "NOISE_METHOD_REFINED",
     "DEFINITIONS",
+    "noise_method_text",
     "split_why",
     "split_description",
     "pointer_text",
@@ -39,6 +41,16 @@ NOISE_METHOD = ("1.4826·MAD of the third difference (−1,3,−3,1)/√20 of th
 #: appended to :data:`NOISE_METHOD` when the floor was refined with the final model's residual.
 NOISE_METHOD_REFINED = ("; per capture the smaller of the estimates from the base model's and from the final "
                         "model's residual (the base residual held fast model error)")
+
+#: ``noise.method`` per method code of :func:`hystfit.diagnose.estimate_noise`.
+NOISE_METHODS = {"mad_third_difference": NOISE_METHOD}
+
+
+def noise_method_text(noise: dict) -> str:
+    """How the noise floor was estimated (``noise.method``), from the ``noise`` section's method code
+    and its ``refined`` flag."""
+    return NOISE_METHODS[noise["method"]] + (NOISE_METHOD_REFINED if noise.get("refined") else "")
+
 
 #: the ``definition`` entries of the where-analysis sections.
 DEFINITIONS = {

@@ -21,7 +21,8 @@ from hystfit.errors import ConfigError, InputError
 from hystfit.models.bw import BoucWen
 from hystfit.models.pi import PI
 from hystfit.optimizers.auto import Auto
-from hystfit.report.diagnose_report import write_diagnose_outputs
+from hystfit.report.diagnose_report import diagnosis_document, where_document, write_diagnose_outputs
+from hystfit.report.diagnose_wording import evidence_text, noise_method_text, pointers_text
 from hystfit.synth import Effects, Plant, raised_cosine, write_capture
 
 SETTINGS = DiagnoseSettings(max_effects=2)
@@ -66,7 +67,7 @@ def test_withheld_effect_is_named(effect, strength, seed):
     assert top.reduction >= 0.5
     assert top.improvement > top.placebo_improvement
     assert top.heldout_rmse_after < top.heldout_rmse_before
-    _check_where(effect, d.where)
+    _check_where(effect, where_document(d))  # the numbers and the worded pointers
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -113,13 +114,20 @@ def test_other_plant_in_nm(effect, tmp_path):
     assert top.effect == effect and top.reduction >= 0.5
     if effect == "dynamics":
         assert top.params["fn_Hz"] == pytest.approx(800.0, rel=0.02)
-    doc = d.to_dict()
+    doc = diagnosis_document(d)
     keys = set(_keys(doc))
     assert {"noise_floor_nm", "rmse_nm", "heldout_rmse_nm", "heldout_rmse_before_nm", "heldout_rmse_after_nm",
             "sigma_nm", "repeatability_nm", "quantization_step_nm"} <= keys
     assert not [k for k in keys if "_um" in k or k.endswith("_out") or "_out_" in k]
     assert doc["noise_floor_nm"] == pytest.approx(4.0, rel=0.05)  # σ = 4 nm, found in nm
     assert all("rmse_nm" in r for r in doc["where"]["by_condition"])
+    # the prose fields are the report's wording of the diagnosis' records, where the contract has them
+    assert doc["noise"]["method"] == noise_method_text(d.noise) and list(doc["noise"])[:2] == ["sigma_nm", "method"]
+    assert doc["effects"][0]["evidence"] == evidence_text(d.effects[0].evidence, "nm")
+    assert doc["where"]["pointers"] == pointers_text(d.findings, "nm") and list(doc["where"])[-1] == "pointers"
+    assert list(doc["where"]["by_level"])[0] == "definition" and "definition" not in d.where["by_level"]
+    assert list(doc["split"])[:2] == ["kind", "why"] and "why" not in d.split
+    assert all(set(c) == {"effect", "signature_share", "reduction", "why"} for c in doc["reconciliation"])
     write_diagnose_outputs(d, tmp_path, make_figures=False)
     md = (tmp_path / "diagnosis.md").read_text()
     assert " nm" in md and "µm" not in md
@@ -173,7 +181,7 @@ def test_any_base_model_bw():
     red = {r.effect: r for r in d.effects}
     assert set(red) == {"dynamics", "creep", "asymmetry", "drift", "delay"}
     assert red["delay"].reduction > 0.3 and red["delay"].heldout_rmse_after < red["delay"].heldout_rmse_before
-    json.dumps(d.to_dict(), allow_nan=False)
+    json.dumps(diagnosis_document(d), allow_nan=False)
 
 
 def test_per_condition_mode_and_effect_subset():
@@ -222,7 +230,7 @@ def test_choose_effect_prefers_the_simpler_of_equals():
     from hystfit.diagnose import EffectResult
 
     def res(name, red, n, ok=True):
-        return EffectResult(name, name, 1, 1.0, 1.0 - red, 1.0, 1.0, red, 0.0, 0.0, 0.0, n, 0.0, 0.0, {}, "",
+        return EffectResult(name, name, 1, 1.0, 1.0 - red, 1.0, 1.0, red, 0.0, 0.0, 0.0, n, 0.0, 0.0, {}, None,
                             {"a": ok})
 
     s = DiagnoseSettings()

@@ -7,9 +7,11 @@ import pytest
 
 from hystfit import synth
 from hystfit.capture import Capture
-from hystfit.diagnose import DiagnoseSettings, choose_split, diagnose, is_swept
+from hystfit.diagnose import DiagnoseSettings, choose_split, diagnose, is_swept, split_choice
 from hystfit.errors import ConfigError
 from hystfit.registry import optimizers
+from hystfit.report.diagnose_report import diagnosis_document
+from hystfit.report.diagnose_wording import pointers_text, split_why
 from hystfit.factory import make_model, make_optimizer
 
 DT = 1e-4
@@ -37,8 +39,10 @@ def test_rising_amplitude_is_detected_and_stationary_drive_is_not():
 def test_auto_split_holds_out_interior_frequencies_only_when_the_drive_changes():
     caps = _rising(synth.Effects(noise=True), cycles=8)
     swept = [is_swept(c.u, c.dt, c.frequency_Hz) for c in caps]
-    kind, held, why = choose_split(caps, swept, DiagnoseSettings(), per_condition=False)
-    assert kind == "capture" and held == [False, True, False] and "changes within the capture" in why
+    kind, held, reason = choose_split(caps, swept, DiagnoseSettings(), per_condition=False)
+    assert kind == "capture" and held == [False, True, False] and reason == "swept"
+    s = split_choice(caps, swept, DiagnoseSettings(), per_condition=False)
+    assert "changes within the capture" in split_why(s.reason, s.swept_sources)
     assert choose_split(caps, swept, DiagnoseSettings(), per_condition=True)[0] == "temporal"
     assert choose_split(caps, [False] * 3, DiagnoseSettings(), per_condition=False)[0] == "temporal"
     with pytest.raises(ConfigError, match="three or more drive"):
@@ -68,7 +72,7 @@ def test_rising_sines_without_effects_name_nothing():
                  make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=2))
     assert d.split["kind"] == "capture"
     assert d.explained_by == () and d.verdict == "none"
-    assert not any("later time" in p for p in d.where["pointers"])
+    assert not any("later time" in p for p in pointers_text(d.findings, d.unit))
 
 
 def test_hammerstein_is_prepared_once_from_all_captures():
@@ -95,8 +99,8 @@ def test_a_re_zeroed_and_re_scaled_sensor_is_calibration_not_an_effect():
     assert all(c["calibration_differs"] for c in d.captures)
     gains = [c["gain"] for c in d.captures]
     assert max(gains) / min(gains) == pytest.approx(1.03, rel=0.005)
-    assert any("per-capture calibration" in p for p in d.where["pointers"])
-    assert "offset_um" in d.to_dict()["captures"][0]
+    assert any("per-capture calibration" in p for p in pointers_text(d.findings, d.unit))
+    assert "offset_um" in diagnosis_document(d)["captures"][0]
 
 
 @pytest.mark.slow
@@ -112,9 +116,9 @@ def test_rising_sines_with_three_effects_name_all_three_on_a_base_of_adequate_re
     r = d.resolution
     assert r is not None and r["adopted"] and (r["option"], r["from"], r["to"]) == ("n_operators", 10, 20)
     assert r["heldout_rmse_after_out"] < 0.7 * r["heldout_rmse_before_out"]
-    assert d.to_dict()["resolution"]["heldout_rmse_after_um"] == r["heldout_rmse_after_out"]
+    assert diagnosis_document(d)["resolution"]["heldout_rmse_after_um"] == r["heldout_rmse_after_out"]
     assert d.recommended_options == {"n_operators": 20}
-    assert d.to_dict()["recommended_model_options"] == {"n_operators": 20}
+    assert diagnosis_document(d)["recommended_model_options"] == {"n_operators": 20}
     assert d.heldout_rmse_named < r["heldout_rmse_after_out"]  # creep removes part of what is left
     assert [s[0].step for s in d.steps] == list(range(1, len(d.steps) + 1))
 
@@ -124,7 +128,7 @@ def test_no_resolution_check_for_a_fixed_structure_or_when_switched_off():
     fixed = make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)})
     assert fixed.refined() is None
     d = diagnose(caps, fixed, make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=1))
-    assert d.resolution is None and d.to_dict()["resolution"] is None and d.recommended_options == {}
+    assert d.resolution is None and diagnosis_document(d)["resolution"] is None and d.recommended_options == {}
     d = diagnose(caps, make_model("pi"), make_optimizer(optimizers.get("auto")),
                  settings=DiagnoseSettings(max_effects=1, resolution_check=False))
     assert d.resolution is None

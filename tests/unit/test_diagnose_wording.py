@@ -62,10 +62,43 @@ def test_split_choice_reason_codes():
     s = split_choice(caps, [False, True, False], DiagnoseSettings(), per_condition=False)
     assert (s.kind, s.held_out, s.reason, s.swept_sources) == ("capture", (False, True, False), "swept", ("c20.csv",))
     assert choose_split(caps, [False, True, False], DiagnoseSettings(), False) == ("capture", [False, True, False],
-                                                                                    s.why)
-    assert split_choice(caps, [False] * 3, DiagnoseSettings(), False).why == split_why("stationary")
+                                                                                    "swept")
+    assert split_choice(caps, [False] * 3, DiagnoseSettings(), False).reason == "stationary"
+    assert split_why(s.reason, s.swept_sources).startswith("the amplitude of c20.csv changes within the capture")
     assert "changes within the capture" in split_why("swept", ["a.csv"])
     assert "round(0.6 × cycles)" in split_description("temporal", 0.6)
     assert "(reduction 0.12 < 0.3)" in reconciliation_why("not_carried_over", 0.12, 0.3)
     with pytest.raises(KeyError):
         split_why("unknown")
+
+
+def test_noise_method_is_a_code_worded_by_the_report():
+    from hystfit.diagnose import NOISE_METHOD_CODE
+    from hystfit.report.diagnose_wording import NOISE_METHOD, NOISE_METHOD_REFINED, noise_method_text
+
+    assert noise_method_text({"method": NOISE_METHOD_CODE, "refined": False}) == NOISE_METHOD
+    assert noise_method_text({"method": NOISE_METHOD_CODE, "refined": True}) == NOISE_METHOD + NOISE_METHOD_REFINED
+    with pytest.raises(KeyError):
+        noise_method_text({"method": "unknown"})
+
+
+def test_prose_is_inserted_where_the_contract_has_it():
+    from hystfit.report.diagnose_report import _insert
+
+    d = {"kind": "temporal", "fit_fraction": 0.6, "per_capture": []}
+    assert list(_insert(d, "why", "w", "kind")) == ["kind", "why", "fit_fraction", "per_capture"]
+    assert list(_insert(d, "definition", "x", None)) == ["definition", "kind", "fit_fraction", "per_capture"]
+    assert list(_insert(d, "z", 1, "per_capture"))[-1] == "z" and list(d) == ["kind", "fit_fraction", "per_capture"]
+
+
+def test_orchestration_imports_nothing_from_report():
+    """Data flow one way (issue 12): hystfit.diagnose holds numbers, codes and records; report words them."""
+    import ast
+    from pathlib import Path
+
+    import hystfit.diagnose as mod
+
+    tree = ast.parse(Path(mod.__file__).read_text())
+    imported = [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+    imported += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    assert not [m for m in imported if "report" in m.split(".")]
