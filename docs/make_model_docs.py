@@ -19,6 +19,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hystfit.models.base import Model  # noqa: E402
 from hystfit.io import atomic_write_text  # noqa: E402
 from hystfit.params import DataScale  # noqa: E402
 from hystfit.references import PAPERS, cite  # noqa: E402
@@ -55,7 +56,7 @@ def main(argv: list[str] | None = None) -> list[Path]:
     for name in models.names():
         cls = models.get(name)
         # models whose structure is identified from data (hammerstein's linear part) show an example
-        model = cls.example(scale) if hasattr(cls, "example") else cls().adapt(scale)
+        model = cls.example(scale)
         params = model.params(scale)
         theta = np.array([p.default for p in params])
         y = model.simulate_one(theta, u, 1 / FS)
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> list[Path]:
                          f"{p.default:.4g} | {p.description} |")
         lines += ["", f"Inverse: {'model-specific' if 'invert' in cls.__dict__ else 'per-sample numerical (generic)'}; "
                   f"rate dependent: {'yes' if cls.rate_dependent else 'no'}.", ""]
-        if hasattr(cls, "example"):
+        if cls.example.__func__ is not Model.example.__func__:  # a structure identified from data
             lines += [f"The figure uses the example structure `{cls.__name__}.example(scale)`; in use the "
                       "structure is identified from the captures.", ""]
         lines += [f"![{name} loop](figures/model_{name}.png)", ""]
