@@ -37,14 +37,18 @@ from typing import Callable, ClassVar, Optional, Sequence
 import numpy as np
 
 from .capture import Capture
-from .conditions import condition_label, group_by_condition
+from .cells import cell_key
+from .conditions import condition_label, detect_condition, group_by_condition
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Linearization, Placebo, make_effect,
                       signature_share, solve_coefficients)
 from .errors import ConfigError, InputError, NoResultError
-from .identify import fit_captures, prepare_shared
+from .factory import make_model
+from .identify import fit_captures, identify, prepare_shared
 from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
+from .parallel import CellFailed, run_cells
+from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
 
 __all__ = [
     "DiagnoseSettings",
@@ -335,8 +339,6 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
 
     Returns the :class:`hystfit.identify.IdentifyResult`, or None when nothing was named.
     """
-    from .identify import identify
-    from .factory import make_model
 
     if not d.explained_by:
         return None
@@ -1266,8 +1268,6 @@ def _base_fit_job(shared: tuple, job: tuple):
 def _base_fits(jobs: list, n_groups: int, model: Model, optimizer: Optimizer, seed: int, executor, store,
                resume: bool, advance: Callable[[str], None], stats=None) -> list:
     """The base fits of :func:`diagnose` as cells of ``executor`` (resumable with ``store``), in job order."""
-    from .cells import cell_key
-    from .parallel import CellFailed, run_cells
 
     keys = None
     if store is not None:
@@ -1826,7 +1826,6 @@ def one_effect(effect: str, strength: float = 1.0, defaults=None):
     and the drift rate and amplitude, and divides the stage's natural frequency. With the default
     ``defaults`` this equals ``Effects.only(effect, strength)``.
     """
-    from .synth import Effects
 
     base = Effects() if defaults is None else defaults
     flags = {n: False for n in ("asymmetry", "creep", "dynamics", "delay", "drift", "noise", "quantization")}
@@ -1863,8 +1862,6 @@ def withheld_effect_captures(effect: str, strength: float = 1.0, seed: int = 0, 
     amplitude (slow effects need long data), in the plant's output unit.
     Each capture draws its noise from its own seed derived from ``seed``.
     """
-    from .conditions import detect_condition
-    from .synth import Plant, raised_cosine, simulate_plant, step_pattern
 
     plant = Plant() if plant is None else plant
     e = one_effect(effect, strength, plant.effects)

@@ -24,6 +24,7 @@ import dataclasses
 import io as _stdio
 import json
 import math
+import csv
 import os
 import re
 import secrets
@@ -428,7 +429,6 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
     delim = _sniff(lines[:50])
     if delim is None:
         return None
-    import csv
 
     first = next(csv.reader([lines[0]], delimiter=delim))
     ncols = len(first)

@@ -24,11 +24,17 @@ again the result is a :class:`CellFailed` and the batch goes on.
 
 from __future__ import annotations
 
+import logging
+import multiprocessing as mp
 import os
 import signal
+import sys
+import threading
 import time
 import traceback
 from abc import ABC, abstractmethod
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Optional, Sequence, TypeVar
@@ -143,9 +149,8 @@ def _call_pool(fn: Callable, job: Any) -> Any:
 
 
 def _hystfit_version() -> str:
-    from . import __version__
-
-    return __version__
+    """The running hystfit's version, read at call time (a worker reports its own)."""
+    return sys.modules[__package__].__version__
 
 
 def _call_dask(fn: Callable, shared: Any, job: Any) -> Any:
@@ -212,9 +217,6 @@ class LocalExecutor(Executor):
             for i, job in items:
                 yield i, _inline(fn, shared, job)
             return
-        import multiprocessing as mp
-        from concurrent.futures import FIRST_COMPLETED, wait
-        from concurrent.futures.process import BrokenProcessPool
 
         n = min(self.workers, len(items))
         queue = list(items)[::-1]  # pop() takes the next cell in job order
@@ -279,7 +281,6 @@ class _ProcessPool:
     """Lazy import wrapper: ``concurrent.futures.ProcessPoolExecutor``."""
 
     def __new__(cls, **kw):
-        from concurrent.futures import ProcessPoolExecutor
 
         return ProcessPoolExecutor(**kw)
 
@@ -305,7 +306,6 @@ def _stop_now(ex) -> None:
 @contextmanager
 def _sigint_ignored():
     """SIGINT ignored while child processes are started (they inherit it); a no-op off the main thread."""
-    import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -335,7 +335,6 @@ class DaskExecutor(Executor):
     def __init__(self, jobs: int | None = None, scheduler: str | None = None) -> None:
         super().__init__()
         distributed = _import_distributed()
-        import logging
 
         import dask
 
@@ -363,8 +362,7 @@ class DaskExecutor(Executor):
 
     def _check_workers(self, scheduler: str) -> None:
         """Every worker of an existing cluster runs this hystfit version (the cells' code and keys)."""
-        from . import __version__
-
+        __version__ = _hystfit_version()
         try:
             versions = self.client.run(_hystfit_version)
         except Exception as exc:  # noqa: BLE001 - e.g. hystfit not importable on a worker

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .capture import Capture
-from .invert import clamp_note, extrapolated_cells, extrapolation_note, select_cells
+from .invert import CellUse, clamp_note, extrapolated_cells, extrapolation_note, select_cells
 from .metrics import compute_metrics
 from .results import ParamsFile
 
@@ -78,7 +78,6 @@ def _has_condition(capture: Capture) -> bool:
 
 def _no_condition(pf: ParamsFile):
     """A capture without an operating condition (e.g. broadband): the table's first cell, as before."""
-    from .invert import CellUse
 
     c = pf.cells[0]
     return (CellUse(0, c.label, c.amplitude_V, c.frequency_Hz, 1.0),), (c.amplitude_V, c.frequency_Hz), False

@@ -7,6 +7,7 @@ the docs and the contract tests all read from here. A duplicate name is an error
 
 from __future__ import annotations
 
+import importlib
 from typing import Generic, Iterator, TypeVar
 
 from .errors import ConfigError
@@ -64,7 +65,6 @@ def _load_builtin() -> None:
     if _loaded:
         return
     _loaded = True
-    import importlib
 
     importlib.import_module(f"{__package__}.models")
     importlib.import_module(f"{__package__}.optimizers")

@@ -25,6 +25,7 @@ import numpy as np
 from ..blocks.base import Block
 from ..errors import ConfigError
 from ..params import DataScale, Param, with_output_unit
+from .. import registry
 from .base import Model
 from .separable import Separable
 
@@ -268,8 +269,7 @@ def build_model(expr: str, options: Mapping[str, Any] | None = None, *, builder=
     blocks, a block name as base and options of absent blocks are :class:`ConfigError` s that list
     the valid choices.
     """
-    from ..registry import blocks as block_registry, models as model_registry
-
+    block_registry, model_registry = registry.blocks, registry.models  # looked up per call (swappable)
     base_name, block_names = split_expression(expr)
     if base_name in block_registry and base_name not in model_registry:
         raise ConfigError(f"model expression {expr!r}: {base_name!r} is a block; the expression starts with a "
@@ -303,8 +303,7 @@ def build_model(expr: str, options: Mapping[str, Any] | None = None, *, builder=
 
 def model_from_structure(expr: str, structure: Mapping[str, Any]) -> Model:
     """Rebuild a saved model: ``expr`` as written in params.json, ``structure`` its ``model_structure``."""
-    from ..registry import blocks as block_registry, models as model_registry
-
+    block_registry, model_registry = registry.blocks, registry.models  # looked up per call (swappable)
     base_name, block_names = split_expression(expr)
     if not block_names:
         return model_registry.get(base_name).from_structure(dict(structure))

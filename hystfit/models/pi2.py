@@ -11,12 +11,14 @@ import numpy as np
 from .._jit import njit, prange
 from .._lazy import lazy_module
 from ..blocks.base import captures_at_one_rate
-from ..blocks.dynamics import bilinear_biquad, biquad_columns, fn_search_range, invert_second_order
+from ..blocks.dynamics import Dynamics, bilinear_biquad, biquad_columns, fn_search_range, invert_second_order
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
 from ..registry import models
 from ._kernels import PARALLEL_MIN_POP, candidate_block, play_matrix, store_sums, thread_blocks
 from .base import Model
+from .composite import Composite
+from .pi import PI
 from .separable import scaled_response
 from .gpi import GPI, gpi_operators, gpi_sample
 
@@ -271,9 +273,6 @@ class PI2(Model):
         has ``thresholds_V``): that model is now the expression ``pi+dynamics``, with the same θ
         order (w0 … w{n−1}, y0, f_n, ζ) and the same numbers, and is returned as such."""
         if "thresholds_V" in data or "placement" in data:
-            from ..blocks.dynamics import Dynamics
-            from .composite import Composite
-            from .pi import PI
 
             legacy = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
             return Composite(PI(**legacy), (Dynamics(),))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Sequence
 
 import numpy as np
@@ -79,7 +79,6 @@ def distinct_names(paths: Sequence[str]) -> list[str]:
     ``["a/x/cap.csv", "b/x/cap.csv", "c.csv"]`` → ``["a/x/cap.csv", "b/x/cap.csv", "c.csv"]``;
     ``["day1/cap.csv", "day2/cap.csv"]`` → ``["day1/cap.csv", "day2/cap.csv"]``.
     """
-    from pathlib import PurePath
 
     parts = [PurePath(p).parts for p in paths]
     out = []
