@@ -57,6 +57,12 @@ SCHEMAS = {
 }
 
 
+def schema_fields(kind: str) -> dict[str, Any]:
+    """``{"schema", "schema_version"}`` of a JSON output of kind ``kind`` (see :data:`SCHEMAS`)."""
+    name, version = SCHEMAS[kind]
+    return {"schema": name, "schema_version": version}
+
+
 def schema_header(kind: str) -> dict[str, Any]:
     """``{"schema", "schema_version", "tool"}`` of a JSON output of kind ``kind`` (see :data:`SCHEMAS`)."""
     name, version = SCHEMAS[kind]

@@ -17,7 +17,7 @@ import numpy as np
 from ..diagnose import Diagnosis, EffectResult
 from ..effects import EFFECTS
 from ..io import atomic_write_text
-from ..results import dumps, identify_to_dict, json_safe, schema_header, unit_keys
+from ..results import dumps, identify_to_dict, json_safe, schema_fields, unit_keys
 from . import plots
 from .plots import _decimate, _decimate_minmax, _new_figure, _save, _stride, display_unit
 from .tables import fmt
@@ -862,9 +862,8 @@ def diagnosis_document(d: Diagnosis) -> dict:
     ``hystfit diagnose --json``."""
     u = d.unit
     s = d.settings
-    header = schema_header("diagnosis")
     return json_safe({
-        "schema": header["schema"], "schema_version": header["schema_version"],
+        **schema_fields("diagnosis"),
         "base_model": d.base_model, "optimizer": d.optimizer, "mode": d.mode,
         "seed": d.seed, "units": {"input": "V", "output": u, "time": "s"},
         f"noise_floor_{u}": d.noise["sigma"],

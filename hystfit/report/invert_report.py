@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 
 from ..invert import InversionResult, Span, condition_text
 from ..io import atomic_write_bytes, atomic_write_text
-from ..results import dumps, json_safe
+from ..results import dumps, json_safe, schema_fields
 from .plots import MAX_POINTS, display_unit
 from .tables import fmt, notes_and_figures
 
@@ -223,7 +223,7 @@ def invert_summary(res: InversionResult) -> dict:
                      "metrics": m})
     v = res.voltage_V
     return json_safe({
-        "schema": "hystfit.invert", "schema_version": 1,
+        **schema_fields("invert"),
         "params": res.params_path, "model": res.model_name, "units": {"output": u, "input": "V", "time": "s"},
         "target": {"description": tg.description, "kind": tg.kind, "samples": tg.n, "fs_Hz": tg.fs,
                    "duration_s": tg.n * tg.dt, f"stroke_{u}": tg.stroke, f"min_{u}": float(tg.y.min()),

@@ -8,7 +8,7 @@ import pandas as pd
 
 from ..invert import condition_text
 from ..io import atomic_write_text, write_table
-from ..results import dumps, json_safe
+from ..results import dumps, json_safe, schema_fields
 from ..track import TrackResult
 from .invert_report import (detail_windows, error_comparison_figure, invert_summary, span_dicts, span_table,
                             tracking_detail_figure, tracking_figure)
@@ -34,7 +34,7 @@ def track_summary(res: TrackResult) -> dict:
                      "details": run.details})
     nom = res.nominal
     return json_safe({
-        "schema": "hystfit.track", "schema_version": 1,
+        **schema_fields("track"),
         "params": res.params_path, "plant": res.plant_path, "model": res.model_name,
         "plant_model": res.plant_model_name, "units": {"output": u, "input": "V", "time": "s"},
         "target": inv["target"], "initial_voltage": inv["initial_voltage"], "limits": res.limits,
