@@ -89,11 +89,13 @@ def cells_done(out: Path) -> int:
     return len(list(d.glob("*.pkl"))) if d.is_dir() else 0
 
 
-def interrupted(cmd, out: Path, at: int, sig: int) -> float:
-    """Start ``cmd``, send ``sig`` to its process group once ``at`` cells are stored; its wall time."""
+def interrupted(cmd, out: Path, at: int, sig: int, at_s: float | None = None) -> float:
+    """Start ``cmd``, send ``sig`` to its process group once ``at_s`` seconds have passed (half the
+    uninterrupted run's wall time: half of the work, whatever the cells cost) or, without it, once
+    ``at`` cells are stored; its wall time."""
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    while p.poll() is None and cells_done(out) < at:
+    while p.poll() is None and (time.perf_counter() - t0 < at_s if at_s is not None else cells_done(out) < at):
         time.sleep(0.2)
     os.killpg(p.pid, sig)
     code = p.wait()
@@ -129,6 +131,7 @@ def main() -> None:
         print("| step | wall time (s) | cells stage (s) | cells/s in it | reused | driver peak RSS (MB) | "
               "compare.csv = local |\n|---|---:|---:|---:|---:|---:|---|", flush=True)
         ref = tmp / "local"
+        w_ref = None  # wall time of the uninterrupted local run (the reference)
         for k in range(args.repeat):
             for executor in ("local", "dask"):
                 if executor == "dask" and "dask" in skip:
@@ -136,6 +139,8 @@ def main() -> None:
                 out = ref if executor == "local" and k == 0 else tmp / f"{executor}-{k}"
                 w, code, so, se = run(command(files, out, args, executor))
                 assert code == 0, se[-2000:]
+                if out == ref:
+                    w_ref = w
                 stage = json.loads(so)["cell_counts"]["wall_time_s"]  # the cells alone: no start-up, loading, writing
                 name = "local pool" if executor == "local" else f"dask LocalCluster ({args.jobs} workers)"
                 same = "(reference)" if out == ref else "identical" if same_numbers(ref, out) else "DIFFERENT"
@@ -145,13 +150,15 @@ def main() -> None:
             if name.lower() in skip:
                 continue
             out = tmp / name
-            w1 = interrupted(command(files, out, args), out, n_cells // 2, sig)
+            w1 = interrupted(command(files, out, args), out, n_cells // 2, sig,
+                             None if w_ref is None else 0.5 * w_ref)
             kept = cells_done(out)
             w2, code, so, se = run(command(files, out, args, resume=True))
             assert code == 0, se[-2000:]
             reused = json.loads(so)["cell_counts"]["reused"]
             stage = json.loads(so)["cell_counts"]["wall_time_s"]
-            print(f"| {name} after {w1:.1f} s ({kept} cells stored), then --resume | {w2:.1f} | {stage:.1f} | "
+            share = "" if w_ref is None else f" ({w2 / w_ref:.0%} of the uninterrupted run)"
+            print(f"| {name} after {w1:.1f} s ({kept} cells stored), then --resume | {w2:.1f}{share} | {stage:.1f} | "
                   f"{(n_cells - reused) / stage:.2f} | {reused} | {peak_mb(se):.0f} | "
                   f"{'identical' if same_numbers(ref, out) else 'DIFFERENT'} |", flush=True)
         if "memory" not in skip:
