@@ -6,6 +6,7 @@ concatenated into one simulation) and the squared errors are summed over all sam
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -48,7 +49,7 @@ def _projected(sim, Q: np.ndarray, skip: int):
     return lambda theta: _project(np.asarray(sim(theta), dtype=np.float64), Q, skip)
 
 
-class ObjectiveFunction:
+class ObjectiveFunction(ABC):
     """The contract between an objective and the optimizers: what an optimizer may ask of it.
 
     Required: ``__call__(θ (P, d)) → (P,)`` scores (mean squared error) of a population. Optional
@@ -70,8 +71,9 @@ class ObjectiveFunction:
     jacobian = None
     normal_equations = None
 
+    @abstractmethod
     def __call__(self, theta: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
+        """Scores (mean squared error) of a population θ (P, d) → (P,)."""
 
 
 class CallableObjective(ObjectiveFunction):
