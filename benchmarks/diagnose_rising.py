@@ -56,6 +56,17 @@ def main() -> None:
                   f"{', '.join(d['explained_by']) or 'none'}; other scheme names "
                   f"{', '.join(other.get('explained_by', [])) or 'none'} (agrees: {other.get('agrees')}); step-1 "
                   "reductions " + ", ".join(f"{e['effect']} {e['reduction']:.2f}" for e in d["effects"]))
+            r = d.get("resolution")
+            if r is not None:
+                print(f"  resolution check: {r['option']} {r['from']} → {r['to']} with {' + '.join(r['effects']) or 'no effect'}: "
+                      f"held-out {r['heldout_rmse_before_um']:.4f} → {r['heldout_rmse_after_um']:.4f} µm, reduction "
+                      f"{r['reduction']:.2f}, adopted: {r['adopted']}")
+            for s in d["steps"][1:]:
+                print(f"  step {s['step']}: " + ", ".join(f"{e['effect']} {e['reduction']:.2f}" for e in s["effects"])
+                      + f" → named {s['named'] or 'none'}")
+            print(f"  held-out RMSE with the named effects {d['heldout_rmse_with_named_effects_um']:.4f} µm "
+                  f"(noise floor {d['noise_floor_um']:.4f} µm); next: --model {d['recommended_model']}"
+                  + "".join(f" --model-option {k}={v}" for k, v in d.get("recommended_model_options", {}).items()))
     finally:
         if args.keep is None:
             shutil.rmtree(root, ignore_errors=True)
