@@ -129,12 +129,30 @@ def detect_condition(u: np.ndarray, dt: float) -> ConditionKey:
 STATIONARY_RATIO = 1.3
 
 
+def _crossings(x: np.ndarray) -> int:
+    """Crossings of ``x`` through its own straight-line trend (least squares), with a hysteresis
+    band of three times its sample noise (a Schmitt trigger). Measured about the trend, every third
+    of a capture is measured about its own centre: a one-sided rising sine 0 → A(t) has a centre
+    A(t)/2 that rises with it and crosses the whole capture's mean only once its amplitude has
+    grown. The band keeps noise chattering about the level from being counted; the noise is the
+    robust spread (median absolute deviation) of the third difference, which a drive sampled
+    finely passes almost unchanged."""
+    k = np.arange(x.size, dtype=np.float64)
+    slope, icept = np.polyfit(k, x, 1)
+    e = x - (slope * k + icept)
+    d3 = np.diff(e, 3)
+    half = 3.0 * 1.4826 * float(np.median(np.abs(d3 - np.median(d3)))) / math.sqrt(20.0) if d3.size else 0.0
+    side = np.where(e > half, 1, np.where(e < -half, -1, 0))
+    side = side[side != 0]
+    return int(np.count_nonzero(side[1:] != side[:-1]))
+
+
 def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str]:
     """Warnings for a capture whose amplitude or frequency changes along it (rising sines, sweeps).
 
     One condition (a look-up-table cell) stands for one stationary drive. The input's
-    peak-to-peak and its rate of mean crossings are compared between the first and the last third
-    of the capture; a ratio above :data:`STATIONARY_RATIO` means the capture mixes conditions.
+    peak-to-peak and its rate of crossings through its own mean (:func:`_crossings`) are compared
+    between the first and the last third of the capture; a ratio above :data:`STATIONARY_RATIO` means the capture mixes conditions.
     Stationary broadband inputs (PRBS) have the same range and crossing rate in every third and
     are not flagged.
 
@@ -156,9 +174,8 @@ def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str
                    f"{pp[1]:.3g} V in the last): it is not one operating condition, and its label {label} (the full "
                    "range) holds only where the drive is largest; cut a stationary part with --start/--stop or name "
                    "it with --condition")
-    mean = float(u.mean())
-    rates = [np.count_nonzero(np.diff(np.signbit(x - mean))) / (x.size * dt) for x in thirds]
-    crossings = [np.count_nonzero(np.diff(np.signbit(x - mean))) for x in thirds]
+    crossings = [_crossings(x) for x in thirds]
+    rates = [k / (x.size * dt) for k, x in zip(crossings, thirds)]
     if min(crossings) >= 4 and max(rates) / max(min(rates), 1e-300) > STATIONARY_RATIO:
         out.append(f"the frequency changes along the capture (about {rates[0] / 2:.3g} Hz in the first third, "
                    f"{rates[1] / 2:.3g} Hz in the last, from mean crossings): it is not one operating condition, "

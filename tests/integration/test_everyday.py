@@ -319,6 +319,24 @@ def test_rising_amplitude_and_sweep_are_warned(tmp_path):
     assert r.exit_code == 0 and "warning: crest.csv: the amplitude changes" in r.stderr
 
 
+def test_a_rising_amplitude_sine_is_not_called_a_frequency_change(tmp_path):
+    """A one-sided rising sine 0 → A(t) at one frequency: each third is measured about its own
+    centre, so only the amplitude is warned about, with or without noise on the drive (a sweep
+    still is: the test above)."""
+    import numpy as np
+
+    from hystfit.io import load_capture
+
+    dt = 1e-4
+    t = np.arange(0, 1.25, dt)
+    crest = 90 * (t / t[-1]) * (0.5 - 0.5 * np.cos(2 * np.pi * 40 * t))
+    noisy = crest + 0.05 * np.random.default_rng(0).standard_normal(t.size)
+    for name, u in (("rising.csv", crest), ("rising_noisy.csv", noisy)):
+        notes = load_capture(_write(tmp_path / name, t, u, 0.1 * u)).notes
+        assert any(n.startswith("warning: the amplitude changes") for n in notes), name
+        assert not any(n.startswith("warning: the frequency changes") for n in notes), (name, notes)
+
+
 def test_stationary_captures_are_not_warned():
     from hystfit.io import load_capture
 
