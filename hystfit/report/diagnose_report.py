@@ -22,7 +22,8 @@ from . import plots
 from .plots import _decimate, _decimate_minmax, _new_figure, _save, _stride, display_unit
 from .tables import fmt
 from .diagnose_wording import (DEFINITIONS, evidence_text, noise_method_text, pointers_text, reconciliation_why,
-                               resolution_text, split_description, split_why)
+                               resolution_text, split_description, split_why,
+                               converged_text, joint_text)
 
 #: What each candidate effect means, in one plain sentence.
 PLAIN = {
@@ -694,6 +695,8 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
     """Report section: 3. which effect."""
     u = _u(d.unit)
     L = ["## 3. Which effect: every candidate tested", ""]
+    if d.resolution_before_effects is not None:
+        L += [converged_text(d.resolution_before_effects, d.unit), ""]
     for i, step in enumerate(d.steps):
         title = "Step 1 — on top of the base model" if i == 0 else \
             f"Step {i + 1} — on top of the base model + {' + '.join(d.explained_by[:i])}"
@@ -705,12 +708,16 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
                          "**yes**" if r.eligible else "no"])
         L += _table(["effect", f"held-out before ({u})", f"after ({u})", "reduction", f"placebo gain ({u})",
                      "parameters", "fitted values", "passes the rule"], rows) + [""]
+        if i > 0:
+            L += [joint_text(r.effect, r.joint, d.unit).strip() for r in step if r.joint is not None]
+            L += [""] if any(r.joint is not None for r in step) else []
         if i == 0:
             L += ["Evidence per effect:", ""]
             for r in step:
                 failed = [k.replace("_", " ") for k, ok in r.passes.items() if not ok]
                 L += [f"- **{r.effect}** ({PLAIN.get(r.effect, '')}): {evidence_text(r.evidence, d.unit)}."
-                      + (f" Not named: fails {', '.join(failed)}." if failed else "")]
+                      + (joint_text(r.effect, r.joint, d.unit) if r.joint is not None
+                         else f" Not named: fails {', '.join(failed)}." if failed else "")]
             L += ["", "(*Signature*: the shape this effect would add to the error to first order — e.g. a lag adds "
                       "a copy of the velocity; its share is how much of the error above the noise that shape alone "
                       "matches, before any refit.)"]
@@ -852,7 +859,17 @@ def effect_document(r: EffectResult, unit: str) -> dict:
             "signature_share": _num(r.signature_share),
             "evidence": evidence_text(r.evidence, u),
             "params": json_safe(unit_keys(r.params, u)),
-            "passes": dict(r.passes), "eligible": r.eligible}
+            "passes": dict(r.passes), "eligible": r.eligible,
+            "named_together_with": _joint_document(r.joint, u)}
+
+
+def _joint_document(joint: dict | None, unit: str) -> dict | None:
+    """The two-effect look-ahead that named an effect (``named_together_with``), or None."""
+    if joint is None:
+        return None
+    return {"effect": joint["with"], f"heldout_rmse_after_both_{unit}": _num(joint["heldout_rmse_after"]),
+            "reduction_of_both": _num(joint["reduction"]),
+            "reduction_on_top_of_other": _num(joint["reduction_on_top_of_other"]), "threshold": joint["threshold"]}
 
 
 def diagnosis_document(d: Diagnosis) -> dict:
@@ -887,7 +904,15 @@ def diagnosis_document(d: Diagnosis) -> dict:
         f"heldout_rmse_with_named_effects_{u}": _num(d.heldout_rmse_named),
         "recommended_model_options": d.recommended_options,
         "resolution": unit_keys(d.resolution, u) if d.resolution is not None else None,
+        "resolution_before_effects": _converged_document(d.resolution_before_effects, u),
     })
+
+
+def _converged_document(r: dict | None, unit: str) -> dict | None:
+    """``resolution_before_effects`` of diagnosis.json (:func:`hystfit.diagnose.converge_resolution`)."""
+    if r is None:
+        return None
+    return {**{k: v for k, v in r.items() if k != "steps"}, "steps": [unit_keys(x, unit) for x in r["steps"]]}
 
 
 def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = True,

@@ -74,10 +74,12 @@ def split_why(reason: str, swept_sources: Sequence[str] = ()) -> str:
     if reason == "swept":
         return ("the amplitude of " + ", ".join(swept_sources) + " changes within the capture: a temporal split "
                 "would test an amplitude extrapolation, so whole captures at interior frequencies are held out")
-    return {"requested": "requested",
-            "stationary": "every capture is stationary",
-            "no_interior": ("a capture is non-stationary but no interior frequency can be held out (temporal split: "
-                            "the held-out part extrapolates in amplitude as well as in time)")}[reason]
+    if reason == "swept_no_interior":
+        return ("the amplitude of " + ", ".join(swept_sources) + " changes within the capture and no capture at an "
+                "interior frequency can be held out (per-condition mode, or fewer than three drive frequencies): a "
+                "temporal split would test an amplitude extrapolation, so the middle cycles of every capture are "
+                "held out (an interpolation)")
+    return {"requested": "requested", "stationary": "every capture is stationary"}[reason]
 
 
 def split_description(kind: str, fit_fraction: float) -> str:
@@ -285,3 +287,29 @@ def resolution_text(r: dict, unit: str) -> str:
                 f"is adopted: the effects after step {len(r['effects'])} were tested on it, and the recommended model "
                 f"uses --model-option {r['option']}={r['to']}.")
     return head + " The base's resolution is not what limits the model; it is kept."
+
+
+def converged_text(r: dict, unit: str) -> str:
+    """The base's resolution converged before any effect was tested
+    (:func:`hystfit.diagnose.converge_resolution`) in one paragraph."""
+    u = "µm" if unit == "um" else unit
+    tried = "; ".join(f"{x['from']} → {x['to']}: held-out RMSE {x['heldout_rmse_before_out']:.4g} → "
+                      f"{x['heldout_rmse_after_out']:.4g} {u}, {100 * x['reduction_mean_square']:.0f} %"
+                      + (" (adopted)" if x["adopted"] else " (kept the coarser)") for x in r["steps"])
+    head = (f"Resolution of the base before any effect is tested ({r['option']}, doubled while a doubling removes "
+            f"at least {100 * r['threshold']:.0f} % of the held-out mean square above the noise): {tried}.")
+    if r["to"] == r["from"]:
+        return head + f" The base's {r['option']} = {r['from']} is kept."
+    return (head + f" The effects are tested on the base with {r['option']} = {r['to']}, and the recommended model "
+            f"uses --model-option {r['option']}={r['to']}.")
+
+
+def joint_text(effect: str, joint: dict, unit: str) -> str:
+    """Why ``effect`` was named although it removes less than the threshold alone (the two-effect
+    look-ahead, :func:`hystfit.diagnose._look_ahead`)."""
+    u = "µm" if unit == "um" else unit
+    return (f" Named together with `{joint['with']}`: alone it removes less than the threshold, but each of the two "
+            f"passes the rule on top of the other — `{joint['with']}` in the next step, and this one removes "
+            f"{joint['reduction_on_top_of_other']:.2f} of the gap `{joint['with']}` leaves alone (threshold "
+            f"{joint['threshold']:.2f}); together they remove {joint['reduction']:.2f} of this step's gap (held-out "
+            f"RMSE {joint['heldout_rmse_after']:.4g} {u}). Two effects of similar size share a gap.")

@@ -43,7 +43,12 @@ def test_auto_split_holds_out_interior_frequencies_only_when_the_drive_changes()
     assert kind == "capture" and held == [False, True, False] and reason == "swept"
     s = split_choice(caps, swept, DiagnoseSettings(), per_condition=False)
     assert "changes within the capture" in split_why(s.reason, s.swept_sources)
-    assert choose_split(caps, swept, DiagnoseSettings(), per_condition=True)[0] == "temporal"
+    # no interior capture can be held out (per condition, or two frequencies): the middle cycles are
+    kind, held, reason = choose_split(caps, swept, DiagnoseSettings(), per_condition=True)
+    assert (kind, held, reason) == ("cycles", [False] * 3, "swept_no_interior")
+    assert choose_split(caps[:2], swept[:2], DiagnoseSettings(), per_condition=False)[0] == "cycles"
+    s = split_choice(caps, swept, DiagnoseSettings(), per_condition=True)
+    assert "middle cycles" in split_why(s.reason, s.swept_sources) and "rs_20Hz.csv" in split_why(s.reason, s.swept_sources)
     assert choose_split(caps, [False] * 3, DiagnoseSettings(), per_condition=False)[0] == "temporal"
     with pytest.raises(ConfigError, match="three or more drive"):
         choose_split(caps[:2], swept[:2], DiagnoseSettings(split="capture"), per_condition=False)
@@ -129,6 +134,7 @@ def test_no_resolution_check_for_a_fixed_structure_or_when_switched_off():
     assert fixed.refined() is None
     d = diagnose(caps, fixed, make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=1))
     assert d.resolution is None and diagnosis_document(d)["resolution"] is None and d.recommended_options == {}
+    assert d.resolution_before_effects is None and diagnosis_document(d)["resolution_before_effects"] is None
     d = diagnose(caps, make_model("pi"), make_optimizer(optimizers.get("auto")),
                  settings=DiagnoseSettings(max_effects=1, resolution_check=False))
     assert d.resolution is None

@@ -1,0 +1,67 @@
+"""The two-effect look-ahead of the selection and the base's resolution converged before the effects."""
+
+from __future__ import annotations
+
+import pytest
+
+from hystfit.diagnose import DiagnoseSettings, EffectResult, _look_ahead, choose_effect
+
+
+def _result(effect: str, before: float, after: float, sigma: float, *, placebo: float = 0.0,
+            threshold: float = 0.3) -> EffectResult:
+    red = (before - after) / (before - sigma)
+    passes = {"reduction_at_least_threshold": red >= threshold, "beats_placebo": before - after > placebo,
+              "gap_above_noise": True}
+    return EffectResult(effect, effect, 1, before, after, before, after, red, placebo, placebo, 0.0, 2, 0.0, 0.0, {},
+                        None, passes)
+
+
+class _Next:
+    """A fake next step: the results on top of each first effect."""
+
+    def __init__(self, table: dict, settings=DiagnoseSettings()):
+        self.table, self.settings, self.calls = table, settings, []
+
+    def __call__(self, state_preds, named):
+        self.calls.append(named)
+        return self.table[named], {r.effect: (None, None) for r in self.table[named]}, 0.0
+
+
+SIGMA, BEFORE = 0.01, 0.41  # gap above the noise 0.40
+STATES = {e: (None, None) for e in ("dynamics", "creep", "asymmetry", "drift")}
+
+
+def test_two_effects_that_share_a_gap_are_named_together():
+    a = _result("dynamics", BEFORE, 0.33, SIGMA)   # 0.20 of the gap alone
+    b = _result("creep", BEFORE, 0.37, SIGMA)      # 0.10 alone
+    assert choose_effect([a, b], DiagnoseSettings()) is None
+    on_a = [_result("creep", 0.33, 0.20, SIGMA)]   # on top of dynamics: 0.41 of its gap; both: 0.525
+    nxt = _Next({"dynamics": on_a})
+    out = _look_ahead([a, b], {"dynamics": None, "creep": None}, BEFORE, SIGMA, nxt)
+    assert out is not None
+    first, results, _, pick = out
+    assert first.effect == "dynamics" and pick.effect == "creep" and first.eligible
+    assert first.joint["with"] == "creep" and first.joint["reduction"] == pytest.approx((0.41 - 0.20) / 0.40)
+    # dynamics on top of creep alone: (0.37 − 0.20) / (0.37 − 0.01)
+    assert first.joint["reduction_on_top_of_other"] == pytest.approx(0.17 / 0.36)
+    assert not first.passes["reduction_at_least_threshold"]  # the record stays honest about the single step
+    assert nxt.calls == ["dynamics"]
+
+
+def test_no_pair_when_the_next_step_names_nothing_or_the_first_adds_too_little_to_the_second():
+    a = _result("dynamics", BEFORE, 0.33, SIGMA)
+    b = _result("creep", BEFORE, 0.30, SIGMA)      # 0.275 alone
+    weak = {"dynamics": [_result("creep", 0.33, 0.32, SIGMA)], "creep": [_result("dynamics", 0.30, 0.29, SIGMA)]}
+    assert _look_ahead([b, a], STATES, BEFORE, SIGMA, _Next(weak)) is None
+    # creep passes on top of dynamics, but dynamics removes only (0.30 − 0.23) / 0.29 = 0.24 of what creep
+    # leaves alone: a spurious first effect riding on a real second one is not named
+    rides = {"creep": [_result("dynamics", 0.30, 0.29, SIGMA)], "dynamics": [_result("creep", 0.33, 0.23, SIGMA)]}
+    nxt = _Next(rides)
+    assert _look_ahead([b, a], STATES, BEFORE, SIGMA, nxt) is None and nxt.calls == ["creep", "dynamics"]
+
+
+def test_only_candidates_that_beat_their_placebo_and_reach_half_the_threshold_are_tried():
+    lucky = _result("asymmetry", BEFORE, 0.33, SIGMA, placebo=0.1)   # a placebo gains more
+    tiny = _result("drift", BEFORE, 0.38, SIGMA)                     # 0.075 < 0.15
+    nxt = _Next({})
+    assert _look_ahead([lucky, tiny], STATES, BEFORE, SIGMA, nxt) is None and nxt.calls == []
