@@ -53,6 +53,7 @@ __all__ = [
     "display_unit",
     "has_convergence_history",
     "pixel_path",
+    "png_bytes",
     "heatmap_figure",
     "loop_overlay_figure",
     "convergence_compare_figure",
@@ -344,8 +345,8 @@ def png_bytes(rgba: np.ndarray, dpi: float) -> bytes:
 def _save(fig: Figure, path, dpi: int) -> Path:
     """Render ``fig`` at ``dpi`` on the Agg canvas and write it to ``path`` as PNG, atomically.
 
-    The canvas's pixels are encoded by :func:`png_bytes` (what ``savefig`` would write, pixel for
-    pixel, without Pillow's filter search) and written by :func:`hystfit.io.atomic_write_bytes`
+    The figure is drawn on a :class:`~hystfit.report.canvas.Canvas` (texts stamped from a cache of
+    their images), whose pixels are encoded by :func:`png_bytes` (without Pillow's filter search) and written by :func:`hystfit.io.atomic_write_bytes`
     (temporary file in the same directory, then :func:`os.replace`; parent directories are
     created), so a reader sees the previous file or the complete new one, and a failed render
     leaves nothing. The figure is not cleared: a template (:func:`_template`) is reset on its next
@@ -356,12 +357,12 @@ def _save(fig: Figure, path, dpi: int) -> Path:
     OutputError
         If the location cannot be written.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from .canvas import Canvas
 
     path = Path(path)
     if fig.dpi != dpi:
         fig.set_dpi(dpi)
-    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+    canvas = fig.canvas if isinstance(fig.canvas, Canvas) else Canvas(fig)
     canvas.draw()
     atomic_write_bytes(path, png_bytes(np.asarray(canvas.buffer_rgba()), dpi))
     return path

@@ -66,10 +66,9 @@ class FigureJob:
 
 def _import_plotting() -> None:
     from matplotlib import font_manager
-    from matplotlib.backends import backend_agg  # noqa: F401
     from matplotlib.figure import Figure  # noqa: F401
 
-    from . import plots  # noqa: F401
+    from . import canvas, plots  # noqa: F401
 
     font_manager.get_font(font_manager.findfont(font_manager.FontProperties()))  # the first text loads the font
 
