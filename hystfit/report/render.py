@@ -128,8 +128,10 @@ class _FigureServer:
 
 
 def _serve(conn) -> None:
-    """The server's loop: import matplotlib, then answer each ``(jobs, n_jobs)`` until the pipe closes."""
+    """The server's loop: import matplotlib and warm up (:func:`_warm_up`), then answer each
+    ``(jobs, n_jobs)`` until the pipe closes."""
     _import_plotting()
+    _warm_up()
     while True:
         try:
             jobs, n_jobs = conn.recv()
@@ -224,6 +226,28 @@ def _draw_here(jobs: list[FigureJob], n_jobs: int | None) -> list[Path]:
         order = sorted(range(len(jobs)), key=lambda i: -_weight(jobs[i]))
         futs = {i: ex.submit(_render, jobs[i]) for i in order}
         return [futs[i].result() for i in range(len(jobs))]
+
+
+def _warm_up() -> None:
+    """Draw a small loop and time-series figure, as a report titles them, and throw them away.
+
+    This lays out the reused figures (:func:`hystfit.report.plots._template`) and fills the font,
+    text-layout and text-image caches (:mod:`hystfit.report.canvas`) once, in the figure server,
+    while the caller loads and fits: every worker the server forks afterwards starts with them,
+    instead of paying for them on its first figure of each kind. Pixels do not depend on these
+    caches (tested).
+    """
+    import tempfile
+
+    import numpy as np
+
+    from . import plots
+
+    t = np.linspace(0.0, 1.0, 200)
+    u = 10.0 * (1.0 - np.cos(2 * np.pi * t))
+    with tempfile.TemporaryDirectory(prefix="hystfit-warm-up-") as tmp:
+        plots.loop_figure(Path(tmp) / "loop.png", u, 0.1 * u, 0.1 * u + 0.01, title="warm-up")
+        plots.timeseries_figure(Path(tmp) / "ts.png", t, 0.1 * u, 0.1 * u + 0.01, title="warm-up")
 
 
 def _weight(job: FigureJob) -> int:
