@@ -328,9 +328,10 @@ def png_bytes(rgba: np.ndarray, dpi: float) -> bytes:
     h, w, _ = rgba.shape
     opaque = bool(rgba[..., 3].min() == 255)
     pixels = rgba[..., :3] if opaque else rgba
-    rows = np.empty((h, 1 + w * pixels.shape[2]), dtype=np.uint8)
+    channels = pixels.shape[2]
+    rows = np.empty((h, 1 + w * channels), dtype=np.uint8)
     rows[:, 0] = 0  # filter type "None" on every row
-    rows[:, 1:] = pixels.reshape(h, -1)
+    rows[:, 1:].reshape(h, w, channels)[...] = pixels  # one copy, through a view
     per_metre = round(dpi / 0.0254)
 
     def chunk(kind: bytes, data: bytes) -> bytes:
