@@ -14,7 +14,9 @@ the figures are drawn in this process.
 
 A command that will draw calls :func:`preload` first: it forks a figure server that imports
 matplotlib on the other core while this process loads and fits, and :func:`render_figures` then
-sends the jobs there (the server forks the pool); this process never imports matplotlib.
+sends the jobs there (the server forks the pool); this process never imports matplotlib. Before it
+waits for jobs the server draws one small figure of each reused layout (:func:`_warm_up`), so every
+worker it forks starts with those layouts and with filled text caches.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from typing import Any, Sequence
 
 __all__ = ["FigureJob", "preload", "render_figures", "MIN_JOBS_PER_WORKER"]
 
-#: a worker is only started for at least this many figures (≈ 60–100 ms each, against ≈ 30 ms to fork one)
+#: a worker is only started for at least this many figures (≈ 35–65 ms each, against ≈ 30 ms to fork one)
 MIN_JOBS_PER_WORKER = 3
 
 _preload_thread: threading.Thread | None = None
