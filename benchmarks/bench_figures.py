@@ -1,13 +1,16 @@
 """Figures: hystfit's per-pixel reduction and parallel rendering against the straightforward way.
 
-Run:  python benchmarks/bench_figures.py
+Run:  python benchmarks/bench_figures.py [--kinds]
 
 1. The Quickstart's figures (``identify sample_data``: 24 conditions, a loop, time series and
    convergence figure each, and the overview), drawn by hystfit (``render_figures``: a process per
    core, fixed layouts, per-pixel reduction, no figure for a one-point convergence history) and
    the straightforward way (``straightforward.sf_*``: one after another, constrained layout, every
    k-th sample, every convergence figure). Same fits, same process, so only the drawing differs.
-2. One loop figure of a long periodic capture (10⁶ and 10⁷ samples, 20,000 cycles): time, points
+2. The CPU seconds of each figure kind of the Quickstart, drawn one after another in one process
+   (``--kinds``: after the server's warm-up, as a worker draws them; the least noisy number on a
+   shared machine).
+3. One loop figure of a long periodic capture (10⁶ and 10⁷ samples, 20,000 cycles): time, points
    drawn, and the voltage span of what is drawn against the data's span (stride: aliasing).
 """
 
@@ -65,6 +68,31 @@ def quickstart_figures() -> dict:
     return {"hystfit_s": t_h, "hystfit_figures": n_h, "straightforward_s": t_s, "straightforward_figures": n_s}
 
 
+def figure_kinds(fit=None) -> dict[str, tuple[int, float]]:
+    """CPU seconds per figure kind of the Quickstart, drawn serially here after the figure server's
+    warm-up (``render._warm_up``), as one worker of the pool draws them: kind → (figures, seconds)."""
+    from hystfit.report import identify_report, render
+
+    res = fit if fit is not None else _quickstart_fit()
+    render._import_plotting()
+    render._warm_up()
+    jobs: list = []
+    original = identify_report.render_figures
+    identify_report.render_figures = lambda js, n_jobs=None: jobs.extend(js)  # collect, do not draw
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            identify_report._plots(res, Path(tmp))
+            out: dict[str, tuple[int, float]] = {}
+            for job in jobs:
+                t0 = time.process_time()
+                render._render(job)
+                n, s = out.get(job.function, (0, 0.0))
+                out[job.function] = (n + 1, s + time.process_time() - t0)
+    finally:
+        identify_report.render_figures = original
+    return out
+
+
 def long_loop(n: int, cycles: int = 20_000) -> dict:
     """One loop figure of an n-sample periodic capture: hystfit against every k-th sample."""
     import matplotlib.axes
@@ -101,6 +129,13 @@ def long_loop(n: int, cycles: int = 20_000) -> dict:
 
 
 def main() -> None:
+    if "--kinds" in sys.argv[1:]:
+        kinds = figure_kinds()
+        print("| figure kind | figures | CPU s | ms per figure |\n|---|---:|---:|---:|")
+        for name, (n, s) in kinds.items():
+            print(f"| {name} | {n} | {s:.2f} | {1e3 * s / n:.0f} |")
+        print(f"| all | {sum(n for n, _ in kinds.values())} | {sum(s for _, s in kinds.values()):.2f} | |")
+        return
     q = quickstart_figures()
     print("| figures | hystfit (s) | straightforward (s) | ratio |\n|---|---:|---:|---:|")
     print(f"| Quickstart identify, {q['hystfit_figures']} figures (straightforward: {q['straightforward_figures']}) | "

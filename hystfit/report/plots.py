@@ -21,9 +21,9 @@ instead of every sample. Non-finite model values (a diverged simulation) are dra
 
 The simple figures use a fixed layout (margins in inches, :func:`_new_figure` with ``margins``): no
 constrained-layout pass, which measured half of each figure's time; the loop, time-series and
-convergence layouts are built once per thread and reused (:func:`_template`). PNGs are written
-with zlib level 1 (measured on a time-series figure: 12 ms instead of 16 ms to encode, 40 kB
-instead of 27 kB). Output is deterministic: the same inputs give the same bytes, in any process
+convergence layouts are built once per thread and reused (:func:`_template`). The Agg canvas's
+pixels are encoded by :func:`png_bytes` (RGB, no row filters, zlib level 1: on a time-series
+figure 7 ms instead of Pillow's 21 ms, the file ≈ 10 % smaller). Output is deterministic: the same inputs give the same bytes, in any process
 (:mod:`hystfit.report.render` draws many figures in parallel).
 
 Units: ``"um"`` is shown as ``µm``; see :func:`display_unit`.
@@ -31,9 +31,10 @@ Units: ``"um"`` is shown as ``µm``; see :func:`display_unit`.
 
 from __future__ import annotations
 
-import io
 import math
+import struct
 import threading
+import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
@@ -52,6 +53,7 @@ __all__ = [
     "display_unit",
     "has_convergence_history",
     "pixel_path",
+    "png_bytes",
     "heatmap_figure",
     "loop_overlay_figure",
     "convergence_compare_figure",
@@ -67,7 +69,7 @@ MAX_POINTS = 20_000
 DPI = 110
 #: sub-pixel resolution of :func:`pixel_path` (grid cells per pixel along each axis)
 OVERSAMPLE = 2
-#: zlib level of written PNGs: 1 encodes ≈ 25 % faster than the default 6, files ≈ 45 % larger
+#: zlib level of written PNGs (:func:`png_bytes`): 1 encodes ≈ 2.5× faster than 6, files ≈ 15 % larger
 PNG_COMPRESS_LEVEL = 1
 
 _UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m", "urad": "µrad", "mrad": "mrad",
@@ -308,26 +310,62 @@ def pixel_path(x, y, nx: int, ny: int) -> tuple[np.ndarray, np.ndarray]:
     return xs, ys
 
 
-def _save(fig: Figure, path, dpi: int, *, keep: bool = False) -> Path:
-    """Render ``fig`` as PNG and write it to ``path`` atomically; return the path.
+def png_bytes(rgba: np.ndarray, dpi: float) -> bytes:
+    """A PNG file of an 8-bit RGBA image, encoded for speed: RGB when every pixel is opaque, no
+    row filter, zlib level :data:`PNG_COMPRESS_LEVEL`, the resolution in a ``pHYs`` chunk.
 
-    The PNG is rendered in memory and written by :func:`hystfit.io.atomic_write_bytes` (temporary
-    file in the same directory, then :func:`os.replace`; parent directories are created), so a
-    reader sees the previous file or the complete new one, and a failed render leaves nothing.
+    On a figure (flat colours, antialiased lines) the filters PNG encoders try on every row shrink
+    the file little and cost more than the compression; this writes ≈ 3× faster than Pillow's
+    encoder at the same zlib level, and the file is no larger.
+
+    Parameters
+    ----------
+    rgba : ndarray of uint8, shape (H, W, 4)
+    dpi : float
+        Resolution stored in the file (dots per inch).
+    """
+    rgba = np.asarray(rgba, dtype=np.uint8)
+    h, w, _ = rgba.shape
+    opaque = bool(rgba[..., 3].min() == 255)
+    pixels = rgba[..., :3] if opaque else rgba
+    channels = pixels.shape[2]
+    rows = np.empty((h, 1 + w * channels), dtype=np.uint8)
+    rows[:, 0] = 0  # filter type "None" on every row
+    rows[:, 1:].reshape(h, w, channels)[...] = pixels  # one copy, through a view
+    per_metre = round(dpi / 0.0254)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", w, h, 8, 2 if opaque else 6, 0, 0, 0)  # 8 bit RGB(A), not interlaced
+    return b"".join([b"\x89PNG\r\n\x1a\n", chunk(b"IHDR", header),
+                     chunk(b"pHYs", struct.pack(">IIB", per_metre, per_metre, 1)),
+                     chunk(b"IDAT", zlib.compress(rows, PNG_COMPRESS_LEVEL)), chunk(b"IEND", b"")])
+
+
+def _save(fig: Figure, path, dpi: int) -> Path:
+    """Render ``fig`` at ``dpi`` on the Agg canvas and write it to ``path`` as PNG, atomically.
+
+    The figure is drawn on a :class:`~hystfit.report.canvas.Canvas` (texts stamped from a cache of
+    their images), whose pixels are encoded by :func:`png_bytes` (without Pillow's filter search) and written by :func:`hystfit.io.atomic_write_bytes`
+    (temporary file in the same directory, then :func:`os.replace`; parent directories are
+    created), so a reader sees the previous file or the complete new one, and a failed render
+    leaves nothing. The figure is not cleared: a template (:func:`_template`) is reset on its next
+    use, any other figure is dropped by its caller.
 
     Raises
     ------
     OutputError
         If the location cannot be written.
     """
+    from .canvas import Canvas
+
     path = Path(path)
-    buf = io.BytesIO()
-    try:
-        fig.savefig(buf, format="png", dpi=dpi, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
-    finally:
-        if not keep:  # a template (:func:`_template`) is cleared on its next use instead
-            fig.clear()
-    atomic_write_bytes(path, buf.getvalue())
+    if fig.dpi != dpi:
+        fig.set_dpi(dpi)
+    canvas = fig.canvas if isinstance(fig.canvas, Canvas) else Canvas(fig)
+    canvas.draw()
+    atomic_write_bytes(path, png_bytes(np.asarray(canvas.buffer_rgba()), dpi))
     return path
 
 
@@ -469,7 +507,7 @@ def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper left")
-    return _save(fig, path, dpi, keep=True)
+    return _save(fig, path, dpi)
 
 
 def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: str = "",
@@ -526,7 +564,7 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
     axr.set_xlabel("Time (s)" if t_s is not None else "Sample")
     axr.grid(True, alpha=0.3)
     axr.legend(loc="upper right", fontsize="small")
-    return _save(fig, path, dpi, keep=True)
+    return _save(fig, path, dpi)
 
 
 def convergence_figure(path, history_best, history_mean=None, *, title: str = "",
@@ -594,7 +632,7 @@ def convergence_figure(path, history_best, history_mean=None, *, title: str = ""
     ax.grid(True, which="both", alpha=0.3)
     if title:
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
-    return _save(fig, path, dpi, keep=True)
+    return _save(fig, path, dpi)
 
 
 def has_convergence_history(history_best) -> bool:

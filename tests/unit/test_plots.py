@@ -1,5 +1,6 @@
 """Figures: readable PNGs of the expected size, written atomically, long inputs decimated."""
 
+import io
 import os
 
 import matplotlib.axes
@@ -189,7 +190,7 @@ def test_failed_save_leaves_previous_file_and_no_temp(tmp_path, rng, monkeypatch
     def boom(self, *args, **kwargs):
         raise RuntimeError("renderer failed")
 
-    monkeypatch.setattr(Figure, "savefig", boom)
+    monkeypatch.setattr(Figure, "draw", boom)
     with pytest.raises(RuntimeError, match="renderer failed"):
         loop_figure(target, u, y, yp)
     assert target.read_bytes() == b"previous"
@@ -208,6 +209,29 @@ def test_unwritable_location_is_an_output_error(tmp_path, rng):
 def test_parent_directories_are_created(tmp_path, rng):
     _, u, y, yp = _loop(rng)
     _read(loop_figure(tmp_path / "plots" / "sub" / "l.png", u, y, yp))
+
+
+def test_png_bytes_round_trip_rgb_and_rgba(rng):
+    from PIL import Image
+
+    rgba = rng.integers(0, 256, size=(7, 5, 4), dtype=np.uint8)
+    opaque = rgba.copy()
+    opaque[..., 3] = 255
+    for img, mode in ((opaque, "RGB"), (rgba, "RGBA")):
+        back = Image.open(io.BytesIO(plots.png_bytes(img, 110)))
+        assert back.mode == mode and back.size == (5, 7)
+        assert np.array_equal(np.asarray(back.convert("RGBA")), img)
+        assert back.info["dpi"] == pytest.approx((110, 110), abs=0.01)
+
+
+def test_written_png_has_the_pixels_of_the_canvas(tmp_path, rng):
+    _, u, y, yp = _loop(rng)
+    fig = Figure(figsize=(3.0, 2.0), dpi=80)
+    fig.add_subplot().plot(u, y)
+    written = matplotlib.image.imread(plots._save(fig, tmp_path / "ours.png", 80))
+    drawn = np.asarray(fig.canvas.buffer_rgba())
+    assert written.shape == (160, 240, 3)  # opaque: written as RGB
+    assert np.array_equal(np.round(written * 255).astype(np.uint8), drawn[..., :3])
 
 
 def test_unit_display():

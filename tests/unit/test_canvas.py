@@ -1,0 +1,67 @@
+"""The text-caching Agg canvas: the same picture as Agg's, independent of what was drawn before."""
+
+import numpy as np
+import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from hystfit.report import canvas
+
+
+def _figure(title="pi – 40V_50Hz"):
+    fig = Figure(figsize=(4.0, 3.0), dpi=110)
+    ax = fig.add_subplot()
+    ax.plot([0.0, 1.0], [0.0, 2.0], label="measured")
+    ax.set_xlabel("Voltage (V)")
+    ax.set_ylabel("Displacement (µm)")  # drawn at 90°
+    ax.set_title(title)
+    ax.text(0.5, 0.5, "tilted", rotation=30)  # drawn the ordinary way
+    ax.legend(loc="upper left")
+    return fig
+
+
+def _pixels(canvas_class, fig=None):
+    c = canvas_class(fig or _figure())
+    c.draw()
+    return np.asarray(c.buffer_rgba()).astype(int)
+
+
+@pytest.fixture
+def empty_cache(monkeypatch):
+    monkeypatch.setattr(canvas, "_text_images", {})
+
+
+def test_same_picture_as_agg_up_to_subpixel_placement(empty_cache):
+    ours, agg = _pixels(canvas.Canvas), _pixels(FigureCanvasAgg)
+    differ = np.abs(ours - agg).max(axis=2) > 0
+    assert differ.any()  # texts sit on whole pixels
+    assert differ.mean() < 0.02
+    ink = lambda a: (255 - a[..., :3]).sum()  # noqa: E731 - the same amount of ink: no text lost or doubled
+    assert ink(ours) == pytest.approx(ink(agg), rel=0.01)
+    assert "Voltage (V)" in {k[0] for k in canvas._text_images}
+
+
+def test_pixels_do_not_depend_on_the_cache(empty_cache):
+    cold = _pixels(canvas.Canvas)
+    assert canvas._text_images
+    warm = _pixels(canvas.Canvas)
+    canvas._text_images.clear()
+    assert np.array_equal(_pixels(canvas.Canvas), cold)
+    assert np.array_equal(warm, cold)
+
+
+def test_a_full_cache_starts_again(empty_cache, monkeypatch):
+    monkeypatch.setattr(canvas, "MAX_CACHED_TEXTS", 3)
+    _pixels(canvas.Canvas)
+    assert 0 < len(canvas._text_images) <= 3
+
+
+def test_colour_is_part_of_the_key(empty_cache):
+    fig = Figure(figsize=(2.0, 1.0), dpi=100)
+    fig.text(0.1, 0.5, "same", color="red")
+    fig.text(0.6, 0.5, "same", color="blue")
+    px = _pixels(canvas.Canvas, fig)
+    red = (px[..., 0] > 200) & (px[..., 2] < 100)
+    blue = (px[..., 2] > 200) & (px[..., 0] < 100)
+    assert red.any() and blue.any()
+    assert red[:, :100].any() and not red[:, 100:].any()
