@@ -8,7 +8,6 @@ the limited spans shaded) is also used by ``hystfit track``. Figures are built w
 
 from __future__ import annotations
 
-import io
 import math
 import textwrap
 from pathlib import Path
@@ -18,9 +17,10 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..invert import InversionResult, Span, condition_text
-from ..io import atomic_write_bytes, atomic_write_text
+from ..io import atomic_write_text
 from ..results import dumps, json_safe, schema_fields
-from .plots import MAX_POINTS, display_unit
+from . import plots
+from .plots import MAX_POINTS, _decimate_minmax, display_unit
 from .tables import fmt, notes_and_figures
 
 #: Spans listed in the Markdown report (all are in the JSON up to :data:`MAX_SPANS_JSON`).
@@ -33,36 +33,12 @@ DPI = 110
 # figures
 
 
-def _stride(n: int) -> int:
-    return max(1, math.ceil(n / MAX_POINTS))
-
-
-def _minmax(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Decimate keeping each bucket's min and max (error peaks stay visible)."""
-    n = y.size
-    if n <= MAX_POINTS or not np.all(np.isfinite(y)):
-        k = _stride(n)
-        return t[::k], y[::k]
-    k = max(1, math.ceil(n / (MAX_POINTS // 2)))
-    nb = n // k
-    body = y[: nb * k].reshape(nb, k)
-    base = np.arange(nb) * k
-    idx = np.unique(np.concatenate([base + body.argmin(axis=1), base + body.argmax(axis=1), [n - 1]]))
-    return t[idx], y[idx]
-
-
 def _wrap(title: str, width: int = 95) -> str:
     return "\n".join(textwrap.wrap(title, width))
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    buf = io.BytesIO()
-    try:
-        fig.savefig(buf, format="png", dpi=DPI)
-    finally:
-        fig.clear()
-    atomic_write_bytes(path, buf.getvalue())
-    return Path(path)
+    return plots._save(fig, Path(path), DPI)
 
 
 def _draw_tracking(axes, t, r, y, v, *, unit: str, output_label: str, vmin: float | None, vmax: float | None,
@@ -74,8 +50,8 @@ def _draw_tracking(axes, t, r, y, v, *, unit: str, output_label: str, vmin: floa
     """
     ax, axe, axv = axes
     u = display_unit(unit)
-    ax.plot(*_minmax(t, r), color="0.15", lw=0.9, label="target")
-    ax.plot(*_minmax(t, y), color="tab:red", lw=0.9, alpha=0.85, label=output_label)
+    ax.plot(*_decimate_minmax(t, r), color="0.15", lw=0.9, label="target")
+    ax.plot(*_decimate_minmax(t, y), color="tab:red", lw=0.9, alpha=0.85, label=output_label)
     ax.set_ylabel(f"Displacement ({u})")
     ax.grid(True, alpha=0.3)
     e = y - r
@@ -84,10 +60,10 @@ def _draw_tracking(axes, t, r, y, v, *, unit: str, output_label: str, vmin: floa
     if np.isfinite(rmse):
         axe.axhspan(-rmse, rmse, color="tab:blue", alpha=0.15, lw=0, label=f"±RMSE{rmse_note} = {rmse:.3g} {u}")
     axe.axhline(0.0, color="0.5", lw=0.6)
-    axe.plot(*_minmax(t, e), color="tab:blue", lw=0.7, label=f"{output_label} − target")
+    axe.plot(*_decimate_minmax(t, e), color="tab:blue", lw=0.7, label=f"{output_label} − target")
     axe.set_ylabel(f"Error ({u})")
     axe.grid(True, alpha=0.3)
-    axv.plot(*_minmax(t, v), color="tab:green", lw=0.9, label="voltage")
+    axv.plot(*_decimate_minmax(t, v), color="tab:green", lw=0.9, label="voltage")
     label = "voltage limits"
     for lim in (vmin, vmax):
         if lim is not None:
@@ -184,7 +160,7 @@ def error_comparison_figure(path, t_s, errors: dict, *, unit: str = "um", title:
     fig = Figure(figsize=(8.5, 3.8), layout="constrained")
     ax = fig.subplots()
     for i, (lab, e) in enumerate(errors.items()):
-        te, ee = _minmax(t, np.asarray(e, float))
+        te, ee = _decimate_minmax(t, np.asarray(e, float))
         ax.plot(te, ee, lw=0.7, label=lab, color=f"C{i}")
     ax.axhline(0.0, color="0.5", lw=0.6)
     ax.set_ylabel(f"Error ({display_unit(unit)})")
