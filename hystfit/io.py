@@ -469,11 +469,22 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
             all_null = pc.and_(all_null, pc.is_null(tab.column(i)))
         if pc.any(all_null).as_py():
             return None  # a blank line or an empty row: the general reader skips, trims or reports it
-    cols = [tab.column(i).to_numpy(zero_copy_only=False) for i in range(ncols)]
+    cols = [_float64_column(tab.column(i)) for i in range(ncols)]
     del tab
     rows = np.arange(1, n + 1, dtype=np.int64) + (1 if header else 0)
     return _Table(label, [c.strip() for c in first] if header else None, cols, rows,
                   header_auto=not no_header and not header, comma_decimal_ok=delim != ",")
+
+
+def _float64_column(column) -> np.ndarray:
+    """A pyarrow float64 column as a numpy array, NaN for a missing cell — without pandas, which
+    pyarrow's own ``to_numpy`` imports (≈ 0.3 s)."""
+    arr = column.chunk(0) if column.num_chunks == 1 else column.combine_chunks()
+    if arr.null_count:
+        import pyarrow.compute as pc
+
+        arr = pc.fill_null(arr, np.nan)
+    return np.frombuffer(arr.buffers()[1], dtype=np.float64, count=len(arr), offset=8 * arr.offset)
 
 
 def _read_text(path: Path, label: str, no_header: bool) -> _Table:
