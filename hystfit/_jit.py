@@ -168,9 +168,10 @@ def _make(kernel: Kernel, made: dict, numba: ModuleType) -> None:
             g[name] = numba.prange
         elif isinstance(value, Kernel):
             g[name] = _dispatcher_of(value, made, numba)
-        elif isinstance(value, ModuleType):  # module.kernel inside a kernel
+        elif isinstance(value, ModuleType):  # module.kernel inside a kernel (no module __getattr__ runs)
+            space = vars(value)
             for attr in names:
-                inner = getattr(value, attr, None)
+                inner = space.get(attr)
                 if isinstance(inner, Kernel):
                     _dispatcher_of(inner, made, numba)
 
@@ -187,7 +188,7 @@ def _replace_everywhere(kernel: Kernel) -> None:
     """Put the dispatcher in place of the stand-in in every loaded module that binds the kernel's name."""
     name = kernel.__name__
     for module in list(sys.modules.values()):
-        space = getattr(module, "__dict__", None)
+        space = module.__dict__ if isinstance(module, ModuleType) else None
         if space is not None and space.get(name) is kernel:
             space[name] = kernel._dispatcher
 
