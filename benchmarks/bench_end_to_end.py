@@ -5,8 +5,10 @@ Run:  python benchmarks/bench_end_to_end.py [--repeat 3] [--markdown]
 
 Each command runs once to warm numba's on-disk cache, then ``--repeat`` times; the best time is
 reported (the machine is shared: compare rows within one run). A command's wall time includes
-starting Python and importing numpy, pandas, scipy and numba (≈ 1 s on this machine); the time of
-the fit itself is the ``runtime_s`` that ``hystfit identify --json`` reports, given alongside.
+starting Python and its imports: numpy, typer (with pydantic) and hystfit's registries always; numba
+and its context (which imports ``scipy.linalg``) once a kernel runs; pandas once a report table is
+written (``bench_startup.py`` times each step). The time of the fit itself is the ``runtime_s`` that
+``hystfit identify --json`` reports, given alongside.
 Measured:
 
 - ``hystfit models --json`` (start-up of a second CLI call: imports + cached kernels),

@@ -2,13 +2,16 @@
 
 Run:  python benchmarks/speed.py [--repeat 3] [--long]     (≈ 8 min on 2 cores; --long adds ≈ 20 min)
       python benchmarks/speed.py --commands [--repeat 5]   (only the whole-command targets, ≈ 3 min)
+      python benchmarks/speed.py --imports                 (only what the one-condition identify and
+                                                            ``hystfit models --json`` import, ≈ 5 s)
 
 1. Population evaluation (``bench_kernels.py``): straightforward, NumPy, hystfit's simulation
    and objective for ``pi``, ``bw`` (and ``pi2``) at P = 200, N = 5,000.
 2. End-to-end wall times (``bench_end_to_end.py``): start-up, the Quickstart with and without
    figures, one condition with PSO 200 × 300 with and without figures, identify with ``auto``,
    ``auto`` against the best of 15 PSO runs, compare of all ten models, diagnose.
-3. What the one-condition command imports (``python -X importtime``), figures against the
+3. What the one-condition command imports (``python -X importtime``, each top-level package's own
+   import time wherever it is imported from), figures against the
    straightforward way (``bench_figures.py``), a 10⁷-row CSV load (``bench_load.py``) and, with
    ``--long``, ``fp`` and ``gpi`` on a 10⁶-sample capture (``memory.py``).
 4. The targets, each with the measured value and whether it is met. Prints Markdown.
@@ -38,28 +41,45 @@ import bench_kernels as kern  # noqa: E402
 import bench_load as load  # noqa: E402
 
 
-def import_breakdown(args: list[str]) -> tuple[float, list[tuple[str, float]]]:
-    """Total import time of a CLI command and its most expensive top-level packages (``-X importtime``)."""
+def import_breakdown(args: list[str], top: int = 10) -> tuple[float, list[tuple[str, float]]]:
+    """Total import time of a CLI command and its most expensive top-level packages (``-X importtime``).
+
+    Each package is charged its modules' own (self) times, wherever they were imported from: numba's
+    context loads ``numba.np.*`` and ``scipy.linalg`` when the first kernel runs, pandas may come in
+    through a report module; a cumulative time would charge them to whichever module came first.
+    """
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-X", "importtime", "-c", "from hystfit.cli import main; main()", *args,
-               "--out", str(Path(tmp) / "out")]
+        out = ["--out", str(Path(tmp) / "out")] if args[0] in ("identify", "compare", "diagnose") else []
+        cmd = [sys.executable, "-X", "importtime", "-c", "from hystfit.cli import main; main()", *args, *out]
         r = subprocess.run(cmd, cwd=e2e.ROOT, capture_output=True, text=True, check=True)
     per_pkg: dict[str, float] = {}
-    total = 0.0
     for line in r.stderr.splitlines():
         if not line.startswith("import time:") or "|" not in line:
             continue
         parts = line[len("import time:"):].split("|")
         try:
-            cumulative = int(parts[1]) / 1e6
+            own = int(parts[0]) / 1e6
         except ValueError:
             continue
-        name = parts[2]
-        if name.startswith(" ") and not name.startswith("  "):  # depth 0 (one space after the bar)
-            total += cumulative
-            pkg = name.strip().split(".")[0]
-            per_pkg[pkg] = per_pkg.get(pkg, 0.0) + cumulative
-    return total, sorted(per_pkg.items(), key=lambda kv: -kv[1])[:8]
+        pkg = parts[2].strip().split(".")[0]
+        per_pkg[pkg] = per_pkg.get(pkg, 0.0) + own
+    return sum(per_pkg.values()), sorted(per_pkg.items(), key=lambda kv: -kv[1])[:top]
+
+
+def print_import_breakdowns() -> None:
+    """The import breakdown of the one-condition ``identify`` and of ``hystfit models --json``."""
+    import os
+
+    print(f"Load average at the start {os.getloadavg()[0]:.1f}\n")
+    one = ["identify", e2e.ONE, "--model", "pi", *e2e.PSO, "--no-polish", "--quiet", "--no-plots"]
+    for title, args in (("identify pi, PSO 200 × 300, --no-polish, 1 condition, --no-plots", one),
+                        ("hystfit models --json", ["models", "--json"])):
+        total, rows = import_breakdown(args)
+        print(f"### Imports of `{title}`: {total:.2f} s\n")
+        print("| package | import (s) |\n|---|---:|")
+        for pkg, sec in rows:
+            print(f"| {pkg} | {sec:.3f} |")
+        print()
 
 
 #: the whole-command targets of the speed issue: (row label of bench_end_to_end, target wall time in s)
@@ -126,9 +146,13 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--long", action="store_true", help="also fp and gpi on a 10^6-sample capture (≈ 20 min)")
     ap.add_argument("--commands", action="store_true", help="only the whole-command targets (≈ 3 min)")
+    ap.add_argument("--imports", action="store_true", help="only the import breakdowns (≈ 5 s)")
     args = ap.parse_args()
     if args.commands:
         print_command_targets(args.repeat)
+        return
+    if args.imports:
+        print_import_breakdowns()
         return
     import numba
     import os

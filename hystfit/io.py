@@ -16,6 +16,10 @@ Loading turns a file into a validated :class:`~hystfit.capture.Capture`:
 
 Every problem is an :class:`~hystfit.errors.InputError` whose one-line message names the file,
 the row (1-based line of the file; data row for Parquet) or column, the rule and the remedy.
+
+pandas (≈ 0.3 s to import) is imported only by the readers that need it — text with non-numeric
+cells or below :data:`FAST_READ_BYTES`, Parquet — and by :func:`write_table`: a plain numeric
+capture is read by pyarrow straight into float64 columns (:func:`_read_text_fast`).
 """
 
 from __future__ import annotations
@@ -36,7 +40,6 @@ from pathlib import Path
 from typing import Mapping, Iterator, Sequence
 
 import numpy as np
-import pandas as pd
 
 from .capture import Capture
 from .conditions import count_cycles, detect_condition, nonstationary_notes
@@ -325,11 +328,15 @@ def _dir_captures(d: Path, recursive: bool) -> list[Path]:
 
 @dataclass
 class _Table:
-    """A raw table: column cells plus the 1-based file line (text) or data row (Parquet) of each row."""
+    """A raw table: column cells plus the 1-based file line (text) or data row (Parquet) of each row.
+
+    A column is a pandas Series (the general text reader: strings; Parquet: as stored) or, from the
+    fast reader, a float64 numpy array with NaN for missing cells (:func:`_cell` reads either).
+    """
 
     label: str
     names: list[str] | None
-    cols: list[pd.Series]
+    cols: list
     rows: np.ndarray
     header_auto: bool = False
     #: the delimiter is not a comma, so "1,5" may be a decimal comma (European locale exports)
@@ -349,6 +356,8 @@ class _Table:
 
     def is_empty(self, i: int) -> bool:
         s = self.cols[i]
+        if isinstance(s, np.ndarray):
+            return bool(np.isnan(s).all())
         if s.dtype.kind in "fiub":
             return bool(s.isna().all())
         return bool(s.isna().all() or (s.astype(str).str.strip() == "").all())
@@ -460,17 +469,30 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
             all_null = pc.and_(all_null, pc.is_null(tab.column(i)))
         if pc.any(all_null).as_py():
             return None  # a blank line or an empty row: the general reader skips, trims or reports it
-    cols = [pd.Series(tab.column(i).to_numpy(zero_copy_only=False), copy=False) for i in range(ncols)]
+    cols = [_float64_column(tab.column(i)) for i in range(ncols)]
     del tab
     rows = np.arange(1, n + 1, dtype=np.int64) + (1 if header else 0)
     return _Table(label, [c.strip() for c in first] if header else None, cols, rows,
                   header_auto=not no_header and not header, comma_decimal_ok=delim != ",")
 
 
+def _float64_column(column) -> np.ndarray:
+    """A pyarrow float64 column as a numpy array, NaN for a missing cell — without pandas, which
+    pyarrow's own ``to_numpy`` imports (≈ 0.3 s)."""
+    arr = column.chunk(0) if column.num_chunks == 1 else column.combine_chunks()
+    if arr.null_count:
+        import pyarrow.compute as pc
+
+        arr = pc.fill_null(arr, np.nan)
+    return np.frombuffer(arr.buffers()[1], dtype=np.float64, count=len(arr), offset=8 * arr.offset)
+
+
 def _read_text(path: Path, label: str, no_header: bool) -> _Table:
     fast = _read_text_fast(path, label, no_header)
     if fast is not None:
         return fast
+    import pandas as pd
+
     try:
         raw = path.read_bytes()
     except OSError as exc:
@@ -523,6 +545,8 @@ def _parser_error(label: str, exc: Exception, numbered: list[tuple[int, str]]) -
 
 
 def _read_parquet(path: Path, label: str) -> _Table:
+    import pandas as pd
+
     try:
         df = pd.read_parquet(path)
     except Exception as exc:  # pyarrow raises many types for corrupt files
@@ -552,16 +576,27 @@ def _read_table(path: Path, label: str, no_header: bool) -> _Table:
                      f"use one of {', '.join(CAPTURE_SUFFIXES)}")
 
 
+def _cell(column, k: int):
+    """Cell ``k`` of a table column (a pandas Series or a numpy array)."""
+    return column[k] if isinstance(column, np.ndarray) else column.iloc[k]
+
+
 def _cell_text(table: _Table, col: int, k: int) -> str:
-    text = str(table.cols[col].iloc[k])
+    text = str(_cell(table.cols[col], k))
     return repr(text if len(text) <= 40 else text[:37] + "...")
 
 
 def _numeric(table: _Table, col: int) -> np.ndarray:
     """Column ``col`` as float64 (NaN for empty/missing cells); non-numeric text → InputError."""
     s = table.cols[col]
+    if isinstance(s, np.ndarray):  # float64 from the fast reader: a read-only view, as pandas gives
+        view = s.view()
+        view.flags.writeable = False
+        return view
     if s.dtype.kind in "fiub":
         return s.to_numpy(dtype=np.float64, na_value=np.nan)
+    import pandas as pd
+
     text = s.astype(str).str.strip()
     num = pd.to_numeric(text, errors="coerce")
     bad = np.flatnonzero((num.isna() & ~text.str.lower().isin(_MISSING_CELLS) & s.notna()).to_numpy())
@@ -1193,7 +1228,7 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def write_table(path: str | os.PathLike, df: pd.DataFrame) -> None:
+def write_table(path: str | os.PathLike, df: "pandas.DataFrame") -> None:
     """Write ``df`` atomically: Parquet for ``.parquet``/``.pq``, tab-separated for ``.tsv``, else CSV.
 
     Text tables have a header row, no index, ``\\n`` line ends and full float precision.

@@ -8,10 +8,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
 from .app import app, click_exceptions, command, error_line
-from .common import ExecutorOpt, JsonOut, Quiet, Resume, Scheduler, jobs_option, print_json, stderr, stdout
+from .common import (ExecutorOpt, JsonOut, Quiet, Resume, Scheduler, jobs_option, new_table, print_json, stderr,
+                     stdout)
 
 BatchJobs = jobs_option("Parallel processes of every job that has none of its own (the numbers do not depend on it).")
 
@@ -126,7 +126,7 @@ def batch(
         print_json({"jobs": [{"name": j.name, "command": j.command, "out": str(j.out), "exit_code": c, "status": s,
                               "wall_time_s": t} for j, c, s, t in rows]})
     elif not quiet:
-        table = Table(title=f"batch {jobs_file}: {len(rows)} of {len(runs)} job(s) run")
+        table = new_table(title=f"batch {jobs_file}: {len(rows)} of {len(runs)} job(s) run")
         for col in ("job", "command", "exit", "status", "time s", "out"):
             table.add_column(col, justify="right" if col in ("exit", "time s") else "left")
         for j, c, s, t in rows:

@@ -10,14 +10,42 @@ from pathlib import Path
 from typing import Annotated, Iterator, Optional
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ..errors import ConfigError
 from .app import OptionGroup
 
-stderr = Console(stderr=True)
-stdout = Console()
+
+class _Console:
+    """A rich ``Console``, made (and rich imported, ≈ 30 ms) when something is first printed: a
+    ``--quiet`` or ``--json`` run prints nothing through it."""
+
+    def __init__(self, **options) -> None:
+        self._options = options
+        self._console = None
+
+    def rich(self):
+        """The rich ``Console`` itself."""
+        if self._console is None:
+            from rich.console import Console
+
+            self._console = Console(**self._options)
+        return self._console
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.rich(), name)
+
+
+stderr = _Console(stderr=True)
+stdout = _Console()
+
+
+def new_table(**options):
+    """A rich ``Table`` (rich is imported on the first table)."""
+    from rich.table import Table
+
+    return Table(**options)
 
 DataArg = Annotated[list[Path], typer.Argument(help="Capture files (CSV/TXT/Parquet) or directories of them.",
                                                show_default=False)]
@@ -340,8 +368,10 @@ def progress_bar(enabled: bool, description: str) -> Iterator:
         finally:
             plain.close()
         return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
     prog = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    TextColumn("{task.fields[last]}"), console=stderr, transient=True)
+                    TextColumn("{task.fields[last]}"), console=stderr.rich(), transient=True)
     task = None
 
     def callback(event: str, info: dict) -> None:

@@ -7,12 +7,11 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
-from rich.table import Table
 
 from .app import command
 from .common import (DataArg, ExecutorArgs, FigureOutputArgs, FitArgs, FitCaptureArgs, Iters, MapeFloor, OutDir,
-                     Polish, Pop, Runs, Seed, cell_run, load_for_command, print_cell_summary, print_json,
-                     progress_bar, stdout, writing)
+                     Polish, Pop, Runs, Seed, cell_run, load_for_command, new_table, print_cell_summary,
+                     print_json, progress_bar, stdout, writing)
 
 
 @dataclass(frozen=True)
@@ -141,7 +140,7 @@ def _print_summary_table(res, out) -> None:
     from ..report.tables import fmt
 
     u = res.unit
-    t = Table(title=f"mean over conditions (best run per cell) — written to {out}")
+    t = new_table(title=f"mean over conditions (best run per cell) — written to {out}")
     for col in ("model", "optimizer", f"mean rmse_{u}", "worst r2", "failed cells", "total time s"):
         t.add_column(col, justify="right")
     for row in mean_over_conditions(res):

@@ -7,11 +7,10 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
-from rich.table import Table
 
 from .app import command
 from .common import (CaptureArgs, DataArg, ExecutorArgs, FigureOutputArgs, OutDir, PerCondition, Seed, cell_run,
-                     jobs_option, load_for_command, parse_key_values, print_cell_summary, print_json, progress_bar,
+                     jobs_option, load_for_command, new_table, parse_key_values, print_cell_summary, print_json, progress_bar,
                      stdout, writing)
 
 
@@ -101,7 +100,7 @@ def diagnose(
     if quiet:
         return
     u = d.unit
-    table = Table(title=f"{d.base_model}: held-out gap per added effect (noise floor {d.noise['sigma']:.3g} {u}) — "
+    table = new_table(title=f"{d.base_model}: held-out gap per added effect (noise floor {d.noise['sigma']:.3g} {u}) — "
                         f"verdict: {d.verdict}")
     for col in ("effect", f"before_{u}", f"after_{u}", "reduction", f"placebo_{u}", "passes"):
         table.add_column(col, justify="right")

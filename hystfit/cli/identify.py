@@ -6,12 +6,11 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
 from .app import command
 from .common import (DataArg, ExecutorArgs, FigureOutputArgs, FitArgs, FitCaptureArgs, Iters, MapeFloor, OutDir,
-                     Polish, Pop, Runs, Seed, cell_run, load_for_command, print_cell_summary, print_json,
-                     progress_bar, stderr, stdout, writing)
+                     Polish, Pop, Runs, Seed, cell_run, load_for_command, new_table, print_cell_summary,
+                     print_json, progress_bar, stderr, stdout, writing)
 
 
 @command()
@@ -109,7 +108,7 @@ def _print_summary_table(res, title: str) -> None:
     from ..report.tables import fmt
 
     u = res.unit
-    table = Table(title=title)
+    table = new_table(title=title)
     for col in ("condition", f"rmse_{u}", "nrmse_pct", "r2", f"max_error_{u}", "runtime_s"):
         table.add_column(col, justify="right")
     for row in summary_rows(res):

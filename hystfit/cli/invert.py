@@ -12,12 +12,11 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
-from rich.table import Table
 
 from ..errors import ConfigError, OutputError
 from .app import command
-from .common import (Condition, Method, OutputArgs, OutputUnit, TimeCol, parse_condition, print_json, progress_bar,
-                     stderr, stdout, writing)
+from .common import (Condition, Method, OutputArgs, OutputUnit, TimeCol, new_table, parse_condition, print_json,
+                     progress_bar, stderr, stdout, writing)
 
 TargetArg = Annotated[Optional[Path], typer.Argument(
     help="Target file (CSV/TXT/Parquet): time and desired displacement (target, reference, displacement_um, y, ...). "
@@ -203,7 +202,7 @@ def invert(
     from ..report.tables import fmt
 
     u, du = res.unit, display_unit(res.unit)
-    t = Table(title=f"{res.model_name} feedforward → {out} (report: {rdir}); predicted error")
+    t = new_table(title=f"{res.model_name} feedforward → {out} (report: {rdir}); predicted error")
     for i, col in enumerate(("segment", "cells × weight", f"RMSE ({du})", "RMSE %", f"max ({du})", "max %")):
         t.add_column(col, justify="left" if i < 2 else "right")
     rows = list(zip((ch.segment.label for ch in res.choices), (condition_text(ch) for ch in res.choices),

@@ -5,10 +5,9 @@ from __future__ import annotations
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
 from .app import command
-from .common import print_json, stdout
+from .common import new_table, print_json, stdout
 
 
 #: ``--json`` of the listings
@@ -40,9 +39,9 @@ def list_models(json_out: ListJson = False) -> None:
     print_papers()
 
 
-def _param_table(title: str, params: list[dict], empty: str | None = None) -> Table:
+def _param_table(title: str, params: list[dict], empty: str | None = None):
     """One parameter table (name, unit, bounds on the reference scale, meaning)."""
-    t = Table(title=title, title_justify="left")
+    t = new_table(title=title, title_justify="left")
     for col in ("parameter", "unit", "lower", "upper", "meaning"):
         t.add_column(col)
     for p in params:
@@ -110,7 +109,7 @@ def list_optimizers(json_out: ListJson = False) -> None:
         print_json({"optimizers": cat})
         return
     for o in cat:
-        t = Table(title=f"[bold]{o['name']}[/bold] — {o['title']}  ({o['reference']})", title_justify="left",
+        t = new_table(title=f"[bold]{o['name']}[/bold] — {o['title']}  ({o['reference']})", title_justify="left",
                   show_header=False)
         t.add_column("", style="bold")
         t.add_column("")

@@ -6,10 +6,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
 from .app import command
-from .common import CaptureArgs, DataArg, Method, OutputArgs, phase, print_json, stderr, stdout, writing
+from .common import (CaptureArgs, DataArg, Method, OutputArgs, new_table, phase, print_json, stderr, stdout,
+                     writing)
 
 
 @command()
@@ -60,7 +60,7 @@ def simulate(
     if output.quiet:
         return
     u = pf.unit
-    t = Table(title=f"{pf.model_name}: predictions written to {out}")
+    t = new_table(title=f"{pf.model_name}: predictions written to {out}")
     cols = ["capture", "cells", f"rmse_{u}", f"bias_{u}", "r2", f"max_error_{u}"] + ([f"offset_{u}"] if align_offset
                                                                                    else [])
     for i, col in enumerate(cols):

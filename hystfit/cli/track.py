@@ -6,12 +6,11 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
-from rich.table import Table
 
 from ..errors import ConfigError
 from .app import command
-from .common import (Condition, OutDir, OutputArgs, OutputUnit, Seed, TimeCol, parse_condition, parse_key_values, phase,
-                     print_json, progress_bar, stderr, stdout, writing)
+from .common import (Condition, OutDir, OutputArgs, OutputUnit, Seed, TimeCol, new_table, parse_condition, parse_key_values,
+                     phase, print_json, progress_bar, stderr, stdout, writing)
 
 # --noise is in µm (as in 'hystfit synth'); the loop runs in the parameter file's unit.
 UM_PER_UNIT_INV = {"nm": 1e3, "um": 1.0, "mm": 1e-3, "m": 1e-6}
@@ -142,14 +141,14 @@ def _print_tables(res, bw, out) -> None:
     for title, cols, rows in zip(titles, comparison_headers(res), comparison_text_rows(res)):
         if not cols:
             continue
-        t = Table(title=title)
+        t = new_table(title=title)
         for i, c in enumerate(cols):
             t.add_column(c, justify="left" if i == 0 else "right", no_wrap=i == 0)
         for row in rows:
             t.add_row(*row)
         stdout.print(t)
     if bw is not None:
-        t = Table(title="bandwidths (paper 003; 0 = none on the grid, – = beyond it)")
+        t = new_table(title="bandwidths (paper 003; 0 = none on the grid, – = beyond it)")
         for i, c in enumerate(("controller", "tracking −3 dB (Hz)", "disturbance rejection 0 dB (Hz)")):
             t.add_column(c, justify="left" if i == 0 else "right")
         for c, v in bw["controllers"].items():

@@ -66,3 +66,29 @@ def test_fast_reader_is_used_on_large_plain_files_and_declines_otherwise(tmp_pat
         assert hio._read_text_fast(p, "x.csv", False) is None, case
     monkeypatch.setattr(hio, "FAST_READ_BYTES", 1 << 20)
     assert hio._read_text_fast(plain, "plain.csv", False) is None  # small: the general reader
+
+
+def test_a_plain_numeric_capture_is_read_without_pandas(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "cap.csv"
+    path.write_text(_text())
+    code = ("import sys\n"
+            "from hystfit.io import load_capture\n"
+            f"c = load_capture({str(path)!r})\n"
+            "print(c.n, 'pandas' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.split()
+    assert out == ["3000", "False"]
+
+
+def test_float64_column_matches_pyarrow_to_numpy():
+    import pyarrow as pa
+
+    cases = [pa.chunked_array([pa.array([1.5, -0.0, 3.0])]),
+             pa.chunked_array([pa.array([1.0, None, 3.0]), pa.array([4.0, 5.0, None]).slice(1)]),
+             pa.chunked_array([pa.array([0.25, 7.0, None, 9.0]).slice(1, 2)])]
+    for col in cases:
+        got = hio._float64_column(col)
+        want = col.to_numpy()
+        assert got.dtype == np.float64 and got.tobytes() == want.tobytes()

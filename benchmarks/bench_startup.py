@@ -1,0 +1,92 @@
+"""What a command pays before it computes anything: imports, numba's context, each cached kernel.
+
+Run:  python benchmarks/bench_startup.py [--repeat 5]
+
+Each step is timed in a fresh process (best of the repeats; its own wall and CPU time), in the order
+a fitting command meets them:
+
+- ``numpy``, the command line (typer builds pydantic validators for the options it parses),
+  hystfit's registries (every model, optimizer and block class; no numba),
+- ``import numba`` — done by the first kernel that runs (:mod:`hystfit._jit`),
+- numba's context (its typing and lowering registries, which import ``scipy.linalg``) — loaded by
+  the first cached kernel a process calls, before it can load that kernel's machine code,
+- a cached kernel's index and data files (``play_matrix``), and a second one
+  (``play_matrix_from``), which is all a further kernel costs,
+- pandas and matplotlib, for comparison (a report table, the figure process).
+
+A first run warms numba's on-disk cache. The machine is shared: compare rows within one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+PROBE = r"""
+import json, time
+marks = []
+def mark(name):
+    marks.append((name, time.perf_counter(), time.process_time()))
+mark("start")
+import numpy as np
+mark("import numpy")
+import hystfit.cli
+mark("import hystfit.cli (typer, the commands)")
+import typer._adapters
+mark("typer's pydantic validators")
+from hystfit.registry import blocks, models, optimizers
+models.names(), optimizers.names(), blocks.names()
+mark("hystfit registries (models, optimizers, blocks)")
+import hystfit._jit as jit
+jit._load_numba()
+mark("import numba")
+from hystfit.models import _kernels as K
+u = np.sin(np.linspace(0.0, 20.0, 5001)); r = np.linspace(0.0, 1.0, 10)
+K.play_matrix.dispatcher().targetctx.refresh()
+mark("numba context (registries, scipy.linalg)")
+K.play_matrix(u, r)
+mark("first cached kernel: play_matrix (index + data)")
+K.play_matrix_from(u, r, np.zeros(10))
+mark("second cached kernel: play_matrix_from")
+import pandas
+mark("import pandas (report tables)")
+import matplotlib.pyplot
+mark("import matplotlib.pyplot (figure process)")
+print(json.dumps([(n, t, c) for n, t, c in marks]))
+"""
+
+
+def probe() -> list[tuple[str, float, float]]:
+    """One fresh process: (step, wall s, CPU s) of each step."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", PROBE], cwd=ROOT, env=env, check=True, capture_output=True,
+                         text=True).stdout
+    marks = json.loads(out.strip().splitlines()[-1])
+    return [(name, t - marks[i][1], c - marks[i][2]) for i, (name, t, c) in enumerate(marks[1:])]
+
+
+def measure(repeat: int = 5) -> list[dict]:
+    probe()  # warm numba's cache
+    runs = [probe() for _ in range(repeat)]
+    return [{"step": name, "wall_s": min(r[i][1] for r in runs), "cpu_s": min(r[i][2] for r in runs)}
+            for i, (name, _, _) in enumerate(runs[0])]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    print(f"Load average at the start {os.getloadavg()[0]:.1f}; best of {args.repeat} fresh processes\n")
+    print("| step | wall (s) | CPU (s) |\n|---|---:|---:|")
+    for row in measure(args.repeat):
+        print(f"| {row['step']} | {row['wall_s']:.3f} | {row['cpu_s']:.3f} |")
+
+
+if __name__ == "__main__":
+    main()
