@@ -48,6 +48,7 @@ __all__ = [
     "Effect",
     "Placebo",
     "phase_surrogate",
+    "surrogate_spectrum",
     "EFFECTS",
     "make_effect",
     "prepare_design",
@@ -188,12 +189,18 @@ def _as_cols(x: np.ndarray) -> np.ndarray:
     return x[:, None] if x.ndim == 1 else x
 
 
-def phase_surrogate(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def surrogate_spectrum(x: np.ndarray) -> np.ndarray:
+    """The spectrum of every column of ``x`` (N, m) that :func:`phase_surrogate` randomizes."""
+    return np.fft.rfft(_as_cols(np.asarray(x, dtype=np.float64)), axis=0)
+
+
+def phase_surrogate(x: np.ndarray, rng: np.random.Generator, spectrum: np.ndarray | None = None) -> np.ndarray:
     """Phase-randomized surrogate of every column of ``x`` (N, m): the same amplitude spectrum
-    (hence the same RMS and smoothness), uniformly random phases (DC and Nyquist kept)."""
+    (hence the same RMS and smoothness), uniformly random phases (DC and Nyquist kept).
+    ``spectrum``: ``surrogate_spectrum(x)`` when it is already known (many surrogates of one ``x``)."""
     x = _as_cols(np.asarray(x, dtype=np.float64))
     n = x.shape[0]
-    X = np.fft.rfft(x, axis=0)
+    X = surrogate_spectrum(x) if spectrum is None else spectrum
     ph = np.exp(2j * np.pi * rng.random(X.shape))
     ph[0] = 1.0
     if n % 2 == 0:
@@ -630,12 +637,23 @@ class Placebo(Effect):
 
     @classmethod
     def build(cls, library: Sequence[np.ndarray], n_shared: int, n_local: int,
-              rng: np.random.Generator) -> "Placebo":
-        """A placebo with ``n_shared`` + ``n_local`` random mixtures of surrogates of ``library``."""
-        lib = tuple(phase_surrogate(np.asarray(L, float), rng) for L in library)
+              rng: np.random.Generator, spectra: Sequence[np.ndarray] | None = None) -> "Placebo":
+        """A placebo with ``n_shared`` + ``n_local`` random mixtures of surrogates of ``library``
+        (``spectra``: the library's :func:`surrogate_spectrum` per capture, when already known)."""
+        spectra = (None,) * len(library) if spectra is None else spectra
+        lib = tuple(phase_surrogate(np.asarray(L, float), rng, S) for L, S in zip(library, spectra))
         q = lib[0].shape[1]
         W = rng.standard_normal((q, n_shared + n_local)) / math.sqrt(max(q, 1))
         return cls(library=lib, weights=W, n_shared=int(n_shared), n_local=int(n_local))
+
+    @staticmethod
+    def skip(library: Sequence[np.ndarray], n_shared: int, n_local: int, rng: np.random.Generator) -> None:
+        """Advance ``rng`` exactly as :meth:`build` would, without building (its random numbers
+        only): a later build from a copy of ``rng`` taken before draws the same placebo."""
+        shapes = [_as_cols(np.asarray(L)).shape for L in library]
+        for n, q in shapes:
+            rng.random((n // 2 + 1, q))  # the phases of phase_surrogate
+        rng.standard_normal((shapes[0][1], n_shared + n_local))
 
     def layout(self):
         return self.n_shared, self.n_local
