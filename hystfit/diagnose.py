@@ -1552,7 +1552,8 @@ def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, ca
                     settings: "DiagnoseSettings", seed: int, advance, count_progress: bool,
                     first_step: int = 0) -> _Selection:
     """The greedy selection of effects for one noise floor (the fits do not depend on it, the
-    reductions and the verdict do). ``first_step``: steps already taken (a continuation)."""
+    reductions and the verdict do). ``pred0``: ``_predictions(state0, caps, views)``. ``first_step``: steps
+    already taken (a continuation)."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7] + ([first_step] if first_step else [])))
     steps, chosen, alternatives = [], [], []
     state, preds_state = state0, pred0
@@ -1560,7 +1561,7 @@ def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, ca
     for step in range(settings.max_effects):
         if not remaining:
             break
-        library = _library(all_effects, _predictions(state, caps, views), views)
+        library = _library(all_effects, preds_state, views)  # preds_state is _predictions(state, caps, views)
         ctx = _StepContext(state, preds_state, _rmse(preds_state, views, "test"), _rmse(preds_state, views, "fit"),
                            _linearize(state, caps, views), library, sigma, where["summary"],
                            tuple(surrogate_spectrum(L) for L in library))
