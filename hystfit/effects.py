@@ -436,6 +436,27 @@ class _Design:
     yy: tuple
     cols: tuple
     lin: Linearization | None
+    indices: dict = field(default_factory=dict)  # (k_s, k_l) → per capture the index sets of the solve
+
+
+def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
+    """Per capture of ``design``, for ``ks`` shared and ``kl`` per-capture coefficients: the mesh of
+    its columns in the normal equations and, with regressors, the mesh and the rows of the columns
+    other than t₀ in its Gram matrix [R | t₀ | TJ] (None without). The same for every φ: computed once."""
+    key = (ks, kl)
+    if key not in design.indices:
+        C = len(design.views)
+        out = []
+        for c, (X, bcols) in enumerate(zip(design.X, design.cols)):
+            idx = [np.arange(ks), ks + c * kl + np.arange(kl)] if ks + kl else []
+            if design.lin is not None:
+                idx.append(ks + C * kl + bcols)
+            ix = np.concatenate(idx).astype(int) if idx else np.empty(0, int)
+            k = ks + kl
+            sel = np.r_[0:k, k + 1:k + X.shape[1]] if k else None
+            out.append((np.ix_(ix, ix), ix, None if sel is None else np.ix_(sel, sel), sel))
+        design.indices[key] = out
+    return design.indices[key]
 
 
 def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
@@ -486,7 +507,8 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
     G = np.zeros((n, n))
     b = np.zeros(n)
     s0 = 0.0
-    for c, (vv, X, yy, bcols) in enumerate(zip(design.views, design.X, design.yy, design.cols)):
+    indices = _solve_indices(design, ks, kl)
+    for vv, X, yy, (mesh, ix, sel_mesh, sel) in zip(design.views, design.X, design.yy, indices):
         mask = vv.fit
         if not mask.any():
             continue
@@ -500,22 +522,13 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
             y = y[mask]
             if Rs is not None:
                 Rs, Rl = Rs[mask], Rl[mask]
-        parts = []
-        idx = []
         if ks + kl:
-            parts += [Rs, Rl]
-            idx += [np.arange(ks), ks + c * kl + np.arange(kl)]
-        if lin is not None:
-            idx.append(ks + C * kl + bcols)
-        ix = np.concatenate(idx).astype(int) if idx else np.empty(0, int)
-        if parts:
-            A = np.hstack(parts + [T])  # [R | t0 | TJ]
+            A = np.hstack([Rs, Rl, T])  # [R | t0 | TJ]
             P = A.T @ A
             Ay = A.T @ y
             k = ks + kl
             t0A = P[k]  # t0 against every column
-            sel = np.r_[0:k, k + 1:A.shape[1]]
-            Gc = P[np.ix_(sel, sel)]
+            Gc = P[sel_mesh]
             bc = Ay[sel] - t0A[sel]
             t0y, t0t0 = Ay[k], P[k, k]
         else:
@@ -525,7 +538,7 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
             bc = Ty[1:] - P[1:, 0]
             t0y, t0t0 = Ty[0], P[0, 0]
         if ix.size:
-            G[np.ix_(ix, ix)] += Gc
+            G[mesh] += Gc
             b[ix] += bc
         s0 += yy - 2.0 * float(t0y) + float(t0t0)
     if bounded:
