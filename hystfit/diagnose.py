@@ -29,6 +29,7 @@ the JSON document (``diagnosis.json``) is built by
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -40,14 +41,14 @@ from .capture import Capture
 from .cells import cell_key
 from .conditions import condition_label, detect_condition, group_by_condition
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Linearization, Placebo, make_effect,
-                      signature_share, solve_coefficients)
+                      signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
 from .identify import fit_captures, identify, prepare_shared
 from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
-from .parallel import CellFailed, run_cells
+from .parallel import CellFailed, fork_map, run_cells
 from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
 
 __all__ = [
@@ -71,6 +72,10 @@ __all__ = [
 ]
 
 Progress = Optional[Callable[[str, dict], None]]
+
+#: processes that refit the candidates and placebos of a selection step (:func:`hystfit.parallel.fork_map`;
+#: None: every core). The numbers do not depend on it.
+SELECTION_WORKERS: int | None = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1442,7 +1447,7 @@ def _calibration_finding(caps, calib: Sequence[dict]) -> Finding:
 @dataclass(frozen=True, eq=False)
 class _StepContext:
     """What every candidate of one selection step is tested against: the current model, its held-out
-    and fit RMSE, its linearization and the placebo library, for one noise floor."""
+    and fit RMSE, its linearization and the placebo library (with its spectra), for one noise floor."""
 
     state: _State
     preds: list
@@ -1452,49 +1457,107 @@ class _StepContext:
     library: list
     sigma: float
     summary: dict
+    spectra: tuple = ()
 
 
-def _placebo_gain(ctx: _StepContext, eff: Effect, cache: dict, caps, views, settings: "DiagnoseSettings",
-                  rng) -> tuple[float, float]:
-    """(best, mean) held-out improvement of random placebos with ``eff``'s parameter layout (drawn
-    once per layout and step, in the order the layouts are first met)."""
+def _placebo_layout(eff: Effect) -> tuple[int, int]:
+    """The parameter layout of ``eff``'s placebos: (searched + shared, per capture)."""
     ks, kl = eff.layout()
-    key = (ks + eff.searched_bounds()[0].size, kl)
-    if key not in cache:
-        imps = []
+    return ks + eff.searched_bounds()[0].size, kl
+
+
+def _placebo_draws(ctx: _StepContext, effects: Sequence[Effect], settings: "DiagnoseSettings",
+                   rng) -> list[tuple[tuple[int, int], np.random.Generator]]:
+    """The step's placebos, ``settings.placebo_draws`` per layout in the order the layouts are first
+    met: per placebo its layout and a copy of ``rng`` where its draw starts. ``rng`` is advanced past
+    them all, exactly as drawing them one after the other would (so each can be built anywhere)."""
+    draws, seen = [], set()
+    for eff in effects:
+        key = _placebo_layout(eff)
+        if key in seen:
+            continue
+        seen.add(key)
         for _ in range(settings.placebo_draws):
-            pl = Placebo.build(ctx.library, key[0], key[1], rng)
-            st_p, _ = _augment(ctx.state, pl, caps, views, ctx.lin_cache, 1)
-            imps.append(ctx.before - _rmse(_predictions(st_p, caps, views), views, "test"))
-        cache[key] = (max(imps), float(np.mean(imps)))
-    return cache[key]
+            draws.append((key, copy.deepcopy(rng)))
+            Placebo.skip(ctx.library, key[0], key[1], rng)
+    return draws
 
 
-def _test_effect(ctx: _StepContext, eff: Effect, placebo: tuple[float, float], step: int, caps, views,
-                 settings: "DiagnoseSettings") -> tuple[EffectResult, tuple]:
-    """``eff`` refitted on top of the current model and scored on held-out data: its
-    :class:`EffectResult` and the (state, predictions) of the model with it."""
-    pl_best, pl_mean = placebo
-    before, sigma = ctx.before, ctx.sigma
+def _placebo_gain(ctx: _StepContext, key: tuple[int, int], start, caps, views) -> float:
+    """Held-out improvement of the random placebo of layout ``key`` drawn from the generator ``start``
+    (a copy is drawn from; ``start`` is left as it is)."""
+    pl = Placebo.build(ctx.library, key[0], key[1], copy.deepcopy(start), ctx.spectra)
+    st_p, _ = _augment(ctx.state, pl, caps, views, ctx.lin_cache, 1)
+    return ctx.before - _rmse(_predictions(st_p, caps, views), views, "test")
+
+
+@dataclass(frozen=True, eq=False)
+class _Refit:
+    """A candidate refitted on top of the current model: the model with it, its predictions, its
+    held-out and fit RMSE, and how much of the base residual its signature explains."""
+
+    state: _State
+    fit: EffectFit
+    preds: list
+    after: float
+    fit_after: float
+    share: float
+    r2: float
+
+
+def _refit_effect(ctx: _StepContext, eff: Effect, caps, views, settings: "DiagnoseSettings") -> _Refit:
+    """``eff`` refitted on top of the current model (jointly with it) and scored on held-out data."""
     st_e, efit = _augment(ctx.state, eff, caps, views, ctx.lin_cache, settings.iterations)
     preds_e = _predictions(st_e, caps, views)
-    after = _rmse(preds_e, views, "test")
-    fit_after = _rmse(preds_e, views, "fit")
+    fitted = [i for i, v in enumerate(views) if v.fit_end >= 3]
+    share, r2 = signature_share(eff, [ctx.preds[i][: views[i].fit_end] for i in fitted],
+                                [views[i].head(views[i].fit_end) for i in fitted], ctx.sigma * ctx.sigma)
+    return _Refit(st_e, efit, preds_e, _rmse(preds_e, views, "test"), _rmse(preds_e, views, "fit"), share, r2)
+
+
+def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[float, float], step: int, caps,
+                 views, settings: "DiagnoseSettings") -> EffectResult:
+    """The :class:`EffectResult` of ``eff`` refitted on top of the current model, judged against the
+    (best, mean) held-out improvement of its placebos."""
+    pl_best, pl_mean = placebo
+    before, sigma, after = ctx.before, ctx.sigma, refit.after
     denom = before - sigma
     red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
     pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
-    fitted = [i for i, v in enumerate(views) if v.fit_end >= 3]
-    share, r2 = signature_share(eff, [ctx.preds[i][: views[i].fit_end] for i in fitted],
-                                [views[i].head(views[i].fit_end) for i in fitted], sigma * sigma)
-    params = efit.params(views, [c.source for c in caps])
+    params = refit.fit.params(views, [c.source for c in caps])
     passes = {"reduction_at_least_threshold": red >= settings.threshold,
               "beats_placebo": (before - after) > pl_best,
               "gap_above_noise": _excess(before, sigma) >= settings.min_excess_ratio * sigma}
-    ev = Evidence.from_summary(eff.name, ctx.summary, signature_share=share, params=params, heldout_before=before,
-                               heldout_after=after, reduction=red, placebo=pl_best)
-    result = EffectResult(eff.name, eff.title, step + 1, before, after, ctx.fit_before, fit_after, red, pl_best,
-                          pl_mean, pl_red, efit.n_parameters, share, r2, params, ev, passes, efit)
-    return result, (st_e, preds_e)
+    ev = Evidence.from_summary(eff.name, ctx.summary, signature_share=refit.share, params=params,
+                               heldout_before=before, heldout_after=after, reduction=red, placebo=pl_best)
+    return EffectResult(eff.name, eff.title, step + 1, before, after, ctx.fit_before, refit.fit_after, red, pl_best,
+                        pl_mean, pl_red, refit.fit.n_parameters, refit.share, refit.r2, params, ev, passes, refit.fit)
+
+
+def _run_candidates(ctx: _StepContext, remaining: Sequence[Effect], step: int, caps, views,
+                    settings: "DiagnoseSettings", rng) -> tuple[list[EffectResult], dict]:
+    """Every remaining candidate refitted and judged against its placebos (the refits and the placebo
+    fits are independent: they run on :data:`SELECTION_WORKERS` processes, longest first, and give
+    the same numbers on any number). The results in the order of ``remaining``, and per effect the
+    (state, predictions) of the model with it."""
+    draws = _placebo_draws(ctx, remaining, settings, rng)
+    effects = sorted(remaining, key=lambda e: -e.searched_bounds()[0].size)  # the searches take longest
+
+    def run(i: int):
+        if i < len(effects):
+            return _refit_effect(ctx, effects[i], caps, views, settings)
+        key, start = draws[i - len(effects)]
+        return _placebo_gain(ctx, key, start, caps, views)
+
+    out = fork_map(run, len(effects) + len(draws), SELECTION_WORKERS)
+    refits = {e.name: r for e, r in zip(effects, out)}
+    gains: dict[tuple[int, int], list[float]] = {}
+    for (key, _), g in zip(draws, out[len(effects):]):
+        gains.setdefault(key, []).append(g)
+    placebo = {key: (max(g), float(np.mean(g))) for key, g in gains.items()}
+    results = [_test_effect(ctx, e, refits[e.name], placebo[_placebo_layout(e)], step, caps, views, settings)
+               for e in remaining]
+    return results, {e.name: (refits[e.name].state, refits[e.name].preds) for e in remaining}
 
 
 @dataclass(frozen=True, eq=False)
@@ -1511,18 +1574,16 @@ class _Selection:
 def _step_results(state, preds_state, remaining, step: int, caps, views, all_effects, sigma: float, where: dict,
                   settings: "DiagnoseSettings", rng, on_tested=None) -> tuple[list[EffectResult], dict, float]:
     """One step of the selection: every ``remaining`` candidate refitted on top of ``state`` and
-    scored against its placebo; the results (best first), the (state, predictions) of each, and the
-    held-out RMSE before the step."""
+    scored against its placebos (:func:`_run_candidates`); ``preds_state`` is
+    ``_predictions(state, caps, views)``. The results (best first), the (state, predictions) of
+    each, and the held-out RMSE before the step."""
+    library = _library(all_effects, preds_state, views)
     ctx = _StepContext(state, preds_state, _rmse(preds_state, views, "test"), _rmse(preds_state, views, "fit"),
-                       _linearize(state, caps, views),
-                       _library(all_effects, _predictions(state, caps, views), views), sigma, where["summary"])
-    placebo_cache: dict = {}
-    results, states = [], {}
-    for eff in remaining:
-        placebo = _placebo_gain(ctx, eff, placebo_cache, caps, views, settings, rng)
-        r, states[eff.name] = _test_effect(ctx, eff, placebo, step, caps, views, settings)
-        results.append(r)
-        if on_tested is not None:
+                       _linearize(state, caps, views), library, sigma, where["summary"],
+                       tuple(surrogate_spectrum(L) for L in library))
+    results, states = _run_candidates(ctx, remaining, step, caps, views, settings, rng)
+    if on_tested is not None:
+        for eff in remaining:
             on_tested(eff)
     results.sort(key=lambda r: (-r.reduction, r.n_parameters))
     return results, states, ctx.before
@@ -1575,8 +1636,9 @@ def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, ca
                     settings: "DiagnoseSettings", seed: int, advance, count_progress: bool,
                     first_step: int = 0) -> _Selection:
     """The greedy selection of effects for one noise floor (the fits do not depend on it, the
-    reductions and the verdict do). ``first_step``: steps already taken (a continuation). A step
-    that names nothing is given the two-effect look-ahead (:func:`_look_ahead`)."""
+    reductions and the verdict do). ``pred0``: ``_predictions(state0, caps, views)``. ``first_step``: steps
+    already taken (a continuation). A step that names nothing is given the two-effect look-ahead
+    (:func:`_look_ahead`)."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7] + ([first_step] if first_step else [])))
     steps, chosen, alternatives = [], [], []
     state, preds_state = state0, pred0

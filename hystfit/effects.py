@@ -48,6 +48,7 @@ __all__ = [
     "Effect",
     "Placebo",
     "phase_surrogate",
+    "surrogate_spectrum",
     "EFFECTS",
     "make_effect",
     "prepare_design",
@@ -216,12 +217,18 @@ def _as_cols(x: np.ndarray) -> np.ndarray:
     return x[:, None] if x.ndim == 1 else x
 
 
-def phase_surrogate(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def surrogate_spectrum(x: np.ndarray) -> np.ndarray:
+    """The spectrum of every column of ``x`` (N, m) that :func:`phase_surrogate` randomizes."""
+    return np.fft.rfft(_as_cols(np.asarray(x, dtype=np.float64)), axis=0)
+
+
+def phase_surrogate(x: np.ndarray, rng: np.random.Generator, spectrum: np.ndarray | None = None) -> np.ndarray:
     """Phase-randomized surrogate of every column of ``x`` (N, m): the same amplitude spectrum
-    (hence the same RMS and smoothness), uniformly random phases (DC and Nyquist kept)."""
+    (hence the same RMS and smoothness), uniformly random phases (DC and Nyquist kept).
+    ``spectrum``: ``surrogate_spectrum(x)`` when it is already known (many surrogates of one ``x``)."""
     x = _as_cols(np.asarray(x, dtype=np.float64))
     n = x.shape[0]
-    X = np.fft.rfft(x, axis=0)
+    X = surrogate_spectrum(x) if spectrum is None else spectrum
     ph = np.exp(2j * np.pi * rng.random(X.shape))
     ph[0] = 1.0
     if n % 2 == 0:
@@ -459,6 +466,27 @@ class _Design:
     yy: tuple
     cols: tuple
     lin: Linearization | None
+    indices: dict = field(default_factory=dict)  # (k_s, k_l) → per capture the index sets of the solve
+
+
+def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
+    """Per capture of ``design``, for ``ks`` shared and ``kl`` per-capture coefficients: the mesh of
+    its columns in the normal equations and, with regressors, the mesh and the rows of the columns
+    other than t₀ in its Gram matrix [R | t₀ | TJ] (None without). The same for every φ: computed once."""
+    key = (ks, kl)
+    if key not in design.indices:
+        C = len(design.views)
+        out = []
+        for c, (X, bcols) in enumerate(zip(design.X, design.cols)):
+            idx = [np.arange(ks), ks + c * kl + np.arange(kl)] if ks + kl else []
+            if design.lin is not None:
+                idx.append(ks + C * kl + bcols)
+            ix = np.concatenate(idx).astype(int) if idx else np.empty(0, int)
+            k = ks + kl
+            sel = np.r_[0:k, k + 1:k + X.shape[1]] if k else None
+            out.append((np.ix_(ix, ix), ix, None if sel is None else np.ix_(sel, sel), sel))
+        design.indices[key] = out
+    return design.indices[key]
 
 
 def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
@@ -509,7 +537,8 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
     G = np.zeros((n, n))
     b = np.zeros(n)
     s0 = 0.0
-    for c, (vv, X, yy, bcols) in enumerate(zip(design.views, design.X, design.yy, design.cols)):
+    indices = _solve_indices(design, ks, kl)
+    for vv, X, yy, (mesh, ix, sel_mesh, sel) in zip(design.views, design.X, design.yy, indices):
         mask = vv.fit
         if not mask.any():
             continue
@@ -523,22 +552,13 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
             y = y[mask]
             if Rs is not None:
                 Rs, Rl = Rs[mask], Rl[mask]
-        parts = []
-        idx = []
         if ks + kl:
-            parts += [Rs, Rl]
-            idx += [np.arange(ks), ks + c * kl + np.arange(kl)]
-        if lin is not None:
-            idx.append(ks + C * kl + bcols)
-        ix = np.concatenate(idx).astype(int) if idx else np.empty(0, int)
-        if parts:
-            A = np.hstack(parts + [T])  # [R | t0 | TJ]
+            A = np.hstack([Rs, Rl, T])  # [R | t0 | TJ]
             P = A.T @ A
             Ay = A.T @ y
             k = ks + kl
             t0A = P[k]  # t0 against every column
-            sel = np.r_[0:k, k + 1:A.shape[1]]
-            Gc = P[np.ix_(sel, sel)]
+            Gc = P[sel_mesh]
             bc = Ay[sel] - t0A[sel]
             t0y, t0t0 = Ay[k], P[k, k]
         else:
@@ -548,7 +568,7 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
             bc = Ty[1:] - P[1:, 0]
             t0y, t0t0 = Ty[0], P[0, 0]
         if ix.size:
-            G[np.ix_(ix, ix)] += Gc
+            G[mesh] += Gc
             b[ix] += bc
         s0 += yy - 2.0 * float(t0y) + float(t0t0)
     if bounded:
@@ -660,12 +680,23 @@ class Placebo(Effect):
 
     @classmethod
     def build(cls, library: Sequence[np.ndarray], n_shared: int, n_local: int,
-              rng: np.random.Generator) -> "Placebo":
-        """A placebo with ``n_shared`` + ``n_local`` random mixtures of surrogates of ``library``."""
-        lib = tuple(phase_surrogate(np.asarray(L, float), rng) for L in library)
+              rng: np.random.Generator, spectra: Sequence[np.ndarray] | None = None) -> "Placebo":
+        """A placebo with ``n_shared`` + ``n_local`` random mixtures of surrogates of ``library``
+        (``spectra``: the library's :func:`surrogate_spectrum` per capture, when already known)."""
+        spectra = (None,) * len(library) if spectra is None else spectra
+        lib = tuple(phase_surrogate(np.asarray(L, float), rng, S) for L, S in zip(library, spectra))
         q = lib[0].shape[1]
         W = rng.standard_normal((q, n_shared + n_local)) / math.sqrt(max(q, 1))
         return cls(library=lib, weights=W, n_shared=int(n_shared), n_local=int(n_local))
+
+    @staticmethod
+    def skip(library: Sequence[np.ndarray], n_shared: int, n_local: int, rng: np.random.Generator) -> None:
+        """Advance ``rng`` exactly as :meth:`build` would, without building (its random numbers
+        only): a later build from a copy of ``rng`` taken before draws the same placebo."""
+        shapes = [_as_cols(np.asarray(L)).shape for L in library]
+        for n, q in shapes:
+            rng.random((n // 2 + 1, q))  # the phases of phase_surrogate
+        rng.standard_normal((shapes[0][1], n_shared + n_local))
 
     def layout(self):
         return self.n_shared, self.n_local

@@ -473,3 +473,94 @@ def run_cells(fn: Callable[[Any, J], R], jobs: Sequence[J], *, shared: Any = Non
         outcomes.close()  # stops the workers at once when this loop is left by an exception (Ctrl-C)
         stats.wall_time_s += time.perf_counter() - t0
     return [results[i] for i in range(len(jobs))]
+
+
+# ------------------------------------------------------------------------------------ forked maps
+def fork_workers(workers: int | None = None) -> int:
+    """Processes :func:`fork_map` uses: ``workers``, by default all cores — one inside a pool
+    worker (it already has its core) or where ``fork`` is not available."""
+    if _SINGLE_THREADED or "fork" not in mp.get_all_start_methods():
+        return 1
+    return default_jobs() if workers is None else max(1, int(workers))
+
+
+def _fork_child(fn: Callable[[int], Any], n: int, claim, conn) -> None:
+    """A child of :func:`fork_map`: claims items until none is left, then sends ``{index: result}``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _single_threaded()
+    done: dict[int, Any] = {}
+    try:
+        while True:
+            with claim.get_lock():
+                i = claim.value
+                claim.value += 1
+            if i >= n:
+                break
+            done[i] = fn(i)
+        conn.send(done)
+    except BaseException:  # noqa: BLE001 - whatever this child did not return, the parent computes
+        try:
+            conn.send(done)
+        except BaseException:  # noqa: BLE001 - e.g. a result that does not pickle: the parent recomputes all
+            pass
+
+
+def _fork_one(fn: Callable[[int], Any], n: int, claim) -> tuple[int, Any]:
+    """Fork one child of :func:`fork_map`; its pid and the parent's end of its pipe."""
+    recv, send = mp.get_context("fork").Pipe(duplex=False)
+    for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
+        stream.flush()
+    pid = os.fork()
+    if pid == 0:
+        code = 0
+        try:
+            recv.close()
+            _fork_child(fn, n, claim, send)
+        except BaseException:  # noqa: BLE001 - never return into the caller's code
+            code = 1
+        finally:
+            os._exit(code)
+    send.close()
+    return pid, recv
+
+
+def fork_map(fn: Callable[[int], R], n: int, workers: int | None = None) -> list[R]:
+    """``[fn(i) for i in range(n)]``, spread over this process and forked children.
+
+    Meant for short batches of independent, deterministic items that read large data already in
+    this process (the forked children see it without copying or pickling): this process and up to
+    ``fork_workers(workers) − 1`` children claim the next unclaimed index in turn (so the items
+    balance themselves; put the longest first), each child returns its results at the end, and the
+    list is in index order — the results never depend on the number of processes. An item a child
+    did not return (it raised, or died) is computed here, so its exception, if any, is raised here
+    as in a serial loop. Serial for one worker or one item.
+    """
+    k = min(fork_workers(workers), n)
+    if k <= 1:
+        return [fn(i) for i in range(n)]
+    claim = mp.get_context("fork").Value("l", 0)
+    children = [_fork_one(fn, n, claim) for _ in range(k - 1)]
+    results: dict[int, Any] = {}
+    try:
+        while True:
+            with claim.get_lock():
+                i = claim.value
+                claim.value += 1
+            if i >= n:
+                break
+            results[i] = fn(i)
+        for pid, conn in children:
+            try:
+                results.update(conn.recv())
+            except (EOFError, OSError):  # the child died: its items are computed below
+                pass
+    finally:
+        for pid, conn in children:
+            conn.close()
+            try:
+                if len(results) < n:  # left early (an exception here): do not wait for the child's items
+                    os.kill(pid, signal.SIGTERM)
+                os.waitpid(pid, 0)
+            except (ChildProcessError, ProcessLookupError):
+                pass
+    return [results[i] if i in results else fn(i) for i in range(n)]

@@ -20,6 +20,7 @@ from ..io import atomic_write_text
 from ..results import dumps, identify_to_dict, json_safe, schema_fields, unit_keys
 from . import plots
 from .plots import _decimate, _decimate_minmax, _new_figure, _save, _stride, display_unit
+from .render import FigureJob, render_figures
 from .tables import fmt
 from .diagnose_wording import (DEFINITIONS, evidence_text, noise_method_text, pointers_text, reconciliation_why,
                                resolution_text, split_description, split_why,
@@ -363,29 +364,28 @@ def _fig_loop(path: Path, d: Diagnosis, i: int) -> Path:
     return _save(fig, path, plots.DPI)
 
 
-def write_figures(d: Diagnosis, fig_dir: Path) -> dict[str, str]:
-    """Write every figure into ``fig_dir``; returns name → path relative to the report."""
+def write_figures(d: Diagnosis, fig_dir: Path, n_jobs: int | None = None) -> dict[str, str]:
+    """Write every figure into ``fig_dir`` (drawn by ``n_jobs`` processes, default all cores:
+    :func:`~hystfit.report.render.render_figures`); returns name → path relative to the report."""
     fig_dir.mkdir(parents=True, exist_ok=True)
-    out = {}
-
-    def rel(p: Path) -> str:
-        return str(Path(fig_dir.name) / p.name)
-
-    out["conditions"] = rel(_fig_conditions(fig_dir / "where_conditions.png", d))
-    out["branch"] = rel(_fig_branch_position(fig_dir / "where_branch_position.png", d))
-    out["time"] = rel(_fig_time(fig_dir / "where_time.png", d))
-    out["bands"] = rel(_fig_bands(fig_dir / "where_bands.png", d))
+    here = f"{__name__}:"
+    jobs = {"conditions": FigureJob(here + "_fig_conditions", fig_dir / "where_conditions.png", (d,)),
+            "branch": FigureJob(here + "_fig_branch_position", fig_dir / "where_branch_position.png", (d,)),
+            "time": FigureJob(here + "_fig_time", fig_dir / "where_time.png", (d,)),
+            "bands": FigureJob(here + "_fig_bands", fig_dir / "where_bands.png", (d,))}
     if d.effects:
-        out["effects"] = rel(_fig_effects(fig_dir / "effects_heldout.png", d))
+        jobs["effects"] = FigureJob(here + "_fig_effects", fig_dir / "effects_heldout.png", (d,))
     caps = d.figures_data["captures"]
     for periodic, key in ((True, "explained_periodic"), (False, "explained_other")):
         i = _worst_capture(d, periodic)
         if i is None:
             continue
-        out[key] = rel(_fig_explained(fig_dir / f"explained_{_safe(Path(caps[i].source).stem)}.png", d, i))
+        stem = _safe(Path(caps[i].source).stem)
+        jobs[key] = FigureJob(here + "_fig_explained", fig_dir / f"explained_{stem}.png", (d, i))
         if periodic:
-            out["loop"] = rel(_fig_loop(fig_dir / f"loop_{_safe(Path(caps[i].source).stem)}.png", d, i))
-    return out
+            jobs["loop"] = FigureJob(here + "_fig_loop", fig_dir / f"loop_{stem}.png", (d, i))
+    paths = render_figures(list(jobs.values()), n_jobs)
+    return {key: str(Path(fig_dir.name) / p.name) for key, p in zip(jobs, paths)}
 
 
 def _safe(name: str) -> str:

@@ -262,3 +262,24 @@ def test_registry_and_parameter_tables():
         assert all(p.unit and p.kind in ("searched", "linear", "per-capture", "fixed") for p in eff.param_table())
     with pytest.raises(ConfigError, match="unknown effect"):
         make_effect("thermal")
+
+
+def test_placebo_skip_advances_the_generator_as_build_does():
+    """A placebo built from a copy of the generator taken before ``skip`` equals the one ``build``
+    draws in turn, and ``skip`` leaves the generator where ``build`` does (cached spectra or not)."""
+    import copy
+
+    from hystfit.effects import Placebo, surrogate_spectrum
+
+    gen = np.random.default_rng(5)
+    library = [gen.standard_normal((n, 4)) for n in (301, 300, 57)]
+    a, b = np.random.default_rng(11), np.random.default_rng(11)
+    built = [Placebo.build(library, 2, 1, a) for _ in range(3)]
+    spectra = [surrogate_spectrum(L) for L in library]
+    for want in built:
+        start = copy.deepcopy(b)
+        Placebo.skip(library, 2, 1, b)
+        got = Placebo.build(library, 2, 1, start, spectra)
+        assert np.array_equal(got.weights, want.weights)
+        assert all(np.array_equal(x, y) for x, y in zip(got.library, want.library))
+    assert a.random() == b.random()

@@ -1,0 +1,69 @@
+"""Where the wall time of ``hystfit diagnose sample_data --model pi`` goes: main process against its children.
+
+Run:  python benchmarks/diagnose_speed.py [--repeat 3] [--other PYTHONPATH_OF_ANOTHER_TREE]
+
+Each run is a fresh process (imports included). Printed per run and as the best of ``--repeat``:
+the wall time, the CPU seconds of the main process and of its children (the forked processes that
+refit the candidates of a selection step, the figure workers). On a shared machine the wall time
+follows the load; the main process's CPU time does not, and on an idle machine with one core per
+process it is close to the wall time (the children run beside it). With ``--other``, the same
+command is run from that tree too, alternately, so both are measured at the same moment.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: runs the command and prints its own and its children's CPU seconds and its wall time as JSON
+CHILD = """
+import atexit, json, resource, sys, time
+t0 = time.perf_counter()
+def report():
+    s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    print(json.dumps({"wall_s": time.perf_counter() - t0, "main_cpu_s": s.ru_utime + s.ru_stime,
+                      "children_cpu_s": c.ru_utime + c.ru_stime}), file=sys.stderr)
+atexit.register(report)
+from hystfit.cli import main
+sys.argv = ["hystfit", "diagnose", sys.argv[2], "--model", "pi", "--quiet", "--out", sys.argv[1]]
+main()
+"""
+
+
+def run_once(tree: Path) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "PYTHONPATH": str(Path(tree).resolve())}
+        # run from the temporary directory: ``python -c`` puts the working directory first on sys.path
+        r = subprocess.run([sys.executable, "-c", CHILD, str(Path(tmp) / "out"), str(ROOT / "sample_data")], cwd=tmp,
+                           env=env, capture_output=True, text=True, check=True)
+    return json.loads(r.stderr.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--other", type=Path, default=None, help="PYTHONPATH of another tree to measure alternately")
+    args = ap.parse_args()
+    trees = {"this": ROOT, **({"other": args.other} if args.other else {})}
+    runs: dict[str, list[dict]] = {k: [] for k in trees}
+    print("| tree | run | wall (s) | main CPU (s) | children CPU (s) | load |\n|---|---|---|---|---|---|")
+    for i in range(args.repeat):
+        for name, tree in trees.items():
+            m = run_once(tree)
+            runs[name].append(m)
+            print(f"| {name} | {i + 1} | {m['wall_s']:.2f} | {m['main_cpu_s']:.2f} | {m['children_cpu_s']:.2f} | "
+                  f"{os.getloadavg()[0]:.1f} |", flush=True)
+    for name, ms in runs.items():
+        print(f"\n{name}: best wall {min(m['wall_s'] for m in ms):.2f} s, best main CPU "
+              f"{min(m['main_cpu_s'] for m in ms):.2f} s, best children CPU {min(m['children_cpu_s'] for m in ms):.2f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,68 @@
+"""``parallel.fork_map``: the items of a batch spread over this process and forked children, the
+results in index order and equal to the serial loop's, whatever the number of processes."""
+
+import multiprocessing as mp
+import os
+
+import numpy as np
+import pytest
+
+from hystfit import parallel
+from hystfit.errors import InputError
+from hystfit.parallel import fork_map, fork_workers
+
+pytestmark = pytest.mark.skipif(fork_workers(2) < 2, reason="needs fork")
+
+
+def _item(i: int) -> tuple[int, float]:
+    """Data only this process holds (the children see it by fork) and a little work."""
+    x = np.random.default_rng(i).standard_normal(2000)
+    return i, float(np.sort(x) @ np.arange(x.size))
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3])
+def test_results_in_order_and_equal_to_the_serial_loop(workers):
+    assert fork_map(_item, 17, workers) == [_item(i) for i in range(17)]
+
+
+def test_children_compute_items():
+    parent = os.getpid()
+    child_ran = mp.get_context("fork").Event()
+
+    def fn(i):
+        if os.getpid() != parent:
+            child_ran.set()
+        elif i == 0:  # the parent's first item waits until the child has claimed one
+            child_ran.wait(60)
+        return os.getpid()
+
+    pids = fork_map(fn, 10, 2)
+    assert set(pids) - {parent}, "no item ran in a child"
+    assert fork_map(lambda i: os.getpid(), 5, 1) == [os.getpid()] * 5
+
+
+def test_an_item_that_raises_raises_here():
+    def fn(i):
+        if i == 3:
+            raise InputError("item 3 is bad")
+        return i
+
+    with pytest.raises(InputError, match="item 3 is bad"):
+        fork_map(fn, 8, 2)
+
+
+def test_an_item_a_child_cannot_return_is_computed_here():
+    parent = os.getpid()
+
+    def fn(i):
+        if os.getpid() != parent and i % 2:
+            os._exit(3)  # the child dies on its first odd item
+        return i * i
+
+    assert fork_map(fn, 12, 2) == [i * i for i in range(12)]
+
+
+def test_one_process_inside_a_pool_worker(monkeypatch):
+    monkeypatch.setattr(parallel, "_SINGLE_THREADED", True)
+    assert fork_workers(4) == 1
+    assert fork_map(lambda i: os.getpid(), 6, 4) == [os.getpid()] * 6
