@@ -281,7 +281,12 @@ def resolution_text(r: dict, unit: str) -> str:
     with_effects = f" with {' + '.join(r['effects'])}" if r["effects"] else ""
     head = (f"Resolution of the base: {r['option']} {r['from']} → {r['to']}{with_effects} takes the held-out RMSE "
             f"from {before:.4g} to {after:.4g} {u} (reduction {r['reduction']:.2f} of the gap above the noise; "
-            f"threshold {r['threshold']:.2f}).")
+            f"threshold {r['threshold']:.2f} per doubling).")
+    steps = r.get("steps", [])
+    if len(steps) > 1:
+        head += " Doubled while each doubling passed: " + "; ".join(
+            f"{x['from']} → {x['to']} {x['reduction']:.2f}" + (" (adopted)" if x["adopted"] else " (kept)") for x in steps) + "."
+
     if r["adopted"]:
         return (head + f" The coarse base's own discretization was a large part of what remained, so the finer base "
                 f"is adopted: the effects after step {len(r['effects'])} were tested on it, and the recommended model "
