@@ -818,7 +818,11 @@ def where_document(d: Diagnosis) -> dict:
 
 def split_why_text(d: Diagnosis) -> str:
     """Why the hold-out scheme was chosen (``split.why``), from the diagnosis' :class:`SplitChoice`."""
-    return split_why(d.split_choice.reason, d.split_choice.swept_sources)
+    why = split_why(d.split_choice.reason, d.split_choice.swept_sources)
+    if d.split.get("not_tested"):
+        why += ("; " + ", ".join(d.split["not_tested"]) + " is not tested: its trend in time is also a trend in "
+                "amplitude on these captures, and no held-out sample tells the two apart")
+    return why
 
 
 def split_document(d: Diagnosis) -> dict:

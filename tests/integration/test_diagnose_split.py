@@ -161,3 +161,17 @@ def test_cycles_split_names_a_single_effect_on_rising_sines_in_per_condition_mod
                  settings=DiagnoseSettings(max_effects=1, split="cycles"))
     assert d.split["kind"] == "cycles" and d.explained_by and d.explained_by[0] in ("delay", "dynamics")
     assert all(c["heldout_samples"] > 0 and c["fit_samples"] > c["heldout_samples"] for c in d.split["per_capture"])
+
+
+def test_drift_is_not_tested_when_the_middle_cycles_of_rising_sines_are_held_out():
+    """Per condition, rising sines: the cycles split, where a trend in time is a trend in amplitude."""
+    caps = _rising(synth.Effects(noise=True, noise_sigma_um=0.01), cycles=8)
+    d = diagnose(caps, make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)}),
+                 make_optimizer(optimizers.get("auto")), per_condition=True,
+                 settings=DiagnoseSettings(max_effects=1, placebo_draws=1))
+    assert d.split["kind"] == "cycles" and d.split["not_tested"] == ["drift"]
+    assert "drift" not in {r.effect for r in d.effects}
+    assert "drift is not tested" in diagnosis_document(d)["split"]["why"]
+    d = diagnose(caps, make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)}),
+                 make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=1, placebo_draws=1))
+    assert d.split["kind"] == "capture" and "not_tested" not in d.split
