@@ -63,7 +63,11 @@ def main() -> None:
         if post is not None:
             print(f"  resolution after the effects: {post['from']}→{post['to']} held-out "
                   f"{post['heldout_rmse_before_out']:.4g}→{post['heldout_rmse_after_out']:.4g} µm, reduction "
-                  f"{post['reduction']:.2f}, {'adopted' if post['adopted'] else 'kept'}")
+                  f"{100 * post['reduction_mean_square']:.0f} % of the excess mean square, "
+                  f"{'adopted' if post['adopted'] else 'kept'}")
+        for c in d.resolution_during_selection:
+            print(f"  during the selection, after {' + '.join(c['effects'])}: {c['from']}→{c['to']} "
+                  f"{100 * c['reduction_mean_square']:.0f} %, {'adopted' if c['adopted'] else 'kept'}")
         for i, step in enumerate(d.steps):
             named = d.explained_by[i] if i < len(d.explained_by) else "nothing"
             together = [f"{r.effect} with {r.joint['with']}" for r in step if r.joint is not None]

@@ -72,7 +72,7 @@ def main() -> None:
             if r is not None:
                 print(f"  resolution check: {r['option']} {r['from']} → {r['to']} with {' + '.join(r['effects']) or 'no effect'}: "
                       f"held-out {r['heldout_rmse_before_um']:.4f} → {r['heldout_rmse_after_um']:.4f} µm, reduction "
-                      f"{r['reduction']:.2f}, adopted: {r['adopted']}")
+                      f"{100 * r['reduction_mean_square']:.0f} % of the excess mean square, adopted: {r['adopted']}")
             for s in d["steps"][1:]:
                 print(f"  step {s['step']}: " + ", ".join(f"{e['effect']} {e['reduction']:.2f}" for e in s["effects"])
                       + f" → named {s['named'] or 'none'}")

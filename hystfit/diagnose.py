@@ -287,6 +287,8 @@ class Diagnosis:
     resolution: dict | None = None  # the base-resolution check (:func:`resolution_check`), None when not run
     split_choice: SplitChoice | None = field(repr=False, compare=False, default=None)  # the hold-out, as a record
     resolution_before_effects: dict | None = None  # :func:`converge_resolution`, None when not run
+    base_resolution: dict | None = None  # {"option", "given", "final"}: the base's resolution at the end
+    resolution_during_selection: tuple[dict, ...] = ()  # the checks after each named effect (:class:`_Refiner`)
 
     @property
     def reconciliation(self) -> list[dict]:
@@ -318,12 +320,10 @@ class Diagnosis:
     @property
     def recommended_options(self) -> dict:
         """``--model-option`` values the recommended model needs beyond the caller's: the finer
-        resolution when :func:`converge_resolution` or the resolution check after the effects adopted
-        one (e.g. ``{"n_operators": 20}``)."""
-        r, first = self.resolution, self.resolution_before_effects
-        if r is not None and r.get("adopted"):
-            return {r["option"]: r["to"]}
-        return {first["option"]: first["to"]} if first is not None and first["to"] != first["from"] else {}
+        resolution the diagnosis ended on, when a resolution check adopted one (before the effects,
+        after an effect or after the last; e.g. ``{"n_operators": 20}``)."""
+        r = self.base_resolution
+        return {r["option"]: r["final"]} if r is not None and r["final"] != r["given"] else {}
 
     @property
     def heldout_rmse_named(self) -> float:
@@ -1647,11 +1647,13 @@ class _RunStep:
 
 def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, cands, all_effects,
                     settings: "DiagnoseSettings", seed: int, advance, count_progress: bool,
-                    first_step: int = 0) -> _Selection:
+                    first_step: int = 0, refine=None) -> _Selection:
     """The greedy selection of effects for one noise floor (the fits do not depend on it, the
     reductions and the verdict do). ``pred0``: ``_predictions(state0, caps, views)``. ``first_step``: steps
     already taken (a continuation). A step that names nothing is given the two-effect look-ahead
-    (:func:`_look_ahead`)."""
+    (:func:`_look_ahead`). ``refine(state, preds, chosen)``: called after an effect is named (not
+    between the two of a look-ahead pair) while more steps remain; (state, preds) of the model with
+    the named effects on a finer base when the base's resolution limits it, else None."""
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7] + ([first_step] if first_step else [])))
     steps, chosen, alternatives = [], [], []
     state, preds_state = state0, pred0
@@ -1684,6 +1686,10 @@ def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, ca
         chosen.append(pick.effect)
         state, preds_state = states[pick.effect]
         remaining = [e for e in remaining if e.name != pick.effect]
+        if refine is not None and pending is None and remaining and step + 1 < settings.max_effects:
+            finer = refine(state, preds_state, chosen)
+            if finer is not None:
+                state, preds_state = finer
     return _Selection(tuple(steps), tuple(chosen), tuple(alternatives), preds_state)
 
 
@@ -1832,6 +1838,7 @@ class _Resolution:
     info: dict
     state: _State
     preds: list
+    model: Model | None = None  # the finer base when adopted
 
 
 def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, gap: _Gap, sel: _Selection,
@@ -1840,8 +1847,9 @@ def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed:
     effects? The base at twice its resolution (:meth:`Model.refined`) is fitted on the fit part, the
     named effects are refitted on it in the order they were named, and the held-out RMSE is compared
     with the coarse base's. None when the base has no resolution option or the held-out excess
-    √(RMSE² − floor²) is within the noise floor (the rule of :func:`converge_resolution`); otherwise the check's numbers and ``adopted`` (the finer base removes at least
-    ``settings.threshold`` of the remaining held-out gap above the noise)."""
+    √(RMSE² − floor²) is within the noise floor; otherwise the check's numbers and ``adopted``: the
+    finer base removes at least ``settings.resolution_threshold`` of the held-out excess mean square
+    (the rule of :func:`converge_resolution`)."""
     fine = model.refined()
     before = _rmse(sel.preds, d.views, "test")
     if fine is None or not _excess(before, sigma) > sigma:  # as in converge_resolution
@@ -1856,14 +1864,22 @@ def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed:
         state, _ = _augment(state, eff, caps, views, _linearize(state, caps, views), settings.iterations)
     preds = _predictions(state, caps, views)
     after = _rmse(preds, views, "test")
-    denom = before - sigma
-    red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
-    opt = model.composition[0].resolution_option if model.composition is not None else model.resolution_option
-    info = {"option": opt, "from": int(getattr(model.composition[0] if model.composition is not None else model, opt)),
-            "to": int(getattr(fine.composition[0] if fine.composition is not None else fine, opt)),
-            "effects": list(sel.chosen), "heldout_rmse_before_out": before, "heldout_rmse_after_out": after,
-            "reduction": red, "threshold": settings.threshold, "adopted": bool(red >= settings.threshold)}
-    return _Resolution(info, state, preds)
+    (opt, n_from), (_, n_to) = _resolution_of(model), _resolution_of(fine)
+    info = {"option": opt, "from": n_from, "to": n_to, "effects": list(sel.chosen),
+            "heldout_rmse_before_out": before, "heldout_rmse_after_out": after, **_shares(before, after, sigma),
+            "threshold": settings.resolution_threshold}
+    info["adopted"] = bool(info["reduction_mean_square"] >= settings.resolution_threshold)
+    return _Resolution(info, state, preds, fine)
+
+
+def _shares(before: float, after: float, sigma: float) -> dict:
+    """How much of the held-out gap above the floor a change removes: ``reduction`` of the RMSE gap
+    (before − σ) and ``reduction_mean_square`` of the excess mean square (before² − σ²), the rule
+    of every resolution check (errors add in quadrature), each clipped to [0, 1]."""
+    red = float(np.clip((before - after) / (before - sigma), 0.0, 1.0)) if before > sigma else 0.0
+    ms = before ** 2 - sigma ** 2
+    return {"reduction": red,
+            "reduction_mean_square": float(np.clip((before ** 2 - after ** 2) / ms, 0.0, 1.0)) if ms > 0 else 0.0}
 
 
 def resolution_check_converged(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, gap: _Gap,
@@ -1888,9 +1904,8 @@ def resolution_check_converged(caps, d: _Design, model: Model, optimizer: Optimi
             break
         cur, fine = nxt, fine.refined()
     before, after = info["heldout_rmse_before_out"], cur.info["heldout_rmse_after_out"]
-    info.update(to=cur.info["to"], heldout_rmse_after_out=after, steps=steps,
-                reduction=float(np.clip((before - after) / (before - sigma), 0.0, 1.0)) if before > sigma else 0.0)
-    return _Resolution(info, cur.state, cur.preds)
+    info.update(to=cur.info["to"], heldout_rmse_after_out=after, steps=steps, **_shares(before, after, sigma))
+    return _Resolution(info, cur.state, cur.preds, cur.model if cur.info["adopted"] else model)
 
 
 def _resolution_of(model: Model) -> tuple[str, int]:
@@ -1920,8 +1935,7 @@ def converge_resolution(caps, d: _Design, model: Model, optimizer: Optimizer, se
     while (fine := cur.refined()) is not None and _excess(cur_base.before, sigma) > sigma:
         fits = _base_fits(jobs, 0, fine, optimizer, seed, executor, None, False, lambda label: None)
         fine_base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
-        excess_ms = cur_base.before ** 2 - sigma ** 2
-        red = float(np.clip((cur_base.before ** 2 - fine_base.before ** 2) / excess_ms, 0.0, 1.0))
+        red = _shares(cur_base.before, fine_base.before, sigma)["reduction_mean_square"]
         adopted = red >= settings.resolution_threshold
         steps.append({"from": _resolution_of(cur)[1], "to": _resolution_of(fine)[1],
                       "heldout_rmse_before_out": cur_base.before, "heldout_rmse_after_out": fine_base.before,
@@ -1946,6 +1960,33 @@ def _continue_on_finer_base(res: _Resolution, sel: _Selection, select_from) -> _
         return _Selection(sel.steps[:k], sel.chosen, sel.alternatives[:k], res.preds)
     return _Selection(sel.steps[:k] + more.steps, sel.chosen + more.chosen, sel.alternatives[:k] + more.alternatives,
                       more.preds)
+
+
+def _base_resolution(given: Model, final: Model) -> dict | None:
+    """The base's resolution option as given and as the diagnosis ended on it (None without one)."""
+    if given.refined() is None and final is given:
+        return None
+    (opt, a), (_, b) = _resolution_of(given), _resolution_of(final)
+    return {"option": opt, "given": a, "final": b}
+
+
+class _Refiner:
+    """The base's resolution converged after each named effect (the ``refine`` hook of
+    :func:`_select_effects`): ``check(model, selection)`` is :func:`resolution_check_converged`;
+    ``model`` is the base the selection is on, ``checks`` the sections of every check run."""
+
+    def __init__(self, model: Model, check) -> None:
+        self.model, self.check, self.checks = model, check, []
+
+    def __call__(self, state, preds, chosen):
+        res = self.check(self.model, _Selection((), tuple(chosen), (), preds))
+        if res is None:
+            return None
+        self.checks.append(res.info)
+        if not res.info["adopted"]:
+            return None
+        self.model = res.model
+        return res.state, res.preds
 
 
 def _capture_info(caps, d: _Design, calib: Sequence[dict]) -> tuple[dict, ...]:
@@ -2008,17 +2049,34 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     cands = _configured([n for n in names if n not in untested], base.preds, d.views)  # configured on the fit data
     all_effects = _configured(list(EFFECTS), base.preds, d.views)
 
+    refiners: list[_Refiner] = []
+    checked: dict = {}  # one check per (base, floor, named effects): the last one is also the final check
+
+    def check(m: Model, sel_: _Selection, sigma: float) -> _Resolution | None:
+        key = (_resolution_of(m), sigma, sel_.chosen)
+        if key not in checked:
+            checked[key] = resolution_check_converged(caps, d, m, optimizer, seed, gap, sel_, sigma, settings, executor)
+        return checked[key]
+
+    def refiner(start: Model, sigma: float) -> _Refiner | None:
+        if not settings.resolution_check:
+            return None
+        refiners.append(_Refiner(start, lambda m, sel_: check(m, sel_, sigma)))
+        return refiners[-1]
+
     def select(sigma: float, where: dict, count_progress: bool) -> _Selection:
         return _select_effects(sigma, where, state0=base.state, pred0=base.preds, caps=caps, views=list(d.views),
                                cands=cands, all_effects=all_effects, settings=settings, seed=seed,
-                               advance=advance, count_progress=count_progress)
+                               advance=advance, count_progress=count_progress, refine=refiner(model, sigma))
 
     out = _where_and_select(caps, d, gap, base, first, select)  # 3. where and 4. which, how far
     advance("verdict")
     sel = out.selection
-    res = (resolution_check_converged(caps, d, model, optimizer, seed, gap, sel, out.sigma, settings, executor)
-           if settings.resolution_check else None)
+    final = refiners[-1].model if refiners else model  # the base the selection ended on
+    res = check(final, sel, out.sigma) if settings.resolution_check else None
     if res is not None and res.info["adopted"]:  # go on from the finer base with the effects not yet named
+        final = res.model
+
         def select_from(state, preds, named, first_step):
             left = [e for e in cands if e.name not in named]
             if not left or first_step >= settings.max_effects:
@@ -2026,9 +2084,13 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
             return _select_effects(out.sigma, out.where, state0=state, pred0=preds, caps=caps, views=list(d.views),
                                    cands=left, all_effects=all_effects, seed=seed, advance=advance,
                                    count_progress=False, first_step=first_step,
-                                   settings=replace(settings, max_effects=settings.max_effects - first_step))
+                                   settings=replace(settings, max_effects=settings.max_effects - first_step),
+                                   refine=refiner(final, out.sigma))
+        n_refiners = len(refiners)
         sel = _continue_on_finer_base(res, sel, select_from)
+        final = refiners[-1].model if len(refiners) > n_refiners else final
     resolution = res.info if res is not None else None
+    during = tuple(c for c in (refiners[-1].checks if refiners else []) if res is None or c is not res.info)
     split = _split_info(d.split, caps, d.views, d.swept, settings)
     if untested:
         split["not_tested"] = list(untested)
@@ -2050,7 +2112,8 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                      verdict=sel.chosen[0] if sel.chosen else "none", explained_by=sel.chosen,
                      alternatives=sel.alternatives, split=split, captures=_capture_info(caps, d, base.calibration),
                      runtime_s=time.perf_counter() - t_start, figures_data=figures_data, findings=tuple(found),
-                     resolution=resolution, split_choice=d.split, resolution_before_effects=converged)
+                     resolution=resolution, split_choice=d.split, resolution_before_effects=converged,
+                     base_resolution=_base_resolution(given, final), resolution_during_selection=during)
 
 
 # ----------------------------------------------------------------------------------------------

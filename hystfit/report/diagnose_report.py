@@ -24,7 +24,7 @@ from .render import FigureJob, render_figures
 from .tables import fmt
 from .diagnose_wording import (DEFINITIONS, evidence_text, noise_method_text, pointers_text, reconciliation_why,
                                resolution_text, split_description, split_why,
-                               converged_text, joint_text)
+                               converged_text, during_text, joint_text)
 
 #: What each candidate effect means, in one plain sentence.
 PLAIN = {
@@ -722,6 +722,8 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
                       "a copy of the velocity; its share is how much of the error above the noise that shape alone "
                       "matches, before any refit.)"]
             L += [""]
+    if d.resolution_during_selection:
+        L += [during_text(d.resolution_during_selection, d.unit), ""]
     if d.resolution is not None:
         L += [resolution_text(d.resolution, d.unit), ""]
     rec = reconciliation_document(d)
@@ -909,6 +911,8 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "recommended_model_options": d.recommended_options,
         "resolution": unit_keys(d.resolution, u) if d.resolution is not None else None,
         "resolution_before_effects": _converged_document(d.resolution_before_effects, u),
+        "base_resolution": d.base_resolution,
+        "resolution_during_selection": [unit_keys(c, u) for c in d.resolution_during_selection],
     })
 
 

@@ -280,12 +280,13 @@ def resolution_text(r: dict, unit: str) -> str:
     before, after = r["heldout_rmse_before_out"], r["heldout_rmse_after_out"]
     with_effects = f" with {' + '.join(r['effects'])}" if r["effects"] else ""
     head = (f"Resolution of the base: {r['option']} {r['from']} → {r['to']}{with_effects} takes the held-out RMSE "
-            f"from {before:.4g} to {after:.4g} {u} (reduction {r['reduction']:.2f} of the gap above the noise; "
-            f"threshold {r['threshold']:.2f} per doubling).")
+            f"from {before:.4g} to {after:.4g} {u} ({100 * r['reduction_mean_square']:.0f} % of the held-out mean "
+            f"square above the noise; a doubling is adopted from {100 * r['threshold']:.0f} %).")
     steps = r.get("steps", [])
     if len(steps) > 1:
         head += " Doubled while each doubling passed: " + "; ".join(
-            f"{x['from']} → {x['to']} {x['reduction']:.2f}" + (" (adopted)" if x["adopted"] else " (kept)") for x in steps) + "."
+            f"{x['from']} → {x['to']} {100 * x['reduction_mean_square']:.0f} %" + (" (adopted)" if x["adopted"] else " (kept)")
+            for x in steps) + "."
 
     if r["adopted"]:
         return (head + f" The coarse base's own discretization was a large part of what remained, so the finer base "
@@ -318,3 +319,18 @@ def joint_text(effect: str, joint: dict, unit: str) -> str:
             f"{joint['reduction_on_top_of_other']:.2f} of the gap `{joint['with']}` leaves alone (threshold "
             f"{joint['threshold']:.2f}); together they remove {joint['reduction']:.2f} of this step's gap (held-out "
             f"RMSE {joint['heldout_rmse_after']:.4g} {u}). Two effects of similar size share a gap.")
+
+
+def during_text(checks, unit: str) -> str:
+    """The resolution checks after each named effect (:class:`hystfit.diagnose._Refiner`) in one
+    paragraph; empty when none ran."""
+    if not checks:
+        return ""
+    u = "µm" if unit == "um" else unit
+    parts = [f"after {' + '.join(x['effects'])}: {x['option']} {x['from']} → {x['to']}, held-out "
+             f"{x['heldout_rmse_before_out']:.4g} → {x['heldout_rmse_after_out']:.4g} {u} "
+             f"({100 * x['reduction_mean_square']:.0f} %, {'adopted' if x['adopted'] else 'kept the coarser'})"
+             for x in checks]
+    return ("Resolution of the base during the selection (after each named effect, doubled while a doubling "
+            "removes at least " f"{100 * checks[0]['threshold']:.0f} % of the held-out mean square above the noise): "
+            + "; ".join(parts) + ". The next effects were tested on the base adopted.")
