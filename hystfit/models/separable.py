@@ -47,6 +47,16 @@ class Separable:
     #: (N, P) trajectories); otherwise candidates are processed in blocks bounded by
     #: :data:`hystfit.objective.BLOCK_ELEMENTS`
     gram_fused: bool = False
+    #: optional ``(n_samples, dt) → bool``: True when that capture's ``gram_factory`` is fused
+    #: (O(P) memory), for a model whose long captures take a fused route and short ones do not
+    fused_for: Callable[[int, float], bool] | None = None
+
+    def fused(self, series) -> bool:
+        """True when the normal equations of every capture in ``series`` need O(P) memory only."""
+        if self.gram_factory is None:
+            return False
+        return self.gram_fused or (self.fused_for is not None
+                                   and all(self.fused_for(s.y.shape[0], s.dt) for s in series))
 
 
 def separable_by_simulation(model, linear: Sequence[int], d: int) -> Separable:
