@@ -352,7 +352,7 @@ class FractionalZener(OptionalOffset, Model):
         whole basis — L⁻¹[τ^a D^a x] = L⁻¹[(L − 1) x] = x − v, so y = E0 (v + u_0) + E∞ (x − v) + y0 —
         and its normal equations come from the fused SOE kernel (O(L·P) memory)."""
         linear = (0, 1, 4) if self.offset else (0, 1)
-        exact = separable_by_simulation(self, linear, self.n_params)
+        exact = separable_by_simulation(self, linear, self.n_params, grouped=self.simulator)
 
         def factory(u, dt):
             if not self.soe_route(len(u), dt):
@@ -443,7 +443,10 @@ class FractionalZener(OptionalOffset, Model):
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         return self.simulator(u, dt)(theta)
 
-    def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
+    def simulator(self, u: np.ndarray, dt: float) -> Callable[..., np.ndarray]:
+        """θ (P, d) → outputs (P, N), optionally ``group``: consecutive groups of that many rows share
+        τ and a (what :func:`separable_by_simulation` simulates; the FFT route then transforms the
+        GL spectrum once per group — the same numbers)."""
         u = np.ascontiguousarray(u, dtype=np.float64)
         N = u.shape[0]
         d = self.n_params
@@ -460,10 +463,10 @@ class FractionalZener(OptionalOffset, Model):
             return y
 
         if N == 0:
-            return lambda theta: np.empty((self.check_theta(theta, d).shape[0], 0))
+            return lambda theta, group=1: np.empty((self.check_theta(theta, d).shape[0], 0))
 
         if self.soe_route(N, dt):
-            def sim_soe(theta: np.ndarray) -> np.ndarray:
+            def sim_soe(theta: np.ndarray, group: int = 1) -> np.ndarray:
                 theta = self.check_theta(theta, d)
                 E0, Ei, tau, a = (np.ascontiguousarray(theta[:, i]) for i in range(4))
                 with np.errstate(all="ignore"):
@@ -473,7 +476,7 @@ class FractionalZener(OptionalOffset, Model):
             return sim_soe
 
         if L <= RECURRENCE_MAX_TERMS:
-            def sim(theta: np.ndarray) -> np.ndarray:
+            def sim(theta: np.ndarray, group: int = 1) -> np.ndarray:
                 theta = self.check_theta(theta, d)
                 E0, Ei, tau, a = (np.ascontiguousarray(theta[:, i]) for i in range(4))
                 with np.errstate(all="ignore"):
@@ -493,21 +496,26 @@ class FractionalZener(OptionalOffset, Model):
         # ~256 MB whatever the capture length (a 10⁶-sample capture goes one candidate at a time)
         block = max(1, FFT_BLOCK_ELEMENTS // (M // 2 + 1))
 
-        def sim_fft(theta: np.ndarray) -> np.ndarray:
+        def sim_fft(theta: np.ndarray, group: int = 1) -> np.ndarray:
+            """Outputs (P, N); consecutive groups of ``group`` rows share τ and a (the separable
+            basis): the GL spectrum P_L(z) is then transformed once per group."""
             theta = self.check_theta(theta, d)
             P = theta.shape[0]
             ydev = np.empty((P, N))
+            blk = max(group, block // group * group)
             with np.errstate(all="ignore"):
-                for i in range(0, P, block):
-                    E0, Ei, tau, a = (np.ascontiguousarray(theta[i:i + block, j]) for j in range(4))
+                for i in range(0, P, blk):
+                    E0, Ei, tau, a = (np.ascontiguousarray(theta[i:i + blk, j]) for j in range(4))
                     b = (tau / dt) ** a
-                    w = gl_weights(a, L).T * rn  # (p, L+1), damped onto |z| = r
+                    w = gl_weights(np.ascontiguousarray(a[::group]), L).T * rn  # (p, L+1), damped onto |z| = r
                     Pz = sfft.rfft(w, M, axis=1)
+                    if group > 1:
+                        Pz = np.repeat(Pz, group, axis=0)
                     del w
                     H = (E0[:, None] + (Ei * b)[:, None] * Pz) / (1.0 + b[:, None] * Pz)
                     del Pz
                     H *= X
-                    ydev[i:i + block] = sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
+                    ydev[i:i + blk] = sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
                     del H
                 return finish(theta, ydev)
 
