@@ -514,12 +514,29 @@ class FractionalZener(OptionalOffset, Model):
                     del w
                     H = (E0[:, None] + (Ei * b)[:, None] * Pz) / (1.0 + b[:, None] * Pz)
                     del Pz
-                    H *= X
-                    ydev[i:i + blk] = sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
+                    ydev[i:i + blk] = self._inverse_fft(H, X, E0, Ei, M, N, inv_rn)
                     del H
                 return finish(theta, ydev)
 
         return sim_fft
+
+    @staticmethod
+    def _inverse_fft(H: np.ndarray, X: np.ndarray, E0: np.ndarray, Ei: np.ndarray, M: int, N: int,
+                     inv_rn: np.ndarray) -> np.ndarray:
+        """ydev (p, N) = undamped irfft(H·X). Rows with E0 = E∞ = 0 (the θ_lin = 0 and offset columns
+        of the separable basis) have H = 0/(1 + bP) = ±0 unless something is NaN: their output is
+        0 (NaN if H has a NaN, as the transform would give) without a transform."""
+        zero = (E0 == 0.0) & (Ei == 0.0)
+        if not np.any(zero):
+            H *= X
+            return sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
+        out = np.empty((H.shape[0], N))
+        out[zero] = np.where(np.any(np.isnan(H[zero]), axis=1), np.nan, 0.0)[:, None]
+        keep = ~zero
+        if np.any(keep):
+            Hk = H[keep] * X
+            out[keep] = sfft.irfft(Hk, M, axis=1)[:, :N] * inv_rn
+        return out
 
     # ------------------------------------------------------------------ stepping
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
