@@ -12,7 +12,7 @@ from .._jit import njit, prange
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
-from ._kernels import candidate_block, thread_blocks
+from ._kernels import candidate_block, store_sums, thread_blocks
 from .base import Model
 from .inverse import invert_by_stepping
 from .pi import PI
@@ -89,9 +89,10 @@ def gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1):
 
 
 @njit(cache=True)
-def _gpi_block(u, levels, index, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1):
-    """z (N, p0:p1) of :func:`gpi_population` for the candidates p0:p1. With ``index`` (N,) given
-    (non-empty), u_k = levels[index[k]] and the envelopes are tabulated per level (two exp per
+def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1):
+    """z of :func:`gpi_population` for the candidates p0:p1: into out (N, P), or — when ``y`` is
+    non-empty — its moments Σz², Σz, Σz·y into out[p, 0:3] (no (N, P) array). With ``index`` (N,)
+    non-empty, u_k = levels[index[k]] and the envelopes are tabulated per level (two exp per
     candidate and level instead of per sample); otherwise computed per sample."""
     N = u.shape[0]
     m = p1 - p0
@@ -100,6 +101,8 @@ def _gpi_block(u, levels, index, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, 
     gl = np.empty(m)
     gr = np.empty(m)
     acc = np.empty(m)
+    sums = np.zeros((3, m))
+    moments = y.shape[0] > 0
     table = index.shape[0] > 0
     if table:
         GL, GR = gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
@@ -114,25 +117,34 @@ def _gpi_block(u, levels, index, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, 
         else:
             gpi_envelopes(u[k], a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
         gpi_play(r, q, s, gl, gr, acc)
-        for i in range(m):
-            out[k, p0 + i] = acc[i]
+        if moments:
+            yk = y[k]
+            for i in range(m):
+                sums[0, i] += acc[i] * acc[i]
+                sums[1, i] += acc[i]
+                sums[2, i] += acc[i] * yk
+        else:
+            for i in range(m):
+                out[k, p0 + i] = acc[i]
+    if moments:
+        store_sums(out, p0, (sums[0], sums[1], sums[2]), 3)
 
 
 @njit(cache=True)
-def _gpi_serial(u, levels, index, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, block):
+def _gpi_serial(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, block):
     """:func:`_gpi_block` over consecutive blocks of ``block`` candidates (bounds the tables)."""
     P = a1.shape[0]
     for p0 in range(0, P, block):
-        _gpi_block(u, levels, index, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, min(P, p0 + block))
+        _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, min(P, p0 + block))
 
 
 @njit(cache=True, parallel=True)
-def _gpi_parallel(u, levels, index, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, n_blocks):
+def _gpi_parallel(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, n_blocks):
     """:func:`_gpi_block` over ``n_blocks`` candidate blocks spread over threads."""
     for b in prange(n_blocks):
         p0, p1 = candidate_block(b, n_blocks, a1.shape[0])
         if p0 < p1:
-            _gpi_block(u, levels, index, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1)
+            _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1)
 
 
 #: an input with at most this fraction of distinct values has its envelopes tabulated per value
@@ -142,6 +154,9 @@ LEVELS_MAX_FRACTION = 0.5
 TABLE_BLOCK_ELEMENTS = 2_000_000
 #: samples × candidates from which the population is split over numba threads
 PARALLEL_MIN_WORK = 5_000_000
+#: captures of at least this many samples get their normal equations (ρ, y0) from the kernel's
+#: moments (whole population at once, O(n·P) memory); shorter ones from the stored z, as before
+FUSED_MIN_SAMPLES = 20_000
 
 
 def input_levels(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -154,7 +169,7 @@ def input_levels(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(levels), np.ascontiguousarray(index.ravel(), dtype=np.int64)
 
 
-def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None):
+def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None, y=None):
     """Density-weighted sum of generalized play operators for a population of candidates.
 
     s_j(k) = max(γ_l(u_k) − r_j, min(γ_r(u_k) + r_j, s_j(k−1))),  s_j(−1) = 0 (virgin state),
@@ -177,16 +192,19 @@ def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None
     a1 … b4, tau, alpha : (P,) envelope, density-decay and threshold-step parameters.
     n : number of operators.
     levels : optional :func:`input_levels` (u), computed once per capture by the caller.
+    y : optional (N,) target: then the moments Σz², Σz, Σz·y (P, 3) are returned instead of z,
+        summed in time order in the kernel (memory O(n·P)).
 
     Returns
     -------
-    (N, P) array z (envelope units, V); the caller transposes.
+    (N, P) array z (envelope units, V), the caller transposes; or (P, 3) moments.
     """
     u = np.ascontiguousarray(u, dtype=np.float64)
     lv, index = levels if levels is not None else (u, np.empty(0, dtype=np.int64))
     P = a1.shape[0]
-    out = np.empty((u.shape[0], P))
-    args = (u, lv, index, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, int(n), out)
+    yk = np.ascontiguousarray(y if y is not None else np.empty(0), dtype=np.float64)
+    out = np.empty((u.shape[0], P)) if y is None else np.empty((P, 3))
+    args = (u, lv, index, yk, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, int(n), out)
     nb = thread_blocks(P, 2, 4) if u.shape[0] * P >= PARALLEL_MIN_WORK else 0
     block = max(1, TABLE_BLOCK_ELEMENTS // max(lv.shape[0], 1)) if index.shape[0] else P
     if nb:  # at least one block per thread, and blocks no larger than the table bound
@@ -307,11 +325,12 @@ class GPI(Model):
         return tuple(ps)
 
     # ------------------------------------------------------------------ simulation
-    def _z(self, theta: np.ndarray, u: np.ndarray, levels=None) -> np.ndarray:
-        """Unit-density output z (N, P) = Σ_j e^{−τ r_j} s_j (y = ρ z + y0); ``levels`` = :func:`input_levels` (u)."""
+    def _z(self, theta: np.ndarray, u: np.ndarray, levels=None, y=None) -> np.ndarray:
+        """Unit-density output z (N, P) = Σ_j e^{−τ r_j} s_j (y = ρ z + y0), or with a target ``y``
+        its moments (P, 3); ``levels`` = :func:`input_levels` (u)."""
         c = [np.ascontiguousarray(theta[:, i]) for i in range(11)]
         a1, a2, a3, a4, b1, b2, b3, b4, _, tau, alpha = c
-        return gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, self.n_operators, levels)
+        return gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, self.n_operators, levels, y)
 
     def _output(self, theta: np.ndarray, u: np.ndarray, levels=None) -> np.ndarray:
         theta = self.check_theta(theta, 12)
@@ -330,18 +349,32 @@ class GPI(Model):
         """ρ and y0 enter linearly: y = ρ·z(a, b, τ, α_r) + y0; the other ten are searched."""
         nl = (0, 1, 2, 3, 4, 5, 6, 7, 9, 10)
 
+        def full(theta_nl):
+            theta_nl = np.atleast_2d(theta_nl)
+            th = np.zeros((theta_nl.shape[0], 12))
+            th[:, nl] = theta_nl
+            return th
+
         def response(u, dt):
             levels = input_levels(u)  # once per capture, shared by every call
+            return lambda theta_nl: self._z(full(theta_nl), u, levels)  # (N, P)
 
-            def z(theta_nl):
-                theta_nl = np.atleast_2d(theta_nl)
-                full = np.zeros((theta_nl.shape[0], 12))
-                full[:, nl] = theta_nl
-                return self._z(full, u, levels)  # (N, P)
+        def moments(u, dt, y):
+            if not fused(len(u), dt):
+                return None  # short captures: moments from z (numpy), as they always were
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            levels = input_levels(u)
 
-            return z
+            def sums(theta_nl):
+                M = self._z(full(theta_nl), u, levels, y)
+                return M[:, 0], M[:, 1], M[:, 2]
 
-        return scaled_response((8, 11), nl, response)
+            return sums
+
+        def fused(n_samples, dt):
+            return n_samples >= FUSED_MIN_SAMPLES
+
+        return scaled_response((8, 11), nl, response, moments, fused_for=fused)
 
     # ------------------------------------------------------------------ stepping
     def _unpack(self, theta: np.ndarray):

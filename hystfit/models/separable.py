@@ -135,12 +135,14 @@ MomentsFactory = Callable[[np.ndarray, float, np.ndarray], Callable[[np.ndarray]
 
 
 def scaled_response(linear: tuple[int, int], nonlinear: tuple[int, ...], response: ResponseFactory,
-                    moments: MomentsFactory | None = None) -> Separable:
+                    moments: MomentsFactory | None = None,
+                    fused_for: Callable[[int, float], bool] | None = None) -> Separable:
     """A :class:`Separable` for y = ρ·z(θ_nl) + y0, ``linear`` = the indices of (ρ, y0) in θ.
 
     The basis is [z, 1]; its normal equations come from the moments Σz², Σz, Σz·y — computed from
     z (``response``) or, when given, by ``moments`` (a fused kernel that never stores z: then
-    ``gram_fused``).
+    ``gram_fused``). With ``fused_for`` (n_samples, dt) → bool, ``moments`` applies to the
+    captures it accepts only (it returns None for the others, whose moments come from z).
     """
 
     def factory(u, dt):
@@ -160,9 +162,8 @@ def scaled_response(linear: tuple[int, int], nonlinear: tuple[int, ...], respons
         u = np.ascontiguousarray(u, dtype=np.float64)
         y = np.ascontiguousarray(y, dtype=np.float64)
         n, sy, yy = float(u.shape[0]), float(y.sum()), float(y @ y)
-        if moments is not None:
-            moments_of = moments(u, dt, y)
-        else:
+        moments_of = moments(u, dt, y) if moments is not None else None
+        if moments_of is None:
             z_of = response(u, dt)
 
             def moments_of(theta_nl):
@@ -183,7 +184,8 @@ def scaled_response(linear: tuple[int, int], nonlinear: tuple[int, ...], respons
 
         return gram
 
-    return Separable(tuple(linear), tuple(nonlinear), factory, gram_factory, gram_fused=moments is not None)
+    return Separable(tuple(linear), tuple(nonlinear), factory, gram_factory,
+                     gram_fused=moments is not None and fused_for is None, fused_for=fused_for)
 
 
 def linear_in_all(design_matrix: Callable[[np.ndarray, float], np.ndarray], d: int) -> Separable:

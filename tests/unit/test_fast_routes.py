@@ -80,3 +80,21 @@ def test_pi2_tables_give_the_same_numbers(rng):
     assert np.array_equal(sim, plain, equal_nan=True)
     sse = model.sse_evaluator(u, DT, y)(theta)
     np.testing.assert_allclose(sse, ((plain - y) ** 2).sum(axis=1), rtol=1e-9)
+
+
+def test_gpi_long_captures_take_the_fused_moments(rng):
+    """Long captures: the normal equations of (ρ, y0) from the kernel's moments (the whole population
+    at once), equal to the moments of the stored z to rounding; short captures: from z, as before."""
+    model = GPI()
+    u = sampled_sine(cycles=52, per_cycle=400)  # ≥ FUSED_MIN_SAMPLES
+    assert u.size >= gpi_module.FUSED_MIN_SAMPLES
+    y = 0.3 * u + 0.1 * rng.standard_normal(u.size)
+    sep = model.separable()
+    theta_nl = candidates(model, u, y, 7, rng)[:, list(sep.nonlinear)]
+    G, c, yy = sep.gram_factory(u, DT, y)(theta_nl)
+    B = sep.basis_factory(u, DT)(theta_nl)  # (P, N, 2) from the stored z
+    np.testing.assert_allclose(G, np.einsum("pnl,pnk->plk", B, B), rtol=1e-12)
+    np.testing.assert_allclose(c, np.einsum("pnl,n->pl", B, y), rtol=1e-12)
+    from hystfit.objective import Series
+
+    assert sep.fused([Series(u, y, DT)]) and not sep.fused([Series(u[:5000], y[:5000], DT)])
