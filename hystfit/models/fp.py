@@ -283,6 +283,12 @@ class FractionalZener(OptionalOffset, Model):
     population is evaluated by FFT on the circle |z| = r < 1 (r^M = 1e-14, M ≈ 3N), which gives
     the *same* outputs as the recurrence to ~1e-11 relative at O(N log N) instead of O(N·L) per
     candidate (measured 10× faster at N = L = 5000); shorter windows use the numba recurrence.
+    Captures of :data:`SOE_MIN_SAMPLES` samples or more (none in sample_data) take the
+    sum-of-exponentials route instead (:func:`soe_run`, O(N·K) per candidate, K ≈ 60): the GL
+    weights w_j, 2 ≤ j ≤ L, are replaced by a trapezoid quadrature of their diffusive integral
+    representation with a tested ℓ1 error ε ≤ :data:`SOE_WEIGHT_L1` = 5e-8, which bounds the output
+    error by ‖ŷ − y‖∞ ≤ |E0 − E∞|·b·ε/(1 + b·s_L)·‖v‖∞ (v = L⁻¹[u − u_0], s_L = Σ_{j≤L} w_j > 0;
+    tests/unit/test_fp_soe.py checks both against the exact recurrence).
 
     Structure
     ---------
