@@ -45,7 +45,7 @@ def test_grouped_basis_equals_the_plain_one_bit_for_bit(model, rng):
 def test_input_levels_only_for_repeating_inputs(rng):
     u = sampled_sine()
     levels, index = input_levels(u)
-    assert levels.size <= 0.5 * u.size and np.array_equal(levels[index], u)
+    assert levels.size <= gpi_module.LEVELS_MAX_FRACTION * u.size and np.array_equal(levels[index], u)
     noisy = u + 1e-3 * rng.standard_normal(u.size)
     lv, idx = input_levels(noisy)
     assert idx.size == 0 and np.array_equal(lv, noisy)
