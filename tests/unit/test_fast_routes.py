@@ -17,7 +17,7 @@ from hystfit.params import DataScale
 DT = 1e-4
 
 
-def sampled_sine(cycles=3, per_cycle=400, amp=40.0):
+def sampled_sine(cycles=8, per_cycle=400, amp=40.0):
     """A raised cosine sampled on a grid that repeats its values every cycle (as sample_data does)."""
     k = np.arange(cycles * per_cycle + 1)
     return 0.5 * amp * (1.0 - np.cos(2.0 * np.pi * (k % per_cycle) / per_cycle))
@@ -53,11 +53,12 @@ def test_input_levels_only_for_repeating_inputs(rng):
 
 @pytest.mark.parametrize("threads", [False, True])
 def test_gpi_tables_and_threads_give_the_same_numbers(threads, rng, monkeypatch):
-    u = sampled_sine(cycles=4)
+    u = sampled_sine()
     theta = candidates(GPI(), u, 0.3 * u, 23, rng)
     cols = [np.ascontiguousarray(theta[:, i]) for i in range(11)]
     a1, a2, a3, a4, b1, b2, b3, b4, _, tau, alpha = cols
     plain = gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 10)
+    assert input_levels(u)[1].size == u.size  # the tables are in use
     if threads:  # every population threaded, tables in blocks of 5 candidates
         monkeypatch.setattr(gpi_module, "PARALLEL_MIN_WORK", 0)
         monkeypatch.setattr(gpi_module, "TABLE_BLOCK_ELEMENTS", 5 * input_levels(u)[0].size)
