@@ -168,14 +168,22 @@ class Dahl(Model):
         )
 
     def separable(self):
-        """k and d0 enter linearly; σ, Fc and a (the friction state's shape) are searched."""
-        return separable_by_simulation(self, (0, 4), 5)
+        """k and d0 enter linearly; σ, Fc and a (the friction state's shape) are searched. The
+        state h is simulated once per candidate, not once per basis column (:meth:`_simulate`)."""
+        return separable_by_simulation(self, (0, 4), 5,
+                                       grouped=lambda u, dt: lambda th, g: self._simulate(th, u, g))
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        return self._simulate(theta, np.ascontiguousarray(u, dtype=np.float64), 1)
+
+    def _simulate(self, theta: np.ndarray, u: np.ndarray, group: int) -> np.ndarray:
+        """Outputs (P, N); consecutive groups of ``group`` rows of θ share σ, Fc and a, so the
+        state h (the costly part) is simulated for the first row of each group only."""
         theta = self.check_theta(theta, 5)
-        u = np.ascontiguousarray(u, dtype=np.float64)
         k, sig, fc, a, d0 = (np.ascontiguousarray(theta[:, i]) for i in range(5))
-        h = dahl_population(u, sig, fc, a).T
+        h = dahl_population(u, sig[::group].copy(), fc[::group].copy(), a[::group].copy()).T
+        if group > 1:
+            h = np.repeat(h, group, axis=0)
         with np.errstate(all="ignore"):
             return k[:, None] * u[None, :] + h + d0[:, None]
 

@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from .._jit import njit
+from .._jit import njit, prange
 from .._lazy import lazy_module
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
+from ._kernels import candidate_block, thread_blocks
 from .base import Model, OptionalOffset
-from .separable import separable_by_simulation
+from .separable import Separable, separable_by_simulation
 
 sfft = lazy_module("scipy.fft")  # imported on first use: keeps start-up fast
 
@@ -22,6 +24,19 @@ RECURRENCE_MAX_TERMS = 200
 _FFT_ALIAS = 1e-14
 #: complex spectrum elements per FFT block of candidates (≈ 64 MB per work array)
 FFT_BLOCK_ELEMENTS = 4_000_000
+#: captures of at least this many samples whose window is longer than RECURRENCE_MAX_TERMS are
+#: evaluated by the sum-of-exponentials (SOE) recursion, O(N·K) per candidate; shorter captures
+#: (every capture of sample_data) keep the exact evaluation
+SOE_MIN_SAMPLES = 20_000
+#: trapezoid step and upper end in x = log s of the SOE quadrature; the lower end is −log L − 13
+SOE_STEP = 0.45
+SOE_X_MAX = math.log(40.0)
+SOE_X_MIN_OFFSET = 13.0
+#: tested bound of the SOE weights' ℓ1 error Σ_{j=2}^{L} |ŵ_j − w_j| for 0.01 ≤ a ≤ 0.99, any L
+#: (tests/test_fp_soe.py; the quadrature's tail shrinks as L^{−a}, its step error is L-independent)
+SOE_WEIGHT_L1 = 5e-8
+#: kernel modes of the SOE recursion: the response v (N, P), or its moments (P, 7)
+_SOE_OUTPUT, _SOE_MOMENTS = 0, 1
 
 
 # ----------------------------------------------------------------------------------------------
@@ -91,6 +106,145 @@ def gl_filter_population(x, w, c0, c1, d0, d1):
     return y
 
 
+# ----------------------------------------------------------------------------------------------
+# Long captures: the Grünwald–Letnikov memory as a sum of exponentials (diffusive representation).
+#
+# For j ≥ 1 and 0 < a < 1 the weights have the integral form (Beta function, Γ(1−a)Γ(1+a) = πa/sin πa)
+#     w_j = −(sin πa / π) ∫_0^∞ e^{−s j} (1 − e^{−s})^a e^{a s} ds,
+# and with s = e^x the trapezoid rule on x_n = x_min + n h (h = SOE_STEP) gives
+#     ŵ_j = Σ_n c_n ρ_n^j,  ρ_n = e^{−s_n},  c_n = −(sin πa/π) h s_n (1 − e^{−s_n})^a e^{a s_n}.
+# The nodes ρ_n do not depend on a (one grid for the whole population), only the c_n do. Each
+# exponential is a one-term recursion, so the windowed sum Σ_{j=2}^{L} ŵ_j v_{k−j} costs O(K) per
+# sample instead of O(L) (w_1 = −a is kept exact: the quadrature converges slowly at j = 1).
+# ----------------------------------------------------------------------------------------------
+
+def soe_nodes(L: int) -> tuple[np.ndarray, np.ndarray]:
+    """Decay rates s_n (K,) and nodes ρ_n = e^{−s_n} of the SOE quadrature for a window of L samples."""
+    x_min = -math.log(max(L, 1)) - SOE_X_MIN_OFFSET
+    x = x_min + SOE_STEP * np.arange(int(math.floor((SOE_X_MAX - x_min) / SOE_STEP)) + 1)
+    s = np.exp(x)
+    return s, np.exp(-s)
+
+
+def soe_coefficients(a: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Coefficients c (K, P) of the SOE weights ŵ_j = Σ_n c_n ρ_n^j for the orders a (P,)."""
+    a = np.asarray(a, dtype=np.float64)[None, :]
+    s = s[:, None]
+    with np.errstate(all="ignore"):
+        return -(np.sin(np.pi * a) / np.pi) * SOE_STEP * s * (-np.expm1(-s)) ** a * np.exp(a * s)
+
+
+def soe_weights(a: np.ndarray, L: int) -> np.ndarray:
+    """The weights (L+1, P) the SOE recursion applies: ŵ_0 = 1, ŵ_1 = −a (exact), ŵ_j = Σ_n c_n ρ_n^j
+    for 2 ≤ j ≤ L — to compare with :func:`gl_weights` (the error bound :data:`SOE_WEIGHT_L1`)."""
+    a = np.atleast_1d(np.asarray(a, dtype=np.float64))
+    s, _ = soe_nodes(L)
+    c = soe_coefficients(a, s)
+    w = np.empty((L + 1, a.shape[0]))
+    w[0] = 1.0
+    w[1:2] = -a[None, :]
+    j = np.arange(2, L + 1, dtype=np.float64)
+    w[2:] = np.exp(-j[:, None] * s[None, :]) @ c
+    return w
+
+
+@njit(cache=True, error_model="numpy")
+def _soe_block(x, y, a, b, c, r1, r2, rL1, L, mode, out, p0, p1):
+    """v = (1 + b W)⁻¹ x for candidates p0:p1, W the windowed GL sum with the SOE weights.
+
+    Per sample k: A_k = −a v_{k−1} + Σ_n c_n S_n(k),  v_k = (x_k − b A_k)/(1 + b), then
+    S_n(k+1) = ρ_n S_n(k) + ρ_n² v_{k−1} − ρ_n^{L+1} v_{k−L}  (S_n(k) = Σ_{j=2}^{min(k,L)} ρ_n^j v_{k−j};
+    the last L outputs in a ring buffer). ``mode`` :data:`_SOE_OUTPUT` writes v into out (N, P);
+    :data:`_SOE_MOMENTS` accumulates, with d = x − v, Σv², Σv·d, Σd², Σv, Σd, Σv·y, Σd·y into
+    out[p, 0:7] (memory O(L·P)). Time outermost, candidates innermost.
+    """
+    N = x.shape[0]
+    K = r1.shape[0]
+    m = p1 - p0
+    R = L + 1
+    S = np.zeros((K, m))
+    cb = np.ascontiguousarray(c[:, p0:p1])
+    hist = np.zeros((R, m))
+    vprev = np.zeros(m)
+    acc = np.empty(m)
+    sums = np.zeros((7, m))
+    na = np.empty(m)
+    bb = np.empty(m)
+    for i in range(m):
+        na[i] = -a[p0 + i]
+        bb[i] = b[p0 + i]
+    for k in range(N):
+        for i in range(m):
+            acc[i] = na[i] * vprev[i]
+        for n in range(K):
+            for i in range(m):
+                acc[i] += cb[n, i] * S[n, i]
+        old = (k + 1) % R  # v_{k−L} (still zero while k < L)
+        for n in range(K):
+            q1 = r1[n]
+            q2 = r2[n]
+            q3 = rL1[n]
+            for i in range(m):
+                S[n, i] = q1 * S[n, i] + q2 * vprev[i] - q3 * hist[old, i]
+        xk = x[k]
+        slot = k % R
+        for i in range(m):
+            v = (xk - bb[i] * acc[i]) / (1.0 + bb[i])
+            hist[slot, i] = v
+            vprev[i] = v
+        if mode == _SOE_OUTPUT:
+            for i in range(m):
+                out[k, p0 + i] = vprev[i]
+        else:
+            yk = y[k]
+            for i in range(m):
+                v = vprev[i]
+                d = xk - v
+                sums[0, i] += v * v
+                sums[1, i] += v * d
+                sums[2, i] += d * d
+                sums[3, i] += v
+                sums[4, i] += d
+                sums[5, i] += v * yk
+                sums[6, i] += d * yk
+    if mode == _SOE_MOMENTS:
+        for col in range(7):
+            for i in range(m):
+                out[p0 + i, col] = sums[col, i]
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _soe_parallel(x, y, a, b, c, r1, r2, rL1, L, mode, out, n_blocks):
+    """:func:`_soe_block` over ``n_blocks`` candidate blocks spread over threads."""
+    for blk in prange(n_blocks):
+        p0, p1 = candidate_block(blk, n_blocks, a.shape[0])
+        if p0 < p1:
+            _soe_block(x, y, a, b, c, r1, r2, rL1, L, mode, out, p0, p1)
+
+
+def soe_run(x: np.ndarray, y: np.ndarray | None, a: np.ndarray, b: np.ndarray, L: int, mode: int) -> np.ndarray:
+    """Run the SOE recursion (:func:`_soe_block`) for orders a (P,) and b = (τ/dt)^a (P,): the
+    response v (N, P) or its moments (P, 7). Threaded over candidates from two candidates on
+    (each candidate is O(N·K) work on a long capture)."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    y = np.ascontiguousarray(y if y is not None else np.empty(0), dtype=np.float64)
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    b = np.ascontiguousarray(b, dtype=np.float64)
+    s, rho = soe_nodes(L)
+    c = np.ascontiguousarray(soe_coefficients(a, s))
+    r2 = rho * rho
+    rL1 = np.exp(-(L + 1) * s)
+    P = a.shape[0]
+    out = np.empty((x.shape[0], P)) if mode == _SOE_OUTPUT else np.empty((P, 7))
+    args = (x, y, a, b, c, rho, r2, rL1, int(L), int(mode), out)
+    nb = thread_blocks(P, 2, 1)
+    if nb:
+        _soe_parallel(*args, nb)
+    else:
+        _soe_block(*args, 0, P)
+    return out
+
+
 @models.register
 @dataclass(frozen=True)
 class FractionalZener(OptionalOffset, Model):
@@ -129,6 +283,12 @@ class FractionalZener(OptionalOffset, Model):
     population is evaluated by FFT on the circle |z| = r < 1 (r^M = 1e-14, M ≈ 3N), which gives
     the *same* outputs as the recurrence to ~1e-11 relative at O(N log N) instead of O(N·L) per
     candidate (measured 10× faster at N = L = 5000); shorter windows use the numba recurrence.
+    Captures of :data:`SOE_MIN_SAMPLES` samples or more (none in sample_data) take the
+    sum-of-exponentials route instead (:func:`soe_run`, O(N·K) per candidate, K ≈ 60): the GL
+    weights w_j, 2 ≤ j ≤ L, are replaced by a trapezoid quadrature of their diffusive integral
+    representation with a tested ℓ1 error ε ≤ :data:`SOE_WEIGHT_L1` = 5e-8, which bounds the output
+    error by ‖ŷ − y‖∞ ≤ |E0 − E∞|·b·ε/(1 + b·s_L)·‖v‖∞ (v = L⁻¹[u − u_0], s_L = Σ_{j≤L} w_j > 0;
+    tests/unit/test_fp_soe.py checks both against the exact recurrence).
 
     Structure
     ---------
@@ -191,13 +351,108 @@ class FractionalZener(OptionalOffset, Model):
     # ------------------------------------------------------------------ simulation
     def separable(self):
         """E0, E∞ (and y0) enter linearly for fixed (τ, a): the fractional operator is linear, so
-        y = E0·L⁻¹[u] + E∞·L⁻¹[τ^a D^a u] + y0 with L = 1 + τ^a D^a. Only τ and a are searched."""
-        return separable_by_simulation(self, (0, 1, 4) if self.offset else (0, 1), 5 if self.offset else 4)
+        y = E0·L⁻¹[u] + E∞·L⁻¹[τ^a D^a u] + y0 with L = 1 + τ^a D^a. Only τ and a are searched.
+
+        Short captures: the basis from the model's simulator (:func:`separable_by_simulation`).
+        Long captures (:meth:`soe_route`): one response per candidate, v = L⁻¹[u − u_0], gives the
+        whole basis — L⁻¹[τ^a D^a x] = L⁻¹[(L − 1) x] = x − v, so y = E0 (v + u_0) + E∞ (x − v) + y0 —
+        and its normal equations come from the fused SOE kernel (O(L·P) memory)."""
+        linear = (0, 1, 4) if self.offset else (0, 1)
+        exact = separable_by_simulation(self, linear, self.n_params, grouped=self.simulator)
+
+        def factory(u, dt):
+            if not self.soe_route(len(u), dt):
+                return exact.basis_factory(u, dt)
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            x = u - u[0]
+            L = min(self.memory_samples(dt), u.shape[0] - 1)
+
+            def basis(theta_nl):
+                tau, a = (np.ascontiguousarray(theta_nl[:, i]) for i in range(2))
+                with np.errstate(all="ignore"):
+                    v = soe_run(x, None, a, (tau / float(dt)) ** a, L, _SOE_OUTPUT).T  # (P, N)
+                    B = np.ones((v.shape[0], v.shape[1], len(linear)))
+                    B[:, :, 0] = v + u[0]
+                    B[:, :, 1] = x[None, :] - v
+                return B
+
+            return basis
+
+        def gram_factory(u, dt, y):
+            if not self.soe_route(len(u), dt):
+                return exact.gram_factory(u, dt, y)
+            return self._soe_gram(u, dt, y)
+
+        return Separable(linear, exact.nonlinear, factory, gram_factory, fused_for=self.soe_route)
+
+    def soe_route(self, n_samples: int, dt: float) -> bool:
+        """True when a capture of ``n_samples`` at period ``dt`` is evaluated by the SOE recursion
+        (at least :data:`SOE_MIN_SAMPLES` samples and a window longer than :data:`RECURRENCE_MAX_TERMS`)."""
+        return n_samples >= SOE_MIN_SAMPLES and min(self.memory_samples(dt), n_samples - 1) > RECURRENCE_MAX_TERMS
+
+    def _soe_gram(self, u: np.ndarray, dt: float, y: np.ndarray):
+        """theta_nl (P, 2) = (τ, a) → normal equations (G (P, l, l), c (P, l), yᵀy) of the linear
+        parameters (E0, E∞[, y0]) from the SOE kernel's moments of v and d = x − v (basis
+        [v + u_0, d, 1])."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        y = np.ascontiguousarray(y, dtype=np.float64)
+        u0 = float(u[0])
+        x = u - u0
+        L = min(self.memory_samples(dt), u.shape[0] - 1)
+        n, sy, yy = float(u.shape[0]), float(y.sum()), float(y @ y)
+        l = 3 if self.offset else 2
+
+        def gram(theta_nl):
+            tau, a = (np.ascontiguousarray(theta_nl[:, i]) for i in range(2))
+            with np.errstate(all="ignore"):
+                vv, vd, dd, sv, sd, vy, dy = soe_run(x, y, a, (tau / float(dt)) ** a, L, _SOE_MOMENTS).T
+                G = np.empty((tau.shape[0], l, l))
+                G[:, 0, 0] = vv + 2.0 * u0 * sv + n * u0 * u0
+                G[:, 0, 1] = G[:, 1, 0] = vd + u0 * sd
+                G[:, 1, 1] = dd
+                c = np.empty((tau.shape[0], l))
+                c[:, 0] = vy + u0 * sy
+                c[:, 1] = dy
+                if l == 3:
+                    G[:, 0, 2] = G[:, 2, 0] = sv + n * u0
+                    G[:, 1, 2] = G[:, 2, 1] = sd
+                    G[:, 2, 2] = n
+                    c[:, 2] = sy
+            return G, c, yy
+
+        return gram
+
+    def sse_evaluator(self, u: np.ndarray, dt: float, y: np.ndarray):
+        """Long captures (:meth:`soe_route`): Σ(ŷ − y)² = θ_linᵀGθ_lin − 2cᵀθ_lin + yᵀy from the fused
+        SOE normal equations (no (P, N) outputs). Short captures: the simulated sum (so that a
+        warm-up prefix of a long capture, which is short, is subtracted as well)."""
+        if not self.soe_route(len(u), dt):
+            sim = self.simulator(u, dt)
+            y_short = np.asarray(y, dtype=np.float64)
+
+            def simulated(theta: np.ndarray) -> np.ndarray:
+                e = sim(theta) - y_short[None, :]
+                return np.einsum("ij,ij->i", e, e)
+
+            return simulated
+        gram = self._soe_gram(u, dt, y)
+        lin = [0, 1, 4] if self.offset else [0, 1]
+
+        def sse(theta: np.ndarray) -> np.ndarray:
+            theta = self.check_theta(theta, self.n_params)
+            G, c, yy = gram(theta[:, [2, 3]])
+            t = theta[:, lin]
+            return yy - 2.0 * np.einsum("pl,pl->p", c, t) + np.einsum("pl,plk,pk->p", t, G, t)
+
+        return sse
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         return self.simulator(u, dt)(theta)
 
-    def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
+    def simulator(self, u: np.ndarray, dt: float) -> Callable[..., np.ndarray]:
+        """θ (P, d) → outputs (P, N), optionally ``group``: consecutive groups of that many rows share
+        τ and a (what :func:`separable_by_simulation` simulates; the FFT route then transforms the
+        GL spectrum once per group — the same numbers)."""
         u = np.ascontiguousarray(u, dtype=np.float64)
         N = u.shape[0]
         d = self.n_params
@@ -214,10 +469,20 @@ class FractionalZener(OptionalOffset, Model):
             return y
 
         if N == 0:
-            return lambda theta: np.empty((self.check_theta(theta, d).shape[0], 0))
+            return lambda theta, group=1: np.empty((self.check_theta(theta, d).shape[0], 0))
+
+        if self.soe_route(N, dt):
+            def sim_soe(theta: np.ndarray, group: int = 1) -> np.ndarray:
+                theta = self.check_theta(theta, d)
+                E0, Ei, tau, a = (np.ascontiguousarray(theta[:, i]) for i in range(4))
+                with np.errstate(all="ignore"):
+                    v = soe_run(x, None, a, (tau / dt) ** a, L, _SOE_OUTPUT).T  # (P, N)
+                    ydev = E0[:, None] * v + Ei[:, None] * (x[None, :] - v)
+                    return finish(theta, ydev)
+            return sim_soe
 
         if L <= RECURRENCE_MAX_TERMS:
-            def sim(theta: np.ndarray) -> np.ndarray:
+            def sim(theta: np.ndarray, group: int = 1) -> np.ndarray:
                 theta = self.check_theta(theta, d)
                 E0, Ei, tau, a = (np.ascontiguousarray(theta[:, i]) for i in range(4))
                 with np.errstate(all="ignore"):
@@ -237,25 +502,47 @@ class FractionalZener(OptionalOffset, Model):
         # ~256 MB whatever the capture length (a 10⁶-sample capture goes one candidate at a time)
         block = max(1, FFT_BLOCK_ELEMENTS // (M // 2 + 1))
 
-        def sim_fft(theta: np.ndarray) -> np.ndarray:
+        def sim_fft(theta: np.ndarray, group: int = 1) -> np.ndarray:
+            """Outputs (P, N); consecutive groups of ``group`` rows share τ and a (the separable
+            basis): the GL spectrum P_L(z) is then transformed once per group."""
             theta = self.check_theta(theta, d)
             P = theta.shape[0]
             ydev = np.empty((P, N))
+            blk = max(group, block // group * group)
             with np.errstate(all="ignore"):
-                for i in range(0, P, block):
-                    E0, Ei, tau, a = (np.ascontiguousarray(theta[i:i + block, j]) for j in range(4))
+                for i in range(0, P, blk):
+                    E0, Ei, tau, a = (np.ascontiguousarray(theta[i:i + blk, j]) for j in range(4))
                     b = (tau / dt) ** a
-                    w = gl_weights(a, L).T * rn  # (p, L+1), damped onto |z| = r
+                    w = gl_weights(np.ascontiguousarray(a[::group]), L).T * rn  # (p, L+1), damped onto |z| = r
                     Pz = sfft.rfft(w, M, axis=1)
+                    if group > 1:
+                        Pz = np.repeat(Pz, group, axis=0)
                     del w
                     H = (E0[:, None] + (Ei * b)[:, None] * Pz) / (1.0 + b[:, None] * Pz)
                     del Pz
-                    H *= X
-                    ydev[i:i + block] = sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
+                    ydev[i:i + blk] = self._inverse_fft(H, X, E0, Ei, M, N, inv_rn)
                     del H
                 return finish(theta, ydev)
 
         return sim_fft
+
+    @staticmethod
+    def _inverse_fft(H: np.ndarray, X: np.ndarray, E0: np.ndarray, Ei: np.ndarray, M: int, N: int,
+                     inv_rn: np.ndarray) -> np.ndarray:
+        """ydev (p, N) = undamped irfft(H·X). Rows with E0 = E∞ = 0 (the θ_lin = 0 and offset columns
+        of the separable basis) have H = 0/(1 + bP) = ±0 unless something is NaN: their output is
+        0 (NaN if H has a NaN, as the transform would give) without a transform."""
+        zero = (E0 == 0.0) & (Ei == 0.0)
+        if not np.any(zero):
+            H *= X
+            return sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
+        out = np.empty((H.shape[0], N))
+        out[zero] = np.where(np.any(np.isnan(H[zero]), axis=1), np.nan, 0.0)[:, None]
+        keep = ~zero
+        if np.any(keep):
+            Hk = H[keep] * X
+            out[keep] = sfft.irfft(Hk, M, axis=1)[:, :N] * inv_rn
+        return out
 
     # ------------------------------------------------------------------ stepping
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:

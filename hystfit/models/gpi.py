@@ -7,11 +7,12 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from .._jit import njit
+from .._jit import njit, prange
 
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
+from ._kernels import candidate_block, store_sums, thread_blocks
 from .base import Model
 from .inverse import invert_by_stepping
 from .pi import PI
@@ -45,16 +46,22 @@ def gpi_operators(alpha, tau, n, p0, p1):
 
 
 @njit(cache=True, inline="always")
-def gpi_sample(uk, a1, a2, a3, a4, b1, b2, b3, b4, p0, r, q, s, gl, gr, z):
-    """One sample u_k of the generalized play operators of the candidates p0:p0 + m (m = len(z)):
-    the envelopes γ_l, γ_r into ``gl``, ``gr``, the operator states ``s`` (n, m) advanced,
-    s_j = max(γ_l − r_j, min(γ_r + r_j, s_j)), and z = Σ_j q_j s_j into ``z``. The one home of
-    the gPI recurrence of the population kernels (candidates innermost)."""
-    m = z.shape[0]
-    for i in range(m):
+def gpi_envelopes(uk, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr):
+    """The envelopes γ_l(u_k), γ_r(u_k) of the candidates p0:p0 + len(gl) into ``gl``, ``gr``."""
+    for i in range(gl.shape[0]):
         p = p0 + i
         gl[i] = a1[p] * _tanh(a2[p] * uk + a3[p]) + a4[p]
         gr[i] = b1[p] * _tanh(b2[p] * uk + b3[p]) + b4[p]
+
+
+@njit(cache=True, inline="always")
+def gpi_play(r, q, s, gl, gr, z):
+    """Advance the operator states ``s`` (n, m) by one sample of envelopes gl, gr (m,):
+    s_j = max(γ_l − r_j, min(γ_r + r_j, s_j)), and z = Σ_j q_j s_j into ``z`` (j in order). With
+    :func:`gpi_envelopes`, the one home of the gPI recurrence of the population kernels (gpi, pi2;
+    candidates innermost)."""
+    m = z.shape[0]
+    for i in range(m):
         z[i] = 0.0
     for j in range(s.shape[0]):
         for i in range(m):
@@ -63,8 +70,108 @@ def gpi_sample(uk, a1, a2, a3, a4, b1, b2, b3, b4, p0, r, q, s, gl, gr, z):
             z[i] += q[j, i] * v
 
 
+@njit(cache=True, inline="always")
+def gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1):
+    """γ_l, γ_r (U, m) of the candidates p0:p1 at each distinct input level: the same expression as
+    :func:`gpi_envelopes`, so a tabulated envelope is bit-identical to one computed per sample."""
+    U = levels.shape[0]
+    m = p1 - p0
+    GL = np.empty((U, m))
+    GR = np.empty((U, m))
+    gl = np.empty(m)
+    gr = np.empty(m)
+    for lv in range(U):
+        gpi_envelopes(levels[lv], a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
+        for i in range(m):
+            GL[lv, i] = gl[i]
+            GR[lv, i] = gr[i]
+    return GL, GR
+
+
 @njit(cache=True)
-def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n):
+def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1):
+    """z of :func:`gpi_population` for the candidates p0:p1: into out (N, P), or — when ``y`` is
+    non-empty — its moments Σz², Σz, Σz·y into out[p, 0:3] (no (N, P) array). With ``index`` (N,)
+    non-empty, u_k = levels[index[k]] and the envelopes are tabulated per level (two exp per
+    candidate and level instead of per sample); otherwise computed per sample."""
+    N = u.shape[0]
+    m = p1 - p0
+    s = np.zeros((n, m))
+    r, q = gpi_operators(alpha, tau, n, p0, p1)
+    gl = np.empty(m)
+    gr = np.empty(m)
+    acc = np.empty(m)
+    sums = np.zeros((3, m))
+    moments = y.shape[0] > 0
+    table = index.shape[0] > 0
+    if table:
+        GL, GR = gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
+    else:
+        GL, GR = np.empty((0, m)), np.empty((0, m))
+    for k in range(N):
+        if table:
+            lv = index[k]
+            for i in range(m):
+                gl[i] = GL[lv, i]
+                gr[i] = GR[lv, i]
+        else:
+            gpi_envelopes(u[k], a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
+        gpi_play(r, q, s, gl, gr, acc)
+        if moments:
+            yk = y[k]
+            for i in range(m):
+                sums[0, i] += acc[i] * acc[i]
+                sums[1, i] += acc[i]
+                sums[2, i] += acc[i] * yk
+        else:
+            for i in range(m):
+                out[k, p0 + i] = acc[i]
+    if moments:
+        store_sums(out, p0, (sums[0], sums[1], sums[2]), 3)
+
+
+@njit(cache=True)
+def _gpi_serial(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, block):
+    """:func:`_gpi_block` over consecutive blocks of ``block`` candidates (bounds the tables)."""
+    P = a1.shape[0]
+    for p0 in range(0, P, block):
+        _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, min(P, p0 + block))
+
+
+@njit(cache=True, parallel=True)
+def _gpi_parallel(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, n_blocks):
+    """:func:`_gpi_block` over ``n_blocks`` candidate blocks spread over threads."""
+    for b in prange(n_blocks):
+        p0, p1 = candidate_block(b, n_blocks, a1.shape[0])
+        if p0 < p1:
+            _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1)
+
+
+#: an input with at most this fraction of distinct values has its envelopes tabulated per value
+#: (sampled sines repeat their values every cycle: sample_data has 10 samples per distinct value;
+#: measured: 2× faster there, but slower than computing them at 0.4 — the table lookups then cost
+#: more than the exponentials they save)
+LEVELS_MAX_FRACTION = 0.2
+#: table entries (levels × candidates) per block of a tabulated evaluation (2 × 16 MB)
+TABLE_BLOCK_ELEMENTS = 2_000_000
+#: samples × candidates from which the population is split over numba threads
+PARALLEL_MIN_WORK = 5_000_000
+#: captures of at least this many samples get their normal equations (ρ, y0) from the kernel's
+#: moments (whole population at once, O(n·P) memory); shorter ones from the stored z, as before
+FUSED_MIN_SAMPLES = 20_000
+
+
+def input_levels(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(levels (U,), index (N,)) with u = levels[index] when u has few distinct values
+    (≤ :data:`LEVELS_MAX_FRACTION` of N), else (u, empty): the envelope tables' input."""
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    levels, index = np.unique(u, return_inverse=True)
+    if levels.shape[0] > LEVELS_MAX_FRACTION * u.shape[0]:
+        return u, np.empty(0, dtype=np.int64)
+    return np.ascontiguousarray(levels), np.ascontiguousarray(index.ravel(), dtype=np.int64)
+
+
+def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None, y=None):
     """Density-weighted sum of generalized play operators for a population of candidates.
 
     s_j(k) = max(γ_l(u_k) − r_j, min(γ_r(u_k) + r_j, s_j(k−1))),  s_j(−1) = 0 (virgin state),
@@ -76,30 +183,36 @@ def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n):
     initial state max(γ_l(u_0) − r, min(γ_r(u_0) + r, 0)).
 
     Layout (``shared/PERFORMANCE.md``): time loop outermost and sequential, candidates innermost
-    and contiguous; thresholds and density weights are per candidate (α and τ vary).
+    and contiguous; thresholds and density weights are per candidate (α and τ vary). Envelopes
+    are tabulated per distinct input value when ``levels`` = :func:`input_levels` (u) says so;
+    large populations on long inputs are split over numba threads. Each candidate's arithmetic is
+    the same on every route, so the result does not depend on it.
 
     Parameters
     ----------
     u : (N,) input (V).
     a1 … b4, tau, alpha : (P,) envelope, density-decay and threshold-step parameters.
     n : number of operators.
+    levels : optional :func:`input_levels` (u), computed once per capture by the caller.
+    y : optional (N,) target: then the moments Σz², Σz, Σz·y (P, 3) are returned instead of z,
+        summed in time order in the kernel (memory O(n·P)).
 
     Returns
     -------
-    (N, P) array z (envelope units, V); the caller transposes.
+    (N, P) array z (envelope units, V), the caller transposes; or (P, 3) moments.
     """
-    N = u.shape[0]
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    lv, index = levels if levels is not None else (u, np.empty(0, dtype=np.int64))
     P = a1.shape[0]
-    out = np.empty((N, P))
-    s = np.zeros((n, P))
-    r, q = gpi_operators(alpha, tau, n, 0, P)
-    gl = np.empty(P)
-    gr = np.empty(P)
-    acc = np.empty(P)
-    for k in range(N):
-        gpi_sample(u[k], a1, a2, a3, a4, b1, b2, b3, b4, 0, r, q, s, gl, gr, acc)
-        for p in range(P):
-            out[k, p] = acc[p]
+    yk = np.ascontiguousarray(y if y is not None else np.empty(0), dtype=np.float64)
+    out = np.empty((u.shape[0], P)) if y is None else np.empty((P, 3))
+    args = (u, lv, index, yk, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, int(n), out)
+    nb = thread_blocks(P, 2, 4) if u.shape[0] * P >= PARALLEL_MIN_WORK else 0
+    block = max(1, TABLE_BLOCK_ELEMENTS // max(lv.shape[0], 1)) if index.shape[0] else P
+    if nb:  # at least one block per thread, and blocks no larger than the table bound
+        _gpi_parallel(*args, max(nb, -(-P // block)))
+    else:
+        _gpi_serial(*args, max(block, 1))
     return out
 
 
@@ -214,36 +327,56 @@ class GPI(Model):
         return tuple(ps)
 
     # ------------------------------------------------------------------ simulation
-    def _z(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Unit-density output z (N, P) = Σ_j e^{−τ r_j} s_j (y = ρ z + y0)."""
+    def _z(self, theta: np.ndarray, u: np.ndarray, levels=None, y=None) -> np.ndarray:
+        """Unit-density output z (N, P) = Σ_j e^{−τ r_j} s_j (y = ρ z + y0), or with a target ``y``
+        its moments (P, 3); ``levels`` = :func:`input_levels` (u)."""
         c = [np.ascontiguousarray(theta[:, i]) for i in range(11)]
         a1, a2, a3, a4, b1, b2, b3, b4, _, tau, alpha = c
-        return gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, self.n_operators)
+        return gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, self.n_operators, levels, y)
+
+    def _output(self, theta: np.ndarray, u: np.ndarray, levels=None) -> np.ndarray:
+        theta = self.check_theta(theta, 12)
+        z = self._z(theta, u, levels)  # (N, P)
+        return (z * theta[:, 8][None, :] + theta[:, 11][None, :]).T
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
-        theta = self.check_theta(theta, 12)
-        u = np.ascontiguousarray(u, dtype=np.float64)
-        z = self._z(theta, u)  # (N, P)
-        return (z * theta[:, 8][None, :] + theta[:, 11][None, :]).T
+        return self._output(theta, np.ascontiguousarray(u, dtype=np.float64))
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
         u = np.ascontiguousarray(u, dtype=np.float64)
-        return lambda theta: self.simulate(theta, u, dt)
+        levels = input_levels(u)  # once per capture, shared by every call
+        return lambda theta: self._output(theta, u, levels)
 
     def separable(self):
         """ρ and y0 enter linearly: y = ρ·z(a, b, τ, α_r) + y0; the other ten are searched."""
         nl = (0, 1, 2, 3, 4, 5, 6, 7, 9, 10)
 
+        def full(theta_nl):
+            theta_nl = np.atleast_2d(theta_nl)
+            th = np.zeros((theta_nl.shape[0], 12))
+            th[:, nl] = theta_nl
+            return th
+
         def response(u, dt):
-            def z(theta_nl):
-                theta_nl = np.atleast_2d(theta_nl)
-                full = np.zeros((theta_nl.shape[0], 12))
-                full[:, nl] = theta_nl
-                return self._z(full, u)  # (N, P)
+            levels = input_levels(u)  # once per capture, shared by every call
+            return lambda theta_nl: self._z(full(theta_nl), u, levels)  # (N, P)
 
-            return z
+        def moments(u, dt, y):
+            if not fused(len(u), dt):
+                return None  # short captures: moments from z (numpy), as they always were
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            levels = input_levels(u)
 
-        return scaled_response((8, 11), nl, response)
+            def sums(theta_nl):
+                M = self._z(full(theta_nl), u, levels, y)
+                return M[:, 0], M[:, 1], M[:, 2]
+
+            return sums
+
+        def fused(n_samples, dt):
+            return n_samples >= FUSED_MIN_SAMPLES
+
+        return scaled_response((8, 11), nl, response, moments, fused_for=fused)
 
     # ------------------------------------------------------------------ stepping
     def _unpack(self, theta: np.ndarray):

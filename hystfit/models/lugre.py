@@ -43,7 +43,7 @@ def _lugre_advance(z, v, dt, s0abs, fc, fs, vs):
 
 
 @njit(cache=True, error_model="numpy")
-def lugre_population(u, dt, k, s0, s1, s2, fc, fs, vs):
+def lugre_population(u, dt, k, s0, s1, s2, fc, fs, vs, group=1):
     """LuGre output y = k u + σ0 z + σ1 ż + σ2 u̇ for a population (without offset), z(0) = 0.
 
     u̇ is the backward difference (u_k − u_{k−1})/dt (0 at the first sample) and is constant
@@ -55,6 +55,8 @@ def lugre_population(u, dt, k, s0, s1, s2, fc, fs, vs):
     ----------
     u : (N,) input (V).  dt : sample period (s).
     k, s0, s1, s2, fc, fs, vs : (P,) parameters (see :class:`hystfit.models.lugre.LuGre`).
+    group : consecutive groups of ``group`` candidates share σ0, Fc, Fs and vs (they differ in
+        k, σ1, σ2 only): the bristle state is advanced once per group (default 1: every candidate).
 
     Returns
     -------
@@ -68,12 +70,15 @@ def lugre_population(u, dt, k, s0, s1, s2, fc, fs, vs):
         return out
     for p in range(P):
         out[0, p] = k[p] * u[0]
+    z1 = 0.0
+    zd = 0.0
     for n in range(1, N):
         un = u[n]
         v = (un - u[n - 1]) / dt
         for p in range(P):
-            z1, zd = _lugre_advance(z[p], v, dt, abs(s0[p]), fc[p], fs[p], vs[p])
-            z[p] = z1
+            if p % group == 0:
+                z1, zd = _lugre_advance(z[p], v, dt, abs(s0[p]), fc[p], fs[p], vs[p])
+                z[p] = z1
             out[n, p] = k[p] * un + s0[p] * z1 + s1[p] * zd + s2[p] * v
     return out
 
@@ -190,13 +195,18 @@ class LuGre(OptionalOffset, Model):
         return tuple(np.ascontiguousarray(theta[:, i]) for i in range(7))
 
     def separable(self):
-        """k, σ1, σ2 (and y0) enter linearly for a fixed bristle state z(σ0, Fc, Fs, vs): only those four are searched."""
-        return separable_by_simulation(self, (0, 2, 3, 7) if self.offset else (0, 2, 3), 8 if self.offset else 7)
+        """k, σ1, σ2 (and y0) enter linearly for a fixed bristle state z(σ0, Fc, Fs, vs): only those four are
+        searched. The bristle state is advanced once per candidate, not once per basis column."""
+        return separable_by_simulation(self, (0, 2, 3, 7) if self.offset else (0, 2, 3), 8 if self.offset else 7,
+                                       grouped=lambda u, dt: lambda th, g: self._simulate(th, u, dt, g))
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        return self._simulate(theta, np.ascontiguousarray(u, dtype=np.float64), dt, 1)
+
+    def _simulate(self, theta: np.ndarray, u: np.ndarray, dt: float, group: int) -> np.ndarray:
+        """Outputs (P, N); consecutive groups of ``group`` rows of θ share σ0, Fc, Fs and vs."""
         theta = self.check_theta(theta, self.n_params)
-        u = np.ascontiguousarray(u, dtype=np.float64)
-        y = lugre_population(u, float(dt), *self._cols(theta)).T
+        y = lugre_population(u, float(dt), *self._cols(theta), group).T
         if self.offset:
             with np.errstate(all="ignore"):
                 y = y + theta[:, 7][:, None]

@@ -20,7 +20,8 @@ from .base import Model
 from .composite import Composite
 from .pi import PI
 from .separable import scaled_response
-from .gpi import GPI, gpi_operators, gpi_sample
+from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_table, gpi_envelopes, gpi_operators, gpi_play,
+                  input_levels)
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
 
@@ -31,8 +32,8 @@ IDENTIFICATIONS = ("two-step", "joint")
 
 
 @njit(cache=True)
-def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n, mode, out,
-                p0, p1):
+def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
+                mode, out, p0, p1):
     """Generalized PI → second-order stage for candidates p0:p1, in one time loop.
 
     Per candidate (the recurrences of :func:`~hystfit.models.gpi.gpi_population` and
@@ -47,7 +48,10 @@ def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f
     ``mode`` :data:`_OUTPUT` writes ŷ into out (N, P); :data:`_SSE` accumulates Σ(ŷ − y)² into
     out[p, 0]; :data:`_MOMENTS` Σz_f², Σz_f, Σz_f·y into out[p, 0:3] (the normal equations of
     (ρ, y0), which enter linearly). Time outermost, candidates innermost and contiguous; memory
-    O(n·P) in the SSE and moments modes. Non-finite candidates give non-finite results.
+    O(n·P) in the SSE and moments modes (plus the envelope table: with ``index`` non-empty,
+    u_k = levels[index[k]] and the envelopes are tabulated per level, bit-identical to computing
+    them per sample, :func:`~hystfit.models.gpi.gpi_envelope_table`). Non-finite candidates give
+    non-finite results.
     """
     N = u.shape[0]
     m = p1 - p0
@@ -64,9 +68,20 @@ def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f
     gl = np.empty(m)
     gr = np.empty(m)
     z = np.empty(m)
+    table = index.shape[0] > 0
+    if table:
+        GL, GR = gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
+    else:
+        GL, GR = np.empty((0, m)), np.empty((0, m))
     for k in range(N):
-        uk = u[k]
-        gpi_sample(uk, a1, a2, a3, a4, b1, b2, b3, b4, p0, r, q, s, gl, gr, z)
+        if table:
+            lv = index[k]
+            for i in range(m):
+                gl[i] = GL[lv, i]
+                gr[i] = GR[lv, i]
+        else:
+            gpi_envelopes(u[k], a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
+        gpi_play(r, q, s, gl, gr, z)
         if k == 0:
             for i in range(m):
                 z0[i] = z[i]
@@ -94,21 +109,33 @@ def _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f
 
 
 @njit(cache=True, parallel=True)
-def _gpi2_parallel(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n, mode, out,
-                   n_blocks):
+def _gpi2_parallel(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
+                   mode, out, n_blocks):
     """:func:`_gpi2_block` over ``n_blocks`` candidate blocks spread over threads."""
     for b in prange(n_blocks):
         p0, p1 = candidate_block(b, n_blocks, a1.shape[0])
         if p0 < p1:
-            _gpi2_block(u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n, mode, out,
-                        p0, p1)
+            _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2,
+                        n, mode, out, p0, p1)
 
 
-def gpi2_run(u, y, gpi_theta, fn_Hz, zeta, dt: float, n: int, mode: int) -> np.ndarray:
+@njit(cache=True)
+def _gpi2_serial(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
+                 mode, out, block):
+    """:func:`_gpi2_block` over consecutive blocks of ``block`` candidates (bounds the envelope tables)."""
+    P = a1.shape[0]
+    for p0 in range(0, P, block):
+        _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
+                    mode, out, p0, min(P, p0 + block))
+
+
+def gpi2_run(u, y, gpi_theta, fn_Hz, zeta, dt: float, n: int, mode: int, levels=None) -> np.ndarray:
     """Run :func:`_gpi2_block` for a population: ``gpi_theta`` (P, 12) in :class:`GPI`'s order,
-    ``fn_Hz``, ``zeta`` (P,) the stage (discretized by :func:`bilinear_biquad`). Threaded over
+    ``fn_Hz``, ``zeta`` (P,) the stage (discretized by :func:`bilinear_biquad`); ``levels`` the
+    capture's :func:`~hystfit.models.gpi.input_levels` (envelope tables), if computed. Threaded over
     candidate blocks from :data:`~hystfit.models._kernels.PARALLEL_MIN_POP` candidates on."""
     u = np.ascontiguousarray(u, dtype=np.float64)
+    lv, index = levels if levels is not None else (u, np.empty(0, dtype=np.int64))
     y = np.ascontiguousarray(y if y is not None else np.empty(0), dtype=np.float64)
     t = np.ascontiguousarray(gpi_theta, dtype=np.float64)
     P = t.shape[0]
@@ -118,12 +145,13 @@ def gpi2_run(u, y, gpi_theta, fn_Hz, zeta, dt: float, n: int, mode: int) -> np.n
         coef = [np.ascontiguousarray(c) for c in bilinear_biquad(fn_Hz, zeta, dt)]
     coef = [np.broadcast_to(c, (P,)).copy() if c.shape[0] != P else c for c in coef]
     out = np.empty((u.shape[0], P)) if mode == _OUTPUT else np.empty((P, 1 if mode == _SSE else 3))
-    args = (u, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, *coef, int(n), int(mode), out)
+    args = (u, lv, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, *coef, int(n), int(mode), out)
     nb = thread_blocks(P, PARALLEL_MIN_POP, 8)
-    if nb:
-        _gpi2_parallel(*args, nb)
+    block = max(1, TABLE_BLOCK_ELEMENTS // max(lv.shape[0], 1)) if index.shape[0] else P
+    if nb:  # at least one block per thread, and blocks no larger than the table bound
+        _gpi2_parallel(*args, max(nb, -(-P // block)))
     else:
-        _gpi2_block(*args, 0, P)
+        _gpi2_serial(*args, max(block, 1))
     return out
 
 
@@ -345,11 +373,12 @@ class PI2(Model):
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
         u = np.ascontiguousarray(u, dtype=np.float64)
+        levels = input_levels(u)  # once per capture, shared by every call
 
         def sim(theta):
             theta = self.check_theta(theta, self.d)
             fn, z = self._stage(theta)
-            return gpi2_run(u, None, theta[:, :12], fn, z, dt, self.n_operators, _OUTPUT).T
+            return gpi2_run(u, None, theta[:, :12], fn, z, dt, self.n_operators, _OUTPUT, levels).T
 
         return sim
 
@@ -357,11 +386,12 @@ class PI2(Model):
         """Σ(ŷ − y)² per candidate from the fused kernel (:func:`gpi2_run`, SSE mode)."""
         u = np.ascontiguousarray(u, dtype=np.float64)
         y = np.ascontiguousarray(y, dtype=np.float64)
+        levels = input_levels(u)
 
         def sse(theta):
             theta = self.check_theta(theta, self.d)
             fn, z = self._stage(theta)
-            return gpi2_run(u, y, theta[:, :12], fn, z, dt, self.n_operators, _SSE)[:, 0]
+            return gpi2_run(u, y, theta[:, :12], fn, z, dt, self.n_operators, _SSE, levels)[:, 0]
 
         return sse
 
@@ -378,18 +408,22 @@ class PI2(Model):
             return th
 
         def response(u, dt):
+            levels = input_levels(u)
+
             def z_f(theta_nl):
                 th = full(theta_nl)
                 fn, z = self._stage(th)
-                return gpi2_run(u, None, th[:, :12], fn, z, dt, self.n_operators, _OUTPUT)  # (N, P)
+                return gpi2_run(u, None, th[:, :12], fn, z, dt, self.n_operators, _OUTPUT, levels)  # (N, P)
 
             return z_f
 
         def moments(u, dt, y):
+            levels = input_levels(u)
+
             def sums(theta_nl):
                 th = full(theta_nl)
                 fn, z = self._stage(th)
-                M = gpi2_run(u, y, th[:, :12], fn, z, dt, self.n_operators, _MOMENTS)
+                M = gpi2_run(u, y, th[:, :12], fn, z, dt, self.n_operators, _MOMENTS, levels)
                 return M[:, 0], M[:, 1], M[:, 2]
 
             return sums

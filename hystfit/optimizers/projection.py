@@ -160,7 +160,7 @@ class ProjectedObjective(ObjectiveFunction):
         L = max(len(self.lin), 1)
         n_max = max(s.y.shape[0] for s in self.series)
         block = max(1, BLOCK_ELEMENTS // (n_max * (L + 1) * max(len(self.series), 1)))
-        if self.grams is not None and self.sep.gram_fused:
+        if self.sep.fused(self.series):
             block = P  # the fused normal equations need O(P·L²) memory only
         if P <= block:
             return self._solve_block(theta_nl)
