@@ -2053,6 +2053,8 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     checked: dict = {}  # one check per (base, floor, named effects): the last one is also the final check
 
     def check(m: Model, sel_: _Selection, sigma: float) -> _Resolution | None:
+        if m.refined() is None:  # no resolution to refine (or at its maximum)
+            return None
         key = (_resolution_of(m), sigma, sel_.chosen)
         if key not in checked:
             checked[key] = resolution_check_converged(caps, d, m, optimizer, seed, gap, sel_, sigma, settings, executor)
