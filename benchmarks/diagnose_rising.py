@@ -68,9 +68,13 @@ def main() -> None:
                     f"{x['from']} → {x['to']}: held-out {x['heldout_rmse_before_um']:.4f} → {x['heldout_rmse_after_um']:.4f} µm "
                     f"({100 * x['reduction_mean_square']:.0f} % of the excess mean square, "
                     f"{'adopted' if x['adopted'] else 'kept'})" for x in first["steps"]))
+            for c in d.get("resolution_during_selection", []):
+                print(f"  resolution during the selection, after {' + '.join(c['effects'])}: {c['from']} → {c['to']}: "
+                      f"held-out {c['heldout_rmse_before_um']:.4f} → {c['heldout_rmse_after_um']:.4f} µm "
+                      f"({100 * c['reduction_mean_square']:.0f} %, adopted: {c['adopted']})")
             r = d.get("resolution")
             if r is not None:
-                print(f"  resolution check: {r['option']} {r['from']} → {r['to']} with {' + '.join(r['effects']) or 'no effect'}: "
+                print(f"  resolution check after the selection: {r['option']} {r['from']} → {r['to']} with {' + '.join(r['effects']) or 'no effect'}: "
                       f"held-out {r['heldout_rmse_before_um']:.4f} → {r['heldout_rmse_after_um']:.4f} µm, reduction "
                       f"{100 * r['reduction_mean_square']:.0f} % of the excess mean square, adopted: {r['adopted']}")
             for s in d["steps"][1:]:

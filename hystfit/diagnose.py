@@ -1970,6 +1970,51 @@ def _base_resolution(given: Model, final: Model) -> dict | None:
     return {"option": opt, "given": a, "final": b}
 
 
+class _ResolutionChecks:
+    """Every resolution check of one diagnosis after the effects start (:func:`resolution_check_converged`):
+    one per (base, floor, named effects) — the check after the last named effect is also the check
+    after the selection — the refiners of the selections, and the final check."""
+
+    def __init__(self, caps, d: _Design, optimizer: Optimizer, seed: int, gap: _Gap, settings: "DiagnoseSettings",
+                 executor=None) -> None:
+        self.args = (caps, d, optimizer, seed, gap)
+        self.settings, self.executor = settings, executor
+        self.refiners: list[_Refiner] = []
+        self.checked: dict = {}
+
+    def check(self, m: Model, sel: _Selection, sigma: float) -> _Resolution | None:
+        if m.refined() is None:  # no resolution to refine (or at its maximum)
+            return None
+        key = (_resolution_of(m), sigma, sel.chosen)
+        if key not in self.checked:
+            caps, d, optimizer, seed, gap = self.args
+            self.checked[key] = resolution_check_converged(caps, d, m, optimizer, seed, gap, sel, sigma, self.settings,
+                                                           self.executor)
+        return self.checked[key]
+
+    def refiner(self, start: Model, sigma: float) -> _Refiner | None:
+        """A new refiner for a selection that starts on ``start`` (None when the checks are off)."""
+        if not self.settings.resolution_check:
+            return None
+        self.refiners.append(_Refiner(start, lambda m, sel: self.check(m, sel, sigma)))
+        return self.refiners[-1]
+
+    def finish(self, model: Model, sel: _Selection, sigma: float, select_from):
+        """The check after the selection and, when it is adopted, the selection continued from the
+        finer base (``select_from(state, preds, named, first_step, refine)``). Returns the final
+        selection, the base it ended on, the check (or None) and the checks during the selection."""
+        n = len(self.refiners)
+        final = self.refiners[-1].model if n else model
+        res = self.check(final, sel, sigma) if self.settings.resolution_check else None
+        if res is not None and res.info["adopted"]:
+            final = res.model
+            sel = _continue_on_finer_base(res, sel, lambda st, pr, named, k: select_from(
+                st, pr, named, k, self.refiner(res.model, sigma)))
+            final = self.refiners[-1].model if len(self.refiners) > n else final
+        ran = [c for r in self.refiners[max(n - 1, 0):] for c in r.checks]  # the last selection's and its continuation's
+        return sel, final, res, tuple(c for c in ran if res is None or c is not res.info)
+
+
 class _Refiner:
     """The base's resolution converged after each named effect (the ``refine`` hook of
     :func:`_select_effects`): ``check(model, selection)`` is :func:`resolution_check_converged`;
@@ -2049,50 +2094,28 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     cands = _configured([n for n in names if n not in untested], base.preds, d.views)  # configured on the fit data
     all_effects = _configured(list(EFFECTS), base.preds, d.views)
 
-    refiners: list[_Refiner] = []
-    checked: dict = {}  # one check per (base, floor, named effects): the last one is also the final check
-
-    def check(m: Model, sel_: _Selection, sigma: float) -> _Resolution | None:
-        if m.refined() is None:  # no resolution to refine (or at its maximum)
-            return None
-        key = (_resolution_of(m), sigma, sel_.chosen)
-        if key not in checked:
-            checked[key] = resolution_check_converged(caps, d, m, optimizer, seed, gap, sel_, sigma, settings, executor)
-        return checked[key]
-
-    def refiner(start: Model, sigma: float) -> _Refiner | None:
-        if not settings.resolution_check:
-            return None
-        refiners.append(_Refiner(start, lambda m, sel_: check(m, sel_, sigma)))
-        return refiners[-1]
+    checks = _ResolutionChecks(caps, d, optimizer, seed, gap, settings, executor)
 
     def select(sigma: float, where: dict, count_progress: bool) -> _Selection:
         return _select_effects(sigma, where, state0=base.state, pred0=base.preds, caps=caps, views=list(d.views),
                                cands=cands, all_effects=all_effects, settings=settings, seed=seed,
-                               advance=advance, count_progress=count_progress, refine=refiner(model, sigma))
+                               advance=advance, count_progress=count_progress, refine=checks.refiner(model, sigma))
 
     out = _where_and_select(caps, d, gap, base, first, select)  # 3. where and 4. which, how far
     advance("verdict")
-    sel = out.selection
-    final = refiners[-1].model if refiners else model  # the base the selection ended on
-    res = check(final, sel, out.sigma) if settings.resolution_check else None
-    if res is not None and res.info["adopted"]:  # go on from the finer base with the effects not yet named
-        final = res.model
 
-        def select_from(state, preds, named, first_step):
-            left = [e for e in cands if e.name not in named]
-            if not left or first_step >= settings.max_effects:
-                return None
-            return _select_effects(out.sigma, out.where, state0=state, pred0=preds, caps=caps, views=list(d.views),
-                                   cands=left, all_effects=all_effects, seed=seed, advance=advance,
-                                   count_progress=False, first_step=first_step,
-                                   settings=replace(settings, max_effects=settings.max_effects - first_step),
-                                   refine=refiner(final, out.sigma))
-        n_refiners = len(refiners)
-        sel = _continue_on_finer_base(res, sel, select_from)
-        final = refiners[-1].model if len(refiners) > n_refiners else final
+    def select_from(state, preds, named, first_step, refine):  # the selection continued on a finer base
+        left = [e for e in cands if e.name not in named]
+        if not left or first_step >= settings.max_effects:
+            return None
+        return _select_effects(out.sigma, out.where, state0=state, pred0=preds, caps=caps, views=list(d.views),
+                               cands=left, all_effects=all_effects, seed=seed, advance=advance,
+                               count_progress=False, first_step=first_step,
+                               settings=replace(settings, max_effects=settings.max_effects - first_step),
+                               refine=refine)
+
+    sel, final, res, during = checks.finish(model, out.selection, out.sigma, select_from)
     resolution = res.info if res is not None else None
-    during = tuple(c for c in (refiners[-1].checks if refiners else []) if res is None or c is not res.info)
     split = _split_info(d.split, caps, d.views, d.swept, settings)
     if untested:
         split["not_tested"] = list(untested)

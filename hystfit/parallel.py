@@ -484,18 +484,21 @@ def fork_workers(workers: int | None = None) -> int:
     return default_jobs() if workers is None else max(1, int(workers))
 
 
+def _claim_next(claim) -> int:
+    """The next unclaimed item of :func:`fork_map` (a shared counter, incremented under its lock)."""
+    with claim.get_lock():
+        i = claim.value
+        claim.value += 1
+    return i
+
+
 def _fork_child(fn: Callable[[int], Any], n: int, claim, conn) -> None:
     """A child of :func:`fork_map`: claims items until none is left, then sends ``{index: result}``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _single_threaded()
     done: dict[int, Any] = {}
     try:
-        while True:
-            with claim.get_lock():
-                i = claim.value
-                claim.value += 1
-            if i >= n:
-                break
+        while (i := _claim_next(claim)) < n:
             done[i] = fn(i)
         conn.send(done)
     except BaseException:  # noqa: BLE001 - whatever this child did not return, the parent computes
@@ -542,12 +545,7 @@ def fork_map(fn: Callable[[int], R], n: int, workers: int | None = None) -> list
     children = [_fork_one(fn, n, claim) for _ in range(k - 1)]
     results: dict[int, Any] = {}
     try:
-        while True:
-            with claim.get_lock():
-                i = claim.value
-                claim.value += 1
-            if i >= n:
-                break
+        while (i := _claim_next(claim)) < n:
             results[i] = fn(i)
         for pid, conn in children:
             try:

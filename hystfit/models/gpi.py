@@ -70,6 +70,20 @@ def gpi_play(r, q, s, gl, gr, z):
             z[i] += q[j, i] * v
 
 
+@njit(cache=True, error_model="numpy")
+def gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr):
+    """The envelopes at sample ``k`` into ``gl``, ``gr``: from the table ``GL``, ``GR`` of
+    :func:`gpi_envelope_table` when ``index`` (each sample's input level) is given, else computed
+    (:func:`gpi_envelopes`); both are the same expression, bit for bit."""
+    if index.shape[0] > 0:
+        lv = index[k]
+        for i in range(gl.shape[0]):
+            gl[i] = GL[lv, i]
+            gr[i] = GR[lv, i]
+    else:
+        gpi_envelopes(u[k], a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
+
+
 @njit(cache=True, inline="always")
 def gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1):
     """γ_l, γ_r (U, m) of the candidates p0:p1 at each distinct input level: the same expression as
@@ -109,13 +123,7 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
     else:
         GL, GR = np.empty((0, m)), np.empty((0, m))
     for k in range(N):
-        if table:
-            lv = index[k]
-            for i in range(m):
-                gl[i] = GL[lv, i]
-                gr[i] = GR[lv, i]
-        else:
-            gpi_envelopes(u[k], a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
+        gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
         gpi_play(r, q, s, gl, gr, acc)
         if moments:
             yk = y[k]

@@ -20,7 +20,7 @@ from .base import Model
 from .composite import Composite
 from .pi import PI
 from .separable import scaled_response
-from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_table, gpi_envelopes, gpi_operators, gpi_play,
+from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_table, gpi_envelopes_at, gpi_operators, gpi_play,
                   input_levels)
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
@@ -74,13 +74,7 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
     else:
         GL, GR = np.empty((0, m)), np.empty((0, m))
     for k in range(N):
-        if table:
-            lv = index[k]
-            for i in range(m):
-                gl[i] = GL[lv, i]
-                gr[i] = GR[lv, i]
-        else:
-            gpi_envelopes(u[k], a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
+        gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
         gpi_play(r, q, s, gl, gr, z)
         if k == 0:
             for i in range(m):
