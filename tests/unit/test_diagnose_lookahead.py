@@ -65,3 +65,26 @@ def test_only_candidates_that_beat_their_placebo_and_reach_half_the_threshold_ar
     tiny = _result("drift", BEFORE, 0.38, SIGMA)                     # 0.075 < 0.15
     nxt = _Next({})
     assert _look_ahead([lucky, tiny], STATES, BEFORE, SIGMA, nxt) is None and nxt.calls == []
+
+
+def test_an_effect_must_beat_its_placebo_by_the_margin():
+    """Every augmentation removes the same remainder: beating the best placebo by a hair is chance."""
+    from types import SimpleNamespace
+
+    from hystfit.diagnose import _test_effect
+
+    ctx = SimpleNamespace(before=9.28, sigma=5.01, fit_before=9.0, summary={})
+    eff = SimpleNamespace(name="creep", title="creep")
+    fit = SimpleNamespace(params=lambda views, sources: {}, n_parameters=3)
+
+    def judged(after, placebo_best, margin):
+        refit = SimpleNamespace(after=after, fit_after=after, fit=fit, share=0.0, r2=0.0)
+        return _test_effect(ctx, eff, refit, (placebo_best, placebo_best), 1, [], [],
+                            DiagnoseSettings(placebo_margin=margin)).passes["beats_placebo"]
+
+    gap = 9.28 - 5.01
+    assert not judged(5.0685, 4.2064, 0.05)               # 0.001 better than the placebo
+    assert judged(5.0685, 4.2064, 0.0)                    # no margin: a knife edge decides
+    assert judged(5.0685, 4.2115 - 0.06 * gap, 0.05)      # 6 % of the gap better
+    with pytest.raises(Exception, match="placebo_margin"):
+        DiagnoseSettings(placebo_margin=1.5)
