@@ -113,7 +113,7 @@ class DiagnoseSettings:
         phase-randomized surrogates of the effects' signatures, :class:`hystfit.effects.Placebo`);
         an effect must improve the held-out RMSE more than the best of them — what that many
         parameters gain by chance — by at least ``placebo_margin`` of the gap.
-    placebo_margin : 0.05: the share of the held-out gap above the noise (before − σ) by which an
+    placebo_margin : 0.02: the share of the held-out gap above the noise (before − σ) by which an
         effect's improvement must exceed the best placebo's. Without it the comparison can be a
         knife edge where every augmentation removes the same generic remainder (measured: a second
         effect "named" for beating a placebo by 0.001 nm of a 4.3 nm gap, on a base whose
@@ -165,7 +165,7 @@ class DiagnoseSettings:
     split: str = "auto"
     resolution_check: bool = True
     resolution_threshold: float = 0.2
-    placebo_margin: float = 0.05
+    placebo_margin: float = 0.02
 
     def __post_init__(self) -> None:
         checks = [("fit_fraction", 0.1 <= self.fit_fraction <= 0.9, "in [0.1, 0.9]"),
