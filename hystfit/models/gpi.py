@@ -70,6 +70,15 @@ def gpi_play(r, q, s, gl, gr, z):
             z[i] += q[j, i] * v
 
 
+@njit(cache=True, inline="always")
+def gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1):
+    """:func:`gpi_envelope_table` when ``index`` (each sample's input level) is given, else two
+    empty (0, m) tables (the envelopes are then computed per sample, :func:`gpi_envelopes_at`)."""
+    if index.shape[0] > 0:
+        return gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
+    return np.empty((0, p1 - p0)), np.empty((0, p1 - p0))
+
+
 @njit(cache=True, error_model="numpy")
 def gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr):
     """The envelopes at sample ``k`` into ``gl``, ``gr``: from the table ``GL``, ``GR`` of
@@ -117,11 +126,7 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
     acc = np.empty(m)
     sums = np.zeros((3, m))
     moments = y.shape[0] > 0
-    table = index.shape[0] > 0
-    if table:
-        GL, GR = gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
-    else:
-        GL, GR = np.empty((0, m)), np.empty((0, m))
+    GL, GR = gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
     for k in range(N):
         gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
         gpi_play(r, q, s, gl, gr, acc)

@@ -20,7 +20,7 @@ from .base import Model
 from .composite import Composite
 from .pi import PI
 from .separable import scaled_response
-from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_table, gpi_envelopes_at, gpi_operators, gpi_play,
+from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_tables, gpi_envelopes_at, gpi_operators, gpi_play,
                   input_levels)
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
@@ -68,11 +68,7 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
     gl = np.empty(m)
     gr = np.empty(m)
     z = np.empty(m)
-    table = index.shape[0] > 0
-    if table:
-        GL, GR = gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
-    else:
-        GL, GR = np.empty((0, m)), np.empty((0, m))
+    GL, GR = gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
     for k in range(N):
         gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
         gpi_play(r, q, s, gl, gr, z)
