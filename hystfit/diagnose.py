@@ -140,15 +140,16 @@ class DiagnoseSettings:
     resolution_check : True (default): when a gap above the noise remains after the named effects and
         the base has a resolution (:meth:`hystfit.models.base.Model.refined`, e.g. the number of play
         operators), refit the base at twice the resolution with the same effects; when that removes at
-        least ``threshold`` of the remaining held-out gap, the base's resolution — not a missing
+        least ``resolution_threshold`` of the held-out excess mean square, the base's resolution — not a missing
         effect — is what the coarse base lacked: the finer base is adopted (``resolution`` section;
         the recommended model carries the option) and the selection goes on from it with the effects
         not yet named. An effect is otherwise judged against a gap that the base's own
-        discretization error dilutes. Before any effect is tested, the base's resolution is first
-        converged (:func:`converge_resolution`).
-    resolution_threshold : 0.2: before any effect is tested, the base's resolution is doubled as long
-        as each doubling removes at least this share of the held-out excess mean square (held-out
-        RMSE² − floor²). Mean squares, not RMSEs: a discretization error and an unmodelled effect add
+        discretization error dilutes. The same check also runs before any effect is tested
+        (:func:`converge_resolution`) and after each named effect (``_Refiner``); False switches all
+        of them off.
+    resolution_threshold : 0.2: every resolution check doubles the base's resolution as long as each
+        doubling removes at least this share of the held-out excess mean square (held-out
+        RMSE² − floor²), and none runs once √(RMSE² − floor²) is within the floor. Mean squares, not RMSEs: a discretization error and an unmodelled effect add
         in quadrature, so the RMSE share understates the discretization's part when an effect is
         present (a 124 µm plant with a 700 Hz stage and creep: ten → twenty operators remove 43 % of
         the excess mean square but 25 % of the RMSE gap). More resolution of the same model is not
@@ -1480,6 +1481,12 @@ class _StepContext:
     spectra: tuple = ()
 
 
+def _reduction(before: float, after: float, sigma: float) -> float:
+    """The share of the held-out gap above the noise (before − σ) that going from ``before`` to
+    ``after`` removes, clipped to [0, 1]; 0 when there is no gap. Every reduction of the diagnosis."""
+    return float(np.clip((before - after) / (before - sigma), 0.0, 1.0)) if before > sigma else 0.0
+
+
 def _placebo_layout(eff: Effect) -> tuple[int, int]:
     """The parameter layout of ``eff``'s placebos: (searched + shared, per capture)."""
     ks, kl = eff.layout()
@@ -1542,7 +1549,7 @@ def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[f
     pl_best, pl_mean = placebo
     before, sigma, after = ctx.before, ctx.sigma, refit.after
     denom = before - sigma
-    red = float(np.clip((before - after) / denom, 0.0, 1.0)) if denom > 0 else 0.0
+    red = _reduction(before, after, sigma)
     pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
     params = refit.fit.params(views, [c.source for c in caps])
     passes = {"reduction_at_least_threshold": red >= settings.threshold,
@@ -1630,9 +1637,9 @@ def _look_ahead(results: list[EffectResult], states: dict, before: float, sigma:
         if pick is None or pick.effect not in alone:
             continue
         after, after_second = pick.heldout_rmse_after, alone[pick.effect].heldout_rmse_after
-        on_top = float(np.clip((after_second - after) / (after_second - sigma), 0.0, 1.0)) if after_second > sigma else 0.0
+        on_top = _reduction(after_second, after, sigma)
         if on_top >= thr:
-            both = float(np.clip((before - after) / (before - sigma), 0.0, 1.0)) if before > sigma else 0.0
+            both = _reduction(before, after, sigma)
             joint = {"with": pick.effect, "heldout_rmse_after": after, "reduction": both,
                      "reduction_on_top_of_other": on_top, "threshold": thr}
             return replace(r, joint=joint), nxt, nxt_states, pick
@@ -1883,9 +1890,8 @@ def _shares(before: float, after: float, sigma: float) -> dict:
     """How much of the held-out gap above the floor a change removes: ``reduction`` of the RMSE gap
     (before − σ) and ``reduction_mean_square`` of the excess mean square (before² − σ²), the rule
     of every resolution check (errors add in quadrature), each clipped to [0, 1]."""
-    red = float(np.clip((before - after) / (before - sigma), 0.0, 1.0)) if before > sigma else 0.0
     ms = before ** 2 - sigma ** 2
-    return {"reduction": red,
+    return {"reduction": _reduction(before, after, sigma),
             "reduction_mean_square": float(np.clip((before ** 2 - after ** 2) / ms, 0.0, 1.0)) if ms > 0 else 0.0}
 
 
