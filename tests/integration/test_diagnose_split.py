@@ -118,6 +118,8 @@ def test_rising_sines_with_three_effects_name_all_three_on_a_base_of_adequate_re
                                  noise_sigma_um=0.01), cycles=50)
     d = diagnose(caps, make_model("pi"), make_optimizer(optimizers.get("auto")))
     assert set(d.explained_by) == {"asymmetry", "creep", "delay"}
+    # the check after the second named effect finds the coarse base's discretization (before creep is tested)
+    assert any(c["adopted"] and set(c["effects"]) == {"asymmetry", "delay"} for c in d.resolution_during_selection)
     checks = list(d.resolution_during_selection) + ([d.resolution] if d.resolution is not None else [])
     adopted = [c for c in checks if c["adopted"]]
     assert adopted and all(c["reduction_mean_square"] >= d.settings.resolution_threshold for c in adopted)
