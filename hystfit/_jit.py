@@ -38,7 +38,7 @@ from pathlib import Path
 from types import CodeType, ModuleType
 from typing import Any, Callable
 
-__all__ = ["njit", "prange", "cache_dir", "Kernel"]
+__all__ = ["njit", "prange", "cache_dir", "Kernel", "numba_loaded"]
 
 _lock = threading.RLock()
 _numba: ModuleType | None = None
@@ -74,6 +74,11 @@ def _load_numba() -> ModuleType:
             prange = numba.prange
             _numba = numba
         return _numba
+
+
+def numba_loaded() -> bool:
+    """Whether numba has been imported for a kernel in this process (its start-up is paid)."""
+    return _numba is not None
 
 
 def cache_dir() -> str | None:

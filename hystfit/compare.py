@@ -22,7 +22,8 @@ from .capture import Capture
 from .cells import CellStore, cell_key
 from .conditions import condition_label, group_by_condition
 from .errors import ConfigError, HystfitError
-from .identify import check_seed, fit_captures, prepare_shared
+from .identify import fit_captures, prepare_shared
+from .seeds import check_seed
 from .metrics import check_mape_floor, compute_metrics_pooled
 from .objective import Objective, Series
 from .parallel import CellFailed, CellStats, Executor, LocalExecutor, run_cells

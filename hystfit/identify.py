@@ -16,6 +16,7 @@ import numpy as np
 from .capture import Capture
 from .conditions import condition_label, group_by_condition
 from .cells import CellStore, cell_key
+from .seeds import SEED_MAX, check_seed, run_seed  # noqa: F401  (re-exported: hystfit.identify.check_seed)
 from .errors import ConfigError, InputError, NoResultError
 from .metrics import MAPE_THRESHOLD_FRACTION, check_mape_floor, compute_metrics, compute_metrics_pooled
 from .models.base import Model
@@ -112,22 +113,6 @@ class IdentifyResult:
     model_options: dict = field(default_factory=dict)
     failed: tuple[str, ...] = ()  # "CONDITION run R: error" of every run that failed on every attempt
     cell_stats: CellStats = field(default_factory=CellStats)  # runs computed / reused / failed, wall time
-
-
-SEED_MAX = 2 ** 32 - 1
-
-
-def check_seed(seed) -> int:
-    """``seed`` as an int; :class:`ConfigError` unless it is an integer in [0, 2**32 − 1] (the CLI's
-    ``--seed`` range), so the library refuses what the command line refuses, with the same words."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) <= SEED_MAX:
-        raise ConfigError(f"seed must be an integer in [0, {SEED_MAX}]. Got {seed!r} instead.")
-    return int(seed)
-
-
-def run_seed(seed: int, cell: int, run: int) -> int:
-    """Derived seed of run ``run`` of cell ``cell``: reproducible and independent across runs."""
-    return int(np.random.SeedSequence([int(seed), int(cell), int(run)]).generate_state(1, dtype=np.uint32)[0])
 
 
 def _output_unit(captures: Sequence[Capture]) -> str:

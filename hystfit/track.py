@@ -96,7 +96,7 @@ from typing import Sequence
 import numpy as np
 from ._lazy import lazy_module
 from .errors import ConfigError
-from .identify import check_seed
+from .seeds import check_seed
 from .invert import (CellUse, InversionResult, SegmentChoice, Span, Target, blend_segments, find_spans,
                      invert_target, preroll_voltage, select_cells, sine_target, target_from_array,
                      tracking_metrics)

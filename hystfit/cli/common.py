@@ -70,12 +70,11 @@ Stop = Annotated[Optional[float], typer.Option("--stop", help="Use each capture 
 
 # Options several commands share: one name, one meaning, one default, one range (enforced by
 # tests/integration/test_option_names.py).
-SEED_MAX = 2 ** 32 - 1
 
 
 def seed_callback(value: int) -> int:
-    """Validate ``--seed`` with the library's own rule and words (:func:`hystfit.identify.check_seed`)."""
-    from ..identify import check_seed
+    """Validate ``--seed`` with the library's own rule and words (:func:`hystfit.seeds.check_seed`)."""
+    from ..seeds import check_seed
 
     try:
         return check_seed(value)
@@ -482,16 +481,20 @@ def print_capture_notes(captures) -> None:
                 stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
-def load_for_command(data, options, output: OutputArgs, *, recursive: bool, figures: bool | None = None):
-    """The captures of a command (``options``: :meth:`CaptureArgs.load_options`): loaded with a
-    progress line when slow, the loader's notes printed; with figures ahead (default:
-    ``output.plots``), matplotlib is imported in a background thread meanwhile."""
-    from ..io import load_captures
-
-    if output.plots if figures is None else figures:
+def start_figures(output: FigureOutputArgs) -> None:
+    """With figures ahead, start the figure server (matplotlib imported on the other core) before
+    the command imports its own modules, loads and fits: first thing in a command that draws."""
+    if output.plots:
         from ..report.render import preload
 
-        preload()
+        preload(claim_early=True)
+
+
+def load_for_command(data, options, output: OutputArgs, *, recursive: bool):
+    """The captures of a command (``options``: :meth:`CaptureArgs.load_options`): loaded with a
+    progress line when slow, the loader's notes printed."""
+    from ..io import load_captures
+
     with phase(output.chatty, "loading the captures"):
         captures = load_captures(data, options, recursive=recursive)
     if not output.quiet:

@@ -10,7 +10,7 @@ import typer
 
 from .app import command
 from .common import (DataArg, ExecutorArgs, FigureOutputArgs, FitArgs, FitCaptureArgs, Iters, MapeFloor, OutDir,
-                     Polish, Pop, Runs, Seed, cell_run, load_for_command, new_table, print_cell_summary,
+                     Polish, Pop, Runs, Seed, cell_run, load_for_command, start_figures, new_table, print_cell_summary,
                      print_json, progress_bar, stdout, writing)
 
 
@@ -61,6 +61,7 @@ def compare(
     Writes OUT/compare.csv (one row per model, optimizer, condition, run), OUT/compare.md (paper-style
     tables and a ranking) and OUT/figures/.
     """
+    start_figures(output)
     from ..compare import compare as run_compare
     from ..compare import scoped_options
     from ..io import staged_output_dir

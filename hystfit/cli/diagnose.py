@@ -80,7 +80,7 @@ def diagnose(
     quiet, json_out, resume = output.quiet, output.json_out, execution.resume
     stats = CellStats()
     with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force) as stage:
-        captures = load_for_command(data, options, output, recursive=capture.recursive, figures=False)
+        captures = load_for_command(data, options, output, recursive=capture.recursive)
         with progress_bar(output.chatty, f"diagnose {m.name}") as cb:
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb, executor=cr.pool(default_jobs=1), store=cr.store,

@@ -9,7 +9,7 @@ import typer
 
 from .app import command
 from .common import (DataArg, ExecutorArgs, FigureOutputArgs, FitArgs, FitCaptureArgs, Iters, MapeFloor, OutDir,
-                     Polish, Pop, Runs, Seed, cell_run, load_for_command, new_table, print_cell_summary,
+                     Polish, Pop, Runs, Seed, cell_run, load_for_command, start_figures, new_table, print_cell_summary,
                      print_json, progress_bar, stderr, stdout, writing)
 
 
@@ -34,6 +34,7 @@ def identify(
 
     Writes OUT/params.json, OUT/report.csv, OUT/report.md and OUT/plots/.
     """
+    start_figures(output)
     from ..identify import identify as run_identify
     from ..io import staged_output_dir
     from ..registry import optimizers

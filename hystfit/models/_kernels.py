@@ -12,10 +12,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .._jit import njit, prange
+from .._jit import njit, numba_loaded, prange
 
 
-@njit(cache=True)
+#: below this many operator outputs (N · n) per call, play operators are computed with numpy (a few
+#: ms) instead of loading numba (≈ 0.6 s of import and context the first time in a process)
+NUMPY_PLAY_MAX = 250_000
+#: … until the numpy route has done this many outputs in the process (≈ 0.3 s of work): from then
+#: on numba pays off, and once numba is loaded for any kernel it is always used
+NUMPY_PLAY_BUDGET = 2_500_000
+_numpy_play_done = 0
+
+
 def play_matrix(u, r):
     """Play-operator outputs of one input for several thresholds.
 
@@ -31,12 +39,52 @@ def play_matrix(u, r):
     -------
     (N, n) float64 operator outputs (V).
     """
+    r = np.ascontiguousarray(r, dtype=np.float64)
     return play_matrix_from(u, r, np.zeros(r.shape[0]))
 
 
-@njit(cache=True)
 def play_matrix_from(u, r, state0):
-    """Like :func:`play_matrix` but starting from given operator states ``state0`` (n,)."""
+    """Like :func:`play_matrix` but starting from given operator states ``state0`` (n,).
+
+    Two routes give the same bits: the numba recurrence (:func:`_play_recurrence`), and for a small
+    call in a process that has not loaded numba, :func:`_play_scan` (numpy), so that a command
+    that only needs a few play operators (a PI fit of a short capture) never pays numba's start-up.
+    """
+    global _numpy_play_done
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    r = np.ascontiguousarray(r, dtype=np.float64)
+    state0 = np.ascontiguousarray(state0, dtype=np.float64)
+    size = u.shape[0] * r.shape[0]
+    if (not numba_loaded() and size <= NUMPY_PLAY_MAX and _numpy_play_done + size <= NUMPY_PLAY_BUDGET
+            and np.isfinite(u).all()):
+        _numpy_play_done += size
+        return _play_scan(u, r, state0)
+    return _play_recurrence(u, r, state0)
+
+
+def _play_scan(u, r, state0):
+    """Play operators as a prefix composition of clamps, in numpy (O(N log N · n), no time loop).
+
+    Sample k maps the previous output y to clamp(y, u_k − r, u_k + r); two clamps compose into a
+    clamp whose bounds are the first's clipped to the second's, so the composition of samples
+    0 … k is found in ⌈log₂ N⌉ doubling passes and applied to ``state0``. Only min and max act on
+    u_k ± r, so every output is bit-identical to the recurrence's.
+    """
+    lo = u[:, None] - r[None, :]
+    hi = u[:, None] + r[None, :]
+    step = 1
+    while step < u.shape[0]:
+        a, b = lo[step:], hi[step:]
+        new_lo = np.minimum(np.maximum(lo[:-step], a), b)
+        new_hi = np.minimum(np.maximum(hi[:-step], a), b)
+        lo[step:], hi[step:] = new_lo, new_hi
+        step *= 2
+    return np.maximum(lo, np.minimum(hi, state0[None, :]))
+
+
+@njit(cache=True)
+def _play_recurrence(u, r, state0):
+    """The play operators' recurrence, sample by sample (see :func:`play_matrix`)."""
     N = u.shape[0]
     n = r.shape[0]
     out = np.empty((N, n))

@@ -182,11 +182,23 @@ def _first_per_run(keys: np.ndarray) -> np.ndarray:
 def _first_occurrences(keys: np.ndarray) -> np.ndarray:
     """Mask of the first occurrence of each value of ``keys``, in one hashing pass.
 
-    pandas hashes (O(N)); ``np.unique(return_index=True)`` sorts and was ≈ 5× slower on 10⁷ keys.
+    pandas hashes (O(N)); ``np.unique(return_index=True)`` sorts and was ≈ 5× slower on 10⁷ keys,
+    but importing pandas costs ≈ 0.3–0.4 s and sorting 10⁶ keys ≈ 0.1 s: below
+    :data:`HASH_KEYS_FROM` keys numpy sorts (same mask), so a short capture's loop figure never
+    imports pandas.
     """
+    keys = np.asarray(keys)
+    if keys.size < HASH_KEYS_FROM:
+        first = np.zeros(keys.size, dtype=bool)
+        first[np.unique(keys, return_index=True)[1]] = True
+        return first
     import pandas as pd
 
     return ~pd.Series(keys, copy=False).duplicated(keep="first").to_numpy()
+
+
+#: from this many keys :func:`_first_occurrences` hashes with pandas instead of sorting with numpy
+HASH_KEYS_FROM = 1_000_000
 
 
 def column_envelope(x, y, columns: int) -> np.ndarray | None:

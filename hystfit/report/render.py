@@ -41,6 +41,7 @@ MIN_JOBS_PER_WORKER = 3
 
 _preload_thread: threading.Thread | None = None
 _server: "_FigureServer | None" = None
+_early = False  # the server was started by preload_early and no command has claimed it yet
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,7 @@ class _FigureServer:
     """
 
     def __init__(self) -> None:
+        self.drawn = False  # a batch was sent: the server is past its imports
         self.conn, child = mp.Pipe()
         for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
             stream.flush()
@@ -96,6 +98,7 @@ class _FigureServer:
             try:
                 self.conn.close()
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
+                _detach_output()
                 _serve(child)
             except BaseException:  # noqa: BLE001 - the parent falls back to drawing itself
                 code = 1
@@ -105,6 +108,7 @@ class _FigureServer:
 
     def draw(self, jobs: list[FigureJob], n_jobs: int | None) -> list[Path] | None:
         """The batch drawn by the server, or None when the server is gone (draw here instead)."""
+        self.drawn = True
         try:
             self.conn.send((jobs, n_jobs))
             status, value = self.conn.recv()
@@ -118,9 +122,14 @@ class _FigureServer:
             raise value
         return value
 
-    def close(self, stop: bool = False) -> None:
-        """Close the pipe (the server leaves) and reap the server; ``stop`` terminates it first."""
+    def close(self, stop: bool = False, wait: bool = True) -> None:
+        """Close the pipe (the server leaves) and reap the server; ``stop`` terminates it first.
+        ``wait=False`` (this process is exiting) waits only for a server that has drawn (it is
+        idle and leaves at once), not for one still importing or warming up (an error, ``--help``):
+        that one leaves on its own when it next reads the closed pipe."""
         self.conn.close()
+        if not (wait or stop or self.drawn):
+            return
         try:
             if stop:
                 os.kill(self.pid, signal.SIGTERM)
@@ -149,15 +158,20 @@ def _serve(conn) -> None:
             conn.send(("error", RuntimeError(f"drawing the figures failed: {exc!r}")))
 
 
-def preload() -> None:
+def preload(claim_early: bool = False) -> None:
     """Start importing matplotlib away from this process's work (≈ 0.3–0.5 s), e.g. while a fit runs.
 
     Where ``fork`` is available and this process runs no other thread (a fork copies locks held by
     other threads), a figure server is forked (:class:`_FigureServer`) and :func:`render_figures`
     hands its jobs to it; otherwise matplotlib is imported in a background thread here. Calling it
-    again replaces a server that has not drawn yet.
+    again replaces a server that has not drawn yet, except that ``claim_early`` keeps the one
+    :func:`preload_early` started for this command.
     """
-    global _preload_thread, _server
+    global _preload_thread, _server, _early
+    if claim_early and _early and _server is not None:
+        _early = False
+        return
+    _early = False
     _close_server()
     if "fork" in mp.get_all_start_methods() and threading.active_count() == 1:
         _server = _FigureServer()
@@ -166,14 +180,40 @@ def preload() -> None:
         _preload_thread.start()
 
 
-def _close_server() -> None:
+def preload_early() -> None:
+    """:func:`preload` from the console script, before the command line is parsed (≈ 0.3 s earlier
+    than the command could), for a command that will probably draw; the command claims the server
+    (``preload(claim_early=True)``) or :func:`release_early` closes it unused."""
+    global _early
+    preload()
+    _early = _server is not None
+
+
+def release_early() -> None:
+    """Close a server :func:`preload_early` started that no command claimed (``--help``, an error)."""
+    global _early
+    if _early:
+        _early = False
+        _close_server(wait=False)
+
+
+def _close_server(wait: bool = True) -> None:
     global _server
     if _server is not None:
-        _server.close()
+        _server.close(wait=wait)
         _server = None
 
 
-atexit.register(_close_server)
+atexit.register(_close_server, wait=False)
+
+
+def _detach_output() -> None:
+    """Point the server's stdout and stderr at the null device: it reports through its pipe, and a
+    caller reading this process's output must not wait for a server that outlives it."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    for fd in (1, 2):
+        os.dup2(devnull, fd)
+    os.close(devnull)
 
 
 def _join_preload() -> None:

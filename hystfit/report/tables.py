@@ -6,8 +6,8 @@ from pathlib import Path, PurePath
 from typing import Sequence
 
 import numpy as np
-import pandas as pd
 
+from ..io import Records
 from ..metrics import describe_metrics, metric_key
 
 #: metric columns shown in per-condition reports, in order
@@ -46,14 +46,24 @@ def fmt(x, digits: int = 4) -> str:
     return text
 
 
-def markdown_table(df: pd.DataFrame, digits: int = 4) -> str:
-    cols = list(df.columns)
+def markdown_table(table: "Records | pandas.DataFrame", digits: int = 4) -> str:
+    """A Markdown table of :class:`~hystfit.io.Records` or a DataFrame: numeric columns right-aligned."""
+    if isinstance(table, Records):
+        cols = table.columns
+        numeric = [table.kind(c) != "object" for c in cols]
+        values = [table.cells(c) for c in cols]
+    else:
+        import pandas as pd
+
+        cols = list(table.columns)
+        numeric = [pd.api.types.is_numeric_dtype(table[c]) for c in cols]
+        values = [table[c].tolist() for c in cols]
     lines = ["| " + " | ".join(str(c) for c in cols) + " |",
-             "|" + "|".join("---:" if pd.api.types.is_numeric_dtype(df[c]) else "---" for c in cols) + "|"]
-    # per column: integer counts stay integers (iterrows makes them floats; a missing value makes a
-    # whole count column float in pandas, so count columns are recognised by name too)
-    columns = [[int(v) if _is_count(c) and isinstance(v, float) and v.is_integer() else v for v in df[c].tolist()]
-               for c in cols]
+             "|" + "|".join("---:" if num else "---" for num in numeric) + "|"]
+    # per column: integer counts stay integers (a missing value makes a whole count column float, as
+    # in pandas, so count columns are recognised by name too)
+    columns = [[int(v) if _is_count(c) and isinstance(v, float) and v.is_integer() else v for v in vals]
+               for c, vals in zip(cols, values)]
     for row in zip(*columns):
         lines.append("| " + " | ".join(v if isinstance(v, str) else fmt(v, digits) for v in row) + " |")
     return "\n".join(lines)
@@ -69,8 +79,9 @@ def metric_legend(unit: str) -> str:
     return "\n".join(f"- `{key}`: {formula}" for key, formula in describe_metrics(unit))
 
 
-def frame(rows: Sequence[dict]) -> pd.DataFrame:
-    return pd.DataFrame(list(rows))
+def frame(rows: Sequence[dict]) -> Records:
+    """A report table of ``rows`` (no pandas: :class:`~hystfit.io.Records`)."""
+    return Records(tuple(rows))
 
 
 def distinct_names(paths: Sequence[str]) -> list[str]:

@@ -4,6 +4,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hystfit.models import _kernels
 from hystfit.models._kernels import play_matrix
 
 inputs = st.lists(st.floats(-100, 100, allow_nan=False), min_size=2, max_size=60).map(np.array)
@@ -38,3 +39,35 @@ def test_output_stays_within_band(u, r):
     F = play_matrix(u, r)
     assert np.all(F >= u[:, None] - r[None, :] - 1e-12)
     assert np.all(F <= u[:, None] + r[None, :] + 1e-12)
+
+
+@settings(max_examples=80, deadline=None)
+@given(inputs, thresholds, st.lists(st.floats(-100, 100, allow_nan=False), min_size=6, max_size=6))
+def test_numpy_scan_is_bit_identical_to_the_recurrence(u, r, s0):
+    """The two routes of play_matrix_from (numpy prefix scan of clamps, numba recurrence) agree bit for bit,
+    from any initial state (a wrong composition order or bound would differ at some sample)."""
+    state0 = np.array(s0[: len(r)])
+    scan = _kernels._play_scan(u.astype(float), r, state0)
+    np.testing.assert_array_equal(scan, _kernels._play_recurrence(u.astype(float), r, state0))
+
+
+def test_play_matrix_routes_small_calls_to_numpy_until_numba_is_loaded(monkeypatch):
+    """A small call in a process without numba takes the numpy route; a large one, or any call once
+    the numpy budget is spent, takes the recurrence; both give the same outputs."""
+    u = np.sin(np.linspace(0, 20, 2001)) * 5
+    r = np.linspace(0, 4, 10)
+    calls = []
+    monkeypatch.setattr(_kernels, "numba_loaded", lambda: False)
+    monkeypatch.setattr(_kernels, "_numpy_play_done", 0)
+    real_scan, real_rec = _kernels._play_scan, _kernels._play_recurrence
+    monkeypatch.setattr(_kernels, "_play_scan", lambda *a: calls.append("scan") or real_scan(*a))
+    monkeypatch.setattr(_kernels, "_play_recurrence", lambda *a: calls.append("numba") or real_rec(*a))
+    small = play_matrix(u, r)
+    monkeypatch.setattr(_kernels, "NUMPY_PLAY_MAX", 100)
+    large = play_matrix(u, r)
+    monkeypatch.setattr(_kernels, "NUMPY_PLAY_MAX", 10**9)
+    monkeypatch.setattr(_kernels, "_numpy_play_done", _kernels.NUMPY_PLAY_BUDGET)
+    spent = play_matrix(u, r)
+    assert calls == ["scan", "numba", "numba"]
+    np.testing.assert_array_equal(small, large)
+    np.testing.assert_array_equal(small, spent)

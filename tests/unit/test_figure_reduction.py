@@ -157,3 +157,13 @@ def test_reused_figure_templates_write_the_same_bytes_as_fresh_figures(tmp_path,
     plots.convergence_figure(tmp_path / "x3.png", h - h[-1], None, title="a")
     reused = [p.read_bytes() for p in draw_all("reused")]
     assert reused == fresh
+
+
+def test_first_occurrences_sorting_and_hashing_agree(monkeypatch):
+    """The numpy route (short inputs) and the pandas route (long ones) mark the same first occurrences."""
+    keys = np.random.default_rng(3).integers(0, 40, size=2000)
+    sorted_route = plots._first_occurrences(keys)
+    monkeypatch.setattr(plots, "HASH_KEYS_FROM", 0)
+    hashed_route = plots._first_occurrences(keys)
+    np.testing.assert_array_equal(sorted_route, hashed_route)
+    assert sorted_route.sum() == np.unique(keys).size and sorted_route[0]

@@ -89,8 +89,8 @@ def test_stand_in_behaves_as_the_function():
 def test_stand_in_pickles_by_name():
     from hystfit.models import _kernels
 
-    k = _kernels.__dict__["play_matrix_from"]
-    assert pickle.loads(pickle.dumps(k)) is _kernels.play_matrix_from
+    k = _kernels.__dict__["_play_recurrence"]
+    assert pickle.loads(pickle.dumps(k)) is _kernels._play_recurrence
 
 
 def test_prange_called_from_python_is_range():

@@ -83,3 +83,44 @@ def test_a_job_may_name_a_figure_function_outside_plots(tmp_path, monkeypatch):
             FigureJob("timeseries_figure", tmp_path / "b.png", (3,), {})]
     assert render._draw_here(jobs, 1) == [tmp_path / "a.png", tmp_path / "b.png"]
     assert calls == [("a.png", (1,), {"k": 2}), ("b.png", (3,), {})]
+
+
+def test_a_server_started_before_parsing_is_claimed_by_the_command_not_forked_again(tmp_path, rng):
+    """preload_early (the console script, before parsing) → the command's preload(claim_early=True)
+    keeps that server; a later preload replaces it; release_early closes only an unclaimed one."""
+    render._close_server()
+    render.preload_early()
+    first = render._server
+    assert first is not None and render._early
+    render.preload(claim_early=True)
+    assert render._server is first and not render._early
+    render.release_early()  # claimed: left alone
+    assert render._server is first
+    paths = render_figures(_jobs(tmp_path / "a", rng, 1), 1)
+    assert all(p.exists() for p in paths) and first.drawn
+    render.preload(claim_early=True)  # nothing early to claim: a fresh server
+    assert render._server is not first
+    render.preload_early()
+    render.release_early()  # unclaimed (e.g. --help): closed without waiting for its imports
+    assert render._server is None and not render._early
+
+
+@pytest.mark.parametrize("words, early", [
+    (["identify", "data.csv"], True),
+    (["compare", "data.csv", "--models", "pi"], True),
+    (["identify", "data.csv", "--no-plots"], False),
+    (["identify", "--help"], False),
+    (["diagnose", "data.csv"], False),
+    ([], False),
+])
+def test_the_console_script_starts_the_figure_server_only_for_commands_that_draw(monkeypatch, words, early):
+    import importlib
+
+    app_module = importlib.import_module("hystfit.cli.app")
+
+    calls = []
+    monkeypatch.setattr(render, "preload_early", lambda: calls.append("early"))
+    monkeypatch.setattr(render, "release_early", lambda: calls.append("release"))
+    monkeypatch.setattr(app_module, "app", lambda **kw: None)
+    app_module.main(words)
+    assert calls == (["early", "release"] if early else [])
