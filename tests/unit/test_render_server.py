@@ -85,9 +85,10 @@ def test_a_job_may_name_a_figure_function_outside_plots(tmp_path, monkeypatch):
     assert calls == [("a.png", (1,), {"k": 2}), ("b.png", (3,), {})]
 
 
-def test_a_server_started_before_parsing_is_claimed_by_the_command_not_forked_again(tmp_path, rng):
+def test_a_server_started_before_parsing_is_claimed_by_the_command_not_forked_again(tmp_path, rng, monkeypatch):
     """preload_early (the console script, before parsing) → the command's preload(claim_early=True)
     keeps that server; a later preload replaces it; release_early closes only an unclaimed one."""
+    monkeypatch.setattr(render.threading, "active_count", lambda: 1)  # as in the console script
     render._close_server()
     render.preload_early()
     first = render._server
