@@ -26,7 +26,7 @@ from .identify import fit_captures, prepare_shared
 from .seeds import check_seed
 from .metrics import check_mape_floor, compute_metrics_pooled
 from .objective import Objective, Series
-from .parallel import CellFailed, CellStats, Executor, LocalExecutor, run_cells
+from .parallel import CellFailed, CellStats, Executor, LocalExecutor, fork_map, run_cells
 from .params import DataScale, apply_bound_overrides
 from .registry import optimizers as optimizer_registry
 from .factory import make_model, make_optimizer
@@ -232,22 +232,29 @@ def scoped_options(items: Mapping[str, object], valid: Mapping[str, Sequence[str
     return out
 
 
-def _prepare_shared_structure(captures, model_names, model_options: dict, store=None, resume: bool = False) -> list[str]:
+def _prepare_shared_structure(captures, model_names, model_options: dict, store=None, resume: bool = False,
+                              jobs: int | None = None) -> list[str]:
     """Identify every model's shared structure (a Hammerstein model's stage) once from all captures
     and hand it to the cells as fixed options (``model_options`` updated in place); the notes say
-    how it was found. A model that fails here fails in its cells, with its own message."""
-    notes = []
-    for m in model_names:
+    how it was found. A model that fails here fails in its cells, with its own message. The models
+    are prepared side by side (:func:`~hystfit.parallel.fork_map`, up to ``jobs`` processes): pi2's
+    stage and the Hammerstein model's linear part no longer wait for each other."""
+
+    def prepare(i: int) -> tuple[dict, str | None] | None:
+        m = model_names[i]
         try:
             base = make_model(m, model_options[m])
             prepared = prepare_shared(base, captures, store, resume)
-            if prepared != base:
-                model_options[m] = prepared.as_options()
-                summary = prepared.structure_summary()
-                if summary is not None:
-                    notes.append(f"`{m}`: {summary}")
         except HystfitError:
-            pass
+            return None
+        return (prepared.as_options(), prepared.structure_summary()) if prepared != base else None
+
+    notes = []
+    for m, done in zip(model_names, fork_map(prepare, len(model_names), jobs)):
+        if done is not None:
+            model_options[m] = done[0]
+            if done[1] is not None:
+                notes.append(f"`{m}`: {done[1]}")
     return notes
 
 
@@ -307,7 +314,7 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     # structure shared by all conditions (e.g. a Hammerstein model's stage dynamics) is identified
     # once from all captures here and handed to every cell as fixed structure
     model_options = {m: dict((model_options or {}).get(m, {})) for m in model_names}
-    notes = _prepare_shared_structure(captures, model_names, model_options, store, resume)
+    notes = _prepare_shared_structure(captures, model_names, model_options, store, resume, jobs)
     _check_bounds(captures, model_names, model_options, bounds)
     specs = []
     for ci, (key, caps) in enumerate(groups.items()):

@@ -153,6 +153,25 @@ def test_shared_structure_is_identified_once_and_reported(tmp_path):
     assert "## Structure identified once from all captures" in md and res.notes[0] in md
 
 
+def test_shared_structures_are_prepared_side_by_side_with_the_serial_numbers(monkeypatch):
+    """pi2's stage and hammerstein's linear part are identified in separate processes (fork_map with
+    --jobs workers) and hand the cells exactly what a serial preparation hands them."""
+    import hystfit.compare as cmp
+
+    caps = load_captures([SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a40V_f40Hz.csv", SAMPLE / "a60V_f80Hz.csv"])
+    names = ["pi2", "pi", "hammerstein"]
+    workers = []
+    real = cmp.fork_map
+    monkeypatch.setattr(cmp, "fork_map", lambda fn, n, w: workers.append(w) or real(fn, n, w))
+    serial = {m: {} for m in names}
+    notes_serial = cmp._prepare_shared_structure(caps, names, serial, jobs=1)
+    forked = {m: {} for m in names}
+    notes_forked = cmp._prepare_shared_structure(caps, names, forked, jobs=2)
+    assert workers == [1, 2]
+    assert serial == forked and notes_serial == notes_forked
+    assert serial["pi"] == {} and serial["pi2"] and serial["hammerstein"] and len(notes_serial) == 2
+
+
 # ------------------------------------------------------------------ issue 13: compare takes identify's flags
 def test_every_population_search_gets_the_same_budget_and_the_csv_says_so(tmp_path):
     """--pop 8 --iters 5 is 40 evaluations for every search; ipso (no iteration count) used to
