@@ -458,8 +458,8 @@ def _scaled_solve(G: np.ndarray, b: np.ndarray, lo: np.ndarray | None = None, hi
 @dataclass(frozen=True, eq=False)
 class _Design:
     """What every candidate φ of one fit shares: per capture the fit-part view, the stacked
-    columns X = [ŷ | J] (Fortran order: the filters run down contiguous columns), y·y, and the
-    column indices of the base step."""
+    columns X = [ŷ | J] (C order: the operators run down time with the columns innermost, as the
+    stage kernel and the delay's row slices want), y·y, and the column indices of the base step."""
 
     views: tuple
     X: tuple
@@ -499,7 +499,7 @@ def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
         parts = [np.asarray(yh, float)[:N, None]]
         if lin is not None:
             parts.append(lin.jac[c][:N])
-        Xs.append(np.asfortranarray(np.hstack(parts)))
+        Xs.append(np.ascontiguousarray(np.hstack(parts)))
         yf = vv.y[vv.fit]
         yys.append(float(yf @ yf))
         vs.append(vv)
