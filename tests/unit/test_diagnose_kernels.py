@@ -3,7 +3,7 @@
 Each fast path (one biquad for every column, the delay by slices, creep's low-pass bank in one
 kernel, the Jacobian filled capture by capture, the normal equations summed by slices) is compared
 with the formula it replaces, written out here; a changed operation order or an off-by-one index
-fails these with exact equality.
+fails these with exact equality. The finer base of the resolution checks is fitted once per diagnosis.
 """
 
 from __future__ import annotations
@@ -17,9 +17,10 @@ from hystfit.blocks.creep import Creep, lowpass_at_rest
 from hystfit.blocks.delay import fractional_delay
 from hystfit.blocks.dynamics import bilinear_biquad, biquad_columns, second_order_at_rest
 from hystfit.effects import CaptureView, Linearization, make_effect, prepare_design, solve_coefficients
-from hystfit.factory import make_model
+from hystfit.factory import make_model, make_optimizer
 from hystfit.objective import Objective, Series
 from hystfit.params import DataScale
+from hystfit.registry import optimizers
 
 
 def _gather_delay(x, delay_s, dt):
@@ -132,3 +133,32 @@ def test_normal_equations_by_slices_solve_the_least_squares_problem(name):
         assert sse == pytest.approx(sse_ref, rel=1e-6)
         x = np.concatenate([shared, local.ravel(), delta])
         assert np.allclose(A @ x, A @ x_ref, rtol=0, atol=1e-6 * np.abs(b).max())
+
+
+def test_finer_base_is_fitted_once_per_diagnosis(monkeypatch):
+    """The resolution checks ask for the same finer base several times: it is fitted the first time
+    only, per design (a new diagnosis fits again) and per resolution (another resolution is fitted)."""
+    import hystfit.diagnose as D
+
+    calls = []
+
+    def fake_fits(jobs, n_groups, model, optimizer, seed, executor, store, resume, advance, stats=None):
+        calls.append(model)
+        return [object()]
+
+    monkeypatch.setattr(D, "_base_fits", fake_fits)
+    t = np.arange(400) * 1e-4
+    caps = []
+    for f in (10.0, 20.0):
+        u = 20.0 * 0.5 * (1 - np.cos(2 * np.pi * f * t))
+        caps.append(D.Capture(t=t, u=u, y=0.1 * u, dt=1e-4, amplitude_V=20.0, frequency_Hz=f, source=f"c{f:g}"))
+    design = D._design(caps, D.DiagnoseSettings(), False)
+    opt = make_optimizer(optimizers.get("auto"), {})
+    m20, m40 = make_model("pi", {"n_operators": 20}), make_model("pi", {"n_operators": 40})
+    first = D._fine_base_fits(caps, design, m20, opt, 0, None)
+    assert D._fine_base_fits(caps, design, make_model("pi", {"n_operators": 20}), opt, 0, None) is first
+    assert len(calls) == 1
+    assert D._fine_base_fits(caps, design, m40, opt, 0, None) is not first
+    assert D._fine_base_fits(caps, design, m20, opt, 1, None) is not first  # another seed: other fits
+    assert D._fine_base_fits(caps, D._design(caps, D.DiagnoseSettings(), False), m20, opt, 0, None) is not first
+    assert len(calls) == 4
