@@ -1,13 +1,17 @@
 """Where the wall time of ``hystfit diagnose sample_data --model pi`` goes: main process against its children.
 
-Run:  python benchmarks/diagnose_speed.py [--repeat 3] [--other PYTHONPATH_OF_ANOTHER_TREE]
+Run:  python benchmarks/diagnose_speed.py [--repeat 3] [--other PYTHONPATH_OF_ANOTHER_TREE] [--blas-threads N]
 
 Each run is a fresh process (imports included). Printed per run and as the best of ``--repeat``:
 the wall time, the CPU seconds of the main process and of its children (the forked processes that
 refit the candidates of a selection step, the figure workers). On a shared machine the wall time
 follows the load; the main process's CPU time does not, and on an idle machine with one core per
 process it is close to the wall time (the children run beside it). With ``--other``, the same
-command is run from that tree too, alternately, so both are measured at the same moment.
+command is run from that tree too, alternately, so both are measured at the same moment. With
+``--blas-threads N`` every run gets ``OPENBLAS_NUM_THREADS=N`` (and ``OMP_NUM_THREADS=N``): the
+diagnosis' normal equations are small matrix products (hundreds of rows by 20–85 columns, per
+capture and candidate) that OpenBLAS threads slow down when the forked selection workers already
+use both cores; compare ``--blas-threads 1`` with the default (OpenBLAS's own choice).
 """
 
 from __future__ import annotations
@@ -37,9 +41,11 @@ main()
 """
 
 
-def run_once(tree: Path) -> dict:
+def run_once(tree: Path, blas_threads: int | None = None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "PYTHONPATH": str(Path(tree).resolve())}
+        if blas_threads is not None:
+            env.update(OPENBLAS_NUM_THREADS=str(blas_threads), OMP_NUM_THREADS=str(blas_threads))
         # run from the temporary directory: ``python -c`` puts the working directory first on sys.path
         r = subprocess.run([sys.executable, "-c", CHILD, str(Path(tmp) / "out"), str(ROOT / "sample_data")], cwd=tmp,
                            env=env, capture_output=True, text=True, check=True)
@@ -50,13 +56,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--other", type=Path, default=None, help="PYTHONPATH of another tree to measure alternately")
+    ap.add_argument("--blas-threads", type=int, default=None, help="OPENBLAS_NUM_THREADS of every run (default: unset)")
     args = ap.parse_args()
     trees = {"this": ROOT, **({"other": args.other} if args.other else {})}
     runs: dict[str, list[dict]] = {k: [] for k in trees}
+    print(f"OPENBLAS_NUM_THREADS: {args.blas_threads if args.blas_threads is not None else 'unset'}; "
+          f"load average before: {os.getloadavg()[0]:.1f}\n")
     print("| tree | run | wall (s) | main CPU (s) | children CPU (s) | load |\n|---|---|---|---|---|---|")
     for i in range(args.repeat):
         for name, tree in trees.items():
-            m = run_once(tree)
+            m = run_once(tree, args.blas_threads)
             runs[name].append(m)
             print(f"| {name} | {i + 1} | {m['wall_s']:.2f} | {m['main_cpu_s']:.2f} | {m['children_cpu_s']:.2f} | "
                   f"{os.getloadavg()[0]:.1f} |", flush=True)

@@ -1720,6 +1720,27 @@ class _Design:
     labels: tuple[str, ...]
     conds: tuple[tuple[float, float], ...]
     group_of: tuple[int, ...]
+    fine_fits: dict = field(default_factory=dict, repr=False)  # finer base → its fits on the fit part
+
+
+def _fine_base_fits(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int, executor) -> list:
+    """The base at the finer resolution ``fine`` fitted on the fit part, once per diagnosis: the
+    resolution checks before and after each named effect refit the same base at the same resolution
+    (same captures, optimizer and seed: the same fits), so each resolution is fitted the first time
+    only. A model that cannot be a key (not hashable) is fitted every time."""
+    G = len(d.group_idx)
+    try:
+        key = (fine, optimizer.name, repr(optimizer.settings()), int(seed))
+        hash(key)
+    except TypeError:
+        key = None
+    if key is None or key not in d.fine_fits:
+        jobs = _base_fit_jobs(caps, d.views, d.group_idx, d.labels, d.conds, None)[G:]
+        fits = _base_fits(jobs, 0, fine, optimizer, seed, executor, None, False, lambda label: None)
+        if key is None:
+            return fits
+        d.fine_fits[key] = fits
+    return d.fine_fits[key]
 
 
 def _design(caps: Sequence[Capture], settings: "DiagnoseSettings", per_condition: bool) -> _Design:
@@ -1868,9 +1889,7 @@ def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed:
     before = _rmse(sel.preds, d.views, "test")
     if fine is None or not _excess(before, sigma) > sigma:  # as in converge_resolution
         return None
-    G = len(d.group_idx)
-    jobs = _base_fit_jobs(caps, d.views, d.group_idx, d.labels, d.conds, None)[G:]
-    fits = _base_fits(jobs, 0, fine, optimizer, seed, executor, None, False, lambda label: None)
+    fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
     base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
     views = list(d.views)
     state = base.state
@@ -1941,12 +1960,10 @@ def converge_resolution(caps, d: _Design, model: Model, optimizer: Optimizer, se
     RMSE and reduction, and the resolution adopted."""
     if not settings.resolution_check or model.refined() is None:
         return model, base, None
-    G = len(d.group_idx)
-    jobs = _base_fit_jobs(caps, d.views, d.group_idx, d.labels, d.conds, None)[G:]
     option, start = _resolution_of(model)
     steps, cur, cur_base = [], model, base
     while (fine := cur.refined()) is not None and _excess(cur_base.before, sigma) > sigma:
-        fits = _base_fits(jobs, 0, fine, optimizer, seed, executor, None, False, lambda label: None)
+        fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
         fine_base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
         red = _shares(cur_base.before, fine_base.before, sigma)["reduction_mean_square"]
         adopted = red >= settings.resolution_threshold

@@ -458,8 +458,8 @@ def _scaled_solve(G: np.ndarray, b: np.ndarray, lo: np.ndarray | None = None, hi
 @dataclass(frozen=True, eq=False)
 class _Design:
     """What every candidate φ of one fit shares: per capture the fit-part view, the stacked
-    columns X = [ŷ | J] (Fortran order: the filters run down contiguous columns), y·y, and the
-    column indices of the base step."""
+    columns X = [ŷ | J] (C order: the operators run down time with the columns innermost, as the
+    stage kernel and the delay's row slices want), y·y, and the column indices of the base step."""
 
     views: tuple
     X: tuple
@@ -471,8 +471,9 @@ class _Design:
 
 def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
     """Per capture of ``design``, for ``ks`` shared and ``kl`` per-capture coefficients: the mesh of
-    its columns in the normal equations and, with regressors, the mesh and the rows of the columns
-    other than t₀ in its Gram matrix [R | t₀ | TJ] (None without). The same for every φ: computed once."""
+    its columns in the normal equations (slices when they are consecutive) and, with regressors, the
+    mesh and the rows of the columns other than t₀ in its Gram matrix [R | t₀ | TJ] (None without).
+    The same for every φ: computed once."""
     key = (ks, kl)
     if key not in design.indices:
         C = len(design.views)
@@ -484,7 +485,10 @@ def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
             ix = np.concatenate(idx).astype(int) if idx else np.empty(0, int)
             k = ks + kl
             sel = np.r_[0:k, k + 1:k + X.shape[1]] if k else None
-            out.append((np.ix_(ix, ix), ix, None if sel is None else np.ix_(sel, sel), sel))
+            # a run of consecutive columns (a global base) is a slice: the same sums without fancy indexing
+            run = ix.size > 0 and bool(np.all(np.diff(ix) == 1))
+            at = slice(int(ix[0]), int(ix[-1]) + 1) if run else ix
+            out.append(((at, at) if run else np.ix_(ix, ix), at, None if sel is None else np.ix_(sel, sel), sel))
         design.indices[key] = out
     return design.indices[key]
 
@@ -499,7 +503,7 @@ def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
         parts = [np.asarray(yh, float)[:N, None]]
         if lin is not None:
             parts.append(lin.jac[c][:N])
-        Xs.append(np.asfortranarray(np.hstack(parts)))
+        Xs.append(np.ascontiguousarray(np.hstack(parts)))
         yf = vv.y[vv.fit]
         yys.append(float(yf @ yf))
         vs.append(vv)
@@ -567,7 +571,7 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
             Gc = P[1:, 1:]
             bc = Ty[1:] - P[1:, 0]
             t0y, t0t0 = Ty[0], P[0, 0]
-        if ix.size:
+        if bc.size:
             G[mesh] += Gc
             b[ix] += bc
         s0 += yy - 2.0 * float(t0y) + float(t0t0)

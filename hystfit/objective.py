@@ -202,11 +202,17 @@ class Objective(ObjectiveFunction):
         """Forward-difference Jacobian of the residuals (M, d), all d+1 candidates in one population
         call per capture (steps as :meth:`_fd_population`)."""
         h, pop = self._fd_population(theta, rel_step, upper)
+        out = np.empty((h.size, self.n_total))  # Jᵀ, filled capture by capture (no stacked copy of the simulations)
+        col = 0
         with np.errstate(all="ignore"):
-            ys = [sim(pop)[:, s.skip:] for sim, s in zip(self._sims, self._scored)]
-        y = np.concatenate(ys, axis=1)  # (d+1, M)
+            for sim, s in zip(self._sims, self._scored):
+                y = sim(pop)[:, s.skip:]
+                part = out[:, col:col + y.shape[1]]
+                np.subtract(y[1:], y[0], out=part)
+                np.divide(part, h[:, None], out=part)
+                col += y.shape[1]
         self.nfev += h.size + 1
-        return ((y[1:] - y[0]) / h[:, None]).T
+        return out.T
 
     def normal_equations(self, theta: np.ndarray, rel_step: float = 1e-6,
                          upper: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float, int]:

@@ -51,6 +51,32 @@ def time_constants(longest_s: float, dt: float) -> tuple[float, ...]:
 
 
 @njit(cache=True)
+def lowpass_bank(x, p):
+    """LP_τi[x] − x for every column of x (N, M) and every p_i = e^{−dt/τ_i}: (K, N, M).
+
+    The recursion of :func:`lowpass_at_rest` (x_f[k] = p x_f[k−1] + (1 − p) x[k], x_f[−1] = x[0]),
+    the same operations, hence the same numbers, for all the time constants in one call.
+    """
+    N, M = x.shape
+    K = p.shape[0]
+    out = np.empty((K, N, M))
+    if N == 0:
+        return out
+    prev = np.empty(M)
+    for i in range(K):
+        pi = p[i]
+        b = 1.0 - pi
+        for m in range(M):
+            prev[m] = x[0, m]
+        for k in range(N):
+            for m in range(M):
+                v = pi * prev[m] + b * x[k, m]
+                prev[m] = v
+                out[i, k, m] = v - x[k, m]
+    return out
+
+
+@njit(cache=True)
 def _creep_inverse(y, p, c):
     """x with y = x + Σ c_i (s_i − x), s_i[k] = p_i s_i[k−1] + (1 − p_i) x[k], s_i[0] = x[0]."""
     N = y.shape[0]
@@ -159,7 +185,12 @@ class Creep(Block):
         return np.zeros(k), np.full(k, MAX_GAIN), np.empty(0), np.empty(0)
 
     def _bank(self, x: np.ndarray, dt: float, axis: int = 0) -> list[np.ndarray]:
-        return [lowpass_at_rest(x, tau, dt, axis) - x for tau in self.taus]
+        """LP_τi[x] − x for every τ_i, each of the shape of ``x`` (filtered along ``axis``, 0 or 1)."""
+        x = np.asarray(x, dtype=np.float64)
+        cols = x[:, None] if x.ndim == 1 else (x.T if axis == 1 else x)
+        p = np.array([math.exp(-dt / tau) for tau in self.taus])
+        bank = lowpass_bank(np.ascontiguousarray(cols), p)
+        return [b[:, 0] if x.ndim == 1 else (b.T if axis == 1 else b) for b in bank]
 
     def regressors(self, yhat, view, phi):
         cols = self._bank(yhat, view.dt)

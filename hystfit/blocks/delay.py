@@ -21,12 +21,16 @@ def fractional_delay(x: np.ndarray, delay_s: float, dt: float) -> np.ndarray:
     n = int(math.floor(d))
     f = d - n
     N = x.shape[0]
-    idx = np.arange(N) - n
-    i0 = np.clip(idx, 0, N - 1)
-    i1 = np.clip(idx - 1, 0, N - 1)
+    # sample k reads x[max(k − n, 0)] and x[max(k − n − 1, 0)]: slices, no index arrays
+    out = np.empty(x.shape)
     if f == 0.0:
-        return x[i0]
-    return (1.0 - f) * x[i0] + f * x[i1]
+        out[:n] = x[:1]
+        out[n:] = x[:max(N - n, 0)]
+        return out
+    head = min(n + 1, N)  # samples k ≤ n read x[0] twice
+    out[:head] = (1.0 - f) * x[:1] + f * x[:1]
+    out[head:] = (1.0 - f) * x[1:max(N - n, 1)] + f * x[:max(N - n - 1, 0)]
+    return out
 
 
 def delay_population(x: np.ndarray, delay_s: np.ndarray, dt: float) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from typing import ClassVar
@@ -88,6 +89,38 @@ def bilinear_biquad(fn_Hz, zeta, dt: float):
     return g, 2.0 * g, g.copy(), a1, a2
 
 
+@njit(cache=True)
+def biquad_shared(x, b0, b1, b2, a1, a2):
+    """:func:`biquad_columns` with one biquad (scalar coefficients) for every column of x (N, M):
+    the same operations in the same order, so the same numbers; the columns form one vector."""
+    N, M = x.shape
+    out = np.empty((N, M))
+    if N == 0:
+        return out
+    x0 = x[0].copy()
+    d1 = np.zeros(M)
+    d2 = np.zeros(M)
+    e1 = np.zeros(M)
+    e2 = np.zeros(M)
+    for k in range(N):
+        for m in range(M):
+            d = x[k, m] - x0[m]
+            e = b0 * d + b1 * d1[m] + b2 * d2[m] - a1 * e1[m] - a2 * e2[m]
+            d2[m] = d1[m]
+            d1[m] = d
+            e2[m] = e1[m]
+            e1[m] = e
+            out[k, m] = e + x0[m]
+    return out
+
+
+@functools.lru_cache(maxsize=4096)
+def _stage_coefficients(fn_Hz: float, zeta: float, dt: float) -> tuple[float, ...]:
+    """(b0, b1, b2, a1, a2) of :func:`bilinear_biquad` for one (f_n, ζ, dt): a search scores one
+    candidate on every capture (and the same candidates again), so each is computed once."""
+    return tuple(float(c[0]) for c in bilinear_biquad(fn_Hz, zeta, dt))
+
+
 def second_order_at_rest(x: np.ndarray, fn_Hz: float, zeta: float, dt: float) -> np.ndarray:
     """Filter ``x`` ((N,) or (N, m), along axis 0) by the prewarped second-order stage, at rest at x(0).
 
@@ -98,9 +131,7 @@ def second_order_at_rest(x: np.ndarray, fn_Hz: float, zeta: float, dt: float) ->
                           f"and ζ = {zeta:g} must be ≥ 0")
     x = np.asarray(x, dtype=np.float64)
     xc = np.ascontiguousarray(x[:, None] if x.ndim == 1 else x)
-    m = xc.shape[1]
-    coef = [np.full(m, float(c[0])) for c in bilinear_biquad(fn_Hz, zeta, dt)]
-    out = biquad_columns(xc, *coef)
+    out = biquad_shared(xc, *_stage_coefficients(float(fn_Hz), float(zeta), float(dt)))
     return out[:, 0] if x.ndim == 1 else out
 
 

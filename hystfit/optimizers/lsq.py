@@ -125,7 +125,8 @@ class LSQ(Optimizer):
             def jac(th):  # noqa: E306
                 J = np.asarray(population_jacobian(th, upper=upper), float)
                 tr.nfev += th.size + 1
-                return np.where(np.isfinite(J), J, 0.0)
+                finite = np.isfinite(J)
+                return J if finite.all() else np.where(finite, J, 0.0)  # a fresh array either way
 
         f0 = tr.evaluate(start[None, :])
         tr.end_iteration(f0)

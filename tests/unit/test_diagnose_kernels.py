@@ -1,0 +1,164 @@
+"""The faster operators of diagnose give the numbers of the straightforward ones, bit for bit.
+
+Each fast path (one biquad for every column, the delay by slices, creep's low-pass bank in one
+kernel, the Jacobian filled capture by capture, the normal equations summed by slices) is compared
+with the formula it replaces, written out here; a changed operation order or an off-by-one index
+fails these with exact equality. The finer base of the resolution checks is fitted once per diagnosis.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hystfit.blocks.creep import Creep, lowpass_at_rest
+from hystfit.blocks.delay import fractional_delay
+from hystfit.blocks.dynamics import bilinear_biquad, biquad_columns, second_order_at_rest
+from hystfit.effects import CaptureView, Linearization, make_effect, prepare_design, solve_coefficients
+from hystfit.factory import make_model, make_optimizer
+from hystfit.objective import Objective, Series
+from hystfit.params import DataScale
+from hystfit.registry import optimizers
+
+
+def _gather_delay(x, delay_s, dt):
+    """The index-array form: sample k reads x[clip(k − n)] and x[clip(k − n − 1)]."""
+    d = max(float(delay_s) / dt, 0.0)
+    n = int(math.floor(d))
+    f = d - n
+    N = x.shape[0]
+    idx = np.arange(N) - n
+    i0, i1 = np.clip(idx, 0, N - 1), np.clip(idx - 1, 0, N - 1)
+    return x[i0] if f == 0.0 else (1.0 - f) * x[i0] + f * x[i1]
+
+
+@pytest.mark.parametrize("N", [1, 2, 3, 7, 40])
+@pytest.mark.parametrize("samples", [0.0, 0.4, 1.0, 1.5, 2.0, 6.25, 39.0, 39.5, 41.0, 100.0])
+def test_fractional_delay_equals_the_gather_form(N, samples):
+    rng = np.random.default_rng(N)
+    for x in (rng.standard_normal(N), rng.standard_normal((N, 3))):
+        out = fractional_delay(x, samples * 1e-4, 1e-4)
+        ref = _gather_delay(x, samples * 1e-4, 1e-4)
+        assert out.shape == ref.shape
+        assert np.array_equal(out, ref)
+
+
+@pytest.mark.parametrize("fn, zeta", [(300.0, 0.05), (1500.0, 0.7), (4000.0, 2.0)])
+def test_second_order_at_rest_equals_the_per_column_kernel(fn, zeta):
+    rng = np.random.default_rng(0)
+    x = np.cumsum(rng.standard_normal((600, 5)), axis=0)
+    dt = 1e-4
+    coef = [np.full(5, float(c[0])) for c in bilinear_biquad(fn, zeta, dt)]
+    ref = biquad_columns(np.ascontiguousarray(x), *coef)
+    assert np.array_equal(second_order_at_rest(x, fn, zeta, dt), ref)
+    assert np.array_equal(second_order_at_rest(np.asfortranarray(x), fn, zeta, dt), ref)
+    assert np.array_equal(second_order_at_rest(x[:, 2], fn, zeta, dt), ref[:, 2])
+
+
+@pytest.mark.parametrize("shape, axis", [((800,), 0), ((800, 4), 0), ((3, 800), 1), ((1,), 0)])
+def test_creep_bank_equals_lfilter(shape, axis):
+    rng = np.random.default_rng(1)
+    x = np.cumsum(rng.standard_normal(shape), axis=axis)
+    creep = Creep(tau_s=(0.002, 0.01, 0.1, 1.0))
+    bank = creep._bank(x, 1e-4, axis)
+    assert len(bank) == 4
+    for tau, term in zip(creep.taus, bank):
+        ref = lowpass_at_rest(x, tau, 1e-4, axis) - x
+        assert term.shape == ref.shape
+        assert np.array_equal(term, ref)
+
+
+def test_jacobian_equals_stacked_forward_differences():
+    rng = np.random.default_rng(2)
+    t = np.arange(700) * 2e-4
+    series = []
+    for k, (amp, f) in enumerate([(20.0, 10.0), (40.0, 30.0), (30.0, 20.0)]):
+        u = amp * 0.5 * (1 - np.cos(2 * np.pi * f * t[: 500 + 100 * k]))
+        series.append(Series(u, 0.1 * u + 0.01 * rng.standard_normal(u.size), 2e-4, 5 * k))
+    scale = DataScale.from_arrays([s.u for s in series], [s.y for s in series], [s.dt for s in series])
+    model = make_model("pi+creep+delay", {"n_operators": 6}).adapt(scale)
+    obj = Objective(model, series)
+    theta = np.array([p.default for p in model.params(scale)])
+    h, pop = obj._fd_population(theta, 1e-6, None)
+    ys = np.concatenate([model.simulator(s.u, s.dt)(pop)[:, s.skip:] for s in series], axis=1)
+    ref = ((ys[1:] - ys[0]) / h[:, None]).T
+    J = obj.jacobian(theta)
+    assert J.shape == ref.shape == (obj.n_total, theta.size)
+    assert np.array_equal(J, ref)
+
+
+def _views(rng, lengths):
+    views, yhats = [], []
+    for i, N in enumerate(lengths):
+        t = np.arange(N) * 1e-4
+        y = np.sin(2 * np.pi * 20 * t) + 0.01 * rng.standard_normal(N)
+        views.append(CaptureView(t=t, dt=1e-4, y=y, fit=np.ones(N, bool), frequency_Hz=20.0, periodic=True, index=i))
+        yhats.append(np.sin(2 * np.pi * 20 * t - 0.02))
+    return views, yhats
+
+
+@pytest.mark.parametrize("name", ["delay", "dynamics", "creep", "drift"])
+def test_normal_equations_by_slices_solve_the_least_squares_problem(name):
+    """A global base (every capture on the same consecutive columns, summed by slices) and a base
+    whose captures own shifted columns (fancy indexing): both give the unbounded least-squares
+    fit of y ≈ T[ŷ + Jδ] + R a that an explicit stacked solve gives."""
+    rng = np.random.default_rng(3)
+    views, yhats = _views(rng, [300, 350, 420])
+    k = 4
+    jac = tuple(rng.standard_normal((v.n, k)) for v in views)
+    for cols in ([np.arange(k)] * 3, [np.arange(k), np.arange(1, k + 1), np.arange(2, k + 2)]):
+        n = int(max(c.max() for c in cols)) + 1
+        lin = Linearization(jac, tuple(cols), np.full(n, -np.inf), np.full(n, np.inf))
+        eff = make_effect(name).configure(views, yhats)
+        phi = eff.search_grid()[len(eff.search_grid()) // 2]
+        shared, local, delta, sse = solve_coefficients(eff, phi, design=prepare_design(yhats, views, lin), bounded=False)
+        ks, kl = eff.layout()
+        C = len(views)
+        rows, rhs = [], []
+        for c, (v, yh) in enumerate(zip(views, yhats)):
+            X = np.hstack([yh[:, None], jac[c]])
+            T = np.asarray(eff.operator(X, v, phi))
+            Rs, Rl = eff.regressors(yh, v, phi)
+            A = np.zeros((v.n, ks + C * kl + n))
+            A[:, :ks] = Rs
+            A[:, ks + c * kl: ks + (c + 1) * kl] = Rl
+            A[:, ks + C * kl + cols[c]] = T[:, 1:]
+            rows.append(A)
+            rhs.append(v.y - T[:, 0])
+        A, b = np.vstack(rows), np.concatenate(rhs)
+        x_ref = np.linalg.lstsq(A, b, rcond=None)[0]
+        sse_ref = float(np.sum((A @ x_ref - b) ** 2))
+        assert sse == pytest.approx(sse_ref, rel=1e-6)
+        x = np.concatenate([shared, local.ravel(), delta])
+        assert np.allclose(A @ x, A @ x_ref, rtol=0, atol=1e-6 * np.abs(b).max())
+
+
+def test_finer_base_is_fitted_once_per_diagnosis(monkeypatch):
+    """The resolution checks ask for the same finer base several times: it is fitted the first time
+    only, per design (a new diagnosis fits again) and per resolution (another resolution is fitted)."""
+    import hystfit.diagnose as D
+
+    calls = []
+
+    def fake_fits(jobs, n_groups, model, optimizer, seed, executor, store, resume, advance, stats=None):
+        calls.append(model)
+        return [object()]
+
+    monkeypatch.setattr(D, "_base_fits", fake_fits)
+    t = np.arange(400) * 1e-4
+    caps = []
+    for f in (10.0, 20.0):
+        u = 20.0 * 0.5 * (1 - np.cos(2 * np.pi * f * t))
+        caps.append(D.Capture(t=t, u=u, y=0.1 * u, dt=1e-4, amplitude_V=20.0, frequency_Hz=f, source=f"c{f:g}"))
+    design = D._design(caps, D.DiagnoseSettings(), False)
+    opt = make_optimizer(optimizers.get("auto"), {})
+    m20, m40 = make_model("pi", {"n_operators": 20}), make_model("pi", {"n_operators": 40})
+    first = D._fine_base_fits(caps, design, m20, opt, 0, None)
+    assert D._fine_base_fits(caps, design, make_model("pi", {"n_operators": 20}), opt, 0, None) is first
+    assert len(calls) == 1
+    assert D._fine_base_fits(caps, design, m40, opt, 0, None) is not first
+    assert D._fine_base_fits(caps, design, m20, opt, 1, None) is not first  # another seed: other fits
+    assert D._fine_base_fits(caps, D._design(caps, D.DiagnoseSettings(), False), m20, opt, 0, None) is not first
+    assert len(calls) == 4
