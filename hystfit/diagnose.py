@@ -49,6 +49,7 @@ from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
 from .parallel import CellFailed, fork_map, run_cells
+from .seeds import check_seed
 from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
 
 __all__ = [
@@ -61,7 +62,6 @@ __all__ = [
     "where_analysis",
     "fit_masks",
     "is_periodic",
-    "check_seed",
     "withheld_effect_captures",
     "one_effect",
     "Finding",
@@ -379,13 +379,6 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
     rec = make_model(d.recommended_model, opts)
     return identify(captures, rec, optimizer, seed=seed, global_fit=d.mode != "per-condition",
                     model_options=opts, progress=progress, executor=executor, store=store, resume=resume)
-
-
-def check_seed(seed) -> int:
-    """``seed`` as an int; :class:`ConfigError` unless it is an integer in [0, 2**32)."""
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2 ** 32:
-        raise ConfigError(f"diagnose: seed must be an integer in [0, 4294967295]. Got {seed!r} instead.")
-    return int(seed)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -60,7 +60,8 @@ def diagnose(
 
     Writes OUT/diagnosis.json, OUT/diagnosis.md and OUT/figures/.
     """
-    from ..diagnose import DiagnoseSettings, check_seed, fit_recommended
+    from ..diagnose import DiagnoseSettings, fit_recommended
+    from ..seeds import check_seed
     from ..parallel import CellStats
     from ..diagnose import diagnose as run_diagnose
     from ..io import staged_output_dir
