@@ -463,10 +463,11 @@ class FractionalZener(OptionalOffset, Model):
         offset = self.offset
 
         def finish(theta: np.ndarray, ydev: np.ndarray) -> np.ndarray:
-            y = ydev + (theta[:, 0] * u0)[:, None]
+            """y = ydev + E0·u_0 (+ y0), in place (``ydev`` is each route's own fresh array)."""
+            ydev += (theta[:, 0] * u0)[:, None]
             if offset:
-                y = y + theta[:, 4][:, None]
-            return y
+                ydev += theta[:, 4][:, None]
+            return ydev
 
         if N == 0:
             return lambda theta, group=1: np.empty((self.check_theta(theta, d).shape[0], 0))
@@ -504,7 +505,8 @@ class FractionalZener(OptionalOffset, Model):
 
         def sim_fft(theta: np.ndarray, group: int = 1) -> np.ndarray:
             """Outputs (P, N); consecutive groups of ``group`` rows share τ and a (the separable
-            basis): the GL spectrum P_L(z) is then transformed once per group."""
+            basis): the GL spectrum P_L(z) and the denominator 1 + bP_L(z) are then computed once
+            per group, and only rows with a non-zero gain are transformed back."""
             theta = self.check_theta(theta, d)
             P = theta.shape[0]
             ydev = np.empty((P, N))
@@ -515,33 +517,43 @@ class FractionalZener(OptionalOffset, Model):
                     b = (tau / dt) ** a
                     w = gl_weights(np.ascontiguousarray(a[::group]), L).T * rn  # (p, L+1), damped onto |z| = r
                     Pz = sfft.rfft(w, M, axis=1)
-                    if group > 1:
-                        Pz = np.repeat(Pz, group, axis=0)
                     del w
-                    H = (E0[:, None] + (Ei * b)[:, None] * Pz) / (1.0 + b[:, None] * Pz)
+                    ydev[i:i + blk] = self._inverse_fft(Pz, b, group, X, E0, Ei, M, N, inv_rn)
                     del Pz
-                    ydev[i:i + blk] = self._inverse_fft(H, X, E0, Ei, M, N, inv_rn)
-                    del H
                 return finish(theta, ydev)
 
         return sim_fft
 
     @staticmethod
-    def _inverse_fft(H: np.ndarray, X: np.ndarray, E0: np.ndarray, Ei: np.ndarray, M: int, N: int,
-                     inv_rn: np.ndarray) -> np.ndarray:
-        """ydev (p, N) = undamped irfft(H·X). Rows with E0 = E∞ = 0 (the θ_lin = 0 and offset columns
-        of the separable basis) have H = 0/(1 + bP) = ±0 unless something is NaN: their output is
-        0 (NaN if H has a NaN, as the transform would give) without a transform."""
+    def _inverse_fft(Pz: np.ndarray, b: np.ndarray, group: int, X: np.ndarray, E0: np.ndarray, Ei: np.ndarray,
+                     M: int, N: int, inv_rn: np.ndarray) -> np.ndarray:
+        """ydev (p, N) = undamped irfft(H·X), H = (E0 + E∞bP)/(1 + bP) per row, P = Pz[row // group]
+        (the rows of a group share b). Rows with E0 = E∞ = 0 (the θ_lin = 0 and offset columns of
+        the separable basis) have H = 0/(1 + bP) = ±0 unless something is NaN: their output is 0
+        (NaN if H has a NaN, as the transform would give) without a transform; H is computed for
+        them only when their group's 1 + bP or b is not finite and non-zero (otherwise no NaN can
+        arise). The same numbers, bit for bit, as H computed for every row."""
+        den = 1.0 + b[::group, None] * Pz  # (p / group, K): each row's denominator, once per group
         zero = (E0 == 0.0) & (Ei == 0.0)
-        if not np.any(zero):
+        keep = np.flatnonzero(~zero)
+        out = np.empty((E0.shape[0], N))
+        if keep.size < E0.shape[0]:
+            rows = np.flatnonzero(zero)
+            g = rows // group
+            safe = (np.isfinite(b[::group]) & np.all(np.isfinite(Pz), axis=1) & np.all(np.isfinite(den), axis=1)
+                    & (np.max(np.maximum(np.abs(den.real), np.abs(den.imag)), axis=1) > 1e-300))
+            nan = np.zeros(rows.size, dtype=bool)
+            risky = ~safe[g]
+            if np.any(risky):
+                r, gr = rows[risky], g[risky]
+                H0 = (E0[r, None] + (Ei[r] * b[r])[:, None] * Pz[gr]) / den[gr]
+                nan[risky] = np.any(np.isnan(H0), axis=1)
+            out[rows] = np.where(nan, np.nan, 0.0)[:, None]
+        if keep.size:
+            g = keep // group
+            H = (E0[keep, None] + (Ei[keep] * b[keep])[:, None] * Pz[g]) / den[g]
             H *= X
-            return sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
-        out = np.empty((H.shape[0], N))
-        out[zero] = np.where(np.any(np.isnan(H[zero]), axis=1), np.nan, 0.0)[:, None]
-        keep = ~zero
-        if np.any(keep):
-            Hk = H[keep] * X
-            out[keep] = sfft.irfft(Hk, M, axis=1)[:, :N] * inv_rn
+            out[keep] = sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
         return out
 
     # ------------------------------------------------------------------ stepping
