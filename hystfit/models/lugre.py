@@ -70,16 +70,14 @@ def lugre_population(u, dt, k, s0, s1, s2, fc, fs, vs, group=1):
         return out
     for p in range(P):
         out[0, p] = k[p] * u[0]
-    z1 = 0.0
-    zd = 0.0
     for n in range(1, N):
         un = u[n]
         v = (un - u[n - 1]) / dt
-        for p in range(P):
-            if p % group == 0:
-                z1, zd = _lugre_advance(z[p], v, dt, abs(s0[p]), fc[p], fs[p], vs[p])
-                z[p] = z1
-            out[n, p] = k[p] * un + s0[p] * z1 + s1[p] * zd + s2[p] * v
+        for g in range(0, P, group):  # the state once per group (no integer modulo per candidate)
+            z1, zd = _lugre_advance(z[g], v, dt, abs(s0[g]), fc[g], fs[g], vs[g])
+            z[g] = z1
+            for p in range(g, min(g + group, P)):
+                out[n, p] = k[p] * un + s0[p] * z1 + s1[p] * zd + s2[p] * v
     return out
 
 
