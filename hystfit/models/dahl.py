@@ -87,6 +87,23 @@ def dahl_population(u, sigma, fc, a):
 
 
 @njit(cache=True, error_model="numpy")
+def dahl_output(u, k, d0, h, group):
+    """Outputs (P, N): y_p = k_p u + h_{p // group} + d0_p with the state h (N, P / group) of
+    :func:`dahl_population` — the numbers of ``k[:, None] * u + h.T + d0[:, None]`` (the same
+    operations in the same order) without the repeated state and the two temporaries."""
+    N = u.shape[0]
+    P = k.shape[0]
+    out = np.empty((P, N))
+    for p in range(P):
+        g = p // group
+        kp = k[p]
+        dp = d0[p]
+        for n in range(N):
+            out[p, n] = kp * u[n] + h[n, g] + dp
+    return out
+
+
+@njit(cache=True, error_model="numpy")
 def dahl_step(h0, u_prev, u_new, sigma, fc, a):
     """One Dahl sample from state h0 for candidate inputs u_new (C,) → new states (C,)."""
     C = u_new.shape[0]
@@ -181,11 +198,8 @@ class Dahl(Model):
         state h (the costly part) is simulated for the first row of each group only."""
         theta = self.check_theta(theta, 5)
         k, sig, fc, a, d0 = (np.ascontiguousarray(theta[:, i]) for i in range(5))
-        h = dahl_population(u, sig[::group].copy(), fc[::group].copy(), a[::group].copy()).T
-        if group > 1:
-            h = np.repeat(h, group, axis=0)
-        with np.errstate(all="ignore"):
-            return k[:, None] * u[None, :] + h + d0[:, None]
+        h = dahl_population(u, sig[::group].copy(), fc[::group].copy(), a[::group].copy())
+        return dahl_output(u, k, d0, h, group)
 
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
         """State: h, zero before the first sample."""

@@ -127,3 +127,21 @@ def test_recovery_pso_then_lsq(rng):
     np.testing.assert_allclose(x[[0, 1, 2]], THETA[[0, 1, 2]], rtol=0.05)
     assert abs(x[3] - THETA[3]) < 0.15 * THETA[3]
     assert abs(x[4] - THETA[4]) < 0.05
+
+
+def test_output_kernel_is_the_numpy_formula_bit_for_bit():
+    """y = k·u + h + d0 from the grouped state (h once per group of rows): the numbers of the numpy
+    expression on the repeated state, non-finite entries included."""
+    from hystfit.models.dahl import dahl_output
+
+    rng = np.random.default_rng(2)
+    u = rng.normal(size=300)
+    h = rng.normal(size=(300, 3))
+    h[5, 1] = np.nan
+    k, d0 = rng.normal(size=12), rng.normal(size=12)
+    k[4] = np.inf
+    with np.errstate(all="ignore"):
+        expected = k[:, None] * u[None, :] + np.repeat(h.T, 4, axis=0) + d0[:, None]
+    got = dahl_output(u, k, d0, h, 4)
+    assert np.array_equal(got, expected, equal_nan=True)
+    assert np.array_equal(dahl_output(u, k[:3], d0[:3], h, 1), k[:3, None] * u + h.T + d0[:3, None], equal_nan=True)
