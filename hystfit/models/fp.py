@@ -176,16 +176,15 @@ def _soe_block(x, y, a, b, c, r1, r2, rL1, L, mode, out, p0, p1):
     for k in range(N):
         for i in range(m):
             acc[i] = na[i] * vprev[i]
-        for n in range(K):
-            for i in range(m):
-                acc[i] += cb[n, i] * S[n, i]
         old = (k + 1) % R  # v_{k−L} (still zero while k < L)
-        for n in range(K):
+        for n in range(K):  # one pass: A_k from S_n(k), then S_n(k+1)
             q1 = r1[n]
             q2 = r2[n]
             q3 = rL1[n]
             for i in range(m):
-                S[n, i] = q1 * S[n, i] + q2 * vprev[i] - q3 * hist[old, i]
+                sn = S[n, i]
+                acc[i] += cb[n, i] * sn
+                S[n, i] = q1 * sn + q2 * vprev[i] - q3 * hist[old, i]
         xk = x[k]
         slot = k % R
         for i in range(m):
