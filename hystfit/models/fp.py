@@ -492,6 +492,21 @@ class FractionalZener(OptionalOffset, Model):
                     return finish(theta, ydev)
             return sim
 
+        deviation = self._fft_deviation(x, dt, L)
+
+        def sim_fft(theta: np.ndarray, group: int = 1) -> np.ndarray:
+            """Outputs (P, N); consecutive groups of ``group`` rows share τ and a (the separable basis)."""
+            theta = self.check_theta(theta, d)
+            return finish(theta, deviation(theta, group))
+
+        return sim_fft
+
+    def _fft_deviation(self, x: np.ndarray, dt: float, L: int) -> Callable[..., np.ndarray]:
+        """The FFT evaluation (windows longer than :data:`RECURRENCE_MAX_TERMS`) of the deviation
+        ydev (P, N) = H[x] for the input deviation x = u − u_0: θ (P, ≥ 4) → ydev, optionally
+        ``group`` (consecutive groups of that many rows share τ and a)."""
+        N = x.shape[0]
+        dt = float(dt)
         M = sfft.next_fast_len(3 * N, real=True)
         r = _FFT_ALIAS ** (1.0 / M)
         rn = r ** np.arange(L + 1)
@@ -502,11 +517,9 @@ class FractionalZener(OptionalOffset, Model):
         # ~256 MB whatever the capture length (a 10⁶-sample capture goes one candidate at a time)
         block = max(1, FFT_BLOCK_ELEMENTS // (M // 2 + 1))
 
-        def sim_fft(theta: np.ndarray, group: int = 1) -> np.ndarray:
-            """Outputs (P, N); consecutive groups of ``group`` rows share τ and a (the separable
-            basis): the GL spectrum P_L(z) and the denominator 1 + bP_L(z) are then computed once
-            per group, and only rows with a non-zero gain are transformed back."""
-            theta = self.check_theta(theta, d)
+        def deviation(theta: np.ndarray, group: int = 1) -> np.ndarray:
+            """ydev (P, N); the GL spectrum P_L(z) and the denominator 1 + bP_L(z) are computed once per
+            group of rows, and only rows with a non-zero gain are transformed back."""
             P = theta.shape[0]
             ydev = np.empty((P, N))
             blk = max(group, block // group * group)
@@ -519,9 +532,9 @@ class FractionalZener(OptionalOffset, Model):
                     del w
                     ydev[i:i + blk] = self._inverse_fft(Pz, b, group, X, E0, Ei, M, N, inv_rn)
                     del Pz
-                return finish(theta, ydev)
+            return ydev
 
-        return sim_fft
+        return deviation
 
     @staticmethod
     def _inverse_fft(Pz: np.ndarray, b: np.ndarray, group: int, X: np.ndarray, E0: np.ndarray, Ei: np.ndarray,
