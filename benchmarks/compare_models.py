@@ -67,7 +67,7 @@ def main() -> None:
                                 and old.loc[lab, "evaluations"] == runs[lab].nfev
                                 and old.loc[lab, "objective_mse"] == runs[lab].fun for lab, v in rmse.items()) else "no"
             worst = max(v / old.loc[lab, key] for lab, v in rmse.items() if lab in old.index)
-        print(f"| {name} | {cpu:.1f} | {evals:.0f} | {np.mean(list(rmse.values())):.6g} | {same} | {worst:.4f} |",
+        print(f"| {name} | {cpu:.1f} | {evals:.0f} | {np.mean(list(rmse.values())):.6g} | {same} | {worst:.6f} |",
               flush=True)
 
 

@@ -352,24 +352,25 @@ class FractionalZener(OptionalOffset, Model):
         """E0, E∞ (and y0) enter linearly for fixed (τ, a): the fractional operator is linear, so
         y = E0·L⁻¹[u] + E∞·L⁻¹[τ^a D^a u] + y0 with L = 1 + τ^a D^a. Only τ and a are searched.
 
-        Short captures: the basis from the model's simulator (:func:`separable_by_simulation`).
-        Long captures (:meth:`soe_route`): one response per candidate, v = L⁻¹[u − u_0], gives the
-        whole basis — L⁻¹[τ^a D^a x] = L⁻¹[(L − 1) x] = x − v, so y = E0 (v + u_0) + E∞ (x − v) + y0 —
-        and its normal equations come from the fused SOE kernel (O(L·P) memory)."""
+        One response per candidate, v = L⁻¹[u − u_0], gives the whole basis — L⁻¹[τ^a D^a x] =
+        L⁻¹[(L − 1) x] = x − v, so y = E0 (v + u_0) + E∞ (x − v) + y0 — on the captures evaluated by
+        FFT or by the SOE recursion (:meth:`_response`); the normal equations then come from the
+        moments of v and x − v (long captures, :meth:`soe_route`: from the fused SOE kernel, O(L·P)
+        memory). Captures of the direct recurrence (windows up to :data:`RECURRENCE_MAX_TERMS`):
+        the basis from the model's simulator (:func:`separable_by_simulation`)."""
         linear = (0, 1, 4) if self.offset else (0, 1)
         exact = separable_by_simulation(self, linear, self.n_params, grouped=self.simulator)
 
         def factory(u, dt):
-            if not self.soe_route(len(u), dt):
+            response = self._response(u, dt)
+            if response is None:
                 return exact.basis_factory(u, dt)
             u = np.ascontiguousarray(u, dtype=np.float64)
             x = u - u[0]
-            L = min(self.memory_samples(dt), u.shape[0] - 1)
 
             def basis(theta_nl):
-                tau, a = (np.ascontiguousarray(theta_nl[:, i]) for i in range(2))
                 with np.errstate(all="ignore"):
-                    v = soe_run(x, None, a, (tau / float(dt)) ** a, L, _SOE_OUTPUT).T  # (P, N)
+                    v = response(theta_nl)  # (P, N)
                     B = np.ones((v.shape[0], v.shape[1], len(linear)))
                     B[:, :, 0] = v + u[0]
                     B[:, :, 1] = x[None, :] - v
@@ -378,21 +379,51 @@ class FractionalZener(OptionalOffset, Model):
             return basis
 
         def gram_factory(u, dt, y):
-            if not self.soe_route(len(u), dt):
+            if self.soe_route(len(u), dt):
+                return self._gram(u, dt, y, None)
+            response = self._response(u, dt)
+            if response is None:
                 return exact.gram_factory(u, dt, y)
-            return self._soe_gram(u, dt, y)
+            return self._gram(u, dt, y, response)
 
         return Separable(linear, exact.nonlinear, factory, gram_factory, fused_for=self.soe_route)
+
+    def _response(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray] | None:
+        """θ_nl (P, 2) = (τ, a) → v = L⁻¹[u − u_0] (P, N): by the SOE recursion (:meth:`soe_route`)
+        or the FFT evaluation (windows longer than :data:`RECURRENCE_MAX_TERMS`, one transform per
+        candidate); None for the direct recurrence."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        N = u.shape[0]
+        x = np.ascontiguousarray(u - u[0]) if N else u
+        L = min(self.memory_samples(dt), max(N - 1, 0))
+        if self.soe_route(N, dt):
+            def v_soe(theta_nl):
+                tau, a = (np.ascontiguousarray(theta_nl[:, i]) for i in range(2))
+                with np.errstate(all="ignore"):
+                    return soe_run(x, None, a, (tau / float(dt)) ** a, L, _SOE_OUTPUT).T
+
+            return v_soe
+        if N == 0 or L <= RECURRENCE_MAX_TERMS:
+            return None
+        deviation = self._fft_deviation(x, dt, L)
+
+        def v_fft(theta_nl):
+            th = np.zeros((theta_nl.shape[0], 4))
+            th[:, 0] = 1.0  # E0 = 1, E∞ = 0: the deviation is v
+            th[:, 2:4] = theta_nl[:, :2]
+            return deviation(th)
+
+        return v_fft
 
     def soe_route(self, n_samples: int, dt: float) -> bool:
         """True when a capture of ``n_samples`` at period ``dt`` is evaluated by the SOE recursion
         (at least :data:`SOE_MIN_SAMPLES` samples and a window longer than :data:`RECURRENCE_MAX_TERMS`)."""
         return n_samples >= SOE_MIN_SAMPLES and min(self.memory_samples(dt), n_samples - 1) > RECURRENCE_MAX_TERMS
 
-    def _soe_gram(self, u: np.ndarray, dt: float, y: np.ndarray):
+    def _gram(self, u: np.ndarray, dt: float, y: np.ndarray, response=None):
         """theta_nl (P, 2) = (τ, a) → normal equations (G (P, l, l), c (P, l), yᵀy) of the linear
-        parameters (E0, E∞[, y0]) from the SOE kernel's moments of v and d = x − v (basis
-        [v + u_0, d, 1])."""
+        parameters (E0, E∞[, y0]) from the moments of v and d = x − v (basis [v + u_0, d, 1]): those
+        of the SOE kernel, or with ``response`` (:meth:`_response`) summed from v."""
         u = np.ascontiguousarray(u, dtype=np.float64)
         y = np.ascontiguousarray(y, dtype=np.float64)
         u0 = float(u[0])
@@ -404,7 +435,13 @@ class FractionalZener(OptionalOffset, Model):
         def gram(theta_nl):
             tau, a = (np.ascontiguousarray(theta_nl[:, i]) for i in range(2))
             with np.errstate(all="ignore"):
-                vv, vd, dd, sv, sd, vy, dy = soe_run(x, y, a, (tau / float(dt)) ** a, L, _SOE_MOMENTS).T
+                if response is None:
+                    vv, vd, dd, sv, sd, vy, dy = soe_run(x, y, a, (tau / float(dt)) ** a, L, _SOE_MOMENTS).T
+                else:
+                    v = response(theta_nl)
+                    dv = x[None, :] - v
+                    vv, vd, dd = (np.einsum("pn,pn->p", p, q) for p, q in ((v, v), (v, dv), (dv, dv)))
+                    sv, sd, vy, dy = v.sum(axis=1), dv.sum(axis=1), v @ y, dv @ y
                 G = np.empty((tau.shape[0], l, l))
                 G[:, 0, 0] = vv + 2.0 * u0 * sv + n * u0 * u0
                 G[:, 0, 1] = G[:, 1, 0] = vd + u0 * sd
@@ -434,7 +471,7 @@ class FractionalZener(OptionalOffset, Model):
                 return np.einsum("ij,ij->i", e, e)
 
             return simulated
-        gram = self._soe_gram(u, dt, y)
+        gram = self._gram(u, dt, y)
         lin = [0, 1, 4] if self.offset else [0, 1]
 
         def sse(theta: np.ndarray) -> np.ndarray:
