@@ -306,27 +306,57 @@ class ColemanHodgdon(Model):
     def separable(self):
         """A1, A4 and A6 enter linearly for fixed (A2, A3, A5) (:meth:`linear_design`, with the known
         part −A2·e^{−A3·V_R}·u): the search runs over (A2, A3, A5), of which only A5 shapes the fit."""
+        def response(u, s_, theta_nl):
+            """(−s·φ (P, N), κ (P, 1)): the basis column of A4 and the known part's slope."""
+            vm, vM = self._range()
+            A2, A3, A5 = theta_nl[:, 0:1], theta_nl[:, 1:2], theta_nl[:, 2:3]
+            with np.errstate(all="ignore"):
+                a = s_[None, :] * A5
+                phi = 1.0 - 2.0 / (np.exp(a * (u[None, :] - vm)) + np.exp(a * (u[None, :] - vM)))
+                return -s_[None, :] * phi, -(A2 * np.exp(-A3 * (vM - vm)))
+
         def factory(u, dt):
             u = np.ascontiguousarray(u, dtype=np.float64)
-            vm, vM = self._range()
             s_ = ch_branches(u, 1.0)
 
             def basis(theta_nl):
-                A2, A3, A5 = theta_nl[:, 0:1], theta_nl[:, 1:2], theta_nl[:, 2:3]
-                P = theta_nl.shape[0]
+                b1, kappa = response(u, s_, theta_nl)
                 with np.errstate(all="ignore"):
-                    a = s_[None, :] * A5
-                    phi = 1.0 - 2.0 / (np.exp(a * (u[None, :] - vm)) + np.exp(a * (u[None, :] - vM)))
-                    C = -(A2 * np.exp(-A3 * (vM - vm))) * u[None, :]
-                B = np.empty((P, u.shape[0], 3))
+                    C = kappa * u[None, :]
+                B = np.empty((b1.shape[0], u.shape[0], 3))
                 B[:, :, 0] = u[None, :]
-                B[:, :, 1] = -s_[None, :] * phi
+                B[:, :, 1] = b1
                 B[:, :, 2] = 1.0
                 return B, C
 
             return basis
 
-        return Separable((0, 3, 5), (1, 2, 4), factory)
+        def gram_factory(u, dt, y):
+            """Normal equations of (A1, A4, A6) for the target y − κu from the sums of −s·φ (no basis)."""
+            u = np.ascontiguousarray(u, dtype=np.float64)
+            y = np.ascontiguousarray(y, dtype=np.float64)
+            s_ = ch_branches(u, 1.0)
+            n, su, sy = float(u.shape[0]), float(u.sum()), float(y.sum())
+            uu, uy, yy = float(u @ u), float(u @ y), float(y @ y)
+
+            def gram(theta_nl):
+                b1, kappa = response(u, s_, theta_nl)
+                k = kappa[:, 0]
+                P = b1.shape[0]
+                with np.errstate(all="ignore"):
+                    bu, bb, sb, by = b1 @ u, np.einsum("pn,pn->p", b1, b1), b1.sum(axis=1), b1 @ y
+                    G = np.empty((P, 3, 3))
+                    G[:, 0, 0], G[:, 1, 1], G[:, 2, 2] = uu, bb, n
+                    G[:, 0, 1] = G[:, 1, 0] = bu
+                    G[:, 0, 2] = G[:, 2, 0] = su
+                    G[:, 1, 2] = G[:, 2, 1] = sb
+                    c = np.column_stack([uy - k * uu, by - k * bu, sy - k * su])
+                    tt = yy - 2.0 * k * uy + k * k * uu
+                return G, c, tt
+
+            return gram
+
+        return Separable((0, 3, 5), (1, 2, 4), factory, gram_factory, gram_fused=False)
 
     def _columns(self, theta: np.ndarray):
         K = np.ascontiguousarray(self.slope(theta))

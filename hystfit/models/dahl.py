@@ -13,7 +13,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from .base import Model
 from .inverse import invert_from_rest
-from .separable import separable_by_simulation
+from .separable import Separable, separable_by_simulation
 
 
 # ----------------------------------------------------------------------------------------------
@@ -83,6 +83,45 @@ def dahl_population(u, sigma, fc, a):
         du = u[k] - u[k - 1]
         for p in range(P):
             out[k, p] = _dahl_advance(out[k - 1, p], du, sigma[p], fc[p], a[p])
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def dahl_moments(u, sigma, fc, a, y):
+    """Σh, Σh², Σu·h, Σy·h per candidate (4, P) of the state h of :func:`dahl_population`, without
+    the (N, P) states (samples summed in order; h(0) = 0 adds nothing)."""
+    N = u.shape[0]
+    P = sigma.shape[0]
+    acc = np.zeros((4, P))
+    h = np.zeros(P)
+    for k in range(1, N):
+        du = u[k] - u[k - 1]
+        uk = u[k]
+        yk = y[k]
+        for p in range(P):
+            hk = _dahl_advance(h[p], du, sigma[p], fc[p], a[p])
+            h[p] = hk
+            acc[0, p] += hk
+            acc[1, p] += hk * hk
+            acc[2, p] += uk * hk
+            acc[3, p] += yk * hk
+    return acc
+
+
+@njit(cache=True, error_model="numpy")
+def dahl_output(u, k, d0, h, group):
+    """Outputs (P, N): y_p = k_p u + h_{p // group} + d0_p with the state h (N, P / group) of
+    :func:`dahl_population` — the numbers of ``k[:, None] * u + h.T + d0[:, None]`` (the same
+    operations in the same order) without the repeated state and the two temporaries."""
+    N = u.shape[0]
+    P = k.shape[0]
+    out = np.empty((P, N))
+    for p in range(P):
+        g = p // group
+        kp = k[p]
+        dp = d0[p]
+        for n in range(N):
+            out[p, n] = kp * u[n] + h[n, g] + dp
     return out
 
 
@@ -168,10 +207,37 @@ class Dahl(Model):
         )
 
     def separable(self):
-        """k and d0 enter linearly; σ, Fc and a (the friction state's shape) are searched. The
-        state h is simulated once per candidate, not once per basis column (:meth:`_simulate`)."""
-        return separable_by_simulation(self, (0, 4), 5,
-                                       grouped=lambda u, dt: lambda th, g: self._simulate(th, u, g))
+        """k and d0 enter linearly; σ, Fc and a (the friction state's shape) are searched. The basis
+        [u, 1] with the known part h: the basis is simulated with h once per candidate
+        (:meth:`_simulate`), the normal equations come from h's sums (:func:`dahl_moments`: one
+        pass, O(P) memory, no (P, N) outputs)."""
+        exact = separable_by_simulation(self, (0, 4), 5,
+                                        grouped=lambda u, dt: lambda th, g: self._simulate(th, u, g))
+        return Separable(exact.linear, exact.nonlinear, exact.basis_factory, self._gram, gram_fused=True)
+
+    def _gram(self, u: np.ndarray, dt: float, y: np.ndarray):
+        """theta_nl (P, 3) = (σ, Fc, a) → normal equations (G, c, tᵀt) of (k, d0) for the target t = y − h."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        y = np.ascontiguousarray(y, dtype=np.float64)
+        n, su, sy = float(u.shape[0]), float(u.sum()), float(y.sum())
+        uu, uy, yy = float(u @ u), float(u @ y), float(y @ y)
+
+        def gram(theta_nl):
+            sig, fc, a = (np.ascontiguousarray(theta_nl[:, i]) for i in range(3))
+            with np.errstate(all="ignore"):
+                sh, hh, uh, yh = dahl_moments(u, sig, fc, a, y)
+                P = sig.shape[0]
+                G = np.empty((P, 2, 2))
+                G[:, 0, 0] = uu
+                G[:, 0, 1] = G[:, 1, 0] = su
+                G[:, 1, 1] = n
+                c = np.empty((P, 2))
+                c[:, 0] = uy - uh
+                c[:, 1] = sy - sh
+                tt = yy - 2.0 * yh + hh
+            return G, c, tt
+
+        return gram
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         return self._simulate(theta, np.ascontiguousarray(u, dtype=np.float64), 1)
@@ -181,11 +247,8 @@ class Dahl(Model):
         state h (the costly part) is simulated for the first row of each group only."""
         theta = self.check_theta(theta, 5)
         k, sig, fc, a, d0 = (np.ascontiguousarray(theta[:, i]) for i in range(5))
-        h = dahl_population(u, sig[::group].copy(), fc[::group].copy(), a[::group].copy()).T
-        if group > 1:
-            h = np.repeat(h, group, axis=0)
-        with np.errstate(all="ignore"):
-            return k[:, None] * u[None, :] + h + d0[:, None]
+        h = dahl_population(u, sig[::group].copy(), fc[::group].copy(), a[::group].copy())
+        return dahl_output(u, k, d0, h, group)
 
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
         """State: h, zero before the first sample."""

@@ -176,16 +176,15 @@ def _soe_block(x, y, a, b, c, r1, r2, rL1, L, mode, out, p0, p1):
     for k in range(N):
         for i in range(m):
             acc[i] = na[i] * vprev[i]
-        for n in range(K):
-            for i in range(m):
-                acc[i] += cb[n, i] * S[n, i]
         old = (k + 1) % R  # v_{k−L} (still zero while k < L)
-        for n in range(K):
+        for n in range(K):  # one pass: A_k from S_n(k), then S_n(k+1)
             q1 = r1[n]
             q2 = r2[n]
             q3 = rL1[n]
             for i in range(m):
-                S[n, i] = q1 * S[n, i] + q2 * vprev[i] - q3 * hist[old, i]
+                sn = S[n, i]
+                acc[i] += cb[n, i] * sn
+                S[n, i] = q1 * sn + q2 * vprev[i] - q3 * hist[old, i]
         xk = x[k]
         slot = k % R
         for i in range(m):
@@ -353,24 +352,25 @@ class FractionalZener(OptionalOffset, Model):
         """E0, E∞ (and y0) enter linearly for fixed (τ, a): the fractional operator is linear, so
         y = E0·L⁻¹[u] + E∞·L⁻¹[τ^a D^a u] + y0 with L = 1 + τ^a D^a. Only τ and a are searched.
 
-        Short captures: the basis from the model's simulator (:func:`separable_by_simulation`).
-        Long captures (:meth:`soe_route`): one response per candidate, v = L⁻¹[u − u_0], gives the
-        whole basis — L⁻¹[τ^a D^a x] = L⁻¹[(L − 1) x] = x − v, so y = E0 (v + u_0) + E∞ (x − v) + y0 —
-        and its normal equations come from the fused SOE kernel (O(L·P) memory)."""
+        One response per candidate, v = L⁻¹[u − u_0], gives the whole basis — L⁻¹[τ^a D^a x] =
+        L⁻¹[(L − 1) x] = x − v, so y = E0 (v + u_0) + E∞ (x − v) + y0 — on the captures evaluated by
+        FFT or by the SOE recursion (:meth:`_response`); the normal equations then come from the
+        moments of v and x − v (long captures, :meth:`soe_route`: from the fused SOE kernel, O(L·P)
+        memory). Captures of the direct recurrence (windows up to :data:`RECURRENCE_MAX_TERMS`):
+        the basis from the model's simulator (:func:`separable_by_simulation`)."""
         linear = (0, 1, 4) if self.offset else (0, 1)
         exact = separable_by_simulation(self, linear, self.n_params, grouped=self.simulator)
 
         def factory(u, dt):
-            if not self.soe_route(len(u), dt):
+            response = self._response(u, dt)
+            if response is None:
                 return exact.basis_factory(u, dt)
             u = np.ascontiguousarray(u, dtype=np.float64)
             x = u - u[0]
-            L = min(self.memory_samples(dt), u.shape[0] - 1)
 
             def basis(theta_nl):
-                tau, a = (np.ascontiguousarray(theta_nl[:, i]) for i in range(2))
                 with np.errstate(all="ignore"):
-                    v = soe_run(x, None, a, (tau / float(dt)) ** a, L, _SOE_OUTPUT).T  # (P, N)
+                    v = response(theta_nl)  # (P, N)
                     B = np.ones((v.shape[0], v.shape[1], len(linear)))
                     B[:, :, 0] = v + u[0]
                     B[:, :, 1] = x[None, :] - v
@@ -379,21 +379,51 @@ class FractionalZener(OptionalOffset, Model):
             return basis
 
         def gram_factory(u, dt, y):
-            if not self.soe_route(len(u), dt):
+            if self.soe_route(len(u), dt):
+                return self._gram(u, dt, y, None)
+            response = self._response(u, dt)
+            if response is None:
                 return exact.gram_factory(u, dt, y)
-            return self._soe_gram(u, dt, y)
+            return self._gram(u, dt, y, response)
 
         return Separable(linear, exact.nonlinear, factory, gram_factory, fused_for=self.soe_route)
+
+    def _response(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray] | None:
+        """θ_nl (P, 2) = (τ, a) → v = L⁻¹[u − u_0] (P, N): by the SOE recursion (:meth:`soe_route`)
+        or the FFT evaluation (windows longer than :data:`RECURRENCE_MAX_TERMS`, one transform per
+        candidate); None for the direct recurrence."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        N = u.shape[0]
+        x = np.ascontiguousarray(u - u[0]) if N else u
+        L = min(self.memory_samples(dt), max(N - 1, 0))
+        if self.soe_route(N, dt):
+            def v_soe(theta_nl):
+                tau, a = (np.ascontiguousarray(theta_nl[:, i]) for i in range(2))
+                with np.errstate(all="ignore"):
+                    return soe_run(x, None, a, (tau / float(dt)) ** a, L, _SOE_OUTPUT).T
+
+            return v_soe
+        if N == 0 or L <= RECURRENCE_MAX_TERMS:
+            return None
+        deviation = self._fft_deviation(x, dt, L)
+
+        def v_fft(theta_nl):
+            th = np.zeros((theta_nl.shape[0], 4))
+            th[:, 0] = 1.0  # E0 = 1, E∞ = 0: the deviation is v
+            th[:, 2:4] = theta_nl[:, :2]
+            return deviation(th)
+
+        return v_fft
 
     def soe_route(self, n_samples: int, dt: float) -> bool:
         """True when a capture of ``n_samples`` at period ``dt`` is evaluated by the SOE recursion
         (at least :data:`SOE_MIN_SAMPLES` samples and a window longer than :data:`RECURRENCE_MAX_TERMS`)."""
         return n_samples >= SOE_MIN_SAMPLES and min(self.memory_samples(dt), n_samples - 1) > RECURRENCE_MAX_TERMS
 
-    def _soe_gram(self, u: np.ndarray, dt: float, y: np.ndarray):
+    def _gram(self, u: np.ndarray, dt: float, y: np.ndarray, response=None):
         """theta_nl (P, 2) = (τ, a) → normal equations (G (P, l, l), c (P, l), yᵀy) of the linear
-        parameters (E0, E∞[, y0]) from the SOE kernel's moments of v and d = x − v (basis
-        [v + u_0, d, 1])."""
+        parameters (E0, E∞[, y0]) from the moments of v and d = x − v (basis [v + u_0, d, 1]): those
+        of the SOE kernel, or with ``response`` (:meth:`_response`) summed from v."""
         u = np.ascontiguousarray(u, dtype=np.float64)
         y = np.ascontiguousarray(y, dtype=np.float64)
         u0 = float(u[0])
@@ -405,7 +435,13 @@ class FractionalZener(OptionalOffset, Model):
         def gram(theta_nl):
             tau, a = (np.ascontiguousarray(theta_nl[:, i]) for i in range(2))
             with np.errstate(all="ignore"):
-                vv, vd, dd, sv, sd, vy, dy = soe_run(x, y, a, (tau / float(dt)) ** a, L, _SOE_MOMENTS).T
+                if response is None:
+                    vv, vd, dd, sv, sd, vy, dy = soe_run(x, y, a, (tau / float(dt)) ** a, L, _SOE_MOMENTS).T
+                else:
+                    v = response(theta_nl)
+                    dv = x[None, :] - v
+                    vv, vd, dd = (np.einsum("pn,pn->p", p, q) for p, q in ((v, v), (v, dv), (dv, dv)))
+                    sv, sd, vy, dy = v.sum(axis=1), dv.sum(axis=1), v @ y, dv @ y
                 G = np.empty((tau.shape[0], l, l))
                 G[:, 0, 0] = vv + 2.0 * u0 * sv + n * u0 * u0
                 G[:, 0, 1] = G[:, 1, 0] = vd + u0 * sd
@@ -435,7 +471,7 @@ class FractionalZener(OptionalOffset, Model):
                 return np.einsum("ij,ij->i", e, e)
 
             return simulated
-        gram = self._soe_gram(u, dt, y)
+        gram = self._gram(u, dt, y)
         lin = [0, 1, 4] if self.offset else [0, 1]
 
         def sse(theta: np.ndarray) -> np.ndarray:
@@ -463,10 +499,11 @@ class FractionalZener(OptionalOffset, Model):
         offset = self.offset
 
         def finish(theta: np.ndarray, ydev: np.ndarray) -> np.ndarray:
-            y = ydev + (theta[:, 0] * u0)[:, None]
+            """y = ydev + E0·u_0 (+ y0), in place (``ydev`` is each route's own fresh array)."""
+            ydev += (theta[:, 0] * u0)[:, None]
             if offset:
-                y = y + theta[:, 4][:, None]
-            return y
+                ydev += theta[:, 4][:, None]
+            return ydev
 
         if N == 0:
             return lambda theta, group=1: np.empty((self.check_theta(theta, d).shape[0], 0))
@@ -492,6 +529,21 @@ class FractionalZener(OptionalOffset, Model):
                     return finish(theta, ydev)
             return sim
 
+        deviation = self._fft_deviation(x, dt, L)
+
+        def sim_fft(theta: np.ndarray, group: int = 1) -> np.ndarray:
+            """Outputs (P, N); consecutive groups of ``group`` rows share τ and a (the separable basis)."""
+            theta = self.check_theta(theta, d)
+            return finish(theta, deviation(theta, group))
+
+        return sim_fft
+
+    def _fft_deviation(self, x: np.ndarray, dt: float, L: int) -> Callable[..., np.ndarray]:
+        """The FFT evaluation (windows longer than :data:`RECURRENCE_MAX_TERMS`) of the deviation
+        ydev (P, N) = H[x] for the input deviation x = u − u_0: θ (P, ≥ 4) → ydev, optionally
+        ``group`` (consecutive groups of that many rows share τ and a)."""
+        N = x.shape[0]
+        dt = float(dt)
         M = sfft.next_fast_len(3 * N, real=True)
         r = _FFT_ALIAS ** (1.0 / M)
         rn = r ** np.arange(L + 1)
@@ -502,10 +554,9 @@ class FractionalZener(OptionalOffset, Model):
         # ~256 MB whatever the capture length (a 10⁶-sample capture goes one candidate at a time)
         block = max(1, FFT_BLOCK_ELEMENTS // (M // 2 + 1))
 
-        def sim_fft(theta: np.ndarray, group: int = 1) -> np.ndarray:
-            """Outputs (P, N); consecutive groups of ``group`` rows share τ and a (the separable
-            basis): the GL spectrum P_L(z) is then transformed once per group."""
-            theta = self.check_theta(theta, d)
+        def deviation(theta: np.ndarray, group: int = 1) -> np.ndarray:
+            """ydev (P, N); the GL spectrum P_L(z) and the denominator 1 + bP_L(z) are computed once per
+            group of rows, and only rows with a non-zero gain are transformed back."""
             P = theta.shape[0]
             ydev = np.empty((P, N))
             blk = max(group, block // group * group)
@@ -515,33 +566,43 @@ class FractionalZener(OptionalOffset, Model):
                     b = (tau / dt) ** a
                     w = gl_weights(np.ascontiguousarray(a[::group]), L).T * rn  # (p, L+1), damped onto |z| = r
                     Pz = sfft.rfft(w, M, axis=1)
-                    if group > 1:
-                        Pz = np.repeat(Pz, group, axis=0)
                     del w
-                    H = (E0[:, None] + (Ei * b)[:, None] * Pz) / (1.0 + b[:, None] * Pz)
+                    ydev[i:i + blk] = self._inverse_fft(Pz, b, group, X, E0, Ei, M, N, inv_rn)
                     del Pz
-                    ydev[i:i + blk] = self._inverse_fft(H, X, E0, Ei, M, N, inv_rn)
-                    del H
-                return finish(theta, ydev)
+            return ydev
 
-        return sim_fft
+        return deviation
 
     @staticmethod
-    def _inverse_fft(H: np.ndarray, X: np.ndarray, E0: np.ndarray, Ei: np.ndarray, M: int, N: int,
-                     inv_rn: np.ndarray) -> np.ndarray:
-        """ydev (p, N) = undamped irfft(H·X). Rows with E0 = E∞ = 0 (the θ_lin = 0 and offset columns
-        of the separable basis) have H = 0/(1 + bP) = ±0 unless something is NaN: their output is
-        0 (NaN if H has a NaN, as the transform would give) without a transform."""
+    def _inverse_fft(Pz: np.ndarray, b: np.ndarray, group: int, X: np.ndarray, E0: np.ndarray, Ei: np.ndarray,
+                     M: int, N: int, inv_rn: np.ndarray) -> np.ndarray:
+        """ydev (p, N) = undamped irfft(H·X), H = (E0 + E∞bP)/(1 + bP) per row, P = Pz[row // group]
+        (the rows of a group share b). Rows with E0 = E∞ = 0 (the θ_lin = 0 and offset columns of
+        the separable basis) have H = 0/(1 + bP) = ±0 unless something is NaN: their output is 0
+        (NaN if H has a NaN, as the transform would give) without a transform; H is computed for
+        them only when their group's 1 + bP or b is not finite and non-zero (otherwise no NaN can
+        arise). The same numbers, bit for bit, as H computed for every row."""
+        den = 1.0 + b[::group, None] * Pz  # (p / group, K): each row's denominator, once per group
         zero = (E0 == 0.0) & (Ei == 0.0)
-        if not np.any(zero):
+        keep = np.flatnonzero(~zero)
+        out = np.empty((E0.shape[0], N))
+        if keep.size < E0.shape[0]:
+            rows = np.flatnonzero(zero)
+            g = rows // group
+            safe = (np.isfinite(b[::group]) & np.all(np.isfinite(Pz), axis=1) & np.all(np.isfinite(den), axis=1)
+                    & (np.max(np.maximum(np.abs(den.real), np.abs(den.imag)), axis=1) > 1e-300))
+            nan = np.zeros(rows.size, dtype=bool)
+            risky = ~safe[g]
+            if np.any(risky):
+                r, gr = rows[risky], g[risky]
+                H0 = (E0[r, None] + (Ei[r] * b[r])[:, None] * Pz[gr]) / den[gr]
+                nan[risky] = np.any(np.isnan(H0), axis=1)
+            out[rows] = np.where(nan, np.nan, 0.0)[:, None]
+        if keep.size:
+            g = keep // group
+            H = (E0[keep, None] + (Ei[keep] * b[keep])[:, None] * Pz[g]) / den[g]
             H *= X
-            return sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
-        out = np.empty((H.shape[0], N))
-        out[zero] = np.where(np.any(np.isnan(H[zero]), axis=1), np.nan, 0.0)[:, None]
-        keep = ~zero
-        if np.any(keep):
-            Hk = H[keep] * X
-            out[keep] = sfft.irfft(Hk, M, axis=1)[:, :N] * inv_rn
+            out[keep] = sfft.irfft(H, M, axis=1)[:, :N] * inv_rn
         return out
 
     # ------------------------------------------------------------------ stepping

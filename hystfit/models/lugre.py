@@ -13,7 +13,7 @@ from ..params import DataScale, Param
 from ..registry import models
 from .base import Model, OptionalOffset
 from .inverse import invert_from_rest, refine_inverse
-from .separable import separable_by_simulation
+from .separable import Separable, separable_by_simulation
 
 
 # ----------------------------------------------------------------------------------------------
@@ -70,17 +70,46 @@ def lugre_population(u, dt, k, s0, s1, s2, fc, fs, vs, group=1):
         return out
     for p in range(P):
         out[0, p] = k[p] * u[0]
-    z1 = 0.0
-    zd = 0.0
     for n in range(1, N):
         un = u[n]
         v = (un - u[n - 1]) / dt
-        for p in range(P):
-            if p % group == 0:
-                z1, zd = _lugre_advance(z[p], v, dt, abs(s0[p]), fc[p], fs[p], vs[p])
-                z[p] = z1
-            out[n, p] = k[p] * un + s0[p] * z1 + s1[p] * zd + s2[p] * v
+        for g in range(0, P, group):  # the state once per group (no integer modulo per candidate)
+            z1, zd = _lugre_advance(z[g], v, dt, abs(s0[g]), fc[g], fs[g], vs[g])
+            z[g] = z1
+            for p in range(g, min(g + group, P)):
+                out[n, p] = k[p] * un + s0[p] * z1 + s1[p] * zd + s2[p] * v
     return out
+
+
+@njit(cache=True, error_model="numpy")
+def lugre_moments(u, dt, s0, fc, fs, vs, y):
+    """Sums over the capture of the bristle state z, its rate ż (as :func:`lugre_population`
+    advances them, z(0) = 0) and their products with u, u̇ and y, per candidate: rows Σz, Σz²,
+    Σz·u, Σz·u̇, Σz·y, Σż, Σż², Σż·u, Σż·u̇, Σż·y, Σż·z of the (11, P) result — the normal
+    equations of LuGre's linear parameters without the (N, P) outputs. Samples summed in order."""
+    N = u.shape[0]
+    P = s0.shape[0]
+    acc = np.zeros((11, P))
+    z = np.zeros(P)
+    for n in range(1, N):  # the first sample has z = ż = u̇ = 0: it adds nothing
+        un = u[n]
+        v = (un - u[n - 1]) / dt
+        yn = y[n]
+        for p in range(P):
+            z1, zd = _lugre_advance(z[p], v, dt, abs(s0[p]), fc[p], fs[p], vs[p])
+            z[p] = z1
+            acc[0, p] += z1
+            acc[1, p] += z1 * z1
+            acc[2, p] += z1 * un
+            acc[3, p] += z1 * v
+            acc[4, p] += z1 * yn
+            acc[5, p] += zd
+            acc[6, p] += zd * zd
+            acc[7, p] += zd * un
+            acc[8, p] += zd * v
+            acc[9, p] += zd * yn
+            acc[10, p] += zd * z1
+    return acc
 
 
 @njit(cache=True, error_model="numpy")
@@ -196,9 +225,49 @@ class LuGre(OptionalOffset, Model):
 
     def separable(self):
         """k, σ1, σ2 (and y0) enter linearly for a fixed bristle state z(σ0, Fc, Fs, vs): only those four are
-        searched. The bristle state is advanced once per candidate, not once per basis column."""
-        return separable_by_simulation(self, (0, 2, 3, 7) if self.offset else (0, 2, 3), 8 if self.offset else 7,
-                                       grouped=lambda u, dt: lambda th, g: self._simulate(th, u, dt, g))
+        searched. The basis [u, ż, u̇(, 1)] with the known part σ0·z; the basis is simulated with the
+        state advanced once per candidate, and the normal equations come from the state's moments
+        (:func:`lugre_moments`: one pass, O(P) memory, no (P, N) outputs)."""
+        exact = separable_by_simulation(self, (0, 2, 3, 7) if self.offset else (0, 2, 3), 8 if self.offset else 7,
+                                        grouped=lambda u, dt: lambda th, g: self._simulate(th, u, dt, g))
+        return Separable(exact.linear, exact.nonlinear, exact.basis_factory, self._gram, gram_fused=True)
+
+    def _gram(self, u: np.ndarray, dt: float, y: np.ndarray):
+        """theta_nl (P, 4) = (σ0, Fc, Fs, vs) → normal equations (G, c, tᵀt) of (k, σ1, σ2[, y0]) for the
+        target t = y − σ0·z, from the sums of :func:`lugre_moments` and of the data."""
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        y = np.ascontiguousarray(y, dtype=np.float64)
+        dt = float(dt)
+        v = np.zeros_like(u)
+        v[1:] = (u[1:] - u[:-1]) / dt  # u̇, as the kernel computes it (0 at the first sample)
+        n, su, sv, sy = float(u.shape[0]), float(u.sum()), float(v.sum()), float(y.sum())
+        uu, uv, vv, uy, vy, yy = (float(a @ b) for a, b in ((u, u), (u, v), (v, v), (u, y), (v, y), (y, y)))
+        L = 4 if self.offset else 3
+
+        def gram(theta_nl):
+            s0, fc, fs, vs = (np.ascontiguousarray(theta_nl[:, i]) for i in range(4))
+            with np.errstate(all="ignore"):
+                z, zz, zu, zv, zy, d, dd, du, dv, dy, dz = lugre_moments(u, dt, s0, fc, fs, vs, y)
+                P = s0.shape[0]
+                G = np.empty((P, L, L))
+                G[:, 0, 0], G[:, 1, 1], G[:, 2, 2] = uu, dd, vv
+                G[:, 0, 1] = G[:, 1, 0] = du
+                G[:, 0, 2] = G[:, 2, 0] = uv
+                G[:, 1, 2] = G[:, 2, 1] = dv
+                c = np.empty((P, L))
+                c[:, 0] = uy - s0 * zu
+                c[:, 1] = dy - s0 * dz
+                c[:, 2] = vy - s0 * zv
+                if L == 4:
+                    G[:, 0, 3] = G[:, 3, 0] = su
+                    G[:, 1, 3] = G[:, 3, 1] = d
+                    G[:, 2, 3] = G[:, 3, 2] = sv
+                    G[:, 3, 3] = n
+                    c[:, 3] = sy - s0 * z
+                tt = yy - 2.0 * s0 * zy + s0 * s0 * zz
+            return G, c, tt
+
+        return gram
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         return self._simulate(theta, np.ascontiguousarray(u, dtype=np.float64), dt, 1)

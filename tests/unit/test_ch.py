@@ -171,3 +171,26 @@ def test_recovery_pso_then_lsq(rng):
     K_true = m0.slope(THETA[None])[0]
     assert abs(m.slope(x[None])[0] - K_true) < 0.01 * K_true
     np.testing.assert_allclose(x[3:6], THETA[3:6], rtol=0.08, atol=0.01)
+
+
+def test_normal_equations_from_sums_equal_the_basis_ones():
+    """(A1, A4, A6)'s normal equations from the sums of −s·φ equal BᵀB, Bᵀ(y − C), |y − C|² of the
+    explicit basis (B, C), to rounding; a candidate with a NaN shape stays non-finite."""
+    rng = np.random.default_rng(8)
+    u = np.r_[raised_cosine(60.0, cycles=1), raised_cosine(30.0, f=40.0, cycles=2)]
+    y = 0.25 * u + 2.0 * np.tanh(0.1 * (u - 30.0)) + 0.1 * rng.normal(size=u.size)
+    sc = DataScale.from_arrays([u], [y], [DT])
+    m = ColemanHodgdon().adapt(sc)
+    lo, hi = np.array([p.lower for p in m.params(sc)]), np.array([p.upper for p in m.params(sc)])
+    sep = m.separable()
+    nl = (lo + (hi - lo) * rng.random((5, 6)))[:, list(sep.nonlinear)]
+    nl[1, 2] = np.nan
+    B, C = sep.basis_factory(u, DT)(nl)
+    t = y[None, :] - C
+    expected = (B.transpose(0, 2, 1) @ B, (B.transpose(0, 2, 1) @ t[:, :, None])[:, :, 0], np.einsum("pn,pn->p", t, t))
+    got = sep.gram_factory(u, DT, y)(nl)
+    ok = np.arange(5) != 1
+    assert not np.all(np.isfinite(got[0][1]))
+    for a, b in zip(got, expected):
+        scale = np.max(np.abs(b[ok]), axis=tuple(range(1, b.ndim)), keepdims=True)
+        assert np.all(np.abs(a[ok] - b[ok]) <= 1e-12 * scale)

@@ -127,3 +127,48 @@ def test_recovery_pso_then_lsq(rng):
     np.testing.assert_allclose(x[[0, 1, 2]], THETA[[0, 1, 2]], rtol=0.05)
     assert abs(x[3] - THETA[3]) < 0.15 * THETA[3]
     assert abs(x[4] - THETA[4]) < 0.05
+
+
+def test_output_kernel_is_the_numpy_formula_bit_for_bit():
+    """y = k·u + h + d0 from the grouped state (h once per group of rows): the numbers of the numpy
+    expression on the repeated state, non-finite entries included."""
+    from hystfit.models.dahl import dahl_output
+
+    rng = np.random.default_rng(2)
+    u = rng.normal(size=300)
+    h = rng.normal(size=(300, 3))
+    h[5, 1] = np.nan
+    k, d0 = rng.normal(size=12), rng.normal(size=12)
+    k[4] = np.inf
+    with np.errstate(all="ignore"):
+        expected = k[:, None] * u[None, :] + np.repeat(h.T, 4, axis=0) + d0[:, None]
+    got = dahl_output(u, k, d0, h, 4)
+    assert np.array_equal(got, expected, equal_nan=True)
+    assert np.array_equal(dahl_output(u, k[:3], d0[:3], h, 1), k[:3, None] * u + h.T + d0[:3, None], equal_nan=True)
+
+
+def test_fused_normal_equations_equal_the_simulated_basis_ones():
+    """(k, d0)'s normal equations from the state's sums (dahl_moments) are those of the simulated
+    basis [u, 1] with target y − h, to rounding; a candidate whose state is NaN is not solvable."""
+    from hystfit.models.dahl import Dahl
+    from hystfit.models.separable import separable_by_simulation
+    from hystfit.params import DataScale
+
+    rng = np.random.default_rng(7)
+    u = 30.0 * (1.0 - np.cos(2 * np.pi * np.arange(1500) / 500.0)) + rng.normal(0.0, 0.1, 1500)
+    y = 0.2 * u + 0.3 * np.tanh(np.gradient(u)) - 0.4
+    m = Dahl()
+    ps = m.params(DataScale.from_arrays([u], [y], [1e-4]))
+    lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
+    theta = lo + (hi - lo) * rng.random((6, len(ps)))
+    sep = m.separable()
+    plain = separable_by_simulation(m, sep.linear, len(ps))
+    nl = theta[:, list(sep.nonlinear)]
+    nl[2, 1] = np.nan
+    G, c, tt = sep.gram_factory(u, 1e-4, y)(nl)
+    Gp, cp, ttp = plain.gram_factory(u, 1e-4, y)(nl)
+    ok = np.arange(6) != 2
+    assert not np.all(np.isfinite(c[2]))
+    for a, b in ((G, Gp), (c, cp), (np.broadcast_to(tt, ttp.shape), ttp)):
+        scale = np.max(np.abs(b[ok]), axis=tuple(range(1, b.ndim)), keepdims=True)
+        assert np.all(np.abs(a[ok] - b[ok]) <= 1e-12 * scale)

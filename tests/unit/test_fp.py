@@ -159,3 +159,50 @@ def test_recovery_pso_then_lsq(rng):
     np.testing.assert_allclose(x[:2], THETA[:2], rtol=0.05)
     np.testing.assert_allclose(x[2:4], THETA[2:4], rtol=0.25)
     assert abs(x[4] - THETA[4]) < 0.05
+
+
+def _fft_reference(theta, u, memory_samples):
+    """The FFT evaluation written out per row, H = (E0 + E∞bP)/(1 + bP) for every row (the
+    straightforward form the grouped evaluation must reproduce bit for bit)."""
+    from scipy import fft as sfft
+
+    x = u - u[0]
+    N = u.size
+    L = min(memory_samples, N - 1)
+    M = sfft.next_fast_len(3 * N, real=True)
+    r = fp_module._FFT_ALIAS ** (1.0 / M)
+    X = sfft.rfft(x * r ** np.arange(N), M)
+    E0, Ei, tau, a, y0 = (theta[:, i].copy() for i in range(5))
+    with np.errstate(all="ignore"):
+        b = (tau / DT) ** a
+        Pz = sfft.rfft(gl_weights(a, L).T * r ** np.arange(L + 1), M, axis=1)
+        H = (E0[:, None] + (Ei * b)[:, None] * Pz) / (1.0 + b[:, None] * Pz)
+        ydev = sfft.irfft(H * X, M, axis=1)[:, :N] * r ** -np.arange(N, dtype=np.float64)
+        zero = (E0 == 0.0) & (Ei == 0.0)
+        ydev[zero] = np.where(np.any(np.isnan(H[zero]), axis=1), np.nan, 0.0)[:, None]
+        return ydev + (E0 * u[0])[:, None] + y0[:, None]
+
+
+@pytest.mark.parametrize("group", [1, 4])
+def test_grouped_fft_evaluation_is_the_per_row_formula_bit_for_bit(rng, group):
+    """The FFT route computes 1 + bP once per group of rows sharing (τ, a) and skips the rows with
+    E0 = E∞ = 0 (the separable basis' zero and offset columns): the same numbers as the per-row
+    formula, including the NaN of a zero row whose spectrum is not finite."""
+    u = raised_cosine(60.0, cycles=1)[:900] + 1.0
+    m = FractionalZener(memory_s=0.05)  # 500 samples: the FFT route
+    assert m.memory_samples(DT) > fp_module.RECURRENCE_MAX_TERMS
+    nl = np.column_stack([rng.uniform(1e-4, 0.05, 5), rng.uniform(0.05, 0.95, 5)])
+    nl[2, 0] = np.nan  # a non-finite τ: every row of its group is NaN, the zero rows too
+    theta = np.zeros((5 * group, 5))
+    theta[:, 2:4] = np.repeat(nl, group, axis=0)
+    theta[:, :2] = rng.uniform(0.05, 0.3, (5 * group, 2))
+    theta[:, 4] = rng.uniform(-1, 1, 5 * group)
+    if group == 4:  # the separable basis' pattern: θ_lin = 0, E0 = 1, E∞ = 1, y0 = 1
+        theta[:, [0, 1, 4]] = np.tile(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float), (5, 1))
+    else:
+        theta[1, :2] = 0.0
+    got = m.simulator(u, DT)(theta, group)
+    ref = _fft_reference(theta, u, m.memory_samples(DT))
+    assert np.isnan(got).any() and np.isfinite(got).any()
+    assert np.array_equal(got, ref, equal_nan=True)
+    assert np.array_equal(np.signbit(got), np.signbit(ref))

@@ -156,3 +156,46 @@ def test_recovery_pso_then_lsq(rng):
     assert math.sqrt(fun) <= 1.1 * sigma_n
     np.testing.assert_allclose(x[[0, 1, 4]], THETA[[0, 1, 4]], rtol=0.1)
     assert abs(x[3] - THETA[3]) < 0.3 * THETA[3]
+
+
+@pytest.mark.parametrize("P", [8, 10])  # whole groups, and a last group cut short
+def test_grouped_population_is_the_per_candidate_simulation_bit_for_bit(P):
+    """Groups of 4 rows sharing (σ0, Fc, Fs, vs) advance the bristle state once per group: every
+    row equals its own simulation exactly (a state advanced from the wrong row would differ)."""
+    rng = np.random.default_rng(5)
+    u = raised_cosine(60.0, cycles=1)[:700]
+    heads = np.tile(THETA, (-(-P // 4), 1)) * rng.uniform(0.5, 1.5, (-(-P // 4), 7))
+    theta = np.repeat(heads, 4, axis=0)[:P]
+    theta[:, [0, 2, 3]] = rng.uniform(-1e-4, 0.3, (P, 3))  # the linear ones differ within a group
+    cols = [np.ascontiguousarray(theta[:, i]) for i in range(7)]
+    grouped = lugre_population(u, DT, *cols, 4)
+    single = lugre_population(u, DT, *cols, 1)
+    assert np.array_equal(grouped, single)
+
+
+@pytest.mark.parametrize("offset", [False, True])
+def test_fused_normal_equations_equal_the_simulated_basis_ones(offset):
+    """The normal equations from the state's moments (lugre_moments) are those of the simulated
+    basis [u, ż, u̇(, 1)] and target y − σ0·z, to rounding; non-finite candidates stay non-finite."""
+    from hystfit.models.lugre import LuGre
+    from hystfit.models.separable import separable_by_simulation
+    from hystfit.params import DataScale
+
+    rng = np.random.default_rng(6)
+    u = np.r_[raised_cosine(60.0, cycles=1)[:900], raised_cosine(30.0, f=40.0, cycles=2)] + 1.0
+    y = 0.2 * u + 0.5 * np.tanh(np.gradient(u)) + 0.1
+    m = LuGre(offset=offset)
+    ps = m.params(DataScale.from_arrays([u], [y], [DT]))
+    lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
+    theta = lo + (hi - lo) * rng.random((7, len(ps)))
+    sep = m.separable()
+    plain = separable_by_simulation(m, sep.linear, len(ps))
+    nl = theta[:, list(sep.nonlinear)]
+    nl[3, 1] = np.nan
+    G, c, tt = sep.gram_factory(u, DT, y)(nl)
+    Gp, cp, ttp = plain.gram_factory(u, DT, y)(nl)
+    ok = np.arange(7) != 3
+    assert not np.isfinite(G[3]).all() and not np.isfinite(c[3]).all()
+    for a, b in ((G, Gp), (c, cp), (tt, ttp)):
+        scale = np.max(np.abs(b[ok]), axis=tuple(range(1, b.ndim)), keepdims=True)
+        assert np.all(np.abs(a[ok] - b[ok]) <= 1e-12 * scale)

@@ -166,3 +166,35 @@ def test_params_json_of_the_classical_pi2_still_loads_as_pi_plus_dynamics():
     cap = load_capture(root / "sample_data" / "a20V_f80Hz.csv")
     rmse = float(np.sqrt(np.mean((cell.predict(cap.u, cap.dt) - cap.y) ** 2)))
     assert rmse == pytest.approx(pf.cells[0].metrics["rmse_um"], rel=1e-9)
+
+
+def test_centred_stage_columns_are_numpys_centred_filter_bit_for_bit():
+    """Step 1's fused filter-and-centre kernel gives F − F.mean(axis=0) of the filtered columns exactly."""
+    from hystfit.blocks.dynamics import biquad_columns, bilinear_biquad
+    from hystfit.models import pi2 as pi2_module
+
+    rng = np.random.default_rng(3)
+    x = np.cumsum(rng.normal(size=(1500, 7)), axis=0)
+    for fn, zeta in ((300.0, 0.05), (2000.0, 1.5)):
+        coef = [np.full(7, c[0]) for c in bilinear_biquad(fn, zeta, 1e-4)]
+        filtered = biquad_columns(x, *coef)
+        expected = filtered - filtered.mean(axis=0)
+        got = pi2_module._centred_stage_columns(x, *coef)
+        assert np.array_equal(got.view(np.uint64), expected.view(np.uint64))
+
+
+def test_stage_coefficients_are_the_discretization_of_each_stage():
+    """The remembered stage coefficients are bilinear_biquad's, per stage and population size (a
+    stale entry for another f_n, ζ, dt or P would fail)."""
+    from hystfit.blocks.dynamics import bilinear_biquad
+    from hystfit.models import pi2 as pi2_module
+
+    for fn, zeta, dt, P in ((1200.0, 0.15, 1e-4, 3), (1200.0, 0.15, 1e-4, 5), (900.0, 0.15, 1e-4, 3),
+                            (1200.0, 0.3, 1e-4, 3), (1200.0, 0.15, 2e-4, 3), (1200.0, 0.15, 1e-4, 3)):
+        got = pi2_module._stage_coefficients(np.full(P, fn), np.full(P, zeta), dt, P)
+        for g, e in zip(got, bilinear_biquad(np.full(P, fn), np.full(P, zeta), dt)):
+            assert g.shape == (P,) and np.array_equal(g, e)
+    fns = np.array([500.0, 1500.0, 4000.0])  # the joint route: one stage per candidate
+    got = pi2_module._stage_coefficients(fns, np.array([0.1, 0.5, 1.0]), 1e-4, 3)
+    for g, e in zip(got, bilinear_biquad(fns, np.array([0.1, 0.5, 1.0]), 1e-4)):
+        assert np.array_equal(g, e)
