@@ -169,6 +169,10 @@ LEVELS_MAX_FRACTION = 0.2
 TABLE_BLOCK_ELEMENTS = 2_000_000
 #: samples × candidates from which the population is split over numba threads
 PARALLEL_MIN_WORK = 5_000_000
+#: the global search of optimizer ``auto`` simulates at most about this many samples per capture:
+#: longer captures are searched on every k-th sample and the turning points
+#: (:meth:`GPI.search_samples`), then polished on all samples
+SEARCH_MAX_SAMPLES = 20_000
 #: captures of at least this many samples get their normal equations (ρ, y0) from the kernel's
 #: moments (whole population at once, O(n·P) memory); shorter ones from the stored z, as before
 FUSED_MIN_SAMPLES = 20_000
@@ -227,6 +231,20 @@ def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None
     else:
         _gpi_serial(*args, max(block, 1))
     return out
+
+
+def search_indices(u: np.ndarray, step: int) -> np.ndarray:
+    """Sorted indices of every ``step``-th sample of ``u``, each turning point (a sample where the
+    input stops rising or falling, pauses included) and the last sample.
+
+    With increasing envelopes (a1·a2 > 0, b1·b2 > 0: the default bounds) a play operator moves
+    monotonically between turning points, so simulating the kept samples alone gives the same
+    operator states — and outputs, bit for bit — at those samples as simulating them all."""
+    u = np.asarray(u, dtype=np.float64)
+    n = u.shape[0]
+    d = np.sign(np.diff(u))
+    turns = np.flatnonzero(d[1:] * d[:-1] <= 0) + 1
+    return np.union1d(np.union1d(np.arange(0, n, max(int(step), 1)), turns), [n - 1])
 
 
 @models.register
@@ -390,6 +408,18 @@ class GPI(Model):
             return n_samples >= FUSED_MIN_SAMPLES
 
         return scaled_response((8, 11), nl, response, moments, fused_for=fused)
+
+    def search_samples(self, u: np.ndarray) -> np.ndarray | None:
+        """Indices of the samples on which optimizer ``auto`` runs its global search on a capture
+        longer than :data:`SEARCH_MAX_SAMPLES` (None: shorter, all samples): every k-th sample,
+        k = ⌈N / SEARCH_MAX_SAMPLES⌉, plus the turning points (:func:`search_indices`). The model
+        is rate-independent, so the outputs at the kept samples are exactly those of the whole
+        capture: the search minimizes the mean squared error over a time-uniform subsample (the
+        polish then uses every sample)."""
+        n = np.asarray(u).shape[0]
+        if n <= SEARCH_MAX_SAMPLES:
+            return None
+        return search_indices(u, -(-n // SEARCH_MAX_SAMPLES))
 
     # ------------------------------------------------------------------ stepping
     def _unpack(self, theta: np.ndarray):
