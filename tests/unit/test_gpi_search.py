@@ -114,3 +114,37 @@ def test_auto_searches_the_subsample_and_polishes_on_all_samples(monkeypatch, rn
     assert res.fun <= polishes[1][2]
     again = Auto(pop=10, iters=8, restarts=1).minimize(obj, lo, hi, rng=np.random.default_rng(3), x0=x0)
     np.testing.assert_array_equal(res.x, again.x)  # deterministic
+
+
+def test_input_period():
+    from hystfit.models.gpi import input_levels, input_period
+
+    cycle = np.r_[np.linspace(0, 10, 30), np.linspace(10, 0, 30)[1:-1]]
+    assert input_period(input_levels(np.tile(cycle, 6))) == cycle.size
+    assert input_period(input_levels(np.r_[np.tile(cycle, 6), 3.0])) == 0  # breaks the repetition at the end
+    assert input_period(input_levels(np.linspace(0, 1, 500))) == 0  # distinct values: no table, no period
+    assert input_period(input_levels(np.array([1.0]))) == 0
+
+
+@pytest.mark.parametrize("n_cycles", [6, 9])
+def test_periodic_input_copies_exactly_what_it_would_compute(rng, n_cycles):
+    """z copied a period on once the states repeat equals z computed sample by sample, bit for bit —
+    also for candidates whose states never repeat (NaN) or repeat late (large thresholds)."""
+    from hystfit.models.gpi import gpi_population, input_levels, input_period
+
+    cycle = 30 * (1 - np.cos(2 * np.pi * np.arange(100) / 100))
+    u = np.tile(cycle, n_cycles)
+    levels = input_levels(u)
+    assert input_period(levels) == 100
+    th = _thetas(GPI(8), u, rng, P=30)
+    th[1, 9] = np.nan
+    cols = [np.ascontiguousarray(th[:, i]) for i in range(11)]
+    a1, a2, a3, a4, b1, b2, b3, b4, _, tau, alpha = cols
+    computed = gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 8, levels)
+    copied = gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 8, levels, period=100)
+    np.testing.assert_array_equal(copied, computed)
+    ok = np.delete(np.arange(30), 1)  # without the NaN candidate the states repeat and rows are copied
+    args = [np.ascontiguousarray(c[ok]) for c in cols]
+    z = gpi_population(u, *args[:8], args[9], args[10], 8, levels, period=100)
+    np.testing.assert_array_equal(z, gpi_population(u, *args[:8], args[9], args[10], 8, levels))
+    np.testing.assert_array_equal(GPI(8).simulator(u, 1e-4)(th), GPI(8).simulate(th, u, 1e-4))
