@@ -39,6 +39,11 @@ class Auto(IteratedSearch):
        ``restarts`` independent searches (own seeds from ``rng``) guard against a local basin.
     3. A bounded least-squares polish of the full θ from the best point (skipped for linear models).
 
+    A model may name the samples the search needs (``search_samples(u)``: gpi on a capture of more
+    than 20,000 samples, a time-uniform subsample plus the turning points, on which its outputs are
+    exact): steps 1–2 then run on those samples, followed by a polish on them and a short polish
+    (:data:`POLISH_EVALS_AFTER_SUBSAMPLE` cost evaluations) on every sample.
+
     Without separable structure it falls back to PSO over all parameters plus the polish.
 
     Settings: ``pop`` (24) particles and ``iters`` (60) iterations per search, ``stall_iter`` (12)
