@@ -112,11 +112,25 @@ def gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1):
 
 
 @njit(cache=True)
-def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1):
+def _same_state(s, s_prev):
+    """True when every operator state equals the one a period earlier (== : a ±0 difference changes
+    no later output, every NaN differs)."""
+    for j in range(s.shape[0]):
+        for i in range(s.shape[1]):
+            if s[j, i] != s_prev[j, i]:
+                return False
+    return True
+
+
+@njit(cache=True)
+def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1, period):
     """z of :func:`gpi_population` for the candidates p0:p1: into out (N, P), or — when ``y`` is
     non-empty — its moments Σz², Σz, Σz·y into out[p, 0:3] (no (N, P) array). With ``index`` (N,)
     non-empty, u_k = levels[index[k]] and the envelopes are tabulated per level (two exp per
-    candidate and level instead of per sample); otherwise computed per sample."""
+    candidate and level instead of per sample); otherwise computed per sample. With ``period``
+    T > 0 (the input repeats every T samples, :func:`input_period`) and z stored, the states are
+    compared every T samples: once they equal those one period earlier, the rest of z repeats and
+    is copied (the same numbers, not computed again)."""
     N = u.shape[0]
     m = p1 - p0
     s = np.zeros((n, m))
@@ -127,7 +141,16 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
     sums = np.zeros((3, m))
     moments = y.shape[0] > 0
     GL, GR = gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
+    repeats = period > 0 and not moments
+    s_prev = np.empty((n, m) if repeats else (0, 0))
     for k in range(N):
+        if repeats and k > 0 and k % period == 0:
+            if k >= 2 * period and _same_state(s, s_prev):
+                for kk in range(k, N):
+                    for i in range(m):
+                        out[kk, p0 + i] = out[kk - period, p0 + i]
+                break
+            s_prev[:, :] = s
         gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
         gpi_play(r, q, s, gl, gr, acc)
         if moments:
@@ -144,20 +167,21 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
 
 
 @njit(cache=True)
-def _gpi_serial(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, block):
+def _gpi_serial(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, period, block):
     """:func:`_gpi_block` over consecutive blocks of ``block`` candidates (bounds the tables)."""
     P = a1.shape[0]
     for p0 in range(0, P, block):
-        _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, min(P, p0 + block))
+        _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, min(P, p0 + block),
+                   period)
 
 
 @njit(cache=True, parallel=True)
-def _gpi_parallel(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, n_blocks):
+def _gpi_parallel(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, period, n_blocks):
     """:func:`_gpi_block` over ``n_blocks`` candidate blocks spread over threads."""
     for b in prange(n_blocks):
         p0, p1 = candidate_block(b, n_blocks, a1.shape[0])
         if p0 < p1:
-            _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1)
+            _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1, period)
 
 
 #: an input with at most this fraction of distinct values has its envelopes tabulated per value
@@ -169,6 +193,10 @@ LEVELS_MAX_FRACTION = 0.2
 TABLE_BLOCK_ELEMENTS = 2_000_000
 #: samples × candidates from which the population is split over numba threads
 PARALLEL_MIN_WORK = 5_000_000
+#: the global search of optimizer ``auto`` simulates at most about this many samples per capture:
+#: longer captures are searched on every k-th sample and the turning points
+#: (:meth:`GPI.search_samples`), then polished on all samples
+SEARCH_MAX_SAMPLES = 20_000
 #: captures of at least this many samples get their normal equations (ρ, y0) from the kernel's
 #: moments (whole population at once, O(n·P) memory); shorter ones from the stored z, as before
 FUSED_MIN_SAMPLES = 20_000
@@ -184,7 +212,20 @@ def input_levels(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(levels), np.ascontiguousarray(index.ravel(), dtype=np.int64)
 
 
-def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None, y=None):
+def input_period(levels: tuple[np.ndarray, np.ndarray]) -> int:
+    """The smallest T ≤ N/2 with index[k + T] = index[k] for every k (the tabulated input of
+    :func:`input_levels` repeats exactly every T samples), else 0 (also for an untabulated input)."""
+    index = levels[1]
+    N = index.shape[0]
+    if N < 2:
+        return 0
+    for T in np.flatnonzero(index[1:N // 2 + 1] == index[0]) + 1:
+        if np.array_equal(index[T:], index[:-T]):
+            return int(T)
+    return 0
+
+
+def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None, y=None, period=0):
     """Density-weighted sum of generalized play operators for a population of candidates.
 
     s_j(k) = max(γ_l(u_k) − r_j, min(γ_r(u_k) + r_j, s_j(k−1))),  s_j(−1) = 0 (virgin state),
@@ -209,6 +250,8 @@ def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None
     levels : optional :func:`input_levels` (u), computed once per capture by the caller.
     y : optional (N,) target: then the moments Σz², Σz, Σz·y (P, 3) are returned instead of z,
         summed in time order in the kernel (memory O(n·P)).
+    period : optional :func:`input_period` (levels): once the operator states repeat, z is copied
+        a period on instead of computed (bit-identical; only when z is returned).
 
     Returns
     -------
@@ -219,7 +262,7 @@ def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None
     P = a1.shape[0]
     yk = np.ascontiguousarray(y if y is not None else np.empty(0), dtype=np.float64)
     out = np.empty((u.shape[0], P)) if y is None else np.empty((P, 3))
-    args = (u, lv, index, yk, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, int(n), out)
+    args = (u, lv, index, yk, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, int(n), out, int(period))
     nb = thread_blocks(P, 2, 4) if u.shape[0] * P >= PARALLEL_MIN_WORK else 0
     block = max(1, TABLE_BLOCK_ELEMENTS // max(lv.shape[0], 1)) if index.shape[0] else P
     if nb:  # at least one block per thread, and blocks no larger than the table bound
@@ -227,6 +270,20 @@ def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None
     else:
         _gpi_serial(*args, max(block, 1))
     return out
+
+
+def search_indices(u: np.ndarray, step: int) -> np.ndarray:
+    """Sorted indices of every ``step``-th sample of ``u``, each turning point (a sample where the
+    input stops rising or falling, pauses included) and the last sample.
+
+    With increasing envelopes (a1·a2 > 0, b1·b2 > 0: the default bounds) a play operator moves
+    monotonically between turning points, so simulating the kept samples alone gives the same
+    operator states — and outputs, bit for bit — at those samples as simulating them all."""
+    u = np.asarray(u, dtype=np.float64)
+    n = u.shape[0]
+    d = np.sign(np.diff(u))
+    turns = np.flatnonzero(d[1:] * d[:-1] <= 0) + 1
+    return np.union1d(np.union1d(np.arange(0, n, max(int(step), 1)), turns), [n - 1])
 
 
 @models.register
@@ -340,16 +397,16 @@ class GPI(Model):
         return tuple(ps)
 
     # ------------------------------------------------------------------ simulation
-    def _z(self, theta: np.ndarray, u: np.ndarray, levels=None, y=None) -> np.ndarray:
+    def _z(self, theta: np.ndarray, u: np.ndarray, levels=None, y=None, period: int = 0) -> np.ndarray:
         """Unit-density output z (N, P) = Σ_j e^{−τ r_j} s_j (y = ρ z + y0), or with a target ``y``
-        its moments (P, 3); ``levels`` = :func:`input_levels` (u)."""
+        its moments (P, 3); ``levels`` = :func:`input_levels` (u), ``period`` its :func:`input_period`."""
         c = [np.ascontiguousarray(theta[:, i]) for i in range(11)]
         a1, a2, a3, a4, b1, b2, b3, b4, _, tau, alpha = c
-        return gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, self.n_operators, levels, y)
+        return gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, self.n_operators, levels, y, period)
 
-    def _output(self, theta: np.ndarray, u: np.ndarray, levels=None) -> np.ndarray:
+    def _output(self, theta: np.ndarray, u: np.ndarray, levels=None, period: int = 0) -> np.ndarray:
         theta = self.check_theta(theta, 12)
-        z = self._z(theta, u, levels)  # (N, P)
+        z = self._z(theta, u, levels, period=period)  # (N, P)
         return (z * theta[:, 8][None, :] + theta[:, 11][None, :]).T
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
@@ -358,7 +415,8 @@ class GPI(Model):
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
         u = np.ascontiguousarray(u, dtype=np.float64)
         levels = input_levels(u)  # once per capture, shared by every call
-        return lambda theta: self._output(theta, u, levels)
+        period = input_period(levels)
+        return lambda theta: self._output(theta, u, levels, period)
 
     def separable(self):
         """ρ and y0 enter linearly: y = ρ·z(a, b, τ, α_r) + y0; the other ten are searched."""
@@ -372,7 +430,8 @@ class GPI(Model):
 
         def response(u, dt):
             levels = input_levels(u)  # once per capture, shared by every call
-            return lambda theta_nl: self._z(full(theta_nl), u, levels)  # (N, P)
+            period = input_period(levels)
+            return lambda theta_nl: self._z(full(theta_nl), u, levels, period=period)  # (N, P)
 
         def moments(u, dt, y):
             if not fused(len(u), dt):
@@ -390,6 +449,18 @@ class GPI(Model):
             return n_samples >= FUSED_MIN_SAMPLES
 
         return scaled_response((8, 11), nl, response, moments, fused_for=fused)
+
+    def search_samples(self, u: np.ndarray) -> np.ndarray | None:
+        """Indices of the samples on which optimizer ``auto`` runs its global search on a capture
+        longer than :data:`SEARCH_MAX_SAMPLES` (None: shorter, all samples): every k-th sample,
+        k = ⌈N / SEARCH_MAX_SAMPLES⌉, plus the turning points (:func:`search_indices`). The model
+        is rate-independent, so the outputs at the kept samples are exactly those of the whole
+        capture: the search minimizes the mean squared error over a time-uniform subsample (the
+        polish then uses every sample)."""
+        n = np.asarray(u).shape[0]
+        if n <= SEARCH_MAX_SAMPLES:
+            return None
+        return search_indices(u, -(-n // SEARCH_MAX_SAMPLES))
 
     # ------------------------------------------------------------------ stepping
     def _unpack(self, theta: np.ndarray):

@@ -9,12 +9,17 @@ import numpy as np
 
 from ..effects import CaptureView, Linearization
 from ..models.composite import Composite
-from ..objective import Objective as Obj, as_objective
+from ..objective import Objective as Obj, Series, as_objective
 from ..registry import optimizers
 from .base import Callback, IteratedSearch, Objective, OptimizeResult, StopRules, Tracker, check_box, setting, stop_field
 from .lsq import polisher
 from .projection import ProjectedObjective
 from .pso import PSO
+
+
+#: cost evaluations of the polish on all samples after a search and a polish on a subsample
+#: (:func:`_search_series`): a few steps from a start that is already a local optimum
+POLISH_EVALS_AFTER_SUBSAMPLE = 30
 
 
 @optimizers.register
@@ -33,6 +38,11 @@ class Auto(IteratedSearch):
        two independent searches). The first search's swarm includes ``x0`` (the model's defaults).
        ``restarts`` independent searches (own seeds from ``rng``) guard against a local basin.
     3. A bounded least-squares polish of the full θ from the best point (skipped for linear models).
+
+    A model may name the samples the search needs (``search_samples(u)``: gpi on a capture of more
+    than 20,000 samples, a time-uniform subsample plus the turning points, on which its outputs are
+    exact): steps 1–2 then run on those samples, followed by a polish on them and a short polish
+    (:data:`POLISH_EVALS_AFTER_SUBSAMPLE` cost evaluations) on every sample.
 
     Without separable structure it falls back to PSO over all parameters plus the polish.
 
@@ -72,6 +82,7 @@ class Auto(IteratedSearch):
         model, series = objective.model, objective.series
         sep = model.separable() if model is not None and series else None
         tr = Tracker(objective, StopRules(), callback)
+        final = polisher()  # the polish on every sample
         composition = model.composition if (model is not None and series) else None
         if composition is not None and all(b.nuisance for b in composition[1]):
             composition = None  # base + nuisance only: variable projection on the projected basis
@@ -84,7 +95,7 @@ class Auto(IteratedSearch):
             g = pso.minimize(objective, lower, upper, rng=rng, x0=x0, callback=callback)
             start, hist_b, hist_m, nfev = g.x, list(g.history_best), list(g.history_mean), g.nfev
         else:
-            proj = ProjectedObjective(sep, series, lower, upper)
+            proj = ProjectedObjective(sep, _search_series(model, series), lower, upper)
             nl = np.asarray(sep.nonlinear, dtype=int)
             hist_b, hist_m, nfev = [], [], 0
             if nl.size == 0:
@@ -120,10 +131,15 @@ class Auto(IteratedSearch):
                 if g.fun < best_f:
                     best_nl, best_f = g.x, g.fun
             start = proj.full(best_nl[None, :])[0]
+            if any(a is not b for a, b in zip(proj.series, series)):  # searched on a subsample
+                pre = polisher().minimize(Obj(model, proj.series), lower, upper, rng=rng,
+                                          x0=np.clip(start, lower, upper))
+                start, nfev, final = pre.x, nfev + pre.nfev, replace(polisher(), stop=StopRules(
+                    max_evals=POLISH_EVALS_AFTER_SUBSAMPLE))
         f = tr.evaluate(np.clip(start, lower, upper)[None, :])
         if not hist_b:
             hist_b, hist_m = [float(f[0])], [float(f[0])]
-        pol = polisher().minimize(objective, lower, upper, rng=rng, x0=np.clip(start, lower, upper))
+        pol = final.minimize(objective, lower, upper, rng=rng, x0=np.clip(start, lower, upper))
         tr.evaluate(pol.x[None, :])
         tr.nfev += nfev + pol.nfev
         tr.hist_best = [min(hist_b[: i + 1]) for i in range(len(hist_b))] + [tr.best_f]
@@ -205,3 +221,16 @@ class Auto(IteratedSearch):
             theta[:end] = candidates[int(np.argmin(scores))]
             start = end
         return theta, nfev
+
+
+def _search_series(model, series) -> list[Series]:
+    """The captures the global search over the nonlinear parameters runs on: each capture's samples
+    picked by the model's optional ``search_samples(u)`` (indices, or None for all; gpi: a
+    subsample of a long capture on which its outputs are exact), else all. A warm-up (``skip``)
+    keeps covering the same samples."""
+    pick = getattr(model, "search_samples", None)
+    out = []
+    for s in series:
+        idx = pick(s.u) if pick is not None else None
+        out.append(s if idx is None else Series(s.u[idx], s.y[idx], s.dt, int(np.searchsorted(idx, s.skip))))
+    return out

@@ -7,6 +7,7 @@ The model side — which parameters enter linearly and their basis — is
 
 from __future__ import annotations
 
+import functools
 import itertools
 from typing import Sequence
 
@@ -95,17 +96,28 @@ def _shifted_nnls_solve(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.nda
     return _bounded_solve(G, c, lo, hi)
 
 
+@functools.lru_cache(maxsize=None)
+def _active_sets(L: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+    """The 3^L active sets of :func:`_enumerate_box_qp` in its order (free indices, fixed indices,
+    whether each fixed one sits at its lower bound), built once per L."""
+    sets = []
+    for pattern in itertools.product((0, 1, 2), repeat=L):  # 0 free, 1 at lower, 2 at upper
+        pat = np.asarray(pattern)
+        fixed = np.flatnonzero(pat != 0)
+        sets.append((np.flatnonzero(pat == 0), fixed, pat[fixed] == 1))
+    return tuple(sets)
+
+
 def _enumerate_box_qp(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Exact box-constrained minimizer of θᵀGθ − 2cᵀθ by enumerating the 3^L active sets (small L)."""
     P, L = c.shape
     best = np.full((P, L), np.nan)
     best_f = np.full(P, np.inf)
-    for pattern in itertools.product((0, 1, 2), repeat=L):  # 0 free, 1 at lower, 2 at upper
-        pat = np.asarray(pattern)
-        free = np.flatnonzero(pat == 0)
-        fixed = np.flatnonzero(pat != 0)
+    tol = 1e-12 * (hi - lo)
+    lo_ok, hi_ok = lo - tol, hi + tol
+    for free, fixed, at_lo in _active_sets(L):
         x = np.empty((P, L))
-        x[:, fixed] = np.where(pat[fixed] == 1, lo[fixed], hi[fixed])
+        x[:, fixed] = np.where(at_lo, lo[fixed], hi[fixed])
         if free.size:
             rhs = c[:, free] - np.einsum("pij,pj->pi", G[:, free][:, :, fixed], x[:, fixed])
             try:
@@ -113,8 +125,8 @@ def _enumerate_box_qp(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarr
             except np.linalg.LinAlgError:
                 x[:, free] = np.stack([np.linalg.lstsq(g[np.ix_(free, free)], v, rcond=None)[0]
                                        for g, v in zip(G, rhs)])
-            feasible = np.all(x[:, free] >= lo[free] - 1e-12 * (hi[free] - lo[free]), axis=1) & \
-                np.all(x[:, free] <= hi[free] + 1e-12 * (hi[free] - lo[free]), axis=1)
+            xf = x[:, free]
+            feasible = np.all(xf >= lo_ok[free], axis=1) & np.all(xf <= hi_ok[free], axis=1)
         else:
             feasible = np.ones(P, dtype=bool)
         x = np.clip(x, lo, hi)
