@@ -79,7 +79,7 @@ def gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1):
     return np.empty((0, p1 - p0)), np.empty((0, p1 - p0))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr):
     """The envelopes at sample ``k`` into ``gl``, ``gr``: from the table ``GL``, ``GR`` of
     :func:`gpi_envelope_table` when ``index`` (each sample's input level) is given, else computed
