@@ -8,7 +8,9 @@ reported (the machine is shared: compare rows within one run). A command's wall 
 starting Python and its imports: numpy, typer (with pydantic) and hystfit's registries always; numba
 and its context (which imports ``scipy.linalg``) once a kernel runs; pandas once a report table is
 written (``bench_startup.py`` times each step). The time of the fit itself is the ``runtime_s`` that
-``hystfit identify --json`` reports, given alongside.
+``hystfit identify --json`` reports, given alongside: the search and polish, after the optimizer's
+libraries are imported (``Optimizer.libraries``: scipy.optimize, ≈ 0.3 s once per process, which the
+wall time includes).
 Measured:
 
 - ``hystfit models --json`` (start-up of a second CLI call: imports + cached kernels),

@@ -67,6 +67,7 @@ class Auto(IteratedSearch):
     uses_start_point = True
     polishes_itself = True
     uses_separable_structure = True
+    libraries = ("scipy.optimize",)
     applied_stop_rules = ("max_evals", "stall_iter", "stall_tol", "time_limit_s")
     required_stop_rules = {"stall_iter": "each search stops on a stall"}
 

@@ -88,6 +88,7 @@ class DE(IteratedSearch):
     iteration_unit = "generations"
     title = "Differential evolution (scipy)"
     reference = "Storn & Price 1997; scipy.optimize.differential_evolution"
+    libraries = ("scipy.optimize",)
     min_pop = 1
 
     strategy: str = "best1bin"

@@ -83,6 +83,7 @@ class LSQ(Optimizer):
     name = "lsq"
     title = "Least squares (trust-region reflective)"
     reference = "scipy.optimize.least_squares (Branch, Coleman & Li 1999)"
+    libraries = ("scipy.optimize",)
     uses_start_point = True
     polishes_itself = True
     applied_stop_rules = ("max_evals",)

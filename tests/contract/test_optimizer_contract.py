@@ -275,3 +275,19 @@ def test_pop_and_iters_give_every_population_search_the_same_budget(name):
     res = opt.minimize(sphere, -np.ones(2), np.ones(2), rng=np.random.default_rng(0))
     assert res.nfev <= 70 and res.status == 0
     assert res.nfev >= 70 - 6 * opt.elite if name == "ga" else res.nfev == 70
+
+
+@pytest.mark.parametrize("name", registry.names())
+def test_libraries_imported_on_first_use_are_declared_and_load(name):
+    """An optimizer whose code imports scipy.optimize on first use (or that solves through variable
+    projection, which does) declares it in ``libraries``, so that a run's clock (runtime_s) starts
+    after the one-time import; load_libraries imports what is declared."""
+    import inspect
+    import sys
+
+    cls = registry.get(name)
+    source = inspect.getsource(importlib.import_module(cls.__module__))
+    if "from scipy.optimize import" in source or cls.uses_separable_structure:
+        assert "scipy.optimize" in cls.libraries, name
+    cls().load_libraries()
+    assert all(m in sys.modules for m in cls.libraries)
