@@ -164,7 +164,7 @@ def main() -> None:
     print("### Population evaluation (P = 200, N = 5,000)\n")
     print(kern.table(krows, markdown=True))
     erows = e2e.measure(args.repeat)
-    print("\n### End to end (best of the repeats; wall time includes ≈ 1 s of Python start-up and imports)\n")
+    print("\n### End to end (best of the repeats; wall time includes Python start-up and imports, ≈ 0.5 s)\n")
     print(e2e.table(erows, markdown=True))
 
     # --no-plots: the figures are drawn by a forked figure server whose imports would be counted too
