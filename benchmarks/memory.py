@@ -5,8 +5,9 @@ Run:  python benchmarks/memory.py [--models pi,bw,...] [--samples 1000000] [--ti
 Writes one capture of the virtual actuator (raised cosine 0→60 V at 10 Hz, 10 kHz, the sample
 plant with all its default effects; ``hystfit synth capture``), then runs
 ``hystfit identify CAPTURE --model M --no-plots`` for each model in a fresh process and reports
-its peak resident set size (``ru_maxrss`` of that process: what ``/usr/bin/time -v`` calls the
-maximum resident set size, including ≈ 0.45 GB for Python, numpy, scipy, pandas, pyarrow and numba
+its peak resident set size (VmHWM of that process image — not ``ru_maxrss``, which Linux carries
+over exec from the forking parent — what ``/usr/bin/time -v`` calls the maximum resident set size,
+including ≈ 0.45 GB for Python, numpy, scipy, pandas, pyarrow and numba
 themselves), its wall time, its CPU time (user + system of all its threads: on a shared machine the
 wall time grows with the load, the CPU time much less) and the RMSE of the fit. The target is < 1 GB peak.
 """
@@ -25,7 +26,8 @@ CHILD = ("import json, resource, sys\n"
          "from hystfit.cli import main\n"
          "try:\n    main(sys.argv[1:])\nexcept SystemExit as exc:\n    assert exc.code in (0, None), exc.code\n"
          "ru = resource.getrusage(resource.RUSAGE_SELF)\n"
-         "print('PEAK_KB', ru.ru_maxrss, 'CPU_S', ru.ru_utime + ru.ru_stime, file=sys.stderr)\n")
+         "hwm = [ln.split()[1] for ln in open('/proc/self/status') if ln.startswith('VmHWM:')][0]\n"
+         "print('PEAK_KB', hwm, 'CPU_S', ru.ru_utime + ru.ru_stime, file=sys.stderr)\n")
 
 
 def main() -> None:

@@ -80,7 +80,7 @@ def test_simulate_recursive(nested, tmp_path):
 
 
 @pytest.mark.slow
-def test_identify_a_million_samples_peaks_under_1_GB_resident(tmp_path):
+def test_identify_a_million_samples_peaks_under_1_GB_resident(tmp_path, peak_rss_code):
     """Issue 5: a 10⁶-sample capture identifies (load, Bouc–Wen fit with auto and its polish,
     standard errors, reports) in a fresh process whose peak resident set size stays under 1 GB."""
     import subprocess
@@ -91,10 +91,7 @@ def test_identify_a_million_samples_peaks_under_1_GB_resident(tmp_path):
     t, u = raised_cosine(60, 10, fs_Hz=10_000, cycles=1000)  # 1,000,001 samples
     plant = Plant.default().with_effects(Effects.from_names(["noise"]))
     cap = write_capture(tmp_path / "big.parquet", t, u, simulate_plant(plant, t, u, seed=0))
-    code = ("import resource, sys\n"
-            "from hystfit.cli import main\n"
-            "try:\n    main(sys.argv[1:])\nexcept SystemExit as exc:\n    assert exc.code in (0, None), exc.code\n"
-            "print('peak_kB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+    code = peak_rss_code
     r = subprocess.run([sys.executable, "-c", code, "identify", str(cap), "--model", "bw", "--no-plots", "--json",
                         "--quiet", "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr

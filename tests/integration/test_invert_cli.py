@@ -186,14 +186,11 @@ def test_invert_bad_params_and_output_names(tables, tmp_path):
 
 
 @pytest.mark.slow
-def test_invert_a_million_samples_peaks_under_1_GB_resident(tables, tmp_path):
+def test_invert_a_million_samples_peaks_under_1_GB_resident(tables, tmp_path, peak_rss_code):
     """The whole command (load, invert two cells, preview, CSV, report, figure) on a 10⁶-sample target,
     in a fresh process whose peak resident set size (what /usr/bin/time -v reports) is read at exit."""
     out = tmp_path / "v.csv"
-    code = ("import resource, sys\n"
-            "from hystfit.cli import main\n"
-            "try:\n    main(sys.argv[1:])\nexcept SystemExit as exc:\n    assert exc.code in (0, None), exc.code\n"
-            "print('peak_kB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+    code = peak_rss_code
     r = subprocess.run([sys.executable, "-c", code, "invert", str(tables["pi"]), "--sine", "10,10,1000", "--offset", "2",
                         "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
