@@ -4,6 +4,8 @@ captures: exact outputs at the kept samples, the search on the subsample, the po
 import numpy as np
 import pytest
 
+from hystfit.errors import ConfigError
+
 import hystfit.models.gpi as gpi_module
 import hystfit.optimizers.auto as auto_module
 from hystfit.models.gpi import GPI, search_indices
@@ -40,7 +42,7 @@ def test_outputs_at_kept_samples_are_exact(rng, noisy, step):
     th = _thetas(m, u, rng)
     idx = search_indices(u, step)
     assert idx[0] == 0 and idx[-1] == u.size - 1 and np.all(np.diff(idx) > 0)
-    assert np.all(np.diff(idx) <= step)
+    assert np.all(np.diff(idx) < 2 * step)
     np.testing.assert_array_equal(m.simulate(th, u[idx], 1e-4), m.simulate(th, u, 1e-4)[:, idx])
 
 
@@ -63,24 +65,25 @@ def test_search_samples_only_on_long_captures(monkeypatch):
     idx = m.search_samples(u)
     assert idx is not None and idx.size < 0.25 * u.size
     assert np.array_equal(idx, search_indices(u, 6))  # k = ⌈N / SEARCH_MAX_SAMPLES⌉
+    assert GPI(search_max_samples=0).search_samples(u) is None  # 0: the search sees every sample
+    with pytest.raises(ConfigError, match="search_max_samples"):
+        GPI(search_max_samples=-1)
 
 
 def test_search_series_keeps_other_models_and_maps_the_warm_up(monkeypatch):
     u = _input()
     s = Series(u, 0.3 * u, 1e-4, 100)
     assert _search_series(PI(), [s])[0] is s  # no search_samples: every sample
-    monkeypatch.setattr(gpi_module, "SEARCH_MAX_SAMPLES", 500)
-    (sub,) = _search_series(GPI(), [s])
-    idx = GPI().search_samples(u)
+    (sub,) = _search_series(GPI(search_max_samples=500), [s])
+    idx = GPI(search_max_samples=500).search_samples(u)
     np.testing.assert_array_equal(sub.u, u[idx])
     np.testing.assert_array_equal(sub.y, 0.3 * u[idx])
     assert sub.skip == np.count_nonzero(idx < 100)  # the warm-up covers the same samples
 
 
 def test_auto_searches_the_subsample_and_polishes_on_all_samples(monkeypatch, rng):
-    monkeypatch.setattr(gpi_module, "SEARCH_MAX_SAMPLES", 600)
     u = _input(3000)
-    m = GPI(6)
+    m = GPI(6, search_max_samples=600)
     y = m.simulate(TRUE[None, :], u, 1e-4)[0] + rng.normal(scale=0.01, size=u.size)
     obj = Objective(m, [Series(u, y, 1e-4)])
     ps = m.params(DataScale.from_arrays([u], [y], [1e-4]))
@@ -105,7 +108,7 @@ def test_auto_searches_the_subsample_and_polishes_on_all_samples(monkeypatch, rn
 
     monkeypatch.setattr(LSQ, "minimize", polish_spy)
     res = Auto(pop=10, iters=8, restarts=1).minimize(obj, lo, hi, rng=np.random.default_rng(3), x0=x0)
-    n_sub = GPI().search_samples(u).size
+    n_sub = m.search_samples(u).size
     assert seen == [[n_sub]] and n_sub < u.size
     # a polish on the subsample, then a short one on every sample from its result
     assert [p[:2] for p in polishes] == [(n_sub, 300), (u.size, auto_module.POLISH_EVALS_AFTER_SUBSAMPLE)]
@@ -148,3 +151,14 @@ def test_periodic_input_copies_exactly_what_it_would_compute(rng, n_cycles):
     z = gpi_population(u, *args[:8], args[9], args[10], 8, levels, period=100)
     np.testing.assert_array_equal(z, gpi_population(u, *args[:8], args[9], args[10], 8, levels))
     np.testing.assert_array_equal(GPI(8).simulator(u, 1e-4)(th), GPI(8).simulate(th, u, 1e-4))
+
+
+def test_the_subsample_sees_every_phase_of_a_periodic_capture():
+    """A 10 Hz cosine at 10 kHz with step 50: every 50th sample would keep 20 phases of the
+    1000-sample cycle (plus the 2 turning points); the kept samples spread over the cycle."""
+    t = np.arange(200_001) * 1e-4
+    u = 30.0 * (1.0 - np.cos(2 * np.pi * 10.0 * t))
+    idx = search_indices(u, 50)
+    phases = np.unique(idx % 1000)
+    assert phases.size > 500
+    assert idx.size < 200_001 / 50 + 2 * 200 + 3  # one per block, the turning points, the ends
