@@ -162,8 +162,8 @@ def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int
     objective = objective if objective is not None else problem.objective()
     s = run_seed(seed, cell, run)
     rng = np.random.default_rng(s)
-    polishing = polish and not optimizer.polishes_itself
-    for opt in (optimizer, polisher()) if polishing else (optimizer,):
+    final = polisher() if polish and not optimizer.polishes_itself else None
+    for opt in (optimizer,) if final is None else (optimizer, final):
         opt.load_libraries()  # a one-time import is not the run's time (the command's wall time has it)
     t_run = time.perf_counter()
     # optimizers that declare `uses_start_point` start from (or seed their search with) the defaults
@@ -171,8 +171,8 @@ def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int
     res = optimizer.minimize(objective, problem.lower, problem.upper, rng=rng, x0=x0)
     pol = None
     x, fun = res.x, res.fun
-    if polishing and np.isfinite(fun):
-        pol = polisher().minimize(objective, problem.lower, problem.upper, rng=rng, x0=res.x)
+    if final is not None and np.isfinite(fun):
+        pol = final.minimize(objective, problem.lower, problem.upper, rng=rng, x0=res.x)
         if pol.fun <= fun:
             x, fun = pol.x, pol.fun
     return RunRecord(run, s, res, pol, np.asarray(x, float), float(fun), float(np.sqrt(fun)),
