@@ -17,6 +17,14 @@ from .projection import solve_box_qp
 #: is used unchanged. A 10⁶-sample capture with 5 parameters (bw) is 5·10⁶.
 NORMAL_EQUATIONS_ABOVE = 4_000_000
 
+#: parameter count from which the polish takes the normal-equation route whatever the size (when
+#: the objective offers ``normal_equations``): scipy's exact trust-region solver takes an SVD of the
+#: (M, d) Jacobian at every iteration, the normal-equation route one (d, d) product J'J. Measured on
+#: this machine (one BLAS thread), 40,788 residuals × 85 parameters (``pi+creep+delay`` on
+#: sample_data): an SVD 0.18 s, J'J 0.02 s; the whole polish 3.0 s against 1.5 s, same RMSE to 12
+#: digits. Below it the simulations dominate and scipy's route is kept.
+NORMAL_EQUATIONS_FROM_PARAMS = 32
+
 
 @optimizers.register
 @dataclass
@@ -105,7 +113,8 @@ class LSQ(Optimizer):
         start = np.clip(start, lower + eps, upper - eps)
         m_total = objective.n_total
         if (objective.normal_equations is not None and m_total is not None
-                and int(m_total) * start.size > NORMAL_EQUATIONS_ABOVE):
+                and (int(m_total) * start.size > NORMAL_EQUATIONS_ABOVE
+                     or start.size >= NORMAL_EQUATIONS_FROM_PARAMS)):
             return self._normal_equation_lm(objective, objective.normal_equations, int(m_total), lower, upper, start,
                                             tr)
         residuals = objective.residuals
