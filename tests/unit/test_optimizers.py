@@ -357,3 +357,34 @@ def test_swarm_loop_is_shared_and_a_velocity_rule_is_all_a_swarm_adds():
     assert r.nit == 4 and r.nfev == 24 and r.status == 0
     assert all(np.array_equal(X, seen[0]) for X in seen)
     assert r.fun == sphere(seen[0]).min()
+
+
+def test_lsq_takes_the_normal_equation_route_from_many_parameters(rng, monkeypatch):
+    """From NORMAL_EQUATIONS_FROM_PARAMS parameters the polish forms JᵀJ instead of an SVD of J per
+    iteration, whatever the residual count: a PI model with 40 operators (41 parameters) on a
+    2001-sample capture (M·d ≈ 8·10⁴, far below the size rule) takes it and lands on scipy's optimum;
+    with the rule lifted, scipy's route is taken."""
+    import hystfit.optimizers.lsq as lsq_module
+    from hystfit.factory import make_model
+    from hystfit.objective import Objective, Series
+    from hystfit.params import DataScale
+
+    t = np.arange(2001) / 2000.0
+    u = 30.0 * (1 - np.cos(2 * np.pi * 2.0 * t)) * (0.6 + 0.4 * t)
+    scale = DataScale.from_arrays([u], [u], [t[1]])
+    model = make_model("pi", {"n_operators": 40}).adapt(scale)
+    ps = model.params(scale)
+    lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
+    truth = np.array([p.default for p in ps]) * (1 + 0.2 * rng.random(len(ps)))
+    y = model.simulate_one(np.clip(truth, lo, hi), u, t[1]) + rng.normal(0, 0.01, u.size)
+    series = [Series(u, y, t[1])]
+    assert len(ps) >= lsq_module.NORMAL_EQUATIONS_FROM_PARAMS
+    assert u.size * len(ps) < lsq_module.NORMAL_EQUATIONS_ABOVE
+    x0 = np.array([p.default for p in ps])
+    ne = LSQ().minimize(Objective(model, series), lo, hi, rng=np.random.default_rng(0), x0=x0)
+    assert "normal-equation" in ne.message, ne.message
+    monkeypatch.setattr(lsq_module, "NORMAL_EQUATIONS_FROM_PARAMS", 10**9)
+    ref = LSQ().minimize(Objective(model, series), lo, hi, rng=np.random.default_rng(0), x0=x0)
+    assert ref.message.startswith("scipy least_squares")
+    assert ne.fun == pytest.approx(ref.fun, rel=1e-6)
+    assert np.sqrt(ne.fun) < 0.0105  # the noise floor (σ = 0.01 µm)
