@@ -11,7 +11,7 @@ import typer
 from .app import command
 from .common import (CaptureArgs, DataArg, ExecutorArgs, FigureOutputArgs, OutDir, PerCondition, Seed, cell_run,
                      jobs_option, load_for_command, new_table, parse_key_values, print_cell_summary, print_json, progress_bar,
-                     stdout, writing)
+                     start_figures, stdout, writing)
 
 
 DiagnoseJobs = jobs_option("Parallel processes for the base fits of --per-condition (the numbers do not depend on "
@@ -60,6 +60,7 @@ def diagnose(
 
     Writes OUT/diagnosis.json, OUT/diagnosis.md and OUT/figures/.
     """
+    start_figures(output)
     from ..diagnose import DiagnoseSettings, fit_recommended
     from ..seeds import check_seed
     from ..parallel import CellStats

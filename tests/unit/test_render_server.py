@@ -111,7 +111,9 @@ def test_a_server_started_before_parsing_is_claimed_by_the_command_not_forked_ag
     (["compare", "data.csv", "--models", "pi"], True),
     (["identify", "data.csv", "--no-plots"], False),
     (["identify", "--help"], False),
-    (["diagnose", "data.csv"], False),
+    (["diagnose", "data.csv"], True),
+    (["diagnose", "data.csv", "--no-plots"], False),
+    (["invert", "params.json", "traj.csv"], False),
     ([], False),
 ])
 def test_the_console_script_starts_the_figure_server_only_for_commands_that_draw(monkeypatch, words, early):
