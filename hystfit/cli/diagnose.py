@@ -68,6 +68,7 @@ def diagnose(
     from ..io import staged_output_dir
     from ..registry import optimizers
     from ..report.diagnose_report import diagnosis_document, next_step_line, write_diagnose_outputs
+    from ..report.diagnose_report import start_figures as start_diagnose_figures
     from ..report.diagnose_wording import pointers_text
     from ..factory import make_model, make_optimizer
 
@@ -87,12 +88,19 @@ def diagnose(
             d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                              settings=settings, progress=cb, executor=cr.pool(default_jobs=1), store=cr.store,
                              resume=resume, stats=stats)
-        with progress_bar(output.chatty and bool(d.explained_by),
-                          f"identify {d.recommended_model} on all the data") as cb:
-            rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb,
-                                  executor=cr.executor, store=cr.store, resume=resume)
+        # the figures are drawn by the figure server while the recommended model is fitted here
+        figures = start_diagnose_figures(d, stage / "figures") if output.plots else None
+        try:
+            with progress_bar(output.chatty and bool(d.explained_by),
+                              f"identify {d.recommended_model} on all the data") as cb:
+                rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb,
+                                      executor=cr.executor, store=cr.store, resume=resume)
+        except BaseException:
+            if figures is not None:
+                figures.cancel()
+            raise
         with writing(out, output):
-            write_diagnose_outputs(d, stage, make_figures=output.plots, recommended=rec)
+            write_diagnose_outputs(d, stage, make_figures=output.plots, recommended=rec, figures=figures)
     if rec is not None:
         stats.add(rec.cell_stats)
     print_cell_summary(stats, cr.describe(), quiet or json_out)

@@ -20,7 +20,7 @@ from ..io import atomic_write_text
 from ..results import dumps, identify_to_dict, json_safe, schema_fields, unit_keys
 from . import plots
 from .plots import _decimate, _decimate_minmax, _new_figure, _save, _stride, display_unit
-from .render import FigureJob, render_figures
+from .render import FigureJob, PendingFigures
 from .tables import fmt
 from .diagnose_wording import (DEFINITIONS, evidence_text, noise_method_text, pointers_text, reconciliation_why,
                                resolution_text, split_description, split_why,
@@ -367,6 +367,29 @@ def _fig_loop(path: Path, d: Diagnosis, i: int) -> Path:
 def write_figures(d: Diagnosis, fig_dir: Path, n_jobs: int | None = None) -> dict[str, str]:
     """Write every figure into ``fig_dir`` (drawn by ``n_jobs`` processes, default all cores:
     :func:`~hystfit.report.render.render_figures`); returns name → path relative to the report."""
+    return start_figures(d, fig_dir, n_jobs).paths()
+
+
+class DiagnoseFigures:
+    """The figures of a diagnosis being drawn (:func:`start_figures`); :meth:`paths` waits for
+    them, :meth:`cancel` stops the drawing."""
+
+    def __init__(self, keys: list[str], fig_dir: Path, pending: PendingFigures) -> None:
+        self.keys, self.fig_dir, self.pending = keys, fig_dir, pending
+
+    def paths(self) -> dict[str, str]:
+        """Figure name → path relative to the report."""
+        made = self.pending.result()
+        return {key: str(Path(self.fig_dir.name) / p.name) for key, p in zip(self.keys, made)}
+
+    def cancel(self) -> None:
+        self.pending.cancel()
+
+
+def start_figures(d: Diagnosis, fig_dir: Path, n_jobs: int | None = None) -> DiagnoseFigures:
+    """Start drawing every figure into ``fig_dir``: by the figure server while this process goes
+    on (the CLI fits the recommended model meanwhile), else when :meth:`DiagnoseFigures.paths`
+    is asked."""
     fig_dir.mkdir(parents=True, exist_ok=True)
     here = f"{__name__}:"
     jobs = {"conditions": FigureJob(here + "_fig_conditions", fig_dir / "where_conditions.png", (d,)),
@@ -384,8 +407,7 @@ def write_figures(d: Diagnosis, fig_dir: Path, n_jobs: int | None = None) -> dic
         jobs[key] = FigureJob(here + "_fig_explained", fig_dir / f"explained_{stem}.png", (d, i))
         if periodic:
             jobs["loop"] = FigureJob(here + "_fig_loop", fig_dir / f"loop_{stem}.png", (d, i))
-    paths = render_figures(list(jobs.values()), n_jobs)
-    return {key: str(Path(fig_dir.name) / p.name) for key, p in zip(jobs, paths)}
+    return DiagnoseFigures(list(jobs), fig_dir, PendingFigures(list(jobs.values()), n_jobs))
 
 
 def _safe(name: str) -> str:
@@ -925,16 +947,17 @@ def _converged_document(r: dict | None, unit: str) -> dict | None:
 
 
 def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = True,
-                           recommended=None) -> dict[str, Path]:
+                           recommended=None, figures: DiagnoseFigures | None = None) -> dict[str, Path]:
     """Write diagnosis.json, diagnosis.md, (optionally) figures/ and — when effects were named and
     ``recommended`` (their model fitted on all the data) is given — params.json (the same schema as
-    ``hystfit identify`` writes) into ``out_dir`` (which must exist)."""
+    ``hystfit identify`` writes) into ``out_dir`` (which must exist). ``figures``: the figures
+    already being drawn into ``out_dir/figures`` (:func:`start_figures`), waited for here."""
     out_dir = Path(out_dir)
     paths = {"json": out_dir / "diagnosis.json", "md": out_dir / "diagnosis.md"}
     atomic_write_text(paths["json"], dumps(diagnosis_document(d)))
     figs: dict[str, str] = {}
-    if make_figures:
-        figs = write_figures(d, out_dir / "figures")
+    if figures is not None or make_figures:
+        figs = figures.paths() if figures is not None else write_figures(d, out_dir / "figures")
         paths["figures"] = out_dir / "figures"
     md = markdown(d, figs)
     if recommended is not None:

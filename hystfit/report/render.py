@@ -89,6 +89,7 @@ class _FigureServer:
 
     def __init__(self) -> None:
         self.drawn = False  # a batch was sent: the server is past its imports
+        self.pending = False  # a batch was sent and its figures not yet collected
         self.conn, child = mp.Pipe()
         for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
             stream.flush()
@@ -106,11 +107,24 @@ class _FigureServer:
                 os._exit(code)
         child.close()
 
-    def draw(self, jobs: list[FigureJob], n_jobs: int | None) -> list[Path] | None:
-        """The batch drawn by the server, or None when the server is gone (draw here instead)."""
+    def submit(self, jobs: list[FigureJob], n_jobs: int | None) -> bool:
+        """Send a batch to draw and return at once (False when the server is gone or still busy
+        with a batch whose figures were not collected: draw here instead)."""
+        if self.pending:
+            return False
         self.drawn = True
         try:
             self.conn.send((jobs, n_jobs))
+        except (OSError, EOFError):
+            self.close()
+            return False
+        self.pending = True
+        return True
+
+    def collect(self) -> list[Path] | None:
+        """Wait for the batch :meth:`submit` sent: its paths, or None when the server is gone."""
+        self.pending = False
+        try:
             status, value = self.conn.recv()
         except (OSError, EOFError):
             self.close()
@@ -248,12 +262,34 @@ def render_figures(jobs: Sequence[FigureJob], n_jobs: int | None = None) -> list
     ------
     Whatever the figure function raises (the first failing job in order), e.g. ``OutputError``.
     """
-    jobs = list(jobs)
-    if _server is not None:
-        drawn = _server.draw(jobs, n_jobs)
-        if drawn is not None:
-            return drawn
-    return _draw_here(jobs, n_jobs)
+    return PendingFigures(jobs, n_jobs).result()
+
+
+class PendingFigures:
+    """Figures handed to the figure server, drawn there while this process goes on (e.g. fits);
+    :meth:`result` waits for them (as :func:`render_figures` returns them). Without a server, or
+    while it draws another batch, :meth:`result` draws them here. :meth:`cancel` stops a server
+    still drawing them (the caller failed or was interrupted)."""
+
+    def __init__(self, jobs: Sequence[FigureJob], n_jobs: int | None = None) -> None:
+        self.jobs, self.n_jobs = list(jobs), n_jobs
+        self._server = _server if (_server is not None and _server.submit(self.jobs, n_jobs)) else None
+
+    def result(self) -> list[Path]:
+        server, self._server = self._server, None
+        if server is not None:
+            drawn = server.collect()
+            if drawn is not None:
+                return drawn
+        return _draw_here(self.jobs, self.n_jobs)
+
+    def cancel(self) -> None:
+        global _server
+        server, self._server = self._server, None
+        if server is not None:
+            server.close(stop=True)
+            if _server is server:
+                _server = None
 
 
 def _draw_here(jobs: list[FigureJob], n_jobs: int | None) -> list[Path]:

@@ -44,6 +44,33 @@ def test_server_draws_the_same_bytes_as_this_process(tmp_path, rng, server, n_jo
     assert all(p.read_bytes().startswith(b"\x89PNG") for p in again)
 
 
+def test_pending_figures_are_drawn_by_the_server_while_this_process_goes_on(tmp_path, rng, server):
+    """PendingFigures hands its batch to the server at once; a second batch while the first is not
+    collected is drawn here (replies never cross); both give the bytes drawn here."""
+    seed = int(rng.integers(1 << 30))
+    first = render.PendingFigures(_jobs(tmp_path / "first", np.random.default_rng(seed)), 2)
+    assert first._server is server and server.pending
+    second = render.PendingFigures(_jobs(tmp_path / "second", np.random.default_rng(seed)), 1)
+    assert second._server is None  # the server is busy with the first batch
+    here = render._draw_here(_jobs(tmp_path / "here", np.random.default_rng(seed)), 1)
+    for batch in (second, first):
+        paths = batch.result()
+        assert [p.read_bytes() for p in paths] == [p.read_bytes() for p in here]
+    assert not server.pending
+    third = render.PendingFigures(_jobs(tmp_path / "third", rng, 1), 1)
+    assert third._server is server  # free again
+    third.result()
+
+
+def test_cancelled_pending_figures_stop_the_server(tmp_path, rng, server):
+    pending = render.PendingFigures(_jobs(tmp_path / "x", rng, 4), 1)
+    pending.cancel()
+    assert render._server is None
+    with pytest.raises(ChildProcessError):
+        os.waitpid(server.pid, os.WNOHANG)  # reaped
+    assert all(p.exists() for p in render.render_figures(_jobs(tmp_path / "y", rng, 1), 1))  # drawn here now
+
+
 def test_server_error_reaches_the_caller(tmp_path, rng, server):
     blocker = tmp_path / "file"
     blocker.write_text("x")
