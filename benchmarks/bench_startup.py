@@ -65,6 +65,7 @@ print(json.dumps([(n, t, c) for n, t, c in marks]))
 def probe() -> list[tuple[str, float, float]]:
     """One fresh process: (step, wall s, CPU s) of each step."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env.pop("PYTHONDONTWRITEBYTECODE", None)  # the bytecode cache on, as an installed hystfit has it
     out = subprocess.run([sys.executable, "-c", PROBE], cwd=ROOT, env=env, check=True, capture_output=True,
                          text=True).stdout
     marks = json.loads(out.strip().splitlines()[-1])
