@@ -879,12 +879,11 @@ def heatmap_figure(path, matrix, row_labels: Sequence[str], col_labels: Sequence
     ax.tick_params(length=0)
     if R * C <= 600:
         size = 8 if R * C <= 150 else 6
+        rgba = np.asarray(im.cmap(im.norm(masked)))  # every cell's colour at once (a scalar call each costs 0.4 ms)
+        dark = 0.299 * rgba[..., 0] + 0.587 * rgba[..., 1] + 0.114 * rgba[..., 2] < 0.5
+        blank = np.ma.getmaskarray(masked)
         for (i, j), v in np.ndenumerate(m):
-            if not np.ma.is_masked(masked[i, j]):
-                r, g, b, _ = im.cmap(im.norm(masked[i, j]))
-                colour = "white" if 0.299 * r + 0.587 * g + 0.114 * b < 0.5 else "black"
-            else:
-                colour = "0.3"
+            colour = "0.3" if blank[i, j] else ("white" if dark[i, j] else "black")
             ax.text(j, i, _cell_text(v, fmt), ha="center", va="center", fontsize=size, color=colour)
     cb = fig.colorbar(im, cax=cax)
     if colorbar_label:

@@ -238,3 +238,26 @@ def test_unit_display():
     assert display_unit("um") == "µm"
     assert display_unit("nm") == "nm"
     assert display_unit("furlong") == "furlong"
+
+
+def test_heatmap_annotation_colours_follow_each_cell(tmp_path, monkeypatch):
+    """White text on dark cells, black on bright ones, grey on blank (NaN, or ≤ 0 on a log scale):
+    the colours computed for all cells at once equal the colour map of each cell."""
+    import matplotlib.axes
+
+    import hystfit.report.plots as plots_module
+
+    seen = []
+    orig = matplotlib.axes.Axes.text
+
+    def text(self, x, y, s, *args, **kwargs):
+        seen.append((int(x), int(y), kwargs.get("color")))
+        return orig(self, x, y, s, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "text", text)
+    m = np.array([[1e-3, 1e-2, 1e-1], [1.0, np.nan, -1.0]])
+    plots_module.heatmap_figure(tmp_path / "h.png", m, ["a", "b"], ["c", "d", "e"], log=True, cmap="viridis")
+    colours = {(y, x): c for x, y, c in seen}
+    assert colours[(0, 0)] == "white"  # the smallest value: viridis' dark end
+    assert colours[(1, 0)] == "black"  # the largest: viridis' bright end
+    assert colours[(1, 1)] == "0.3" and colours[(1, 2)] == "0.3"  # NaN, and ≤ 0 on a log scale
