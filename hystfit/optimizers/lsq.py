@@ -74,8 +74,10 @@ class LSQ(Optimizer):
     Stop rules: scipy's tolerances ``ftol``/``xtol``/``gtol`` (status 5, converged) or
     ``max_evals`` residual evaluations (status 0). No stall, target or time-limit rule: a local
     solve is short. On the normal-equation route the same settings with scipy's meanings: ``ftol``
-    when an accepted step lowers the cost by less than ``ftol`` × cost with ρ > 0.25; ``xtol`` when
-    a step (accepted or not) is shorter than ``xtol`` · (``xtol`` + ‖θ‖); ``gtol`` when the
+    when an accepted step lowers the cost by less than ``ftol`` × cost with ρ > 0.25, or (MINPACK's
+    test) when a step's actual and predicted reductions are both at most ``ftol`` × cost and
+    ρ ≤ 2 (near the optimum, where rounding makes ρ erratic, the model has nothing left to gain);
+    ``xtol`` when a step (accepted or not) is shorter than ``xtol`` · (``xtol`` + ‖θ‖); ``gtol`` when the
     projected gradient, scaled as MINPACK's (the largest |Jⱼᵀr| / (‖Jⱼ‖·‖r‖) over the parameters
     not held at a bound by their gradient), is below ``gtol`` (all status 5); ``max_evals`` cost
     evaluations (status 0); a callback asking to stop (status 4, the callback is called after
@@ -229,6 +231,9 @@ class LSQ(Optimizer):
                         status, why, done = 5, "relative step below xtol", True
                     elif accepted and actual < self.ftol * f and rho > 0.25:
                         status, why, done = 5, "relative cost reduction below ftol", True
+                    elif abs(actual) <= self.ftol * f and pred <= self.ftol * f and rho <= 2.0:
+                        # MINPACK's test: the quadratic model itself has nothing left to gain
+                        status, why, done = 5, "actual and predicted relative reductions below ftol", True
                 if accepted:
                     theta, f = trial, f_new
                     lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12)

@@ -388,3 +388,41 @@ def test_lsq_takes_the_normal_equation_route_from_many_parameters(rng, monkeypat
     assert ref.message.startswith("scipy least_squares")
     assert ne.fun == pytest.approx(ref.fun, rel=1e-6)
     assert np.sqrt(ne.fun) < 0.0105  # the noise floor (σ = 0.01 µm)
+
+
+def test_lsq_normal_equation_route_stops_when_nothing_is_left_to_gain(monkeypatch):
+    """MINPACK's ftol test on the normal-equation route. A linear least-squares problem whose cost
+    is known to a quantum of ≈ ftol × cost only (as a long simulation's rounded sums are): near the
+    optimum a step's actual reduction is 0 or one quantum, ρ = actual / predicted is meaningless,
+    and the ρ > 0.25 test never fires (without MINPACK's test λ grows until the step falls below
+    xtol). The polish stops once a step's actual and predicted reductions are both below
+    ftol × cost, at the optimum."""
+    import hystfit.optimizers.lsq as lsq_module
+    from hystfit.objective import ObjectiveFunction
+
+    rng = np.random.default_rng(3)
+    m, d = 400, 40
+    A = rng.normal(size=(m, d)) * np.logspace(0, -3, d)  # ill-conditioned columns
+    b = A @ rng.normal(size=d) + rng.normal(0, 0.1, m)
+    QUANTUM = 1e-11  # ≈ ftol × cost: a step's gain below the tolerance shows as 0 or one quantum
+
+    class Noisy(ObjectiveFunction):
+        n_total = m
+
+        def __call__(self, theta):
+            theta = np.atleast_2d(theta)
+            r = theta @ A.T - b
+            f = np.einsum("ij,ij->i", r, r) / m
+            return np.round(f / QUANTUM) * QUANTUM  # a cost known to QUANTUM only, as rounding does
+
+        def normal_equations(self, theta, upper=None):
+            r = A @ theta - b
+            return A.T @ A, A.T @ r, float(r @ r), m
+
+    lo, hi = np.full(d, -1e3), np.full(d, 1e3)
+    exact = np.linalg.lstsq(A, b, rcond=None)[0]
+    res = lsq_module.polisher().minimize(Noisy(), lo, hi, rng=np.random.default_rng(0), x0=np.zeros(d))
+    assert "normal-equation" in res.message
+    assert res.fun == pytest.approx(float(np.mean((A @ exact - b) ** 2)), rel=1e-9)
+    assert "actual and predicted relative reductions below ftol" in res.message, res.message
+    assert res.nfev < 200
