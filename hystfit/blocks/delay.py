@@ -40,10 +40,17 @@ def delay_population(x: np.ndarray, delay_s: np.ndarray, dt: float) -> np.ndarra
     d = np.maximum(np.nan_to_num(np.asarray(delay_s, dtype=np.float64), nan=0.0) / dt, 0.0)
     n = np.floor(d).astype(np.int64)
     f = d - n
-    if P > 1 and np.all(d == d[0]) and np.all(np.isfinite(np.asarray(delay_s, dtype=np.float64))):
-        # one delay for every row (a finite-difference Jacobian perturbs other parameters): the rows
-        # by slices, the same products and sum per sample as below (same numbers)
-        return _delay_rows(x, int(n[0]), float(f[0]))
+    values = np.unique(d)
+    if P > 1 and values.size <= 4 and np.all(np.isfinite(np.asarray(delay_s, dtype=np.float64))):
+        # few distinct delays (a finite-difference Jacobian perturbs the delay in one row at most):
+        # the rows of each by slices, the same products and sum per sample as below (same numbers)
+        if values.size == 1:
+            return _delay_rows(x, int(n[0]), float(f[0]))
+        out = np.empty((P, N))
+        for v in values:
+            rows = np.flatnonzero(d == v)
+            out[rows] = _delay_rows(x[rows], int(n[rows[0]]), float(f[rows[0]]))
+        return out
     idx = np.arange(N)[None, :] - n[:, None]
     x0 = np.take_along_axis(x, np.clip(idx, 0, N - 1), axis=1)
     x1 = np.take_along_axis(x, np.clip(idx - 1, 0, N - 1), axis=1)

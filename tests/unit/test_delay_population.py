@@ -1,5 +1,5 @@
-"""The population delay of composites: rows sharing one delay (a finite-difference Jacobian's
-population) take slices, with the numbers of the per-row gather, bit for bit."""
+"""The population delay of composites: rows sharing a delay (a finite-difference Jacobian's
+population has at most two) take slices, with the numbers of the per-row gather, bit for bit."""
 
 from __future__ import annotations
 
@@ -27,6 +27,16 @@ def test_one_delay_for_every_row_equals_the_gather(P, N, samples, seed):
     x = np.random.default_rng(seed).normal(size=(P, N))
     out = delay_population(x, np.full(P, samples * 1e-4), 1e-4)
     np.testing.assert_array_equal(out, _gather(x, np.full(P, samples * 1e-4), 1e-4))
+
+
+@settings(max_examples=200, deadline=None)
+@given(P=st.integers(2, 8), N=st.integers(1, 60), seed=st.integers(0, 2**31),
+       delays=st.lists(st.floats(0.0, 80.0), min_size=1, max_size=6))
+def test_a_few_distinct_delays_equal_the_gather(P, N, seed, delays):
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(P, N))
+    per_row = np.asarray(delays)[rng.integers(0, len(delays), P)] * 1e-4
+    np.testing.assert_array_equal(delay_population(x, per_row, 1e-4), _gather(x, per_row, 1e-4))
 
 
 def test_rows_with_different_delays_and_a_non_finite_delay():
