@@ -77,6 +77,32 @@ def lowpass_bank(x, p):
 
 
 @njit(cache=True)
+def creep_rows(x, p, c):
+    """Row r of x (P, N) plus Σ_i c[r, i]·(LP_τi[x_r] − x_r), p_i = e^{−dt/τ_i}: (P, N).
+
+    The low-pass recursion of :func:`lowpass_bank` and the sum in the order of
+    ``out = x; out += c_i·(LP_τi[x] − x)`` for i = 0, 1, … (the same operations, hence the same
+    numbers), one row at a time with no (K, P, N) bank in memory.
+    """
+    P, N = x.shape
+    K = p.shape[0]
+    out = x.copy()
+    if N == 0:
+        return out
+    for r in range(P):
+        for i in range(K):
+            pi = p[i]
+            b = 1.0 - pi
+            ci = c[r, i]
+            prev = x[r, 0]
+            for k in range(N):
+                v = pi * prev + b * x[r, k]
+                prev = v
+                out[r, k] += ci * (v - x[r, k])
+    return out
+
+
+@njit(cache=True)
 def _creep_inverse(y, p, c):
     """x with y = x + Σ c_i (s_i − x), s_i[k] = p_i s_i[k−1] + (1 − p_i) x[k], s_i[0] = x[0]."""
     N = y.shape[0]
@@ -213,10 +239,8 @@ class Creep(Block):
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         k = len(self.taus)
         th = self.population(theta, k, x.shape[0])
-        out = x.copy()
-        for i, term in enumerate(self._bank(x, dt, axis=1)):
-            out += th[:, i:i + 1] * term
-        return out
+        p = np.array([math.exp(-dt / tau) for tau in self.taus])
+        return creep_rows(np.ascontiguousarray(x), p, np.ascontiguousarray(th, dtype=np.float64))
 
     def invert(self, theta, y, dt):
         c = np.asarray(np.ravel(theta), dtype=np.float64)
