@@ -108,33 +108,112 @@ def _active_sets(L: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...
     return tuple(sets)
 
 
+@functools.lru_cache(maxsize=None)
+def _active_set_groups(L: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]:
+    """The active sets of :func:`_active_sets` grouped by their number k of free parameters: per
+    group (positions in the enumeration order (S,), free indices (S, k), fixed indices (S, L − k),
+    fixed at the lower bound (S, L − k)), so a group is solved in one batched call."""
+    by_k: dict[int, list] = {}
+    for pos, (free, fixed, at_lo) in enumerate(_active_sets(L)):
+        by_k.setdefault(free.size, []).append((pos, free, fixed, at_lo))
+    groups = []
+    for k, sets in sorted(by_k.items()):
+        S = len(sets)
+        groups.append((np.array([s[0] for s in sets]), np.array([s[1] for s in sets], dtype=np.intp).reshape(S, k),
+                       np.array([s[2] for s in sets], dtype=np.intp).reshape(S, L - k),
+                       np.array([s[3] for s in sets], dtype=bool).reshape(S, L - k)))
+    return tuple(groups)
+
+
+#: candidates × active sets per batched block of :func:`_enumerate_box_qp` (bounds its memory)
+ENUMERATE_BLOCK_ROWS = 1 << 16
+
+
 def _enumerate_box_qp(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Exact box-constrained minimizer of θᵀGθ − 2cᵀθ by enumerating the 3^L active sets (small L)."""
+    """Exact box-constrained minimizer of θᵀGθ − 2cᵀθ by enumerating the 3^L active sets (small L).
+
+    Every active set fixes some parameters at a bound and solves for the free ones; the feasible
+    stationary point of lowest objective (the first in :func:`_active_sets` order on a tie) wins.
+    The sets with the same number of free parameters are solved in one batched call
+    (:func:`_active_set_groups`): each candidate's arithmetic is that of solving the sets one
+    by one, so the result is the same, bit for bit, at a fraction of the Python overhead."""
     P, L = c.shape
-    best = np.full((P, L), np.nan)
-    best_f = np.full(P, np.inf)
+    rows = max(1, ENUMERATE_BLOCK_ROWS // 3 ** L)
+    if P > rows:
+        return np.vstack([_enumerate_box_qp(G[i:i + rows], c[i:i + rows], lo, hi) for i in range(0, P, rows)])
+    S = 3 ** L
+    X = np.empty((S, P, L))
+    feasible = np.ones((S, P), dtype=bool)
     tol = 1e-12 * (hi - lo)
     lo_ok, hi_ok = lo - tol, hi + tol
-    for free, fixed, at_lo in _active_sets(L):
-        x = np.empty((P, L))
-        x[:, fixed] = np.where(at_lo, lo[fixed], hi[fixed])
-        if free.size:
-            rhs = c[:, free] - np.einsum("pij,pj->pi", G[:, free][:, :, fixed], x[:, fixed])
-            try:
-                x[:, free] = np.linalg.solve(G[:, free][:, :, free], rhs[:, :, None])[:, :, 0]
-            except np.linalg.LinAlgError:
-                x[:, free] = np.stack([np.linalg.lstsq(g[np.ix_(free, free)], v, rcond=None)[0]
-                                       for g, v in zip(G, rhs)])
-            xf = x[:, free]
-            feasible = np.all(xf >= lo_ok[free], axis=1) & np.all(xf <= hi_ok[free], axis=1)
-        else:
-            feasible = np.ones(P, dtype=bool)
-        x = np.clip(x, lo, hi)
-        f = np.einsum("pi,pij,pj->p", x, G, x) - 2.0 * np.einsum("pi,pi->p", c, x)
-        take = feasible & np.isfinite(f) & (f < best_f)
-        best[take] = x[take]
-        best_f[take] = f[take]
+    for pos, free, fixed, at_lo in _active_set_groups(L):
+        n_sets, k = free.shape
+        xs = np.empty((n_sets, P, L))
+        x_fixed = np.ascontiguousarray(np.broadcast_to(np.where(at_lo, lo[fixed], hi[fixed])[:, None, :],
+                                                       (n_sets, P, L - k)))
+        np.put_along_axis(xs, np.broadcast_to(fixed[:, None, :], x_fixed.shape), x_fixed, axis=2)
+        if k:
+            sol = _free_solve(G, c, free, fixed, x_fixed)  # (n_sets, P, k)
+            np.put_along_axis(xs, np.broadcast_to(free[:, None, :], sol.shape), sol, axis=2)
+            feasible[pos] = np.all(sol >= lo_ok[free][:, None, :], axis=2) & np.all(sol <= hi_ok[free][:, None, :],
+                                                                                    axis=2)
+        X[pos] = xs
+    X = np.clip(X, lo, hi)
+    f = _set_objectives(X, G, c)
+    f = np.where(feasible & np.isfinite(f), f, np.inf)
+    first = np.argmin(f, axis=0)  # the first set of lowest objective, as a strict "<" over the sets in order
+    cand = np.arange(P)
+    best = np.full((P, L), np.nan)
+    take = np.isfinite(f[first, cand])
+    best[take] = X[first[take], cand[take]]
     return best
+
+
+def _set_objectives(X: np.ndarray, G: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """θᵀGθ − 2cᵀθ (S, P) at the points X (S, P, L) of every active set, each summed as numpy's
+    einsum sums it for one set's (P, L) points (for P = 1 it sums in another order with a
+    candidate axis of several rows: then set by set)."""
+    S, P, L = X.shape
+    if P == 1:
+        return np.stack([np.einsum("pi,pij,pj->p", x, G, x) - 2.0 * np.einsum("pi,pi->p", c, x) for x in X])
+    Xs = X.reshape(S * P, L)
+    Gs = np.ascontiguousarray(np.broadcast_to(G, (S, P, L, L))).reshape(S * P, L, L)
+    cs = np.ascontiguousarray(np.broadcast_to(c, (S, P, L))).reshape(S * P, L)
+    return (np.einsum("pi,pij,pj->p", Xs, Gs, Xs) - 2.0 * np.einsum("pi,pi->p", cs, Xs)).reshape(S, P)
+
+
+def _free_solve(G: np.ndarray, c: np.ndarray, free: np.ndarray, fixed: np.ndarray,
+                x_fixed: np.ndarray) -> np.ndarray:
+    """The free parameters (S, P, k) of S active sets with k free parameters each (``free``
+    (S, k), ``fixed`` (S, L − k) at the values ``x_fixed`` (S, P, L − k)): one batched solve of
+    G_ff θ_f = c_f − G_fx θ_x, or set by set where a block is singular (least squares)."""
+    n_sets, k = free.shape
+    P = c.shape[0]
+    m = fixed.shape[1]
+    G_ff = np.ascontiguousarray(G[:, free[:, :, None], free[:, None, :]].transpose(1, 0, 2, 3))
+    c_f = c[:, free].transpose(1, 0, 2).reshape(n_sets * P, k)
+    # the operands in the memory layout of one set's fancy-indexed G[:, free][:, :, fixed] and
+    # x[:, fixed] (candidates innermost; for one candidate, each G block column-major): numpy's
+    # einsum then sums in the same order (its loops differ with the layout, some fuse multiply-adds)
+    G_fx = G[:, free[:, :, None], fixed[:, None, :]].transpose(1, 0, 2, 3).reshape(n_sets * P, k, m)
+    if P == 1:
+        G_fx = np.ascontiguousarray(G_fx.transpose(0, 2, 1)).transpose(0, 2, 1)
+        x_fx = np.ascontiguousarray(x_fixed.reshape(n_sets, m))
+    else:
+        G_fx, x_fx = np.asfortranarray(G_fx), np.asfortranarray(x_fixed.reshape(n_sets * P, m))
+    rhs = c_f - np.einsum("pij,pj->pi", G_fx, x_fx)
+    try:
+        return np.linalg.solve(G_ff.reshape(n_sets * P, k, k), rhs[:, :, None])[:, :, 0].reshape(n_sets, P, k)
+    except np.linalg.LinAlgError:
+        pass
+    rhs = rhs.reshape(n_sets, P, k)
+    out = np.empty((n_sets, P, k))
+    for s in range(n_sets):
+        try:
+            out[s] = np.linalg.solve(G_ff[s], rhs[s][:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            out[s] = np.stack([np.linalg.lstsq(g, v, rcond=None)[0] for g, v in zip(G_ff[s], rhs[s])])
+    return out
 
 
 class ProjectedObjective(ObjectiveFunction):
