@@ -109,20 +109,22 @@ def _active_sets(L: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...
 
 
 @functools.lru_cache(maxsize=None)
-def _active_set_groups(L: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]:
-    """The active sets of :func:`_active_sets` grouped by their number k of free parameters: per
-    group (positions in the enumeration order (S,), free indices (S, k), fixed indices (S, L − k),
-    fixed at the lower bound (S, L − k)), so a group is solved in one batched call."""
+def _active_set_groups(L: int) -> tuple[np.ndarray, tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]]:
+    """The active sets of :func:`_active_sets` as the code of each parameter in each set (3^L, L)
+    (0 free, 1 at its lower, 2 at its upper bound) and grouped by their number k of free
+    parameters, k ≥ 1: per group (positions in the enumeration order (S,), free indices (S, k),
+    fixed indices (S, L − k)), so that a group is solved in one batched call."""
+    sets = _active_sets(L)
+    codes = np.zeros((len(sets), L), dtype=np.int8)
     by_k: dict[int, list] = {}
-    for pos, (free, fixed, at_lo) in enumerate(_active_sets(L)):
-        by_k.setdefault(free.size, []).append((pos, free, fixed, at_lo))
-    groups = []
-    for k, sets in sorted(by_k.items()):
-        S = len(sets)
-        groups.append((np.array([s[0] for s in sets]), np.array([s[1] for s in sets], dtype=np.intp).reshape(S, k),
-                       np.array([s[2] for s in sets], dtype=np.intp).reshape(S, L - k),
-                       np.array([s[3] for s in sets], dtype=bool).reshape(S, L - k)))
-    return tuple(groups)
+    for pos, (free, fixed, at_lo) in enumerate(sets):
+        codes[pos, fixed] = np.where(at_lo, 1, 2)
+        if free.size:
+            by_k.setdefault(free.size, []).append((pos, free, fixed))
+    groups = tuple((np.array([g[0] for g in grp]), np.array([g[1] for g in grp], dtype=np.intp).reshape(len(grp), k),
+                    np.array([g[2] for g in grp], dtype=np.intp).reshape(len(grp), L - k))
+                   for k, grp in sorted(by_k.items()))
+    return codes, groups
 
 
 #: candidates × active sets per batched block of :func:`_enumerate_box_qp` (bounds its memory)
@@ -138,31 +140,24 @@ def _enumerate_box_qp(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarr
     (:func:`_active_set_groups`): each candidate's arithmetic is that of solving the sets one
     by one, so the result is the same, bit for bit, at a fraction of the Python overhead."""
     P, L = c.shape
-    rows = max(1, ENUMERATE_BLOCK_ROWS // 3 ** L)
+    S = 3 ** L
+    rows = max(1, ENUMERATE_BLOCK_ROWS // S)
     if P > rows:
         return np.vstack([_enumerate_box_qp(G[i:i + rows], c[i:i + rows], lo, hi) for i in range(0, P, rows)])
-    S = 3 ** L
-    X = np.empty((S, P, L))
+    codes, groups = _active_set_groups(L)
+    at = np.where(codes == 1, lo, hi)  # (S, L): each set's fixed values (its free entries are solved below)
+    X = np.repeat(at[:, None, :], P, axis=1)
     feasible = np.ones((S, P), dtype=bool)
     tol = 1e-12 * (hi - lo)
-    lo_ok, hi_ok = lo - tol, hi + tol
-    for pos, free, fixed, at_lo in _active_set_groups(L):
-        n_sets, k = free.shape
-        xs = np.empty((n_sets, P, L))
-        x_fixed = np.ascontiguousarray(np.broadcast_to(np.where(at_lo, lo[fixed], hi[fixed])[:, None, :],
-                                                       (n_sets, P, L - k)))
-        np.put_along_axis(xs, np.broadcast_to(fixed[:, None, :], x_fixed.shape), x_fixed, axis=2)
-        if k:
-            sol = _free_solve(G, c, free, fixed, x_fixed)  # (n_sets, P, k)
-            np.put_along_axis(xs, np.broadcast_to(free[:, None, :], sol.shape), sol, axis=2)
-            feasible[pos] = np.all(sol >= lo_ok[free][:, None, :], axis=2) & np.all(sol <= hi_ok[free][:, None, :],
-                                                                                    axis=2)
-        X[pos] = xs
+    cand = np.arange(P)
+    for pos, free, fixed in groups:
+        sol = _free_solve(G, c, free, fixed, at[pos[:, None], fixed])  # (n_sets, P, k)
+        X[pos[:, None, None], cand[None, :, None], free[:, None, :]] = sol
+        feasible[pos] = np.all((sol >= (lo - tol)[free][:, None, :]) & (sol <= (hi + tol)[free][:, None, :]), axis=2)
     X = np.clip(X, lo, hi)
     f = _set_objectives(X, G, c)
     f = np.where(feasible & np.isfinite(f), f, np.inf)
     first = np.argmin(f, axis=0)  # the first set of lowest objective, as a strict "<" over the sets in order
-    cand = np.arange(P)
     best = np.full((P, L), np.nan)
     take = np.isfinite(f[first, cand])
     best[take] = X[first[take], cand[take]]
@@ -177,36 +172,37 @@ def _set_objectives(X: np.ndarray, G: np.ndarray, c: np.ndarray) -> np.ndarray:
     if P == 1:
         return np.stack([np.einsum("pi,pij,pj->p", x, G, x) - 2.0 * np.einsum("pi,pi->p", c, x) for x in X])
     Xs = X.reshape(S * P, L)
-    Gs = np.ascontiguousarray(np.broadcast_to(G, (S, P, L, L))).reshape(S * P, L, L)
-    cs = np.ascontiguousarray(np.broadcast_to(c, (S, P, L))).reshape(S * P, L)
+    Gs, cs = np.concatenate((G,) * S), np.concatenate((c,) * S)
     return (np.einsum("pi,pij,pj->p", Xs, Gs, Xs) - 2.0 * np.einsum("pi,pi->p", cs, Xs)).reshape(S, P)
 
 
-def _free_solve(G: np.ndarray, c: np.ndarray, free: np.ndarray, fixed: np.ndarray,
-                x_fixed: np.ndarray) -> np.ndarray:
+def _free_solve(G: np.ndarray, c: np.ndarray, free: np.ndarray, fixed: np.ndarray, at: np.ndarray) -> np.ndarray:
     """The free parameters (S, P, k) of S active sets with k free parameters each (``free``
-    (S, k), ``fixed`` (S, L − k) at the values ``x_fixed`` (S, P, L − k)): one batched solve of
-    G_ff θ_f = c_f − G_fx θ_x, or set by set where a block is singular (least squares)."""
+    (S, k); ``fixed`` (S, L − k) at the values ``at`` (S, L − k)): G_ff θ_f = c_f − G_fx θ_x in
+    one batched solve, or set by set where a block is singular (least squares). A single free
+    parameter is a division (what LAPACK's solve computes for a 1 × 1 system, bit for bit)."""
     n_sets, k = free.shape
     P = c.shape[0]
     m = fixed.shape[1]
-    G_ff = np.ascontiguousarray(G[:, free[:, :, None], free[:, None, :]].transpose(1, 0, 2, 3))
-    c_f = c[:, free].transpose(1, 0, 2).reshape(n_sets * P, k)
-    # the operands in the memory layout of one set's fancy-indexed G[:, free][:, :, fixed] and
-    # x[:, fixed] (candidates innermost; for one candidate, each G block column-major): numpy's
-    # einsum then sums in the same order (its loops differ with the layout, some fuse multiply-adds)
-    G_fx = G[:, free[:, :, None], fixed[:, None, :]].transpose(1, 0, 2, 3).reshape(n_sets * P, k, m)
-    if P == 1:
-        G_fx = np.ascontiguousarray(G_fx.transpose(0, 2, 1)).transpose(0, 2, 1)
-        x_fx = np.ascontiguousarray(x_fixed.reshape(n_sets, m))
-    else:
-        G_fx, x_fx = np.asfortranarray(G_fx), np.asfortranarray(x_fixed.reshape(n_sets * P, m))
-    rhs = c_f - np.einsum("pij,pj->pi", G_fx, x_fx)
+    rhs = c[:, free].transpose(1, 0, 2).reshape(n_sets * P, k)
+    if m:  # c_f − 0 = c_f exactly: no product when every parameter is free
+        # the operands in the memory layout of one set's fancy-indexed G[:, free][:, :, fixed] and
+        # x[:, fixed] (candidates innermost; for one candidate, each G block column-major): numpy's
+        # einsum then sums in the same order (its loops differ with the layout, some fuse multiply-adds)
+        G_fx = G[:, free[:, :, None], fixed[:, None, :]].transpose(1, 0, 2, 3).reshape(n_sets * P, k, m)
+        if P == 1:
+            G_fx, x_fx = np.ascontiguousarray(G_fx.transpose(0, 2, 1)).transpose(0, 2, 1), at
+        else:
+            G_fx, x_fx = np.asfortranarray(G_fx), np.asfortranarray(np.repeat(at, P, axis=0))
+        rhs = rhs - np.einsum("pij,pj->pi", G_fx, x_fx)
+    G_ff = G[:, free[:, :, None], free[:, None, :]].transpose(1, 0, 2, 3).reshape(n_sets * P, k, k)
+    if k == 1 and np.all(G_ff != 0.0):  # (a zero pivot: LAPACK's singular error, handled below)
+        return (rhs / G_ff[:, :, 0]).reshape(n_sets, P, 1)
     try:
-        return np.linalg.solve(G_ff.reshape(n_sets * P, k, k), rhs[:, :, None])[:, :, 0].reshape(n_sets, P, k)
+        return np.linalg.solve(G_ff, rhs[:, :, None])[:, :, 0].reshape(n_sets, P, k)
     except np.linalg.LinAlgError:
         pass
-    rhs = rhs.reshape(n_sets, P, k)
+    G_ff, rhs = G_ff.reshape(n_sets, P, k, k), rhs.reshape(n_sets, P, k)
     out = np.empty((n_sets, P, k))
     for s in range(n_sets):
         try:

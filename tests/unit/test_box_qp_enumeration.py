@@ -96,3 +96,12 @@ def test_many_candidates_are_enumerated_in_blocks(rng, monkeypatch):
     whole = _enumerate_box_qp(G, c, lo, hi)
     monkeypatch.setattr(projection, "ENUMERATE_BLOCK_ROWS", 27 * 8)  # blocks of 8 candidates
     np.testing.assert_array_equal(_enumerate_box_qp(G, c, lo, hi), whole)
+
+
+def test_a_zero_curvature_parameter_is_solved_as_lapack_does():
+    """A free parameter with G_ii = 0 (no ridge): the singular 1 × 1 system by least squares, as before."""
+    G = np.array([[[0.0, 0.0], [0.0, 2.0]], [[1.0, 0.5], [0.5, 2.0]]])
+    c = np.array([[0.3, -1.0], [0.2, 5.0]])
+    lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    with np.errstate(all="ignore"):
+        np.testing.assert_array_equal(_enumerate_box_qp(G, c, lo, hi), _one_set_at_a_time(G, c, lo, hi))
