@@ -77,6 +77,7 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
     gl = np.empty(m)
     gr = np.empty(m)
     z = np.empty(m)
+    zf = np.empty(m)
     GL, GR = gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
     repeats = period > 0 and period * m <= REPEAT_MAX_ELEMENTS
     z_period = np.empty((period, m) if repeats else (0, 0))  # z of the last period, at k % period
@@ -99,7 +100,7 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
             for i in range(m):
                 z0[i] = z[i]
         yk = y[k] if mode != _OUTPUT else 0.0
-        for i in range(m):
+        for i in range(m):  # the stage, then each mode's use of z_f in its own loop (these vectorize)
             p = p0 + i
             d = z[i] - z0[i]
             e = f0[p] * d + f1[p] * d1[i] + f2[p] * d2[i] - g1[p] * e1[i] - g2[p] * e2[i]
@@ -107,16 +108,19 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
             d1[i] = d
             e2[i] = e1[i]
             e1[i] = e
-            zf = z0[i] + e
-            if mode == _OUTPUT:
-                out[k, p] = rho[p] * zf + y0[p]
-            elif mode == _SSE:
-                res = rho[p] * zf + y0[p] - yk
+            zf[i] = z0[i] + e
+        if mode == _OUTPUT:
+            for i in range(m):
+                out[k, p0 + i] = rho[p0 + i] * zf[i] + y0[p0 + i]
+        elif mode == _SSE:
+            for i in range(m):
+                res = rho[p0 + i] * zf[i] + y0[p0 + i] - yk
                 acc0[i] += res * res
-            else:
-                acc0[i] += zf * zf
-                acc1[i] += zf
-                acc2[i] += zf * yk
+        else:
+            for i in range(m):
+                acc0[i] += zf[i] * zf[i]
+                acc1[i] += zf[i]
+                acc2[i] += zf[i] * yk
     if mode != _OUTPUT:
         store_sums(out, p0, (acc0, acc1, acc2), 1 if mode == _SSE else 3)
 
