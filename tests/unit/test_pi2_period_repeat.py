@@ -55,3 +55,18 @@ def test_the_model_routes_pass_the_period(rng):
     assert np.array_equal(model.simulator(u, DT)(theta), plain)
     sse = pi2_module.gpi2_run(u, y, theta[:, :12], fn, zeta, DT, model.n_operators, pi2_module._SSE)[:, 0]
     assert np.array_equal(model.sse_evaluator(u, DT, y)(theta), sse)
+
+
+def test_the_threaded_variant_repeats_per_block_with_the_same_numbers(rng, monkeypatch):
+    u = periodic_input()
+    y = 0.3 * u
+    model = PI2(identification="joint")
+    ps = model.params(DataScale.from_arrays([u], [y], [DT]))
+    lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
+    theta = lo + (hi - lo) * rng.random((17, len(ps)))
+    fn, zeta = model._stage(theta)
+    levels = input_levels(u)
+    args = (u, y, theta[:, :12], fn, zeta, DT, model.n_operators, pi2_module._MOMENTS, levels)
+    serial = pi2_module.gpi2_run(*args)
+    monkeypatch.setattr(pi2_module, "thread_blocks", lambda P, min_pop, max_blocks: 3)  # three candidate blocks
+    assert np.array_equal(pi2_module.gpi2_run(*args, input_period(levels)), serial)
