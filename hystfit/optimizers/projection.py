@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .._jit import njit
 from .._lazy import lazy_module
 from ..models.separable import Separable
 from ..objective import BLOCK_ELEMENTS, ObjectiveFunction, Series
@@ -46,7 +47,8 @@ def solve_box_qp(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -
     singular G solvable); only candidates whose solution leaves the box are solved again with
     the bounds: for L ≤ :data:`ENUMERATE_MAX_L` by exact enumeration of the active sets (every
     parameter free, at its lower or at its upper bound; the feasible stationary point of lowest
-    objective is the optimum of the convex problem), otherwise by :func:`_shifted_nnls_solve`.
+    objective is the optimum of the convex problem; for L = 2 compiled, :func:`_enumerate_two`),
+    otherwise by :func:`_shifted_nnls_solve`.
     """
     P, L = c.shape
     out = np.full((P, L), np.nan)
@@ -56,13 +58,17 @@ def solve_box_qp(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -
     Gk, ck = G[ok], c[ok]
     ridge = 1e-12 * np.maximum(np.trace(Gk, axis1=1, axis2=2) / L, 1e-300)
     Gr = Gk + ridge[:, None, None] * np.eye(L)
+    solved = True
     try:
         x = np.linalg.solve(Gr, ck[:, :, None])[:, :, 0]
     except np.linalg.LinAlgError:  # a singular block: candidate by candidate
         x = np.stack([np.linalg.lstsq(g, v, rcond=None)[0] for g, v in zip(Gr, ck)])
+        solved = False
     bad = ~(np.all(np.isfinite(x), axis=1) & np.all(x >= lo, axis=1) & np.all(x <= hi, axis=1))
     if np.any(bad):
-        if L <= ENUMERATE_MAX_L:
+        if L == 2 and solved and np.all(Gr[bad][:, [0, 1], [0, 1]] != 0.0):
+            x[bad] = _enumerate_two(Gr[bad], ck[bad], x[bad], lo, hi)
+        elif L <= ENUMERATE_MAX_L:
             x[bad] = _enumerate_box_qp(Gr[bad], ck[bad], lo, hi)
         else:
             x[bad] = np.stack([_shifted_nnls_solve(g, v, lo, hi) for g, v in zip(Gk[bad], ck[bad])])
@@ -162,6 +168,52 @@ def _enumerate_box_qp(G: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarr
     take = np.isfinite(f[first, cand])
     best[take] = X[first[take], cand[take]]
     return best
+
+
+@njit(cache=True)
+def _enumerate_two(G, c, x_free, lo, hi):
+    """:func:`_enumerate_box_qp` for two linear parameters (gpi's and pi2's ρ, y0), compiled, with
+    its numbers bit for bit: the set with both free is ``x_free`` (the batched LAPACK solve of
+    :func:`solve_box_qp`, which the enumeration would repeat), one free parameter is a division
+    (LAPACK's 1 × 1 solve), and θᵀGθ − 2cᵀθ is summed in the order of numpy's einsum — in
+    sequence over (i, j) for several candidates, by rows for one. Needs G_ii ≠ 0."""
+    P = c.shape[0]
+    out = np.full((P, 2), np.nan)
+    lo_ok0, lo_ok1 = lo[0] - 1e-12 * (hi[0] - lo[0]), lo[1] - 1e-12 * (hi[1] - lo[1])
+    hi_ok0, hi_ok1 = hi[0] + 1e-12 * (hi[0] - lo[0]), hi[1] + 1e-12 * (hi[1] - lo[1])
+    for p in range(P):
+        best = np.inf
+        for code in range(9):  # itertools.product((0, 1, 2), repeat=2): 0 free, 1 at lower, 2 at upper
+            c0, c1 = code // 3, code % 3
+            v0 = lo[0] if c0 == 1 else hi[0]
+            v1 = lo[1] if c1 == 1 else hi[1]
+            if c0 == 0 and c1 == 0:
+                v0, v1 = x_free[p, 0], x_free[p, 1]
+                if not (lo_ok0 <= v0 <= hi_ok0 and lo_ok1 <= v1 <= hi_ok1):
+                    continue
+            elif c0 == 0:
+                v0 = (c[p, 0] - (0.0 + G[p, 0, 1] * v1)) / G[p, 0, 0]
+                if not lo_ok0 <= v0 <= hi_ok0:
+                    continue
+            elif c1 == 0:
+                v1 = (c[p, 1] - (0.0 + G[p, 1, 0] * v0)) / G[p, 1, 1]
+                if not lo_ok1 <= v1 <= hi_ok1:
+                    continue
+            v0 = v0 if v0 > lo[0] else lo[0]  # np.clip
+            v0 = v0 if v0 < hi[0] else hi[0]
+            v1 = v1 if v1 > lo[1] else lo[1]
+            v1 = v1 if v1 < hi[1] else hi[1]
+            t00, t01 = (v0 * G[p, 0, 0]) * v0, (v0 * G[p, 0, 1]) * v1
+            t10, t11 = (v1 * G[p, 1, 0]) * v0, (v1 * G[p, 1, 1]) * v1
+            if P == 1:
+                quad = (((0.0 + t00) + t01) + 0.0) + ((0.0 + t10) + t11)
+            else:
+                quad = (((0.0 + t00) + t01) + t10) + t11
+            f = quad - 2.0 * ((0.0 + c[p, 0] * v0) + c[p, 1] * v1)
+            if np.isfinite(f) and f < best:
+                best = f
+                out[p, 0], out[p, 1] = v0, v1
+    return out
 
 
 def _set_objectives(X: np.ndarray, G: np.ndarray, c: np.ndarray) -> np.ndarray:

@@ -105,3 +105,22 @@ def test_a_zero_curvature_parameter_is_solved_as_lapack_does():
     lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
     with np.errstate(all="ignore"):
         np.testing.assert_array_equal(_enumerate_box_qp(G, c, lo, hi), _one_set_at_a_time(G, c, lo, hi))
+
+
+@pytest.mark.parametrize("P", [1, 2, 9, 60])
+def test_two_parameters_compiled_give_the_numpy_enumeration_bit_for_bit(rng, P):
+    """gpi's and pi2's (ρ, y0): the compiled enumeration against the batched numpy one, ties included."""
+    from hystfit.optimizers.projection import _enumerate_two
+
+    for _ in range(300):
+        A = rng.normal(size=(P, 4, 2)) * 10.0 ** rng.uniform(-4, 4, size=(P, 1, 2))
+        if rng.random() < 0.3:
+            A[:, :, 1] = A[:, :, 0] * rng.choice([1.0, -2.0])  # collinear columns: tied objectives
+        G = np.einsum("pki,pkj->pij", A, A)
+        G = G + 1e-12 * np.trace(G, axis1=1, axis2=2)[:, None, None] / 2 * np.eye(2)  # solve_box_qp's ridge
+        c = np.einsum("pki,pk->pi", A, rng.normal(size=(P, 4)))
+        lo, hi = -10.0 ** rng.uniform(-3, 2, size=2), 10.0 ** rng.uniform(-3, 2, size=2)
+        if rng.random() < 0.3:
+            lo[0] = 0.0
+        x_free = np.linalg.solve(G, c[:, :, None])[:, :, 0]
+        np.testing.assert_array_equal(_enumerate_two(G, c, x_free, lo, hi), _enumerate_box_qp(G, c, lo, hi))
