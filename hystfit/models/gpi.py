@@ -112,7 +112,7 @@ def gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1):
 
 
 @njit(cache=True)
-def _same_state(s, s_prev):
+def same_state(s, s_prev):
     """True when every operator state equals the one a period earlier (== : a ±0 difference changes
     no later output, every NaN differs)."""
     for j in range(s.shape[0]):
@@ -145,7 +145,7 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
     s_prev = np.empty((n, m) if repeats else (0, 0))
     for k in range(N):
         if repeats and k > 0 and k % period == 0:
-            if k >= 2 * period and _same_state(s, s_prev):
+            if k >= 2 * period and same_state(s, s_prev):
                 for kk in range(k, N):
                     for i in range(m):
                         out[kk, p0 + i] = out[kk - period, p0 + i]

@@ -21,19 +21,22 @@ from .composite import Composite
 from .pi import PI
 from .separable import scaled_response
 from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_tables, gpi_envelopes_at, gpi_operators, gpi_play,
-                  input_levels)
+                  input_levels, input_period, same_state)
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
 
 #: kernel modes: the outputs (N, P), Σ(ŷ − y)² (P, 1), or the moments Σz_f², Σz_f, Σz_f·y (P, 3)
 _OUTPUT, _SSE, _MOMENTS = 0, 1, 2
+#: largest buffer (samples of one input period × candidates of a block) of the period repeat of
+#: :func:`_gpi2_block`: 16 MB
+REPEAT_MAX_ELEMENTS = 2_000_000
 #: identification routes (structure option ``identification``)
 IDENTIFICATIONS = ("two-step", "joint")
 
 
 @njit(cache=True)
 def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
-                mode, out, p0, p1):
+                mode, out, p0, p1, period):
     """Generalized PI → second-order stage for candidates p0:p1, in one time loop.
 
     Per candidate (the recurrences of :func:`~hystfit.models.gpi.gpi_population` and
@@ -52,6 +55,12 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
     u_k = levels[index[k]] and the envelopes are tabulated per level, bit-identical to computing
     them per sample, :func:`~hystfit.models.gpi.gpi_envelope_table`). Non-finite candidates give
     non-finite results.
+
+    With ``period`` T > 0 (the tabulated input repeats every T samples,
+    :func:`~hystfit.models.gpi.input_period`) the operator states are compared every T samples:
+    once they equal those one period earlier, z repeats with period T and is taken from the last
+    period (the same numbers, not computed again; the stage still runs on every sample). Only when
+    the buffer of one period, T × candidates, stays within :data:`REPEAT_MAX_ELEMENTS`.
     """
     N = u.shape[0]
     m = p1 - p0
@@ -68,15 +77,30 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
     gl = np.empty(m)
     gr = np.empty(m)
     z = np.empty(m)
+    zf = np.empty(m)
     GL, GR = gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
+    repeats = period > 0 and period * m <= REPEAT_MAX_ELEMENTS
+    z_period = np.empty((period, m) if repeats else (0, 0))  # z of the last period, at k % period
+    s_prev = np.empty((n, m) if repeats else (0, 0))
+    copying = False
     for k in range(N):
-        gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
-        gpi_play(r, q, s, gl, gr, z)
+        if repeats and not copying and k > 0 and k % period == 0:
+            copying = k >= 2 * period and same_state(s, s_prev)
+            s_prev[:, :] = s
+        if copying:
+            for i in range(m):
+                z[i] = z_period[k % period, i]
+        else:
+            gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
+            gpi_play(r, q, s, gl, gr, z)
+            if repeats:
+                for i in range(m):
+                    z_period[k % period, i] = z[i]
         if k == 0:
             for i in range(m):
                 z0[i] = z[i]
         yk = y[k] if mode != _OUTPUT else 0.0
-        for i in range(m):
+        for i in range(m):  # the stage, then each mode's use of z_f in its own loop (these vectorize)
             p = p0 + i
             d = z[i] - z0[i]
             e = f0[p] * d + f1[p] * d1[i] + f2[p] * d2[i] - g1[p] * e1[i] - g2[p] * e2[i]
@@ -84,39 +108,42 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
             d1[i] = d
             e2[i] = e1[i]
             e1[i] = e
-            zf = z0[i] + e
-            if mode == _OUTPUT:
-                out[k, p] = rho[p] * zf + y0[p]
-            elif mode == _SSE:
-                res = rho[p] * zf + y0[p] - yk
+            zf[i] = z0[i] + e
+        if mode == _OUTPUT:
+            for i in range(m):
+                out[k, p0 + i] = rho[p0 + i] * zf[i] + y0[p0 + i]
+        elif mode == _SSE:
+            for i in range(m):
+                res = rho[p0 + i] * zf[i] + y0[p0 + i] - yk
                 acc0[i] += res * res
-            else:
-                acc0[i] += zf * zf
-                acc1[i] += zf
-                acc2[i] += zf * yk
+        else:
+            for i in range(m):
+                acc0[i] += zf[i] * zf[i]
+                acc1[i] += zf[i]
+                acc2[i] += zf[i] * yk
     if mode != _OUTPUT:
         store_sums(out, p0, (acc0, acc1, acc2), 1 if mode == _SSE else 3)
 
 
 @njit(cache=True, parallel=True)
 def _gpi2_parallel(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
-                   mode, out, n_blocks):
+                   mode, out, period, n_blocks):
     """:func:`_gpi2_block` over ``n_blocks`` candidate blocks spread over threads."""
     for b in prange(n_blocks):
         p0, p1 = candidate_block(b, n_blocks, a1.shape[0])
         if p0 < p1:
             _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2,
-                        n, mode, out, p0, p1)
+                        n, mode, out, p0, p1, period)
 
 
 @njit(cache=True)
 def _gpi2_serial(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
-                 mode, out, block):
+                 mode, out, period, block):
     """:func:`_gpi2_block` over consecutive blocks of ``block`` candidates (bounds the envelope tables)."""
     P = a1.shape[0]
     for p0 in range(0, P, block):
         _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
-                    mode, out, p0, min(P, p0 + block))
+                    mode, out, p0, min(P, p0 + block), period)
 
 
 #: the stage coefficients of the last few (f_n, ζ, dt, P): the two-step route calls the kernel
@@ -144,10 +171,12 @@ def _stage_coefficients(fn_Hz, zeta, dt: float, P: int) -> tuple[np.ndarray, ...
     return coef
 
 
-def gpi2_run(u, y, gpi_theta, fn_Hz, zeta, dt: float, n: int, mode: int, levels=None) -> np.ndarray:
+def gpi2_run(u, y, gpi_theta, fn_Hz, zeta, dt: float, n: int, mode: int, levels=None, period: int = 0) -> np.ndarray:
     """Run :func:`_gpi2_block` for a population: ``gpi_theta`` (P, 12) in :class:`GPI`'s order,
     ``fn_Hz``, ``zeta`` (P,) the stage (discretized by :func:`bilinear_biquad`); ``levels`` the
-    capture's :func:`~hystfit.models.gpi.input_levels` (envelope tables), if computed. Threaded over
+    capture's :func:`~hystfit.models.gpi.input_levels` (envelope tables), if computed, and ``period``
+    its :func:`~hystfit.models.gpi.input_period` (the gPI output is then copied a period on once the
+    operator states repeat: the same numbers). Threaded over
     candidate blocks from :data:`~hystfit.models._kernels.PARALLEL_MIN_POP` candidates on."""
     u = np.ascontiguousarray(u, dtype=np.float64)
     lv, index = levels if levels is not None else (u, np.empty(0, dtype=np.int64))
@@ -158,7 +187,8 @@ def gpi2_run(u, y, gpi_theta, fn_Hz, zeta, dt: float, n: int, mode: int, levels=
     a1, a2, a3, a4, b1, b2, b3, b4, rho, tau, alpha, y0 = cols
     coef = _stage_coefficients(fn_Hz, zeta, dt, P)
     out = np.empty((u.shape[0], P)) if mode == _OUTPUT else np.empty((P, 1 if mode == _SSE else 3))
-    args = (u, lv, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, *coef, int(n), int(mode), out)
+    args = (u, lv, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, *coef, int(n), int(mode), out,
+            int(period))
     nb = thread_blocks(P, PARALLEL_MIN_POP, 8)
     block = max(1, TABLE_BLOCK_ELEMENTS // max(lv.shape[0], 1)) if index.shape[0] else P
     if nb:  # at least one block per thread, and blocks no larger than the table bound
@@ -407,11 +437,12 @@ class PI2(Model):
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
         u = np.ascontiguousarray(u, dtype=np.float64)
         levels = input_levels(u)  # once per capture, shared by every call
+        period = input_period(levels)
 
         def sim(theta):
             theta = self.check_theta(theta, self.d)
             fn, z = self._stage(theta)
-            return gpi2_run(u, None, theta[:, :12], fn, z, dt, self.n_operators, _OUTPUT, levels).T
+            return gpi2_run(u, None, theta[:, :12], fn, z, dt, self.n_operators, _OUTPUT, levels, period).T
 
         return sim
 
@@ -420,11 +451,12 @@ class PI2(Model):
         u = np.ascontiguousarray(u, dtype=np.float64)
         y = np.ascontiguousarray(y, dtype=np.float64)
         levels = input_levels(u)
+        period = input_period(levels)
 
         def sse(theta):
             theta = self.check_theta(theta, self.d)
             fn, z = self._stage(theta)
-            return gpi2_run(u, y, theta[:, :12], fn, z, dt, self.n_operators, _SSE, levels)[:, 0]
+            return gpi2_run(u, y, theta[:, :12], fn, z, dt, self.n_operators, _SSE, levels, period)[:, 0]
 
         return sse
 
@@ -442,21 +474,23 @@ class PI2(Model):
 
         def response(u, dt):
             levels = input_levels(u)
+            period = input_period(levels)
 
             def z_f(theta_nl):
                 th = full(theta_nl)
                 fn, z = self._stage(th)
-                return gpi2_run(u, None, th[:, :12], fn, z, dt, self.n_operators, _OUTPUT, levels)  # (N, P)
+                return gpi2_run(u, None, th[:, :12], fn, z, dt, self.n_operators, _OUTPUT, levels, period)  # (N, P)
 
             return z_f
 
         def moments(u, dt, y):
             levels = input_levels(u)
+            period = input_period(levels)
 
             def sums(theta_nl):
                 th = full(theta_nl)
                 fn, z = self._stage(th)
-                M = gpi2_run(u, y, th[:, :12], fn, z, dt, self.n_operators, _MOMENTS, levels)
+                M = gpi2_run(u, y, th[:, :12], fn, z, dt, self.n_operators, _MOMENTS, levels, period)
                 return M[:, 0], M[:, 1], M[:, 2]
 
             return sums
