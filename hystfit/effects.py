@@ -467,6 +467,8 @@ class _Design:
     cols: tuple
     lin: Linearization | None
     indices: dict = field(default_factory=dict)  # (k_s, k_l) → per capture the index sets of the solve
+    fitted: tuple = ()  # per capture: (fit mask, or None when every sample is fitted; y on the fit samples);
+    #                     captures without a fit sample are left out
 
 
 def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
@@ -508,7 +510,13 @@ def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
         yys.append(float(yf @ yf))
         vs.append(vv)
         cols.append(None if lin is None else np.asarray(lin.cols[c], int))
-    return _Design(tuple(vs), tuple(Xs), tuple(yys), tuple(cols), lin)
+    fitted = []
+    for c, vv in enumerate(vs):
+        if vv.fit.all():
+            fitted.append((c, None, vv.y))
+        elif vv.fit.any():
+            fitted.append((c, vv.fit, vv.y[vv.fit]))
+    return _Design(tuple(vs), tuple(Xs), tuple(yys), tuple(cols), lin, fitted=tuple(fitted))
 
 
 def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarray] | None = None,
@@ -542,21 +550,16 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
     b = np.zeros(n)
     s0 = 0.0
     indices = _solve_indices(design, ks, kl)
-    for vv, X, yy, (mesh, ix, sel_mesh, sel) in zip(design.views, design.X, design.yy, indices):
-        mask = vv.fit
-        if not mask.any():
-            continue
-        full = bool(mask.all())
+    for c, mask, y in design.fitted:
+        vv, X, yy = design.views[c], design.X[c], design.yy[c]
+        mesh, ix, sel_mesh, sel = indices[c]
         T = effect.operator(X, vv, phi)
-        y = vv.y
-        yhat = X[:, 0]
-        Rs, Rl = effect.regressors(yhat, vv, phi) if ks + kl else (None, None)
-        if not full:
+        if mask is not None:
             T = T[mask]
-            y = y[mask]
-            if Rs is not None:
-                Rs, Rl = Rs[mask], Rl[mask]
         if ks + kl:
+            Rs, Rl = effect.regressors(X[:, 0], vv, phi)
+            if mask is not None:
+                Rs, Rl = Rs[mask], Rl[mask]
             A = np.hstack([Rs, Rl, T])  # [R | t0 | TJ]
             P = A.T @ A
             Ay = A.T @ y

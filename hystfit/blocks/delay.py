@@ -8,10 +8,31 @@ from typing import ClassVar
 
 import numpy as np
 
+from .._jit import njit
 from ..effects import EffectParam, periodic_fmax
 from ..params import DataScale, Param
 from ..registry import blocks
 from .base import Block, frequency_of_excitation
+
+
+@njit(cache=True)
+def _delay_rows(x, n, f):
+    """Row k of x (N, M) read at k − n − f: (1 − f)·x[max(k − n, 0)] + f·x[max(k − n − 1, 0)] (the
+    first row held before the start); for f = 0 the row x[max(k − n, 0)] itself. One pass, no
+    temporaries (the arithmetic of the former slice form, hence the same numbers)."""
+    N, M = x.shape
+    out = np.empty((N, M))
+    g = 1.0 - f
+    for k in range(N):
+        i0 = max(k - n, 0)
+        if f == 0.0:
+            for m in range(M):
+                out[k, m] = x[i0, m]
+        else:
+            i1 = max(k - n - 1, 0)
+            for m in range(M):
+                out[k, m] = g * x[i0, m] + f * x[i1, m]
+    return out
 
 
 def fractional_delay(x: np.ndarray, delay_s: float, dt: float) -> np.ndarray:
@@ -20,17 +41,8 @@ def fractional_delay(x: np.ndarray, delay_s: float, dt: float) -> np.ndarray:
     d = max(float(delay_s) / dt, 0.0)
     n = int(math.floor(d))
     f = d - n
-    N = x.shape[0]
-    # sample k reads x[max(k − n, 0)] and x[max(k − n − 1, 0)]: slices, no index arrays
-    out = np.empty(x.shape)
-    if f == 0.0:
-        out[:n] = x[:1]
-        out[n:] = x[:max(N - n, 0)]
-        return out
-    head = min(n + 1, N)  # samples k ≤ n read x[0] twice
-    out[:head] = (1.0 - f) * x[:1] + f * x[:1]
-    out[head:] = (1.0 - f) * x[1:max(N - n, 1)] + f * x[:max(N - n - 1, 0)]
-    return out
+    cols = np.ascontiguousarray(x.reshape(x.shape[0], math.prod(x.shape[1:])))
+    return _delay_rows(cols, n, f).reshape(x.shape)
 
 
 def delay_population(x: np.ndarray, delay_s: np.ndarray, dt: float) -> np.ndarray:
