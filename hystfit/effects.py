@@ -179,7 +179,7 @@ class EffectFit:
     delta : (n,) step of the linearized parameters (base model, earlier effects); empty when the
         base was held fixed.
     sse : residual sum of squares on the fit samples predicted by the linear model (out²).
-    evaluations : number of candidate φ evaluated.
+    evaluations : number of distinct candidates φ evaluated.
     """
 
     effect: "Effect"
@@ -347,15 +347,16 @@ class Effect(ABC):
         design = prepare_design(yhats, views, lin)
         scoring = (prepare_design(yhats, views, lin.reduced(views)) if lin is not None and lin.n > REDUCE_ABOVE
                    and m > 0 else design)
-        evals = 0
+        seen: dict[bytes, float] = {}  # φ → score: the grid, the polish and its final comparison revisit points
 
         def score(phi: np.ndarray) -> float:
-            nonlocal evals
-            evals += 1
-            try:
-                return solve_coefficients(self, phi, design=scoring, bounded=False)[3]
-            except (ConfigError, np.linalg.LinAlgError, ValueError):
-                return math.inf
+            key = np.asarray(phi, float).tobytes()
+            if key not in seen:
+                try:
+                    seen[key] = solve_coefficients(self, phi, design=scoring, bounded=False)[3]
+                except (ConfigError, np.linalg.LinAlgError, ValueError):
+                    seen[key] = math.inf
+            return seen[key]
 
         if m == 0:
             best = np.empty(0)
@@ -367,7 +368,7 @@ class Effect(ABC):
             best = cands[int(np.argmin(scores))]
             best = _polish(score, best, lo, hi, self._log_scaled())
         shared, local, delta, sse = solve_coefficients(self, best, design=design, bounded=bounded)
-        return EffectFit(self, np.asarray(best, float), shared, local, delta, float(sse), evals)
+        return EffectFit(self, np.asarray(best, float), shared, local, delta, float(sse), len(seen))
 
     def _log_scaled(self) -> np.ndarray:
         """Which searched parameters are searched in log space (all positive scale parameters)."""
