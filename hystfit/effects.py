@@ -222,6 +222,15 @@ def surrogate_spectrum(x: np.ndarray) -> np.ndarray:
     return np.fft.rfft(_as_cols(np.asarray(x, dtype=np.float64)), axis=0)
 
 
+def _random_phases(X: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """X (a spectrum of ``n`` samples per column) with uniformly random phases, DC and Nyquist kept."""
+    ph = np.exp(2j * np.pi * rng.random(X.shape))
+    ph[0] = 1.0
+    if n % 2 == 0:
+        ph[-1] = 1.0
+    return X * ph
+
+
 def phase_surrogate(x: np.ndarray, rng: np.random.Generator, spectrum: np.ndarray | None = None) -> np.ndarray:
     """Phase-randomized surrogate of every column of ``x`` (N, m): the same amplitude spectrum
     (hence the same RMS and smoothness), uniformly random phases (DC and Nyquist kept).
@@ -229,11 +238,7 @@ def phase_surrogate(x: np.ndarray, rng: np.random.Generator, spectrum: np.ndarra
     x = _as_cols(np.asarray(x, dtype=np.float64))
     n = x.shape[0]
     X = surrogate_spectrum(x) if spectrum is None else spectrum
-    ph = np.exp(2j * np.pi * rng.random(X.shape))
-    ph[0] = 1.0
-    if n % 2 == 0:
-        ph[-1] = 1.0
-    return np.fft.irfft(X * ph, n=n, axis=0)
+    return np.fft.irfft(_random_phases(X, n, rng), n=n, axis=0)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -672,8 +677,10 @@ class Placebo(Effect):
 
     Parameters
     ----------
-    library : per capture (in the order of ``CaptureView.index``), (N_c, q) surrogate columns
-        over the whole capture (fit and held-out samples).
+    columns : per capture (in the order of ``CaptureView.index``), (N_c, n_shared + n_local) the
+        regressors over the whole capture (fit and held-out samples): the surrogates of the library
+        (q columns) mixed by ``weights``. (Mixed in the frequency domain, before the inverse
+        transform, which is linear: the same columns up to rounding, at a fraction of the cost.)
     weights : (q, n_shared + n_local) random mixing matrix.
     """
 
@@ -681,7 +688,7 @@ class Placebo(Effect):
     title: ClassVar[str] = "placebo (random augmentation of the same size)"
     equation: ClassVar[str] = "y = ŷ + S·W·a (random mixtures of phase-randomized effect signatures S)"
 
-    library: tuple = field(default=(), compare=False, repr=False)
+    columns: tuple = field(default=(), compare=False, repr=False)
     weights: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), compare=False, repr=False)
     n_shared: int = 0
     n_local: int = 0
@@ -692,10 +699,15 @@ class Placebo(Effect):
         """A placebo with ``n_shared`` + ``n_local`` random mixtures of surrogates of ``library``
         (``spectra``: the library's :func:`surrogate_spectrum` per capture, when already known)."""
         spectra = (None,) * len(library) if spectra is None else spectra
-        lib = tuple(phase_surrogate(np.asarray(L, float), rng, S) for L, S in zip(library, spectra))
+        lib = [_as_cols(np.asarray(L, float)) for L in library]
+        phased = [_random_phases(surrogate_spectrum(L) if S is None else S, L.shape[0], rng)
+                  for L, S in zip(lib, spectra)]
         q = lib[0].shape[1]
         W = rng.standard_normal((q, n_shared + n_local)) / math.sqrt(max(q, 1))
-        return cls(library=lib, weights=W, n_shared=int(n_shared), n_local=int(n_local))
+        # mixed before the inverse transform (it is linear): one transform per regressor, not per surrogate
+        cols = tuple(np.fft.irfft(P @ W, n=L.shape[0], axis=0) if W.shape[1] else np.zeros((L.shape[0], 0))
+                     for P, L in zip(phased, lib))
+        return cls(columns=cols, weights=W, n_shared=int(n_shared), n_local=int(n_local))
 
     @staticmethod
     def skip(library: Sequence[np.ndarray], n_shared: int, n_local: int, rng: np.random.Generator) -> None:
@@ -710,7 +722,7 @@ class Placebo(Effect):
         return self.n_shared, self.n_local
 
     def regressors(self, yhat, view, phi):
-        R = self.library[view.index][: yhat.shape[0]] @ self.weights
+        R = self.columns[view.index][: yhat.shape[0]]
         return R[:, : self.n_shared], R[:, self.n_shared:]
 
     def describe(self, phi, shared, local, views, sources=None):
