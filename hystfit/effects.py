@@ -294,6 +294,18 @@ class Effect(ABC):
         """T_φ applied to the columns of ``x`` (N, m) (identity by default)."""
         return x
 
+    def operator_knots(self, phi: np.ndarray, view: CaptureView) -> tuple | None:
+        """T_φ as an interpolation between two operators that many φ share: (a, b, f) with
+        T_φ = (1 − f)·B_a + f·B_b, f in [0, 1), B_key = :meth:`knot_operator` — or None (the default)
+        when T_φ is not of that form. :func:`solve_coefficients` then forms the Gram products of
+        T_φ[X] from those of B_a[X] and B_b[X], computed once per design instead of once per φ."""
+        return None
+
+    def knot_operator(self, x: np.ndarray, view: CaptureView, key) -> np.ndarray:
+        """B_key applied to the columns of ``x`` (N, m), for the keys of :meth:`operator_knots`
+        (default: the key is a φ, B_key = T_key)."""
+        return self.operator(x, view, np.atleast_1d(np.asarray(key, float)))
+
     def regressors(self, yhat: np.ndarray, view: CaptureView, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """R_φ(ŷ): (N, k_s) shared and (N, k_l) per-capture regressors (default: none)."""
         N = yhat.shape[0]
@@ -475,6 +487,43 @@ class _Design:
     indices: dict = field(default_factory=dict)  # (k_s, k_l) → per capture the index sets of the solve
     fitted: tuple = ()  # per capture: (fit mask, or None when every sample is fitted; y on the fit samples);
     #                     captures without a fit sample are left out
+    index: dict = field(default_factory=dict)  # capture → its position in ``fitted``
+    knots: dict = field(default_factory=dict)  # Gram products of the knot operators (:func:`_knot_gram`)
+
+
+def _knot_gram(effect: "Effect", design: _Design, c: int, knots: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """(TᵀT, Tᵀy) over the fit samples of capture ``c``, T = T_φ[X] = (1 − f)·B_a[X] + f·B_b[X] for the
+    ``knots`` (a, b, f) of :meth:`Effect.operator_knots`:
+
+        TᵀT = (1 − f)²·Q_a + f(1 − f)·M_ab + f²·Q_b,  Tᵀy = (1 − f)·B_a[X]ᵀy + f·B_b[X]ᵀy
+
+    with Q_k = B_k[X]ᵀB_k[X] and M_ab = B_a[X]ᵀB_b[X] + B_b[X]ᵀB_a[X] = 4·Q_½ − Q_a − Q_b, Q_½ the Gram
+    matrix of the midpoint ½(B_a[X] + B_b[X]). Each is computed once per design and capture (the
+    same numbers as TᵀT up to rounding: a delay search visits a few whole-sample knots only)."""
+    a, b, f = knots
+    _, mask, y = design.fitted[design.index[c]]
+    vv, X = design.views[c], design.X[c]
+    cache = design.knots
+
+    def rows(key):
+        B = effect.knot_operator(X, vv, key)
+        return B if mask is None else B[mask]
+
+    def gram(key):
+        if (c, key) not in cache:
+            B = rows(key)
+            cache[(c, key)] = (B.T @ B, B.T @ y)
+        return cache[(c, key)]
+
+    Qa, ya = gram(a)
+    if f == 0.0:
+        return Qa, ya
+    Qb, yb = gram(b)
+    if (c, a, b) not in cache:
+        mid = 0.5 * (rows(a) + rows(b))
+        cache[(c, a, b)] = 4.0 * (mid.T @ mid) - Qa - Qb
+    g = 1.0 - f
+    return (g * g) * Qa + (f * g) * cache[(c, a, b)] + (f * f) * Qb, g * ya + f * yb
 
 
 def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
@@ -522,7 +571,8 @@ def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
             fitted.append((c, None, vv.y))
         elif vv.fit.any():
             fitted.append((c, vv.fit, vv.y[vv.fit]))
-    return _Design(tuple(vs), tuple(Xs), tuple(yys), tuple(cols), lin, fitted=tuple(fitted))
+    return _Design(tuple(vs), tuple(Xs), tuple(yys), tuple(cols), lin, fitted=tuple(fitted),
+                   index={f[0]: i for i, f in enumerate(fitted)})
 
 
 def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarray] | None = None,
@@ -559,9 +609,11 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
     for c, mask, y in design.fitted:
         vv, X, yy = design.views[c], design.X[c], design.yy[c]
         mesh, ix, sel_mesh, sel = indices[c]
-        T = effect.operator(X, vv, phi)
-        if mask is not None:
-            T = T[mask]
+        knots = None if ks + kl else effect.operator_knots(phi, vv)
+        if knots is None:
+            T = effect.operator(X, vv, phi)
+            if mask is not None:
+                T = T[mask]
         if ks + kl:
             Rs, Rl = effect.regressors(X[:, 0], vv, phi)
             if mask is not None:
@@ -575,8 +627,7 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
             bc = Ay[sel] - t0A[sel]
             t0y, t0t0 = Ay[k], P[k, k]
         else:
-            P = T.T @ T
-            Ty = T.T @ y
+            P, Ty = (T.T @ T, T.T @ y) if knots is None else _knot_gram(effect, design, c, knots)
             Gc = P[1:, 1:]
             bc = Ty[1:] - P[1:, 0]
             t0y, t0t0 = Ty[0], P[0, 0]

@@ -35,14 +35,18 @@ def _delay_rows(x, n, f):
     return out
 
 
+def shift_rows(x: np.ndarray, n: int, f: float = 0.0) -> np.ndarray:
+    """x delayed along axis 0 by n + f samples, f in [0, 1) (:func:`_delay_rows`); any shape."""
+    x = np.asarray(x, dtype=np.float64)
+    cols = np.ascontiguousarray(x.reshape(x.shape[0], math.prod(x.shape[1:])))
+    return _delay_rows(cols, int(n), float(f)).reshape(x.shape)
+
+
 def fractional_delay(x: np.ndarray, delay_s: float, dt: float) -> np.ndarray:
     """x(t − T) along axis 0 by linear interpolation between samples; x(t < T) = x(0) (held)."""
-    x = np.asarray(x, dtype=np.float64)
     d = max(float(delay_s) / dt, 0.0)
     n = int(math.floor(d))
-    f = d - n
-    cols = np.ascontiguousarray(x.reshape(x.shape[0], math.prod(x.shape[1:])))
-    return _delay_rows(cols, n, f).reshape(x.shape)
+    return shift_rows(x, n, d - n)
 
 
 def delay_population(x: np.ndarray, delay_s: np.ndarray, dt: float) -> np.ndarray:
@@ -135,6 +139,15 @@ class Delay(Block):
 
     def operator(self, x, view, phi):
         return fractional_delay(x, float(phi[0]), view.dt)
+
+    def operator_knots(self, phi, view):
+        """A fractional delay interpolates between the whole-sample delays around it (knots: samples)."""
+        d = max(float(phi[0]) / view.dt, 0.0)
+        n = int(math.floor(d))
+        return n, n + 1, d - n
+
+    def knot_operator(self, x, view, key):
+        return shift_rows(x, key)
 
     def signature(self, yhat, view):
         """One sample of delay, ŷ(t − dt) − ŷ(t): first order in T_d for smooth inputs, and the
