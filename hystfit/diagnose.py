@@ -41,7 +41,7 @@ from .capture import Capture
 from .cells import cell_key
 from .conditions import condition_label, detect_condition, group_by_condition
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Linearization, Placebo, make_effect,
-                      signature_share, solve_coefficients, surrogate_spectrum)
+                      prepare_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
 from .identify import fit_captures, identify, prepare_shared
@@ -1206,16 +1206,20 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
     re-simulation at α·δ for α ∈ {1, ½, 0} with the new coefficients re-solved on the true
     output; the best true fit-sample SSE wins (α = 0 is the effect on the fixed base, so the
     result is never worse than that). A second iteration re-linearizes at the new point.
+    ``lin_cache``: (predictions, linearization) of ``state``, optionally with their
+    :func:`hystfit.effects.prepare_design` third (made once for every effect fitted on them).
     """
     C = len(captures)
-    xs, lin = lin_cache
+    xs, lin = lin_cache[:2]
+    design = lin_cache[2] if len(lin_cache) > 2 else None
     best_state, best_fit, best_sse = None, None, math.inf
     cur = state
     phi_start = phi0
     for it in range(iterations):
         if it > 0:
             xs, lin = _linearize(cur, captures, views)
-        fit = effect.fit(xs, views, lin, phi0=phi_start, local_search=(it > 0 or phi0 is not None))
+        fit = effect.fit(xs, views, lin, phi0=phi_start, local_search=(it > 0 or phi0 is not None),
+                         design=design if it == 0 else None)
         improved = False
         exact = False
         for alpha in (1.0, 0.5, 0.0):
@@ -1598,8 +1602,9 @@ def _step_results(state, preds_state, remaining, step: int, caps, views, all_eff
     ``_predictions(state, caps, views)``. The results (best first), the (state, predictions) of
     each, and the held-out RMSE before the step."""
     library = _library(all_effects, preds_state, views)
+    xs, lin = _linearize(state, caps, views)
     ctx = _StepContext(state, preds_state, _rmse(preds_state, views, "test"), _rmse(preds_state, views, "fit"),
-                       _linearize(state, caps, views), library, sigma, where["summary"],
+                       (xs, lin, prepare_design(xs, views, lin)), library, sigma, where["summary"],
                        tuple(surrogate_spectrum(L) for L in library))
     results, states = _run_candidates(ctx, remaining, step, caps, views, settings, rng)
     if on_tested is not None:

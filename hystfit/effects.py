@@ -341,7 +341,8 @@ class Effect(ABC):
 
     # ------------------------------------------------------------------ fitting
     def fit(self, yhats: Sequence[np.ndarray], views: Sequence[CaptureView], lin: Linearization | None = None, *,
-            phi0: np.ndarray | None = None, local_search: bool = False, bounded: bool = True) -> EffectFit:
+            phi0: np.ndarray | None = None, local_search: bool = False, bounded: bool = True,
+            design: "_Design | None" = None) -> EffectFit:
         """Fit the effect to the measured outputs given the base predictions.
 
         Parameters
@@ -352,6 +353,8 @@ class Effect(ABC):
         phi0 : a start for the search of φ (e.g. from a previous iteration).
         local_search : search only around ``phi0`` (no global grid).
         bounded : solve the final coefficients within their bounds (and δ within the base's).
+        design : ``prepare_design(yhats, views, lin)`` when it is already made (shared by the
+            effects fitted on one linearization: what they share is computed once).
 
         Returns
         -------
@@ -361,7 +364,7 @@ class Effect(ABC):
         """
         lo, hi = self.searched_bounds()
         m = lo.size
-        design = prepare_design(yhats, views, lin)
+        design = prepare_design(yhats, views, lin) if design is None else design
         scoring = (prepare_design(yhats, views, lin.reduced(views)) if lin is not None and lin.n > REDUCE_ABOVE
                    and m > 0 else design)
         seen: dict[bytes, float] = {}  # φ → score: the grid, the polish and its final comparison revisit points
@@ -489,6 +492,31 @@ class _Design:
     #                     captures without a fit sample are left out
     index: dict = field(default_factory=dict)  # capture → its position in ``fitted``
     knots: dict = field(default_factory=dict)  # Gram products of the knot operators (:func:`_knot_gram`)
+    plain: dict = field(default_factory=dict)  # capture → (X, XᵀX, Xᵀy) on its fit samples (:func:`_plain_gram`)
+
+
+def _plain_gram(design: _Design, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(X, XᵀX, Xᵀy) over the fit samples of capture ``c``, X = [ŷ | J] untransformed: the part of the
+    normal equations of every effect whose operator is the identity (creep, asymmetry, drift, the
+    placebos) that none of them changes — computed once per design, not once per effect and φ."""
+    if c not in design.plain:
+        _, mask, y = design.fitted[design.index[c]]
+        X = design.X[c] if mask is None else design.X[c][mask]
+        design.plain[c] = (X, X.T @ X, X.T @ y)
+    return design.plain[c]
+
+
+def _regressor_gram(effect: "Effect", design: _Design, c: int, T: np.ndarray | None, Rs: np.ndarray, Rl: np.ndarray,
+                    y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(AᵀA, Aᵀy) of A = [R_s | R_l | T] on the fit samples of capture ``c``; T = None: the effect's
+    operator is the identity, T = X and its Gram block comes from :func:`_plain_gram`."""
+    if T is not None:
+        A = np.hstack([Rs, Rl, T])
+        return A.T @ A, A.T @ y
+    X, XX, Xy = _plain_gram(design, c)
+    R = np.hstack([Rs, Rl])
+    RX = R.T @ X
+    return np.block([[R.T @ R, RX], [RX.T, XX]]), np.concatenate([R.T @ y, Xy])
 
 
 def _knot_gram(effect: "Effect", design: _Design, c: int, knots: tuple) -> tuple[np.ndarray, np.ndarray]:
@@ -606,11 +634,13 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
     b = np.zeros(n)
     s0 = 0.0
     indices = _solve_indices(design, ks, kl)
+    plain = type(effect).operator is Effect.operator  # the identity: its Gram block is the design's
     for c, mask, y in design.fitted:
         vv, X, yy = design.views[c], design.X[c], design.yy[c]
         mesh, ix, sel_mesh, sel = indices[c]
         knots = None if ks + kl else effect.operator_knots(phi, vv)
-        if knots is None:
+        T = None
+        if knots is None and not (plain and ks + kl):
             T = effect.operator(X, vv, phi)
             if mask is not None:
                 T = T[mask]
@@ -618,9 +648,7 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
             Rs, Rl = effect.regressors(X[:, 0], vv, phi)
             if mask is not None:
                 Rs, Rl = Rs[mask], Rl[mask]
-            A = np.hstack([Rs, Rl, T])  # [R | t0 | TJ]
-            P = A.T @ A
-            Ay = A.T @ y
+            P, Ay = _regressor_gram(effect, design, c, T, Rs, Rl, y)  # of [R | t0 | TJ]
             k = ks + kl
             t0A = P[k]  # t0 against every column
             Gc = P[sel_mesh]
