@@ -1060,6 +1060,17 @@ class _Group:
     lower: np.ndarray
     upper: np.ndarray
     indices: tuple[int, ...]
+    objective: tuple | None = field(default=None, repr=False, compare=False)  # (lengths, Objective): _group_objective
+
+
+def _group_objective(g: _Group, captures, lengths: Sequence[int]) -> Objective:
+    """The objective of group ``g`` over the first ``lengths`` samples of its captures, made once per
+    group and lengths (the model and the data do not change while θ moves; copies of a state share it)."""
+    key = tuple(int(lengths[i]) for i in g.indices)
+    if g.objective is None or g.objective[0] != key:
+        series = [Series(captures[i].u[:lengths[i]], captures[i].y[:lengths[i]], captures[i].dt) for i in g.indices]
+        g.objective = (key, Objective(g.model, series))
+    return g.objective[1]
 
 
 @dataclass
@@ -1124,8 +1135,7 @@ def _linearize(state: _State, captures, views) -> tuple[list[np.ndarray], Linear
         sl = slice(g_off[gi], g_off[gi] + g.theta.size)
         lower[sl] = g.lower - g.theta
         upper[sl] = g.upper - g.theta
-        series = [Series(captures[i].u[:lengths[i]], captures[i].y[:lengths[i]], captures[i].dt) for i in g.indices]
-        J = Objective(g.model, series).jacobian(g.theta)
+        J = _group_objective(g, captures, lengths).jacobian(g.theta)
         start = 0
         for i in g.indices:
             jac_rows[i] = J[start:start + lengths[i]]
