@@ -33,6 +33,7 @@ from typing import ClassVar, Sequence
 
 import numpy as np
 
+from ._jit import njit
 from ._lazy import lazy_module
 from .errors import ConfigError
 from .registry import blocks as _blocks
@@ -222,9 +223,22 @@ def surrogate_spectrum(x: np.ndarray) -> np.ndarray:
     return np.fft.rfft(_as_cols(np.asarray(x, dtype=np.float64)), axis=0)
 
 
+@njit(cache=True)
+def _unit_phasors(r):
+    """e^{2πi r} for every element of r (F, q): cos and sin of 2πr, the numbers of ``np.exp(2j·π·r)``
+    without its complex multiply and exponential."""
+    F, q = r.shape
+    out = np.empty((F, q), np.complex128)
+    for i in range(F):
+        for j in range(q):
+            t = 2.0 * math.pi * r[i, j]
+            out[i, j] = complex(math.cos(t), math.sin(t))
+    return out
+
+
 def _random_phases(X: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     """X (a spectrum of ``n`` samples per column) with uniformly random phases, DC and Nyquist kept."""
-    ph = np.exp(2j * np.pi * rng.random(X.shape))
+    ph = _unit_phasors(rng.random(X.shape))
     ph[0] = 1.0
     if n % 2 == 0:
         ph[-1] = 1.0

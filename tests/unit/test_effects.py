@@ -303,3 +303,11 @@ def test_placebo_skip_advances_the_generator_as_build_does():
         assert np.array_equal(got.weights, want.weights)
         assert all(np.array_equal(x, y) for x, y in zip(got.columns, want.columns))
     assert a.random() == b.random()
+
+
+def test_unit_phasors_are_the_complex_exponential():
+    """The placebo's random phases: e^{2πi r} with the numbers of numpy's complex exponential."""
+    from hystfit.effects import _unit_phasors
+
+    r = np.random.default_rng(2).random((777, 5))
+    assert np.array_equal(_unit_phasors(r), np.exp(2j * np.pi * r))
