@@ -1062,6 +1062,11 @@ class _Group:
     indices: tuple[int, ...]
     objective: tuple | None = field(default=None, repr=False, compare=False)  # (lengths, Objective): _group_objective
 
+    def __getstate__(self) -> dict:
+        """Pickled without its objective (it holds the model's compiled simulators; a forked worker
+        returns its states to this process, which makes the objective again when it needs it)."""
+        return {**self.__dict__, "objective": None}
+
 
 def _group_objective(g: _Group, captures, lengths: Sequence[int]) -> Objective:
     """The objective of group ``g`` over the first ``lengths`` samples of its captures, made once per
