@@ -53,6 +53,7 @@ __all__ = [
     "EFFECTS",
     "make_effect",
     "prepare_design",
+    "scoring_design",
     "solve_coefficients",
     "signature_share",
 ]
@@ -356,7 +357,7 @@ class Effect(ABC):
     # ------------------------------------------------------------------ fitting
     def fit(self, yhats: Sequence[np.ndarray], views: Sequence[CaptureView], lin: Linearization | None = None, *,
             phi0: np.ndarray | None = None, local_search: bool = False, bounded: bool = True,
-            design: "_Design | None" = None) -> EffectFit:
+            design: "_Design | None" = None, grid_scores: np.ndarray | None = None) -> EffectFit:
         """Fit the effect to the measured outputs given the base predictions.
 
         Parameters
@@ -369,6 +370,8 @@ class Effect(ABC):
         bounded : solve the final coefficients within their bounds (and δ within the base's).
         design : ``prepare_design(yhats, views, lin)`` when it is already made (shared by the
             effects fitted on one linearization: what they share is computed once).
+        grid_scores : the :meth:`score` of every candidate of :meth:`search_grid` on
+            ``scoring_design(design)`` when already known (computed in parallel); used without ``phi0``.
 
         Returns
         -------
@@ -379,17 +382,15 @@ class Effect(ABC):
         lo, hi = self.searched_bounds()
         m = lo.size
         design = prepare_design(yhats, views, lin) if design is None else design
-        scoring = (prepare_design(yhats, views, lin.reduced(views)) if lin is not None and lin.n > REDUCE_ABOVE
-                   and m > 0 else design)
+        scoring = scoring_design(design) if m > 0 else design
         seen: dict[bytes, float] = {}  # φ → score: the grid, the polish and its final comparison revisit points
+        if grid_scores is not None and phi0 is None:
+            seen.update((c.tobytes(), float(v)) for c, v in zip(np.asarray(self.search_grid(), float), grid_scores))
 
         def score(phi: np.ndarray) -> float:
             key = np.asarray(phi, float).tobytes()
             if key not in seen:
-                try:
-                    seen[key] = solve_coefficients(self, phi, design=scoring, bounded=False)[3]
-                except (ConfigError, np.linalg.LinAlgError, ValueError):
-                    seen[key] = math.inf
+                seen[key] = self.score(phi, scoring)
             return seen[key]
 
         if m == 0:
@@ -403,6 +404,14 @@ class Effect(ABC):
             best = _polish(score, best, lo, hi, self._log_scaled())
         shared, local, delta, sse = solve_coefficients(self, best, design=design, bounded=bounded)
         return EffectFit(self, np.asarray(best, float), shared, local, delta, float(sse), len(seen))
+
+    def score(self, phi: np.ndarray, scoring: "_Design") -> float:
+        """The fit-sample SSE of candidate φ on a :func:`scoring_design` (unbounded linear solve;
+        +inf where φ is invalid): what the search of :meth:`fit` minimizes."""
+        try:
+            return solve_coefficients(self, phi, design=scoring, bounded=False)[3]
+        except (ConfigError, np.linalg.LinAlgError, ValueError):
+            return math.inf
 
     def _log_scaled(self) -> np.ndarray:
         """Which searched parameters are searched in log space (all positive scale parameters)."""
@@ -507,6 +516,7 @@ class _Design:
     index: dict = field(default_factory=dict)  # capture → its position in ``fitted``
     knots: dict = field(default_factory=dict)  # Gram products of the knot operators (:func:`_knot_gram`)
     plain: dict = field(default_factory=dict)  # capture → (X, XᵀX, Xᵀy) on its fit samples (:func:`_plain_gram`)
+    derived: dict = field(default_factory=dict)  # designs made from this one (:func:`scoring_design`)
 
 
 def _plain_gram(design: _Design, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -590,6 +600,20 @@ def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
             out.append(((at, at) if run else np.ix_(ix, ix), at, None if sel is None else np.ix_(sel, sel), sel))
         design.indices[key] = out
     return design.indices[key]
+
+
+def scoring_design(design: _Design) -> _Design:
+    """The design on which searched parameters φ are scored: ``design`` itself, or for a base with
+    more than :data:`REDUCE_ABOVE` step parameters the same data in the directions the fit samples
+    determine (:meth:`Linearization.reduced`), made once per design (every searched effect of a
+    selection step shares it)."""
+    lin = design.lin
+    if lin is None or lin.n <= REDUCE_ABOVE:
+        return design
+    if "scoring" not in design.derived:
+        design.derived["scoring"] = prepare_design([X[:, 0] for X in design.X], design.views,
+                                                   lin.reduced(design.views))
+    return design.derived["scoring"]
 
 
 def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
