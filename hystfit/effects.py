@@ -633,10 +633,9 @@ def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
         cols.append(None if lin is None else np.asarray(lin.cols[c], int))
     fitted = []
     for c, vv in enumerate(vs):
-        if vv.fit.all():
-            fitted.append((c, None, vv.y))
-        elif vv.fit.any():
-            fitted.append((c, vv.fit, vv.y[vv.fit]))
+        if not vv.fit.any():  # a capture held out whole (or none of its samples fitted)
+            continue
+        fitted.append((c, None, vv.y) if vv.fit.all() else (c, vv.fit, vv.y[vv.fit]))
     return _Design(tuple(vs), tuple(Xs), tuple(yys), tuple(cols), lin, fitted=tuple(fitted),
                    index={f[0]: i for i, f in enumerate(fitted)})
 
