@@ -41,14 +41,14 @@ from .capture import Capture
 from .cells import cell_key
 from .conditions import condition_label, detect_condition, group_by_condition
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Linearization, Placebo, make_effect,
-                      signature_share, solve_coefficients, surrogate_spectrum)
+                      prepare_design, scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
 from .identify import fit_captures, identify, prepare_shared
 from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
-from .parallel import CellFailed, fork_map, run_cells
+from .parallel import CellFailed, fork_map, fork_workers, run_cells
 from .seeds import check_seed
 from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
 
@@ -1060,6 +1060,22 @@ class _Group:
     lower: np.ndarray
     upper: np.ndarray
     indices: tuple[int, ...]
+    objective: tuple | None = field(default=None, repr=False, compare=False)  # (lengths, Objective): _group_objective
+
+    def __getstate__(self) -> dict:
+        """Pickled without its objective (it holds the model's compiled simulators; a forked worker
+        returns its states to this process, which makes the objective again when it needs it)."""
+        return {**self.__dict__, "objective": None}
+
+
+def _group_objective(g: _Group, captures, lengths: Sequence[int]) -> Objective:
+    """The objective of group ``g`` over the first ``lengths`` samples of its captures, made once per
+    group and lengths (the model and the data do not change while θ moves; copies of a state share it)."""
+    key = tuple(int(lengths[i]) for i in g.indices)
+    if g.objective is None or g.objective[0] != key:
+        series = [Series(captures[i].u[:lengths[i]], captures[i].y[:lengths[i]], captures[i].dt) for i in g.indices]
+        g.objective = (key, Objective(g.model, series))
+    return g.objective[1]
 
 
 @dataclass
@@ -1124,8 +1140,7 @@ def _linearize(state: _State, captures, views) -> tuple[list[np.ndarray], Linear
         sl = slice(g_off[gi], g_off[gi] + g.theta.size)
         lower[sl] = g.lower - g.theta
         upper[sl] = g.upper - g.theta
-        series = [Series(captures[i].u[:lengths[i]], captures[i].y[:lengths[i]], captures[i].dt) for i in g.indices]
-        J = Objective(g.model, series).jacobian(g.theta)
+        J = _group_objective(g, captures, lengths).jacobian(g.theta)
         start = 0
         for i in g.indices:
             jac_rows[i] = J[start:start + lengths[i]]
@@ -1198,7 +1213,7 @@ def _rmse(preds, views, which: str) -> float:
 
 
 def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, iterations: int,
-             phi0: np.ndarray | None = None) -> tuple[_State, EffectFit]:
+             phi0: np.ndarray | None = None, grid_scores: np.ndarray | None = None) -> tuple[_State, EffectFit]:
     """Fit ``effect`` on top of ``state`` jointly with the base and the earlier effects.
 
     Each iteration: search φ with the linear coefficients and a Gauss–Newton step δ of every
@@ -1206,16 +1221,21 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
     re-simulation at α·δ for α ∈ {1, ½, 0} with the new coefficients re-solved on the true
     output; the best true fit-sample SSE wins (α = 0 is the effect on the fixed base, so the
     result is never worse than that). A second iteration re-linearizes at the new point.
+    ``lin_cache``: (predictions, linearization) of ``state``, optionally with their
+    :func:`hystfit.effects.prepare_design` third (made once for every effect fitted on them).
+    ``grid_scores``: the scores of the effect's search grid on that design, when already computed.
     """
     C = len(captures)
-    xs, lin = lin_cache
+    xs, lin = lin_cache[:2]
+    design = lin_cache[2] if len(lin_cache) > 2 else None
     best_state, best_fit, best_sse = None, None, math.inf
     cur = state
     phi_start = phi0
     for it in range(iterations):
         if it > 0:
             xs, lin = _linearize(cur, captures, views)
-        fit = effect.fit(xs, views, lin, phi0=phi_start, local_search=(it > 0 or phi0 is not None))
+        fit = effect.fit(xs, views, lin, phi0=phi_start, local_search=(it > 0 or phi0 is not None),
+                         design=design if it == 0 else None, grid_scores=grid_scores if it == 0 else None)
         improved = False
         exact = False
         for alpha in (1.0, 0.5, 0.0):
@@ -1525,9 +1545,11 @@ class _Refit:
     r2: float
 
 
-def _refit_effect(ctx: _StepContext, eff: Effect, caps, views, settings: "DiagnoseSettings") -> _Refit:
-    """``eff`` refitted on top of the current model (jointly with it) and scored on held-out data."""
-    st_e, efit = _augment(ctx.state, eff, caps, views, ctx.lin_cache, settings.iterations)
+def _refit_effect(ctx: _StepContext, eff: Effect, caps, views, settings: "DiagnoseSettings",
+                  grid_scores: np.ndarray | None = None) -> _Refit:
+    """``eff`` refitted on top of the current model (jointly with it) and scored on held-out data
+    (``grid_scores``: the scores of its search grid, when already computed)."""
+    st_e, efit = _augment(ctx.state, eff, caps, views, ctx.lin_cache, settings.iterations, grid_scores=grid_scores)
     preds_e = _predictions(st_e, caps, views)
     fitted = [i for i, v in enumerate(views) if v.fit_end >= 3]
     share, r2 = signature_share(eff, [ctx.preds[i][: views[i].fit_end] for i in fitted],
@@ -1558,21 +1580,33 @@ def _run_candidates(ctx: _StepContext, remaining: Sequence[Effect], step: int, c
                     settings: "DiagnoseSettings", rng) -> tuple[list[EffectResult], dict]:
     """Every remaining candidate refitted and judged against its placebos (the refits and the placebo
     fits are independent: they run on :data:`SELECTION_WORKERS` processes, longest first, and give
-    the same numbers on any number). The results in the order of ``remaining``, and per effect the
-    (state, predictions) of the model with it."""
+    the same numbers on any number). The search grids of the effects with searched parameters are
+    scored first, split over the processes beside the other refits and the placebos; their searches
+    then go on from those scores (:meth:`hystfit.effects.Effect.fit`'s ``grid_scores``). The results
+    in the order of ``remaining``, and per effect the (state, predictions) of the model with it."""
     draws = _placebo_draws(ctx, remaining, settings, rng)
-    effects = sorted(remaining, key=lambda e: -e.searched_bounds()[0].size)  # the searches take longest
+    searched = sorted((e for e in remaining if e.searched_bounds()[0].size), key=lambda e: -e.searched_bounds()[0].size)
+    others = [e for e in remaining if not e.searched_bounds()[0].size]
+    scoring = scoring_design(ctx.lin_cache[2]) if searched else None  # made here: every worker shares it
+    chunks = [(e, rows) for e in searched for rows in np.array_split(np.arange(len(e.search_grid())), fork_workers(
+        SELECTION_WORKERS)) if rows.size]  # the grid searches take longest: split, first
 
     def run(i: int):
-        if i < len(effects):
-            return _refit_effect(ctx, effects[i], caps, views, settings)
-        key, start = draws[i - len(effects)]
+        if i < len(chunks):
+            e, rows = chunks[i]
+            return np.array([e.score(c, scoring) for c in e.search_grid()[rows]])
+        if i < len(chunks) + len(others):
+            return _refit_effect(ctx, others[i - len(chunks)], caps, views, settings)
+        key, start = draws[i - len(chunks) - len(others)]
         return _placebo_gain(ctx, key, start, caps, views)
 
-    out = fork_map(run, len(effects) + len(draws), SELECTION_WORKERS)
-    refits = {e.name: r for e, r in zip(effects, out)}
+    out = fork_map(run, len(chunks) + len(others) + len(draws), SELECTION_WORKERS)
+    grids = {e.name: np.concatenate([r for (c, _), r in zip(chunks, out) if c is e]) for e in searched}
+    polished = fork_map(lambda i: _refit_effect(ctx, searched[i], caps, views, settings, grids[searched[i].name]),
+                        len(searched), SELECTION_WORKERS)
+    refits = {e.name: r for e, r in zip(searched + others, polished + out[len(chunks):len(chunks) + len(others)])}
     gains: dict[tuple[int, int], list[float]] = {}
-    for (key, _), g in zip(draws, out[len(effects):]):
+    for (key, _), g in zip(draws, out[len(chunks) + len(others):]):
         gains.setdefault(key, []).append(g)
     placebo = {key: (max(g), float(np.mean(g))) for key, g in gains.items()}
     results = [_test_effect(ctx, e, refits[e.name], placebo[_placebo_layout(e)], step, caps, views, settings)
@@ -1598,8 +1632,9 @@ def _step_results(state, preds_state, remaining, step: int, caps, views, all_eff
     ``_predictions(state, caps, views)``. The results (best first), the (state, predictions) of
     each, and the held-out RMSE before the step."""
     library = _library(all_effects, preds_state, views)
+    xs, lin = _linearize(state, caps, views)
     ctx = _StepContext(state, preds_state, _rmse(preds_state, views, "test"), _rmse(preds_state, views, "fit"),
-                       _linearize(state, caps, views), library, sigma, where["summary"],
+                       (xs, lin, prepare_design(xs, views, lin)), library, sigma, where["summary"],
                        tuple(surrogate_spectrum(L) for L in library))
     results, states = _run_candidates(ctx, remaining, step, caps, views, settings, rng)
     if on_tested is not None:

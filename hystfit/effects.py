@@ -33,6 +33,7 @@ from typing import ClassVar, Sequence
 
 import numpy as np
 
+from ._jit import njit
 from ._lazy import lazy_module
 from .errors import ConfigError
 from .registry import blocks as _blocks
@@ -52,6 +53,7 @@ __all__ = [
     "EFFECTS",
     "make_effect",
     "prepare_design",
+    "scoring_design",
     "solve_coefficients",
     "signature_share",
 ]
@@ -179,7 +181,7 @@ class EffectFit:
     delta : (n,) step of the linearized parameters (base model, earlier effects); empty when the
         base was held fixed.
     sse : residual sum of squares on the fit samples predicted by the linear model (out²).
-    evaluations : number of candidate φ evaluated.
+    evaluations : number of distinct candidates φ evaluated.
     """
 
     effect: "Effect"
@@ -222,6 +224,28 @@ def surrogate_spectrum(x: np.ndarray) -> np.ndarray:
     return np.fft.rfft(_as_cols(np.asarray(x, dtype=np.float64)), axis=0)
 
 
+@njit(cache=True)
+def _unit_phasors(r):
+    """e^{2πi r} for every element of r (F, q): cos and sin of 2πr, the numbers of ``np.exp(2j·π·r)``
+    without its complex multiply and exponential."""
+    F, q = r.shape
+    out = np.empty((F, q), np.complex128)
+    for i in range(F):
+        for j in range(q):
+            t = 2.0 * math.pi * r[i, j]
+            out[i, j] = complex(math.cos(t), math.sin(t))
+    return out
+
+
+def _random_phases(X: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """X (a spectrum of ``n`` samples per column) with uniformly random phases, DC and Nyquist kept."""
+    ph = _unit_phasors(rng.random(X.shape))
+    ph[0] = 1.0
+    if n % 2 == 0:
+        ph[-1] = 1.0
+    return X * ph
+
+
 def phase_surrogate(x: np.ndarray, rng: np.random.Generator, spectrum: np.ndarray | None = None) -> np.ndarray:
     """Phase-randomized surrogate of every column of ``x`` (N, m): the same amplitude spectrum
     (hence the same RMS and smoothness), uniformly random phases (DC and Nyquist kept).
@@ -229,11 +253,7 @@ def phase_surrogate(x: np.ndarray, rng: np.random.Generator, spectrum: np.ndarra
     x = _as_cols(np.asarray(x, dtype=np.float64))
     n = x.shape[0]
     X = surrogate_spectrum(x) if spectrum is None else spectrum
-    ph = np.exp(2j * np.pi * rng.random(X.shape))
-    ph[0] = 1.0
-    if n % 2 == 0:
-        ph[-1] = 1.0
-    return np.fft.irfft(X * ph, n=n, axis=0)
+    return np.fft.irfft(_random_phases(X, n, rng), n=n, axis=0)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -289,6 +309,18 @@ class Effect(ABC):
         """T_φ applied to the columns of ``x`` (N, m) (identity by default)."""
         return x
 
+    def operator_knots(self, phi: np.ndarray, view: CaptureView) -> tuple | None:
+        """T_φ as an interpolation between two operators that many φ share: (a, b, f) with
+        T_φ = (1 − f)·B_a + f·B_b, f in [0, 1), B_key = :meth:`knot_operator` — or None (the default)
+        when T_φ is not of that form. :func:`solve_coefficients` then forms the Gram products of
+        T_φ[X] from those of B_a[X] and B_b[X], computed once per design instead of once per φ."""
+        return None
+
+    def knot_operator(self, x: np.ndarray, view: CaptureView, key) -> np.ndarray:
+        """B_key applied to the columns of ``x`` (N, m), for the keys of :meth:`operator_knots`
+        (default: the key is a φ, B_key = T_key)."""
+        return self.operator(x, view, np.atleast_1d(np.asarray(key, float)))
+
     def regressors(self, yhat: np.ndarray, view: CaptureView, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """R_φ(ŷ): (N, k_s) shared and (N, k_l) per-capture regressors (default: none)."""
         N = yhat.shape[0]
@@ -324,7 +356,8 @@ class Effect(ABC):
 
     # ------------------------------------------------------------------ fitting
     def fit(self, yhats: Sequence[np.ndarray], views: Sequence[CaptureView], lin: Linearization | None = None, *,
-            phi0: np.ndarray | None = None, local_search: bool = False, bounded: bool = True) -> EffectFit:
+            phi0: np.ndarray | None = None, local_search: bool = False, bounded: bool = True,
+            design: "_Design | None" = None, grid_scores: np.ndarray | None = None) -> EffectFit:
         """Fit the effect to the measured outputs given the base predictions.
 
         Parameters
@@ -335,6 +368,10 @@ class Effect(ABC):
         phi0 : a start for the search of φ (e.g. from a previous iteration).
         local_search : search only around ``phi0`` (no global grid).
         bounded : solve the final coefficients within their bounds (and δ within the base's).
+        design : ``prepare_design(yhats, views, lin)`` when it is already made (shared by the
+            effects fitted on one linearization: what they share is computed once).
+        grid_scores : the :meth:`score` of every candidate of :meth:`search_grid` on
+            ``scoring_design(design)`` when already known (computed in parallel); used without ``phi0``.
 
         Returns
         -------
@@ -344,18 +381,17 @@ class Effect(ABC):
         """
         lo, hi = self.searched_bounds()
         m = lo.size
-        design = prepare_design(yhats, views, lin)
-        scoring = (prepare_design(yhats, views, lin.reduced(views)) if lin is not None and lin.n > REDUCE_ABOVE
-                   and m > 0 else design)
-        evals = 0
+        design = prepare_design(yhats, views, lin) if design is None else design
+        scoring = scoring_design(design) if m > 0 else design
+        seen: dict[bytes, float] = {}  # φ → score: the grid, the polish and its final comparison revisit points
+        if grid_scores is not None and phi0 is None:
+            seen.update((c.tobytes(), float(v)) for c, v in zip(np.asarray(self.search_grid(), float), grid_scores))
 
         def score(phi: np.ndarray) -> float:
-            nonlocal evals
-            evals += 1
-            try:
-                return solve_coefficients(self, phi, design=scoring, bounded=False)[3]
-            except (ConfigError, np.linalg.LinAlgError, ValueError):
-                return math.inf
+            key = np.asarray(phi, float).tobytes()
+            if key not in seen:
+                seen[key] = self.score(phi, scoring)
+            return seen[key]
 
         if m == 0:
             best = np.empty(0)
@@ -367,7 +403,15 @@ class Effect(ABC):
             best = cands[int(np.argmin(scores))]
             best = _polish(score, best, lo, hi, self._log_scaled())
         shared, local, delta, sse = solve_coefficients(self, best, design=design, bounded=bounded)
-        return EffectFit(self, np.asarray(best, float), shared, local, delta, float(sse), evals)
+        return EffectFit(self, np.asarray(best, float), shared, local, delta, float(sse), len(seen))
+
+    def score(self, phi: np.ndarray, scoring: "_Design") -> float:
+        """The fit-sample SSE of candidate φ on a :func:`scoring_design` (unbounded linear solve;
+        +inf where φ is invalid): what the search of :meth:`fit` minimizes."""
+        try:
+            return solve_coefficients(self, phi, design=scoring, bounded=False)[3]
+        except (ConfigError, np.linalg.LinAlgError, ValueError):
+            return math.inf
 
     def _log_scaled(self) -> np.ndarray:
         """Which searched parameters are searched in log space (all positive scale parameters)."""
@@ -467,6 +511,71 @@ class _Design:
     cols: tuple
     lin: Linearization | None
     indices: dict = field(default_factory=dict)  # (k_s, k_l) → per capture the index sets of the solve
+    fitted: tuple = ()  # per capture: (fit mask, or None when every sample is fitted; y on the fit samples);
+    #                     captures without a fit sample are left out
+    index: dict = field(default_factory=dict)  # capture → its position in ``fitted``
+    knots: dict = field(default_factory=dict)  # Gram products of the knot operators (:func:`_knot_gram`)
+    plain: dict = field(default_factory=dict)  # capture → (X, XᵀX, Xᵀy) on its fit samples (:func:`_plain_gram`)
+    derived: dict = field(default_factory=dict)  # designs made from this one (:func:`scoring_design`)
+
+
+def _plain_gram(design: _Design, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(X, XᵀX, Xᵀy) over the fit samples of capture ``c``, X = [ŷ | J] untransformed: the part of the
+    normal equations of every effect whose operator is the identity (creep, asymmetry, drift, the
+    placebos) that none of them changes — computed once per design, not once per effect and φ."""
+    if c not in design.plain:
+        _, mask, y = design.fitted[design.index[c]]
+        X = design.X[c] if mask is None else design.X[c][mask]
+        design.plain[c] = (X, X.T @ X, X.T @ y)
+    return design.plain[c]
+
+
+def _regressor_gram(effect: "Effect", design: _Design, c: int, T: np.ndarray | None, Rs: np.ndarray, Rl: np.ndarray,
+                    y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(AᵀA, Aᵀy) of A = [R_s | R_l | T] on the fit samples of capture ``c``; T = None: the effect's
+    operator is the identity, T = X and its Gram block comes from :func:`_plain_gram`."""
+    if T is not None:
+        A = np.hstack([Rs, Rl, T])
+        return A.T @ A, A.T @ y
+    X, XX, Xy = _plain_gram(design, c)
+    R = np.hstack([Rs, Rl])
+    RX = R.T @ X
+    return np.block([[R.T @ R, RX], [RX.T, XX]]), np.concatenate([R.T @ y, Xy])
+
+
+def _knot_gram(effect: "Effect", design: _Design, c: int, knots: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """(TᵀT, Tᵀy) over the fit samples of capture ``c``, T = T_φ[X] = (1 − f)·B_a[X] + f·B_b[X] for the
+    ``knots`` (a, b, f) of :meth:`Effect.operator_knots`:
+
+        TᵀT = (1 − f)²·Q_a + f(1 − f)·M_ab + f²·Q_b,  Tᵀy = (1 − f)·B_a[X]ᵀy + f·B_b[X]ᵀy
+
+    with Q_k = B_k[X]ᵀB_k[X] and M_ab = B_a[X]ᵀB_b[X] + B_b[X]ᵀB_a[X] = 4·Q_½ − Q_a − Q_b, Q_½ the Gram
+    matrix of the midpoint ½(B_a[X] + B_b[X]). Each is computed once per design and capture (the
+    same numbers as TᵀT up to rounding: a delay search visits a few whole-sample knots only)."""
+    a, b, f = knots
+    _, mask, y = design.fitted[design.index[c]]
+    vv, X = design.views[c], design.X[c]
+    cache = design.knots
+
+    def rows(key):
+        B = effect.knot_operator(X, vv, key)
+        return B if mask is None else B[mask]
+
+    def gram(key):
+        if (c, key) not in cache:
+            B = rows(key)
+            cache[(c, key)] = (B.T @ B, B.T @ y)
+        return cache[(c, key)]
+
+    Qa, ya = gram(a)
+    if f == 0.0:
+        return Qa, ya
+    Qb, yb = gram(b)
+    if (c, a, b) not in cache:
+        mid = 0.5 * (rows(a) + rows(b))
+        cache[(c, a, b)] = 4.0 * (mid.T @ mid) - Qa - Qb
+    g = 1.0 - f
+    return (g * g) * Qa + (f * g) * cache[(c, a, b)] + (f * f) * Qb, g * ya + f * yb
 
 
 def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
@@ -493,6 +602,20 @@ def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
     return design.indices[key]
 
 
+def scoring_design(design: _Design) -> _Design:
+    """The design on which searched parameters φ are scored: ``design`` itself, or for a base with
+    more than :data:`REDUCE_ABOVE` step parameters the same data in the directions the fit samples
+    determine (:meth:`Linearization.reduced`), made once per design (every searched effect of a
+    selection step shares it)."""
+    lin = design.lin
+    if lin is None or lin.n <= REDUCE_ABOVE:
+        return design
+    if "scoring" not in design.derived:
+        design.derived["scoring"] = prepare_design([X[:, 0] for X in design.X], design.views,
+                                                   lin.reduced(design.views))
+    return design.derived["scoring"]
+
+
 def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
                    lin: Linearization | None = None) -> _Design:
     """Precompute the data of :func:`solve_coefficients` for the fit samples of every capture."""
@@ -508,7 +631,13 @@ def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
         yys.append(float(yf @ yf))
         vs.append(vv)
         cols.append(None if lin is None else np.asarray(lin.cols[c], int))
-    return _Design(tuple(vs), tuple(Xs), tuple(yys), tuple(cols), lin)
+    fitted = []
+    for c, vv in enumerate(vs):
+        if not vv.fit.any():  # a capture held out whole (or none of its samples fitted)
+            continue
+        fitted.append((c, None, vv.y) if vv.fit.all() else (c, vv.fit, vv.y[vv.fit]))
+    return _Design(tuple(vs), tuple(Xs), tuple(yys), tuple(cols), lin, fitted=tuple(fitted),
+                   index={f[0]: i for i, f in enumerate(fitted)})
 
 
 def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarray] | None = None,
@@ -542,32 +671,28 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
     b = np.zeros(n)
     s0 = 0.0
     indices = _solve_indices(design, ks, kl)
-    for vv, X, yy, (mesh, ix, sel_mesh, sel) in zip(design.views, design.X, design.yy, indices):
-        mask = vv.fit
-        if not mask.any():
-            continue
-        full = bool(mask.all())
-        T = effect.operator(X, vv, phi)
-        y = vv.y
-        yhat = X[:, 0]
-        Rs, Rl = effect.regressors(yhat, vv, phi) if ks + kl else (None, None)
-        if not full:
-            T = T[mask]
-            y = y[mask]
-            if Rs is not None:
-                Rs, Rl = Rs[mask], Rl[mask]
+    plain = type(effect).operator is Effect.operator  # the identity: its Gram block is the design's
+    for c, mask, y in design.fitted:
+        vv, X, yy = design.views[c], design.X[c], design.yy[c]
+        mesh, ix, sel_mesh, sel = indices[c]
+        knots = None if ks + kl else effect.operator_knots(phi, vv)
+        T = None
+        if knots is None and not (plain and ks + kl):
+            T = effect.operator(X, vv, phi)
+            if mask is not None:
+                T = T[mask]
         if ks + kl:
-            A = np.hstack([Rs, Rl, T])  # [R | t0 | TJ]
-            P = A.T @ A
-            Ay = A.T @ y
+            Rs, Rl = effect.regressors(X[:, 0], vv, phi)
+            if mask is not None:
+                Rs, Rl = Rs[mask], Rl[mask]
+            P, Ay = _regressor_gram(effect, design, c, T, Rs, Rl, y)  # of [R | t0 | TJ]
             k = ks + kl
             t0A = P[k]  # t0 against every column
             Gc = P[sel_mesh]
             bc = Ay[sel] - t0A[sel]
             t0y, t0t0 = Ay[k], P[k, k]
         else:
-            P = T.T @ T
-            Ty = T.T @ y
+            P, Ty = (T.T @ T, T.T @ y) if knots is None else _knot_gram(effect, design, c, knots)
             Gc = P[1:, 1:]
             bc = Ty[1:] - P[1:, 0]
             t0y, t0t0 = Ty[0], P[0, 0]
@@ -668,8 +793,10 @@ class Placebo(Effect):
 
     Parameters
     ----------
-    library : per capture (in the order of ``CaptureView.index``), (N_c, q) surrogate columns
-        over the whole capture (fit and held-out samples).
+    columns : per capture (in the order of ``CaptureView.index``), (N_c, n_shared + n_local) the
+        regressors over the whole capture (fit and held-out samples): the surrogates of the library
+        (q columns) mixed by ``weights``. (Mixed in the frequency domain, before the inverse
+        transform, which is linear: the same columns up to rounding, at a fraction of the cost.)
     weights : (q, n_shared + n_local) random mixing matrix.
     """
 
@@ -677,7 +804,7 @@ class Placebo(Effect):
     title: ClassVar[str] = "placebo (random augmentation of the same size)"
     equation: ClassVar[str] = "y = ŷ + S·W·a (random mixtures of phase-randomized effect signatures S)"
 
-    library: tuple = field(default=(), compare=False, repr=False)
+    columns: tuple = field(default=(), compare=False, repr=False)
     weights: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), compare=False, repr=False)
     n_shared: int = 0
     n_local: int = 0
@@ -688,10 +815,15 @@ class Placebo(Effect):
         """A placebo with ``n_shared`` + ``n_local`` random mixtures of surrogates of ``library``
         (``spectra``: the library's :func:`surrogate_spectrum` per capture, when already known)."""
         spectra = (None,) * len(library) if spectra is None else spectra
-        lib = tuple(phase_surrogate(np.asarray(L, float), rng, S) for L, S in zip(library, spectra))
+        lib = [_as_cols(np.asarray(L, float)) for L in library]
+        phased = [_random_phases(surrogate_spectrum(L) if S is None else S, L.shape[0], rng)
+                  for L, S in zip(lib, spectra)]
         q = lib[0].shape[1]
         W = rng.standard_normal((q, n_shared + n_local)) / math.sqrt(max(q, 1))
-        return cls(library=lib, weights=W, n_shared=int(n_shared), n_local=int(n_local))
+        # mixed before the inverse transform (it is linear): one transform per regressor, not per surrogate
+        cols = tuple(np.fft.irfft(P @ W, n=L.shape[0], axis=0) if W.shape[1] else np.zeros((L.shape[0], 0))
+                     for P, L in zip(phased, lib))
+        return cls(columns=cols, weights=W, n_shared=int(n_shared), n_local=int(n_local))
 
     @staticmethod
     def skip(library: Sequence[np.ndarray], n_shared: int, n_local: int, rng: np.random.Generator) -> None:
@@ -706,7 +838,7 @@ class Placebo(Effect):
         return self.n_shared, self.n_local
 
     def regressors(self, yhat, view, phi):
-        R = self.library[view.index][: yhat.shape[0]] @ self.weights
+        R = self.columns[view.index][: yhat.shape[0]]
         return R[:, : self.n_shared], R[:, self.n_shared:]
 
     def describe(self, phi, shared, local, views, sources=None):

@@ -8,29 +8,45 @@ from typing import ClassVar
 
 import numpy as np
 
+from .._jit import njit
 from ..effects import EffectParam, periodic_fmax
 from ..params import DataScale, Param
 from ..registry import blocks
 from .base import Block, frequency_of_excitation
 
 
+@njit(cache=True)
+def _delay_rows(x, n, f):
+    """Row k of x (N, M) read at k − n − f: (1 − f)·x[max(k − n, 0)] + f·x[max(k − n − 1, 0)] (the
+    first row held before the start); for f = 0 the row x[max(k − n, 0)] itself. One pass, no
+    temporaries (the arithmetic of the former slice form, hence the same numbers)."""
+    N, M = x.shape
+    out = np.empty((N, M))
+    g = 1.0 - f
+    for k in range(N):
+        i0 = max(k - n, 0)
+        if f == 0.0:
+            for m in range(M):
+                out[k, m] = x[i0, m]
+        else:
+            i1 = max(k - n - 1, 0)
+            for m in range(M):
+                out[k, m] = g * x[i0, m] + f * x[i1, m]
+    return out
+
+
+def shift_rows(x: np.ndarray, n: int, f: float = 0.0) -> np.ndarray:
+    """x delayed along axis 0 by n + f samples, f in [0, 1) (:func:`_delay_rows`); any shape."""
+    x = np.asarray(x, dtype=np.float64)
+    cols = np.ascontiguousarray(x.reshape(x.shape[0], math.prod(x.shape[1:])))
+    return _delay_rows(cols, int(n), float(f)).reshape(x.shape)
+
+
 def fractional_delay(x: np.ndarray, delay_s: float, dt: float) -> np.ndarray:
     """x(t − T) along axis 0 by linear interpolation between samples; x(t < T) = x(0) (held)."""
-    x = np.asarray(x, dtype=np.float64)
     d = max(float(delay_s) / dt, 0.0)
     n = int(math.floor(d))
-    f = d - n
-    N = x.shape[0]
-    # sample k reads x[max(k − n, 0)] and x[max(k − n − 1, 0)]: slices, no index arrays
-    out = np.empty(x.shape)
-    if f == 0.0:
-        out[:n] = x[:1]
-        out[n:] = x[:max(N - n, 0)]
-        return out
-    head = min(n + 1, N)  # samples k ≤ n read x[0] twice
-    out[:head] = (1.0 - f) * x[:1] + f * x[:1]
-    out[head:] = (1.0 - f) * x[1:max(N - n, 1)] + f * x[:max(N - n - 1, 0)]
-    return out
+    return shift_rows(x, n, d - n)
 
 
 def delay_population(x: np.ndarray, delay_s: np.ndarray, dt: float) -> np.ndarray:
@@ -146,6 +162,15 @@ class Delay(Block):
 
     def operator(self, x, view, phi):
         return fractional_delay(x, float(phi[0]), view.dt)
+
+    def operator_knots(self, phi, view):
+        """A fractional delay interpolates between the whole-sample delays around it (knots: samples)."""
+        d = max(float(phi[0]) / view.dt, 0.0)
+        n = int(math.floor(d))
+        return n, n + 1, d - n
+
+    def knot_operator(self, x, view, key):
+        return shift_rows(x, key)
 
     def signature(self, yhat, view):
         """One sample of delay, ŷ(t − dt) − ŷ(t): first order in T_d for smooth inputs, and the

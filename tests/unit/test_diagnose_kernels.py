@@ -162,3 +162,34 @@ def test_finer_base_is_fitted_once_per_diagnosis(monkeypatch):
     assert D._fine_base_fits(caps, design, m20, opt, 1, None) is not first  # another seed: other fits
     assert D._fine_base_fits(caps, D._design(caps, D.DiagnoseSettings(), False), m20, opt, 0, None) is not first
     assert len(calls) == 4
+
+
+def test_linearized_state_pickles_and_reuses_its_objective():
+    """A state whose groups keep their objective (:func:`hystfit.diagnose._group_objective`) still
+    pickles — a forked selection worker sends its refitted states back — and a second linearization
+    reuses the objective and gives the same Jacobian."""
+    import pickle
+
+    import hystfit.diagnose as D
+
+    t = np.arange(600) * 1e-4
+    caps = []
+    for f in (10.0, 20.0):
+        u = 20.0 * 0.5 * (1 - np.cos(2 * np.pi * f * t))
+        caps.append(D.Capture(t=t, u=u, y=0.1 * u, dt=1e-4, amplitude_V=20.0, frequency_Hz=f, source=f"c{f:g}"))
+    design = D._design(caps, D.DiagnoseSettings(), False)
+    scale = DataScale.from_arrays([c.u for c in caps], [c.y for c in caps], [c.dt for c in caps])
+    model = make_model("pi", {"n_operators": 5}).adapt(scale)
+    params = model.params(scale)
+    theta = np.array([p.default for p in params], float)
+    g = D._Group("global", (np.nan, np.nan), model, params, theta, np.array([p.lower for p in params]),
+                 np.array([p.upper for p in params]), (0, 1))
+    state = D._State([g], [], (0, 0))
+    views = list(design.views)
+    _, lin1 = D._linearize(state, caps, views)
+    obj = g.objective[1]
+    _, lin2 = D._linearize(state.copy(), caps, views)
+    assert state.copy().groups[0].objective[1] is obj
+    assert all(np.array_equal(a, b) for a, b in zip(lin1.jac, lin2.jac))
+    back = pickle.loads(pickle.dumps(state))
+    assert back.groups[0].objective is None and np.array_equal(back.groups[0].theta, theta)

@@ -254,6 +254,26 @@ def test_placebo_has_the_requested_size(rng):
     assert Rs.shape == (base[1].size, 2) and Rl.shape == (base[1].size, 1)
 
 
+def test_placebo_columns_are_mixed_surrogates():
+    """The placebo's regressors are its surrogates of the library mixed by its weights (mixed before
+    the inverse transform: equal up to rounding) — the same random phases as :func:`phase_surrogate`."""
+    import copy
+
+    from hystfit.effects import phase_surrogate
+
+    gen = np.random.default_rng(3)
+    library = [gen.standard_normal((n, 5)) for n in (400, 257)]
+    rng = np.random.default_rng(9)
+    start = copy.deepcopy(rng)
+    pl = Placebo.build(library, 1, 2, rng)
+    surrogates = [phase_surrogate(L, start) for L in library]
+    W = start.standard_normal((5, 3)) / np.sqrt(5)
+    assert np.array_equal(W, pl.weights)
+    for S, L, cols in zip(surrogates, library, pl.columns):
+        assert cols.shape == (L.shape[0], 3)
+        np.testing.assert_allclose(cols, S @ W, rtol=0, atol=1e-12 * np.abs(S @ W).max())
+
+
 def test_registry_and_parameter_tables():
     assert list(EFFECTS) == ["dynamics", "creep", "asymmetry", "drift", "delay"]
     for name in EFFECTS:
@@ -281,5 +301,13 @@ def test_placebo_skip_advances_the_generator_as_build_does():
         Placebo.skip(library, 2, 1, b)
         got = Placebo.build(library, 2, 1, start, spectra)
         assert np.array_equal(got.weights, want.weights)
-        assert all(np.array_equal(x, y) for x, y in zip(got.library, want.library))
+        assert all(np.array_equal(x, y) for x, y in zip(got.columns, want.columns))
     assert a.random() == b.random()
+
+
+def test_unit_phasors_are_the_complex_exponential():
+    """The placebo's random phases: e^{2πi r} with the numbers of numpy's complex exponential."""
+    from hystfit.effects import _unit_phasors
+
+    r = np.random.default_rng(2).random((777, 5))
+    assert np.array_equal(_unit_phasors(r), np.exp(2j * np.pi * r))

@@ -1,0 +1,105 @@
+"""The shortcuts of :func:`hystfit.effects.solve_coefficients` give the normal equations of the direct
+form: a delay's Gram products from its whole-sample knots (:func:`hystfit.effects._knot_gram`) and an
+identity-operator effect's from the design's shared block (:func:`hystfit.effects._plain_gram`), on
+partly fitted captures and on repeated calls (the cached products)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from hystfit.blocks.creep import Creep
+from hystfit.blocks.delay import Delay
+from hystfit.blocks.drift import Drift
+from hystfit.effects import CaptureView, Linearization, Placebo, prepare_design, solve_coefficients
+
+
+@dataclass(frozen=True)
+class _DirectDelay(Delay):
+    """The delay without its knots: every candidate's Gram products from its own operator output."""
+
+    def operator_knots(self, phi, view):
+        return None
+
+
+@dataclass(frozen=True)
+class _DirectCreep(Creep):
+    """Creep with an explicit identity operator: the generic [R | T] path."""
+
+    def operator(self, x, view, phi):
+        return x
+
+
+@dataclass(frozen=True)
+class _DirectDrift(Drift):
+    def operator(self, x, view, phi):
+        return x
+
+
+def _problem(rng, lengths=(300, 351, 420, 280), k=5):
+    views, yhats, jac = [], [], []
+    for i, N in enumerate(lengths):
+        t = np.arange(N) * 1e-4
+        fit = np.ones(N, bool) if i < 3 else np.zeros(N, bool)  # the last capture held out whole
+        if i == 1:
+            fit[200:] = False  # a capture fitted on its first part only
+        if i == 2:
+            fit[150:260] = False  # held out in the middle
+        y = np.sin(2 * np.pi * 40 * t - 0.05) + 0.01 * rng.standard_normal(N)
+        views.append(CaptureView(t=t, dt=1e-4, y=y, fit=fit, frequency_Hz=40.0, periodic=True, index=i))
+        yhats.append(np.sin(2 * np.pi * 40 * t))
+        jac.append(rng.standard_normal((N, k)))
+    lin = Linearization(tuple(jac), tuple(np.arange(k) for _ in lengths), np.full(k, -np.inf), np.full(k, np.inf))
+    return views, yhats, lin
+
+
+def _same(a, b):
+    for x, y in zip(a[:3], b[:3]):
+        np.testing.assert_allclose(x, y, rtol=1e-7, atol=1e-9)
+    assert a[3] == pytest.approx(b[3], rel=1e-9, abs=1e-9)
+
+
+def test_delay_knots_give_the_direct_normal_equations():
+    rng = np.random.default_rng(4)
+    views, yhats, lin = _problem(rng)
+    fast, slow = Delay().configure(views, yhats), _DirectDelay().configure(views, yhats)
+    design = prepare_design(yhats, views, lin)
+    for samples in (0.0, 0.3, 1.0, 2.5, 2.5, 3.0, 4.75, 0.3):  # repeated values: the cached products
+        phi = np.array([samples * 1e-4])
+        got = solve_coefficients(fast, phi, design=design, bounded=False)
+        want = solve_coefficients(slow, phi, design=prepare_design(yhats, views, lin), bounded=False)
+        _same(got, want)
+    assert design.knots  # the knots were used
+
+
+@pytest.mark.parametrize("fast_cls, slow_cls", [(Creep, _DirectCreep), (Drift, _DirectDrift)])
+def test_identity_effects_share_the_design_block(fast_cls, slow_cls):
+    rng = np.random.default_rng(5)
+    views, yhats, lin = _problem(rng)
+    design = prepare_design(yhats, views, lin)
+    fast, slow = fast_cls().configure(views, yhats), slow_cls().configure(views, yhats)
+    for bounded in (False, True):
+        got = solve_coefficients(fast, np.empty(0), design=design, bounded=bounded)
+        want = solve_coefficients(slow, np.empty(0), design=prepare_design(yhats, views, lin), bounded=bounded)
+        _same(got, want)
+    assert design.plain  # the shared block was used
+
+
+def test_placebos_share_the_design_block():
+    rng = np.random.default_rng(6)
+    views, yhats, lin = _problem(rng)
+    library = [np.column_stack([np.sin(v.t * 300.0), v.t, v.t ** 2]) for v in views]
+    design = prepare_design(yhats, views, lin)
+    for n_shared, n_local in ((2, 0), (0, 2), (1, 1)):
+        pl = Placebo.build(library, n_shared, n_local, rng)
+        direct = _DirectPlacebo(columns=pl.columns, weights=pl.weights, n_shared=n_shared, n_local=n_local)
+        _same(solve_coefficients(pl, np.empty(0), design=design, bounded=False),
+              solve_coefficients(direct, np.empty(0), design=prepare_design(yhats, views, lin), bounded=False))
+
+
+@dataclass(frozen=True)
+class _DirectPlacebo(Placebo):
+    def operator(self, x, view, phi):
+        return x
