@@ -228,9 +228,8 @@ class LocalExecutor(Executor):
         try:
             while queue or running:
                 if ex is None:
-                    with single_threaded_children():
-                        ex = _ProcessPool(max_workers=n, mp_context=mp.get_context("spawn"),
-                                          initializer=_init_worker, initargs=(shared,))
+                    ex = _ProcessPool(max_workers=n, mp_context=mp.get_context("spawn"),
+                                      initializer=_init_worker, initargs=(shared,))
                 while queue and len(running) < n:
                     # a cell that was running when a worker died runs alone: if it kills its worker
                     # again, it alone is to blame and the cells beside it keep their attempts
@@ -238,7 +237,9 @@ class LocalExecutor(Executor):
                         break
                     i, job = queue.pop()
                     attempts[i] = attempts.get(i, 0) + 1
-                    running[ex.submit(_call_pool, fn, job)] = (i, job)
+                    # a spawn pool starts its workers in submit(), not when it is built
+                    with single_threaded_children():
+                        running[ex.submit(_call_pool, fn, job)] = (i, job)
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 broken = False
                 for fut in done:

@@ -19,7 +19,7 @@ from hystfit.cli import app
 from hystfit.compare import compare
 from hystfit.identify import identify
 from hystfit.io import load_captures
-from hystfit.parallel import CellFailed, LocalExecutor, run_cells
+from hystfit.parallel import THREAD_VARS, CellFailed, LocalExecutor, run_cells
 from hystfit.report.compare_report import compare_frame
 from hystfit.factory import make_model, make_optimizer
 from hystfit.registry import optimizers
@@ -107,6 +107,19 @@ def _exit_on_three(shared, job):
     if job == 3:
         os._exit(1)  # the worker process dies: a lost worker
     return shared + job
+
+
+def _worker_thread_env(shared, job):
+    return {k: os.environ.get(k) for k in THREAD_VARS}
+
+
+def test_pool_workers_are_single_threaded_whatever_the_callers_environment(monkeypatch):
+    # a spawn pool starts its workers lazily, in submit(): the variables must hold then
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    out = run_cells(_worker_thread_env, [1, 2, 3, 4], shared=None, executor=LocalExecutor(2))
+    assert all(env == {k: "1" for k in THREAD_VARS} for env in out)
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "4" and "OMP_NUM_THREADS" not in os.environ
 
 
 def test_crashed_cell_is_retried_once_then_reported_and_the_rest_goes_on():
