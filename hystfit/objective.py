@@ -118,17 +118,26 @@ class Objective(ObjectiveFunction):
         # what the projected simulations are compared with (the original series without nuisance)
         self._scored = [s if Q is None else Series(s.u, _project(s.y[None, :], Q, s.skip)[0], s.dt, s.skip)
                         for s, Q in zip(self.series, self._Q)]
-        # fused sums of squared errors where the model offers them (no (P, N) outputs in memory)
+        # fused sums of squared errors where the model offers them (no (P, N) outputs in memory),
+        # built at the first population scored: residual-only users (the polish, linearizations)
+        # never pay their set-up
+        self._sse_fns: list | None = None
+        self._prefix_sse: list | None = None
+        self.n_total = int(sum(s.y.shape[0] - s.skip for s in self.series))
+        self.nfev = 0
+
+    def _build_sse(self) -> None:
+        model = self.model
         self._sse_fns = [model.sse_evaluator(s.u, s.dt, s.y) if Q is None else None
                          for s, Q in zip(self.series, self._Q)]
         # a warm-up is subtracted as the error of the prefix alone: exact for causal models (every
         # registered model; tests/contract check it), so fused kernels need no change
         self._prefix_sse = [model.sse_evaluator(s.u[:s.skip], s.dt, s.y[:s.skip]) if s.skip and fn is not None
                             else None for s, fn in zip(self.series, self._sse_fns)]
-        self.n_total = int(sum(s.y.shape[0] - s.skip for s in self.series))
-        self.nfev = 0
 
     def _sse(self, theta: np.ndarray) -> np.ndarray:
+        if self._sse_fns is None:
+            self._build_sse()
         total = np.zeros(theta.shape[0])
         for sim, sse_fn, prefix, s in zip(self._sims, self._sse_fns, self._prefix_sse, self._scored):
             if sse_fn is not None:

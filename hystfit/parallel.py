@@ -32,6 +32,7 @@ import sys
 import threading
 import time
 import traceback
+import warnings
 from abc import ABC, abstractmethod
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -501,11 +502,14 @@ def _fork_child(fn: Callable[[int], Any], n: int, claim, conn) -> None:
     try:
         while (i := _claim_next(claim)) < n:
             done[i] = fn(i)
+    except BaseException:  # noqa: BLE001 - whatever this child did not return, the parent computes (and raises)
+        pass
+    try:
         conn.send(done)
-    except BaseException:  # noqa: BLE001 - whatever this child did not return, the parent computes
+    except BaseException as exc:  # noqa: BLE001 - results that do not pickle: the parent is told why
         try:
-            conn.send(done)
-        except BaseException:  # noqa: BLE001 - e.g. a result that does not pickle: the parent recomputes all
+            conn.send(f"{type(exc).__name__}: {exc}")
+        except BaseException:  # noqa: BLE001 - the pipe is gone: the parent recomputes all
             pass
 
 
@@ -537,7 +541,8 @@ def fork_map(fn: Callable[[int], R], n: int, workers: int | None = None) -> list
     balance themselves; put the longest first), each child returns its results at the end, and the
     list is in index order — the results never depend on the number of processes. An item a child
     did not return (it raised, or died) is computed here, so its exception, if any, is raised here
-    as in a serial loop. Serial for one worker or one item.
+    as in a serial loop; results that do not pickle are computed here too, with a RuntimeWarning
+    (the work is done twice). Serial for one worker or one item.
     """
     k = min(fork_workers(workers), n)
     if k <= 1:
@@ -550,9 +555,14 @@ def fork_map(fn: Callable[[int], R], n: int, workers: int | None = None) -> list
             results[i] = fn(i)
         for pid, conn in children:
             try:
-                results.update(conn.recv())
+                got = conn.recv()
             except (EOFError, OSError):  # the child died: its items are computed below
-                pass
+                continue
+            if isinstance(got, str):  # the same numbers, computed twice: a bug to see, not to hide
+                warnings.warn(f"fork_map: a child's results could not be sent back ({got}); "
+                              f"its items are computed again in this process", RuntimeWarning, stacklevel=2)
+            else:
+                results.update(got)
     finally:
         for pid, conn in children:
             conn.close()

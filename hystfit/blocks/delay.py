@@ -61,11 +61,11 @@ def delay_population(x: np.ndarray, delay_s: np.ndarray, dt: float) -> np.ndarra
         # few distinct delays (a finite-difference Jacobian perturbs the delay in one row at most):
         # the rows of each by slices, the same products and sum per sample as below (same numbers)
         if values.size == 1:
-            return _delay_rows(x, int(n[0]), float(f[0]))
+            return _shift_each_row(x, int(n[0]), float(f[0]))
         out = np.empty((P, N))
         for v in values:
             rows = np.flatnonzero(d == v)
-            out[rows] = _delay_rows(x[rows], int(n[rows[0]]), float(f[rows[0]]))
+            out[rows] = _shift_each_row(x[rows], int(n[rows[0]]), float(f[rows[0]]))
         return out
     idx = np.arange(N)[None, :] - n[:, None]
     x0 = np.take_along_axis(x, np.clip(idx, 0, N - 1), axis=1)
@@ -77,9 +77,11 @@ def delay_population(x: np.ndarray, delay_s: np.ndarray, dt: float) -> np.ndarra
     return out
 
 
-def _delay_rows(x: np.ndarray, n: int, f: float) -> np.ndarray:
+def _shift_each_row(x: np.ndarray, n: int, f: float) -> np.ndarray:
     """Every row of x (P, N) delayed by n + f samples: (1 − f)·x[k − n] + f·x[k − n − 1], indices
-    clamped at 0 (as :func:`delay_population`)."""
+    clamped at 0 (as :func:`delay_population`). :func:`shift_rows` along axis 1, the same numbers;
+    by slices, because a population's rows are contiguous (0.019 s against 0.031 s for
+    ``shift_rows(x.T).T`` at 86 × 40,788)."""
     P, N = x.shape
     out = np.empty((P, N))
     head = min(n + 1, N)  # samples k ≤ n read x[0] twice

@@ -62,6 +62,22 @@ def test_an_item_a_child_cannot_return_is_computed_here():
     assert fork_map(fn, 12, 2) == [i * i for i in range(12)]
 
 
+def test_results_that_do_not_pickle_are_computed_here_with_a_warning():
+    parent = os.getpid()
+    child_ran = mp.get_context("fork").Event()
+
+    def fn(i):
+        if os.getpid() != parent:
+            child_ran.set()
+        elif i == 0:  # the parent's first item waits until the child has claimed one
+            child_ran.wait(60)
+        return (i, lambda: i)  # a lambda does not pickle
+
+    with pytest.warns(RuntimeWarning, match="could not be sent back"):
+        out = fork_map(fn, 6, 2)
+    assert [o[0] for o in out] == list(range(6))
+
+
 def test_one_process_inside_a_pool_worker(monkeypatch):
     monkeypatch.setattr(parallel, "_SINGLE_THREADED", True)
     assert fork_workers(4) == 1
