@@ -47,13 +47,14 @@ import hystfit._jit as jit
 jit._load_numba()
 mark("import numba")
 from hystfit.models import _kernels as K
+from hystfit.blocks import delay as D
 u = np.sin(np.linspace(0.0, 20.0, 5001)); r = np.linspace(0.0, 1.0, 10)
-K.play_matrix.dispatcher().targetctx.refresh()
+K._play_recurrence.dispatcher().targetctx.refresh()
 mark("numba context (registries, scipy.linalg)")
-K.play_matrix(u, r)
-mark("first cached kernel: play_matrix (index + data)")
-K.play_matrix_from(u, r, np.zeros(10))
-mark("second cached kernel: play_matrix_from")
+K._play_recurrence(u, r, np.zeros(10))
+mark("first cached kernel: the play recurrence (index + data)")
+D._delay_rows(np.ones((100, 3)), 2, 0.5)
+mark("second cached kernel: the delay's row shift")
 import pandas
 mark("import pandas (report tables)")
 import matplotlib.pyplot
