@@ -261,3 +261,21 @@ def test_heatmap_annotation_colours_follow_each_cell(tmp_path, monkeypatch):
     assert colours[(0, 0)] == "white"  # the smallest value: viridis' dark end
     assert colours[(1, 0)] == "black"  # the largest: viridis' bright end
     assert colours[(1, 1)] == "0.3" and colours[(1, 2)] == "0.3"  # NaN, and ≤ 0 on a log scale
+
+
+def test_loop_and_timeseries_axes_have_at_most_tick_bins_intervals(tmp_path, rng):
+    # every tick label is a text laid out and drawn: the reused layouts keep TICK_BINS, also after
+    # a reset (a scale reset restores matplotlib's default locator of up to 9 intervals)
+    u = np.linspace(0.0, 137.0, 4000)
+    y = 0.3 * u + rng.normal(0, 0.01, u.size)
+    t = np.arange(u.size) * 1e-4
+    for _ in range(2):  # a fresh layout, then the reused one
+        plots.loop_figure(tmp_path / "l.png", u, y, y + 0.01, title="x")
+        plots.timeseries_figure(tmp_path / "t.png", t, y, y + 0.01, title="x")
+        for key, fig in plots._templates.figures.items():
+            if key[0] not in ("loop", "timeseries"):
+                continue
+            for ax in fig.axes:
+                for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+                    inside = [v for v in axis.get_majorticklocs() if lo <= v <= hi]
+                    assert len(inside) <= plots.TICK_BINS + 1, (axis, inside)
