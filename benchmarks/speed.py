@@ -49,10 +49,12 @@ def import_breakdown(args: list[str], top: int = 10) -> tuple[float, list[tuple[
     through a report module; a cumulative time would charge them to whichever module came first.
     """
     with tempfile.TemporaryDirectory() as tmp:
-        out = ["--out", str(Path(tmp) / "out")] if args[0] in ("identify", "compare", "diagnose") else []
-        cmd = [sys.executable, "-X", "importtime", "-c", "from hystfit.cli import main; main()", *args, *out]
-        subprocess.run(cmd, cwd=e2e.ROOT, env=e2e.command_env(), capture_output=True, check=True)  # caches warm
-        r = subprocess.run(cmd, cwd=e2e.ROOT, env=e2e.command_env(), capture_output=True, text=True, check=True)
+        def cmd(name: str) -> list[str]:
+            out = ["--out", str(Path(tmp) / name)] if args[0] in ("identify", "compare", "diagnose") else []
+            return [sys.executable, "-X", "importtime", "-c", "from hystfit.cli import main; main()", *args, *out]
+
+        subprocess.run(cmd("warm"), cwd=e2e.ROOT, env=e2e.command_env(), capture_output=True, check=True)  # caches warm
+        r = subprocess.run(cmd("out"), cwd=e2e.ROOT, env=e2e.command_env(), capture_output=True, text=True, check=True)
     per_pkg: dict[str, float] = {}
     for line in r.stderr.splitlines():
         if not line.startswith("import time:") or "|" not in line:
