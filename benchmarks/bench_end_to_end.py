@@ -100,7 +100,8 @@ def measure(repeat: int = 3) -> list[dict]:
         for label, cmd in COMMANDS:
             out = Path(tmp) / "out"
             run(cmd, out)  # warm the JIT cache
-            rep = 1 if (cmd[0] in ("compare", "diagnose") or "runs" in " ".join(cmd)) else repeat
+            # compare (≈ 25 s a run) and the 15-run fits once; diagnose (≈ 6 s, ±15 % run to run) as the rest
+            rep = 1 if (cmd[0] == "compare" or "runs" in " ".join(cmd)) else repeat
             best = min((run(cmd, out) for _ in range(rep)), key=lambda r: r[0])
             row = {"label": label, "wall_s": best[0], "fit_s": None, "rmse_um": None, "evaluations": None}
             if best[1] is not None:
