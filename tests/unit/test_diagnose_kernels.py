@@ -135,6 +135,18 @@ def test_normal_equations_by_slices_solve_the_least_squares_problem(name):
         assert np.allclose(A @ x, A @ x_ref, rtol=0, atol=1e-6 * np.abs(b).max())
 
 
+def _two_raised_cosines(n: int):
+    """Two captures of n samples at 10 kHz: raised cosines of 20 V at 10 and 20 Hz, y = 0.1·u."""
+    from hystfit.io import Capture
+
+    t = np.arange(n) * 1e-4
+    caps = []
+    for f in (10.0, 20.0):
+        u = 20.0 * 0.5 * (1 - np.cos(2 * np.pi * f * t))
+        caps.append(Capture(t=t, u=u, y=0.1 * u, dt=1e-4, amplitude_V=20.0, frequency_Hz=f, source=f"c{f:g}"))
+    return caps
+
+
 def test_finer_base_is_fitted_once_per_diagnosis(monkeypatch):
     """The resolution checks ask for the same finer base several times: it is fitted the first time
     only, per design (a new diagnosis fits again) and per resolution (another resolution is fitted)."""
@@ -147,11 +159,7 @@ def test_finer_base_is_fitted_once_per_diagnosis(monkeypatch):
         return [object()]
 
     monkeypatch.setattr(D, "_base_fits", fake_fits)
-    t = np.arange(400) * 1e-4
-    caps = []
-    for f in (10.0, 20.0):
-        u = 20.0 * 0.5 * (1 - np.cos(2 * np.pi * f * t))
-        caps.append(D.Capture(t=t, u=u, y=0.1 * u, dt=1e-4, amplitude_V=20.0, frequency_Hz=f, source=f"c{f:g}"))
+    caps = _two_raised_cosines(400)
     design = D._design(caps, D.DiagnoseSettings(), False)
     opt = make_optimizer(optimizers.get("auto"), {})
     m20, m40 = make_model("pi", {"n_operators": 20}), make_model("pi", {"n_operators": 40})
@@ -172,11 +180,7 @@ def test_linearized_state_pickles_and_reuses_its_objective():
 
     import hystfit.diagnose as D
 
-    t = np.arange(600) * 1e-4
-    caps = []
-    for f in (10.0, 20.0):
-        u = 20.0 * 0.5 * (1 - np.cos(2 * np.pi * f * t))
-        caps.append(D.Capture(t=t, u=u, y=0.1 * u, dt=1e-4, amplitude_V=20.0, frequency_Hz=f, source=f"c{f:g}"))
+    caps = _two_raised_cosines(600)
     design = D._design(caps, D.DiagnoseSettings(), False)
     scale = DataScale.from_arrays([c.u for c in caps], [c.y for c in caps], [c.dt for c in caps])
     model = make_model("pi", {"n_operators": 5}).adapt(scale)

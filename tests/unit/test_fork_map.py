@@ -25,18 +25,25 @@ def test_results_in_order_and_equal_to_the_serial_loop(workers):
     assert fork_map(_item, 17, workers) == [_item(i) for i in range(17)]
 
 
-def test_children_compute_items():
+def _a_child_takes_part(result):
+    """``fn(i) = result(i)``, except that the parent's first item waits until a child has claimed
+    one (so a child computes some items however fast the parent is)."""
     parent = os.getpid()
     child_ran = mp.get_context("fork").Event()
 
     def fn(i):
         if os.getpid() != parent:
             child_ran.set()
-        elif i == 0:  # the parent's first item waits until the child has claimed one
+        elif i == 0:
             child_ran.wait(60)
-        return os.getpid()
+        return result(i)
 
-    pids = fork_map(fn, 10, 2)
+    return fn
+
+
+def test_children_compute_items():
+    parent = os.getpid()
+    pids = fork_map(_a_child_takes_part(lambda i: os.getpid()), 10, 2)
     assert set(pids) - {parent}, "no item ran in a child"
     assert fork_map(lambda i: os.getpid(), 5, 1) == [os.getpid()] * 5
 
@@ -63,16 +70,7 @@ def test_an_item_a_child_cannot_return_is_computed_here():
 
 
 def test_results_that_do_not_pickle_are_computed_here_with_a_warning():
-    parent = os.getpid()
-    child_ran = mp.get_context("fork").Event()
-
-    def fn(i):
-        if os.getpid() != parent:
-            child_ran.set()
-        elif i == 0:  # the parent's first item waits until the child has claimed one
-            child_ran.wait(60)
-        return (i, lambda: i)  # a lambda does not pickle
-
+    fn = _a_child_takes_part(lambda i: (i, lambda: i))  # a lambda does not pickle
     with pytest.warns(RuntimeWarning, match="could not be sent back"):
         out = fork_map(fn, 6, 2)
     assert [o[0] for o in out] == list(range(6))

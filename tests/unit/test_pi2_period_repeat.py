@@ -42,15 +42,22 @@ def test_the_period_repeat_gives_the_full_computation_bit_for_bit(rng, mode):
     assert np.array_equal(rest, full[:, finite] if mode == pi2_module._OUTPUT else full[finite])
 
 
-def test_the_model_routes_pass_the_period(rng):
-    """simulator, SSE evaluator and the normal equations all take the repeat, with the same numbers."""
+def _joint_population(rng, P: int):
+    """A periodic input, an output, the joint pi2 model and P random parameter rows inside its
+    bounds, with their stages (natural frequency, damping)."""
     u = periodic_input()
     y = 0.3 * u
     model = PI2(identification="joint")
     ps = model.params(DataScale.from_arrays([u], [y], [DT]))
     lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
-    theta = lo + (hi - lo) * rng.random((9, len(ps)))
+    theta = lo + (hi - lo) * rng.random((P, len(ps)))
     fn, zeta = model._stage(theta)
+    return u, y, model, theta, fn, zeta
+
+
+def test_the_model_routes_pass_the_period(rng):
+    """simulator, SSE evaluator and the normal equations all take the repeat, with the same numbers."""
+    u, y, model, theta, fn, zeta = _joint_population(rng, 9)
     plain = pi2_module.gpi2_run(u, None, theta[:, :12], fn, zeta, DT, model.n_operators, pi2_module._OUTPUT).T
     assert np.array_equal(model.simulator(u, DT)(theta), plain)
     sse = pi2_module.gpi2_run(u, y, theta[:, :12], fn, zeta, DT, model.n_operators, pi2_module._SSE)[:, 0]
@@ -58,13 +65,7 @@ def test_the_model_routes_pass_the_period(rng):
 
 
 def test_the_threaded_variant_repeats_per_block_with_the_same_numbers(rng, monkeypatch):
-    u = periodic_input()
-    y = 0.3 * u
-    model = PI2(identification="joint")
-    ps = model.params(DataScale.from_arrays([u], [y], [DT]))
-    lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
-    theta = lo + (hi - lo) * rng.random((17, len(ps)))
-    fn, zeta = model._stage(theta)
+    u, y, model, theta, fn, zeta = _joint_population(rng, 17)
     levels = input_levels(u)
     args = (u, y, theta[:, :12], fn, zeta, DT, model.n_operators, pi2_module._MOMENTS, levels)
     serial = pi2_module.gpi2_run(*args)
