@@ -258,6 +258,47 @@ def _prepare_shared_structure(captures, model_names, model_options: dict, store=
     return notes
 
 
+def _shares_structure(name: str, options: dict) -> bool:
+    """Whether the model may have shared structure to identify; False for a model that cannot be
+    built with these options (it fails in its cells, with its own message, as when preparing)."""
+    try:
+        return make_model(name, options).shares_structure()
+    except HystfitError:
+        return False
+
+
+class _BackgroundPreparation:
+    """:func:`_prepare_shared_structure` of some models in a thread of this process, while the
+    other models' cells run on the executor's workers; :meth:`result` waits and returns its notes
+    (``model_options`` is updated in place then, as the direct call does). The models are prepared
+    one after another: a thread must not fork (``fork_map``) beside the executor's threads."""
+
+    def __init__(self, captures, model_names, model_options: dict, store, resume: bool) -> None:
+        import threading
+
+        self._options = {m: dict(model_options[m]) for m in model_names}
+        self._model_options = model_options
+        self._notes: list[str] = []
+        self._error: BaseException | None = None
+
+        def work() -> None:
+            try:
+                self._notes = _prepare_shared_structure(captures, list(model_names), self._options, store, resume,
+                                                        jobs=1)
+            except BaseException as exc:  # noqa: BLE001 - raised again by result(), in the caller's thread
+                self._error = exc
+
+        self._thread = threading.Thread(target=work, name="hystfit-prepare", daemon=True)
+        self._thread.start()
+
+    def result(self) -> list[str]:
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        self._model_options.update(self._options)
+        return self._notes
+
+
 def _check_bounds(captures, model_names, model_options: dict, bounds: dict) -> None:
     """Bound names are checked before any fit, as identify does: a typo is exit 2, not failed cells."""
     if not all(c.y is not None for c in captures):
@@ -312,41 +353,71 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
         labels = {k: condition_label(k) for k in groups}
     conds = tuple((k, labels[k]) for k in groups)
     # structure shared by all conditions (e.g. a Hammerstein model's stage dynamics) is identified
-    # once from all captures here and handed to every cell as fixed structure
+    # once from all captures and handed to every cell as fixed structure. The models without any
+    # (most) do not wait for it: their cells run while it is identified here, in a thread, and the
+    # cells of the models with it follow on the same workers. A bound override on such a model is
+    # checked against the prepared model first (a typo is exit 2 before any fit), so then the
+    # structure is identified before any cell, as are all when there is nothing to overlap.
     model_options = {m: dict((model_options or {}).get(m, {})) for m in model_names}
-    notes = _prepare_shared_structure(captures, model_names, model_options, store, resume, jobs)
-    _check_bounds(captures, model_names, model_options, bounds)
-    specs = []
-    for ci, (key, caps) in enumerate(groups.items()):
-        for mi, m in enumerate(model_names):
-            for oi, o in enumerate(optimizer_names):
-                # the cell index (for seeds) depends on the condition and optimizer only, so every
-                # model sees the same seeds on a condition, and the numbers never depend on --jobs
-                specs.append(CellSpec(ci * 1000 + oi, m, o, key, labels[key], tuple(caps), runs, seed, polish,
-                                      dict((model_options or {}).get(m, {})), dict(optimizer_options[o]),
-                                      dict(bounds[m]), mape_floor, ci))
-    keys = [cell_store_key(s, settings[s.optimizer]) for s in specs] if store is not None else None
+    later = [m for m in model_names if _shares_structure(m, model_options[m])]
+    overlap = bool(later) and len(later) < len(model_names) and not any(bounds[m] for m in later)
+    ready = [m for m in model_names if m not in later] if overlap else list(model_names)
+    preparing = None
+    if overlap:
+        preparing = _BackgroundPreparation(captures, later, model_options, store, resume)
+        _check_bounds(captures, ready, model_options, bounds)
+    else:
+        notes = _prepare_shared_structure(captures, model_names, model_options, store, resume, jobs)
+        _check_bounds(captures, model_names, model_options, bounds)
+
+    def cell_specs() -> list[CellSpec]:
+        out_specs = []
+        for ci, (key, caps) in enumerate(groups.items()):
+            for m in model_names:
+                for oi, o in enumerate(optimizer_names):
+                    # the cell index (for seeds) depends on the condition and optimizer only, so every
+                    # model sees the same seeds on a condition, and the numbers never depend on --jobs
+                    out_specs.append(CellSpec(ci * 1000 + oi, m, o, key, labels[key], tuple(caps), runs, seed, polish,
+                                              dict(model_options.get(m, {})), dict(optimizer_options[o]),
+                                              dict(bounds[m]), mape_floor, ci))
+        return out_specs
+
+    specs = cell_specs()  # the later models' cells are specified again once their structure is known
     if progress:
         progress("start", {"total": len(specs)})
 
     reused_cells = set()
-
-    def done(i: int, res, reused: bool) -> None:
-        if reused:
-            reused_cells.add(i)
-        if progress:
-            s = specs[i]
-            progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}", "reused": reused,
-                                 "failed": isinstance(res, CellFailed) or not res.ok})
-
     own = executor is None
     executor = LocalExecutor(jobs) if own else executor
     stats = CellStats()
     shared = tuple(tuple(caps) for caps in groups.values())
+    out: list = [None] * len(specs)
+
+    def run_batch(indices: list[int]) -> None:
+        keys = [cell_store_key(specs[i], settings[specs[i].optimizer]) for i in indices] if store is not None else None
+
+        def done(k: int, res, reused: bool) -> None:
+            i = indices[k]
+            if reused:
+                reused_cells.add(i)
+            if progress:
+                s = specs[i]
+                progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}", "reused": reused,
+                                     "failed": isinstance(res, CellFailed) or not res.ok})
+
+        got = run_cells(_cell_job, [replace(specs[i], captures=()) for i in indices], shared=shared,
+                        executor=executor, store=store, keys=keys, resume=resume, on_done=done, stats=stats)
+        for i, r in zip(indices, got):
+            out[i] = r
+
     try:
-        out = run_cells(_cell_job, [replace(s, captures=()) for s in specs], shared=shared, executor=executor,
-                        store=store, keys=keys, resume=resume, on_done=done, stats=stats)
-    finally:
+        with executor.holding():
+            run_batch([i for i, s in enumerate(specs) if s.model in ready])
+            if preparing is not None:
+                notes = preparing.result()
+                specs = cell_specs()
+                run_batch([i for i, s in enumerate(specs) if s.model not in ready])
+    finally:  # a failure or Ctrl-C does not wait for a preparation still running: its thread is a daemon
         if own:
             executor.close()
     cells = tuple(_failed_cell(s, r) if isinstance(r, CellFailed) else r for s, r in zip(specs, out))

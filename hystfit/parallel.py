@@ -176,6 +176,13 @@ class Executor(ABC):
     def close(self) -> None:
         """Release the workers (a no-op for executors that hold none between runs)."""
 
+    @contextmanager
+    def holding(self):
+        """Within the block, consecutive runs with the same ``shared`` object may reuse the workers
+        (a local pool is not started twice); they are released when the block ends. A no-op for
+        executors whose workers outlive a run anyway (dask)."""
+        yield self
+
     def __enter__(self) -> "Executor":
         return self
 
@@ -212,6 +219,22 @@ class LocalExecutor(Executor):
     def __init__(self, jobs: int | None = None) -> None:
         super().__init__()
         self.workers = default_jobs() if jobs is None else max(1, int(jobs))
+        self._held = False
+        self._kept: tuple | None = None  # (pool, shared, workers) kept for the next run while held
+
+    @contextmanager
+    def holding(self):
+        self._held = True
+        try:
+            yield self
+        finally:
+            self._held = False
+            self._release()
+
+    def _release(self) -> None:
+        kept, self._kept = self._kept, None
+        if kept is not None:
+            kept[0].shutdown(wait=True)
 
     def run(self, fn, shared, items):
         if self.workers == 1 or len(items) <= 1:
@@ -220,10 +243,15 @@ class LocalExecutor(Executor):
             return
 
         n = min(self.workers, len(items))
+        ex = None
+        if self._kept is not None and self._kept[1] is shared and self._kept[2] >= n:
+            ex, _, n = self._kept  # the workers of the previous run, with the same shared data
+            self._kept = None
+        else:
+            self._release()
         queue = list(items)[::-1]  # pop() takes the next cell in job order
         attempts: dict[int, int] = {}
         lost = "the worker process was lost (killed or out of memory)"
-        ex = None
         running: dict = {}
         suspects: set[int] = set()
         try:
@@ -276,7 +304,13 @@ class LocalExecutor(Executor):
                 _stop_now(ex)
             raise
         if ex is not None:
-            ex.shutdown(wait=True)
+            if self._held:
+                self._kept = (ex, shared, n)
+            else:
+                ex.shutdown(wait=True)
+
+    def close(self) -> None:
+        self._release()
 
 
 class _ProcessPool:

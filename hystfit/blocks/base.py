@@ -51,6 +51,10 @@ class Block(Effect):
         block's state space); the default has none and returns ``self``."""
         return self
 
+    def shares_structure(self) -> bool:
+        """Whether :meth:`prepare` may identify shared structure (the block's class overrides it)."""
+        return type(self).prepare is not Block.prepare
+
     def adapt(self, scale: DataScale) -> "Block":
         """Fill data-dependent structure (search ranges, time constants, normalisation) from the
         identification data's scale; the adapted block is what gets saved."""

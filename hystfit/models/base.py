@@ -56,6 +56,11 @@ class Model(ABC):
         """
         return self
 
+    def shares_structure(self) -> bool:
+        """Whether :meth:`prepare` may identify shared structure (the model's class overrides it):
+        ``compare`` runs the cells of the models without any while it prepares the others."""
+        return type(self).prepare is not Model.prepare
+
     def structure(self) -> dict[str, Any]:
         """JSON-serialisable constructor arguments (the inverse of :meth:`from_structure`)."""
         return structure_of(self)

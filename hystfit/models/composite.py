@@ -92,6 +92,9 @@ class Composite(Model):
     def prepare(self, captures) -> "Composite":
         return replace(self, base=self.base.prepare(captures), blocks=tuple(b.prepare(captures) for b in self.blocks))
 
+    def shares_structure(self) -> bool:
+        return self.base.shares_structure() or any(b.shares_structure() for b in self.blocks)
+
     def structure_summary(self) -> str:
         """How the shared structure was found (the base's, if it has any) and the block chain."""
         summary = self.base.structure_summary()

@@ -172,6 +172,41 @@ def test_shared_structures_are_prepared_side_by_side_with_the_serial_numbers(mon
     assert serial["pi"] == {} and serial["pi2"] and serial["hammerstein"] and len(notes_serial) == 2
 
 
+def test_cells_of_models_without_shared_structure_run_while_it_is_identified(monkeypatch):
+    """pi's cells do not wait for pi2's stage: the preparation (in a thread) waits here until a pi
+    cell has finished, which deadlocks (and times out) if the cells waited for it; the numbers equal
+    the sequential path's (every model prepared first)."""
+    import threading
+
+    import hystfit.compare as cmp
+    from hystfit.models.base import Model
+
+    caps = load_captures([SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a40V_f40Hz.csv"])
+    names, opts = ["pi2", "pi"], {"pi2": {"n_operators": 6}}
+    pi_done = threading.Event()
+    seen = []
+    real = cmp.prepare_shared
+
+    def waiting_prepare(model, captures, store=None, resume=False):
+        seen.append(pi_done.wait(30))
+        return real(model, captures, store, resume)
+
+    def progress(kind, info):
+        if kind == "advance" and info["label"].startswith("pi/"):
+            pi_done.set()
+
+    monkeypatch.setattr(cmp, "prepare_shared", waiting_prepare)
+    overlapped = compare(caps, names, ["auto"], jobs=1, model_options=opts, progress=progress)
+    assert seen == [True] and all(c.ok for c in overlapped.cells)
+    monkeypatch.setattr(cmp, "prepare_shared", real)
+    monkeypatch.setattr(Model, "shares_structure", lambda self: False)  # nothing overlaps: prepared first
+    sequential = compare(caps, names, ["auto"], jobs=1, model_options=opts)
+    assert overlapped.notes == sequential.notes and len(overlapped.notes) == 1
+    for a, b in zip(overlapped.cells, sequential.cells):
+        assert (a.model, a.label) == (b.model, b.label)
+        assert a.runs[0].fun == b.runs[0].fun and np.array_equal(a.theta, b.theta)
+
+
 # ------------------------------------------------------------------ issue 13: compare takes identify's flags
 def test_every_population_search_gets_the_same_budget_and_the_csv_says_so(tmp_path):
     """--pop 8 --iters 5 is 40 evaluations for every search; ipso (no iteration count) used to

@@ -122,6 +122,24 @@ def test_pool_workers_are_single_threaded_whatever_the_callers_environment(monke
     assert os.environ["OPENBLAS_NUM_THREADS"] == "4" and "OMP_NUM_THREADS" not in os.environ
 
 
+def _worker_pid(shared, job):
+    return os.getpid()
+
+
+def test_held_local_executor_reuses_its_workers_for_the_same_shared_data():
+    ex = LocalExecutor(2)
+    shared = (1.0,)
+    with ex.holding():
+        first = set(run_cells(_worker_pid, [1, 2, 3, 4], shared=shared, executor=ex))
+        again = set(run_cells(_worker_pid, [1, 2, 3, 4], shared=shared, executor=ex))
+        other = set(run_cells(_worker_pid, [1, 2, 3, 4], shared=(2.0,), executor=ex))
+        assert ex._kept is not None
+    assert ex._kept is None  # released with the block
+    assert os.getpid() not in first and again <= first and not (other & first)
+    after = set(run_cells(_worker_pid, [1, 2, 3, 4], shared=shared, executor=ex))
+    assert not (after & first) and ex._kept is None  # not held: a pool per run, shut down after it
+
+
 def test_crashed_cell_is_retried_once_then_reported_and_the_rest_goes_on():
     # operator.truediv(1, 0) raises every time: two attempts, then a CellFailed in its place
     out = run_cells(operator.truediv, [1, 0, 4], shared=1.0, executor=LocalExecutor(2))
