@@ -22,6 +22,7 @@ from .capture import Capture
 from .cells import CellStore, cell_key
 from .conditions import condition_label, group_by_condition
 from .errors import ConfigError, HystfitError
+from ._jit import _load_numba
 from .identify import fit_captures, prepare_shared
 from .seeds import check_seed
 from .metrics import check_mape_floor, compute_metrics_pooled
@@ -291,8 +292,11 @@ class _BackgroundPreparation:
         self._thread = threading.Thread(target=work, name="hystfit-prepare", daemon=True)
         self._thread.start()
 
-    def result(self) -> list[str]:
+    def wait(self) -> None:
         self._thread.join()
+
+    def result(self) -> list[str]:
+        self.wait()
         if self._error is not None:
             raise self._error
         self._model_options.update(self._options)
@@ -353,22 +357,29 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
         labels = {k: condition_label(k) for k in groups}
     conds = tuple((k, labels[k]) for k in groups)
     # structure shared by all conditions (e.g. a Hammerstein model's stage dynamics) is identified
-    # once from all captures and handed to every cell as fixed structure. The models without any
-    # (most) do not wait for it: their cells run while it is identified here, in a thread, and the
-    # cells of the models with it follow on the same workers. A bound override on such a model is
-    # checked against the prepared model first (a typo is exit 2 before any fit), so then the
-    # structure is identified before any cell, as are all when there is nothing to overlap.
+    # once from all captures and handed to every cell as fixed structure. With cells in worker
+    # processes, the models without any (most) do not wait for it: their cells run while it is
+    # identified here, in a thread, and the cells of the models with it follow on the same workers.
+    # A bound override on such a model is checked against the prepared model first (a typo is exit
+    # 2 before any fit), so then the structure is identified before any cell, as are all when there
+    # is nothing to overlap.
+    own = executor is None
+    executor = LocalExecutor(jobs) if own else executor
     model_options = {m: dict((model_options or {}).get(m, {})) for m in model_names}
     later = [m for m in model_names if _shares_structure(m, model_options[m])]
-    overlap = bool(later) and len(later) < len(model_names) and not any(bounds[m] for m in later)
+    overlap = (executor.workers > 1 and bool(later) and len(later) < len(model_names)
+               and not any(bounds[m] for m in later))
     ready = [m for m in model_names if m not in later] if overlap else list(model_names)
-    preparing = None
-    if overlap:
-        preparing = _BackgroundPreparation(captures, later, model_options, store, resume)
-        _check_bounds(captures, ready, model_options, bounds)
-    else:
-        notes = _prepare_shared_structure(captures, model_names, model_options, store, resume, jobs)
-        _check_bounds(captures, model_names, model_options, bounds)
+    try:
+        if overlap:
+            _check_bounds(captures, ready, model_options, bounds)
+        else:
+            notes = _prepare_shared_structure(captures, model_names, model_options, store, resume, jobs)
+            _check_bounds(captures, model_names, model_options, bounds)
+    except BaseException:
+        if own:
+            executor.close()
+        raise
 
     def cell_specs() -> list[CellSpec]:
         out_specs = []
@@ -387,8 +398,6 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
         progress("start", {"total": len(specs)})
 
     reused_cells = set()
-    own = executor is None
-    executor = LocalExecutor(jobs) if own else executor
     stats = CellStats()
     shared = tuple(tuple(caps) for caps in groups.values())
     out: list = [None] * len(specs)
@@ -410,14 +419,29 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
         for i, r in zip(indices, got):
             out[i] = r
 
+    first = [i for i, s in enumerate(specs) if s.model in ready]
+    preparing = None
     try:
         with executor.holding():
-            run_batch([i for i, s in enumerate(specs) if s.model in ready])
+            if overlap:
+                # the workers start (their environment set) and numba loads here before the thread
+                # runs: nothing the thread reads changes under it (numba reads its thread count
+                # from the environment when it is imported)
+                executor.start(shared, len(first))
+                _load_numba()
+                preparing = _BackgroundPreparation(captures, later, model_options, store, resume)
+            run_batch(first)
             if preparing is not None:
                 notes = preparing.result()
                 specs = cell_specs()
                 run_batch([i for i, s in enumerate(specs) if s.model not in ready])
-    finally:  # a failure or Ctrl-C does not wait for a preparation still running: its thread is a daemon
+    except BaseException as exc:
+        # a failed compare leaves nothing running behind it (the thread may write the store);
+        # Ctrl-C does not wait for it: the thread is a daemon and the command ends
+        if preparing is not None and not isinstance(exc, KeyboardInterrupt):
+            preparing.wait()
+        raise
+    finally:
         if own:
             executor.close()
     cells = tuple(_failed_cell(s, r) if isinstance(r, CellFailed) else r for s, r in zip(specs, out))

@@ -128,12 +128,12 @@ class Objective(ObjectiveFunction):
 
     def _build_sse(self) -> None:
         model = self.model
-        self._sse_fns = [model.sse_evaluator(s.u, s.dt, s.y) if Q is None else None
-                         for s, Q in zip(self.series, self._Q)]
+        fns = [model.sse_evaluator(s.u, s.dt, s.y) if Q is None else None for s, Q in zip(self.series, self._Q)]
         # a warm-up is subtracted as the error of the prefix alone: exact for causal models (every
         # registered model; tests/contract check it), so fused kernels need no change
-        self._prefix_sse = [model.sse_evaluator(s.u[:s.skip], s.dt, s.y[:s.skip]) if s.skip and fn is not None
-                            else None for s, fn in zip(self.series, self._sse_fns)]
+        prefix = [model.sse_evaluator(s.u[:s.skip], s.dt, s.y[:s.skip]) if s.skip and fn is not None else None
+                  for s, fn in zip(self.series, fns)]
+        self._prefix_sse, self._sse_fns = prefix, fns  # _sse_fns last: it marks both as built
 
     def _sse(self, theta: np.ndarray) -> np.ndarray:
         if self._sse_fns is None:

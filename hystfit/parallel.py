@@ -183,6 +183,9 @@ class Executor(ABC):
         executors whose workers outlive a run anyway (dask)."""
         yield self
 
+    def start(self, shared: Any, n_items: int) -> None:
+        """Within :meth:`holding`, start the workers of a coming run now (a no-op here)."""
+
     def __enter__(self) -> "Executor":
         return self
 
@@ -231,6 +234,32 @@ class LocalExecutor(Executor):
             self._held = False
             self._release()
 
+    def start(self, shared: Any, n_items: int) -> None:
+        """Within :meth:`holding`: start now the workers a run of ``n_items`` with this ``shared``
+        data will use (they import while this process goes on). Their environment is set while
+        they start (:func:`single_threaded_children`); a caller that then runs threads beside the
+        run changes no environment variable under them. A no-op outside :meth:`holding`, or when
+        the run would be serial."""
+        n = min(self.workers, n_items)
+        if not self._held or self.workers == 1 or n_items <= 1 or self._reusable(shared, n):
+            return
+        self._release()
+        ex = self._pool(n, shared)
+        with single_threaded_children():
+            for _ in range(n):  # a new pool starts a worker at each submit until it has n
+                ex.submit(_call_pool, _started, None)
+        self._kept = (ex, shared, n)
+
+    def _reusable(self, shared: Any, n: int) -> bool:
+        kept = self._kept
+        return (kept is not None and kept[1] is shared and kept[2] >= n
+                and not getattr(kept[0], "_broken", False))  # a worker lost while idle breaks the pool
+
+    @staticmethod
+    def _pool(n: int, shared: Any):
+        return _ProcessPool(max_workers=n, mp_context=mp.get_context("spawn"), initializer=_init_worker,
+                            initargs=(shared,))
+
     def _release(self) -> None:
         kept, self._kept = self._kept, None
         if kept is not None:
@@ -244,8 +273,8 @@ class LocalExecutor(Executor):
 
         n = min(self.workers, len(items))
         ex = None
-        if self._kept is not None and self._kept[1] is shared and self._kept[2] >= n:
-            ex, _, n = self._kept  # the workers of the previous run, with the same shared data
+        if self._reusable(shared, n):
+            ex, _, n = self._kept  # the workers of the previous run (or of start()), with the same data
             self._kept = None
         else:
             self._release()
@@ -256,19 +285,27 @@ class LocalExecutor(Executor):
         suspects: set[int] = set()
         try:
             while queue or running:
-                if ex is None:
-                    ex = _ProcessPool(max_workers=n, mp_context=mp.get_context("spawn"),
-                                      initializer=_init_worker, initargs=(shared,))
+                fresh = ex is None
+                if fresh:
+                    ex = self._pool(n, shared)
                 while queue and len(running) < n:
                     # a cell that was running when a worker died runs alone: if it kills its worker
                     # again, it alone is to blame and the cells beside it keep their attempts
                     if running and (queue[-1][0] in suspects or any(k in suspects for k, _ in running.values())):
                         break
                     i, job = queue.pop()
+                    try:
+                        running[_submit(ex, n, fn, job)] = (i, job)
+                    except BrokenProcessPool:  # lost before this cell reached it: no attempt charged
+                        queue.append((i, job))
+                        break
                     attempts[i] = attempts.get(i, 0) + 1
-                    # a spawn pool starts its workers in submit(), not when it is built
-                    with single_threaded_children():
-                        running[ex.submit(_call_pool, fn, job)] = (i, job)
+                if not running:  # the pool broke before any cell was submitted to it: a new one
+                    _stop_now(ex)
+                    ex = None
+                    if fresh:  # a new pool that breaks at once cannot run anything
+                        raise BrokenProcessPool("the process pool's workers could not be started")
+                    continue
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 broken = False
                 for fut in done:
@@ -311,6 +348,21 @@ class LocalExecutor(Executor):
 
     def close(self) -> None:
         self._release()
+
+
+def _started(shared: Any, job: Any) -> None:
+    """The job :meth:`LocalExecutor.start` submits: each submit starts a worker."""
+
+
+def _submit(ex, n: int, fn: Callable, job: Any):
+    """``ex.submit`` of one cell. A spawn pool starts a worker inside ``submit`` while it has fewer
+    than ``n``: only then is the environment set for it (:func:`single_threaded_children`), so no
+    variable changes under other threads of this process once the workers run. ``_processes`` is
+    the executor's own table of workers (no public accessor)."""
+    if len(getattr(ex, "_processes", None) or {}) < n:
+        with single_threaded_children():
+            return ex.submit(_call_pool, fn, job)
+    return ex.submit(_call_pool, fn, job)
 
 
 class _ProcessPool:

@@ -173,9 +173,9 @@ def test_shared_structures_are_prepared_side_by_side_with_the_serial_numbers(mon
 
 
 def test_cells_of_models_without_shared_structure_run_while_it_is_identified(monkeypatch):
-    """pi's cells do not wait for pi2's stage: the preparation (in a thread) waits here until a pi
-    cell has finished, which deadlocks (and times out) if the cells waited for it; the numbers equal
-    the sequential path's (every model prepared first)."""
+    """pi's cells (in worker processes) do not wait for pi2's stage: the preparation (in a thread)
+    waits here until a pi cell has finished, which times out if the cells waited for it; the numbers
+    equal the sequential path's (one process: every model prepared first)."""
     import threading
 
     import hystfit.compare as cmp
@@ -196,15 +196,42 @@ def test_cells_of_models_without_shared_structure_run_while_it_is_identified(mon
             pi_done.set()
 
     monkeypatch.setattr(cmp, "prepare_shared", waiting_prepare)
-    overlapped = compare(caps, names, ["auto"], jobs=1, model_options=opts, progress=progress)
+    overlapped = compare(caps, names, ["auto"], jobs=2, model_options=opts, progress=progress)
     assert seen == [True] and all(c.ok for c in overlapped.cells)
     monkeypatch.setattr(cmp, "prepare_shared", real)
     monkeypatch.setattr(Model, "shares_structure", lambda self: False)  # nothing overlaps: prepared first
     sequential = compare(caps, names, ["auto"], jobs=1, model_options=opts)
     assert overlapped.notes == sequential.notes and len(overlapped.notes) == 1
+    assert [t.name for t in threading.enumerate() if t.name == "hystfit-prepare"] == []
     for a, b in zip(overlapped.cells, sequential.cells):
         assert (a.model, a.label) == (b.model, b.label)
         assert a.runs[0].fun == b.runs[0].fun and np.array_equal(a.theta, b.theta)
+
+
+def test_a_failed_overlapped_compare_leaves_no_preparation_running(monkeypatch):
+    """A bound typo on a model without shared structure is exit 2 before the preparation starts;
+    a failure during the cells waits for the preparation before it is raised."""
+    import threading
+
+    import hystfit.compare as cmp
+    from hystfit.errors import ConfigError
+
+    caps = load_captures([SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a40V_f40Hz.csv"])
+    started = []
+    real = cmp._BackgroundPreparation
+    monkeypatch.setattr(cmp, "_BackgroundPreparation", lambda *a: started.append(1) or real(*a))
+    with pytest.raises(ConfigError, match="nonexistent"):
+        compare(caps, ["pi2", "pi"], ["auto"], jobs=2, bounds={"pi": {"nonexistent": (0.0, 1.0)}})
+    assert started == []
+
+    def failing_run_cells(*a, **k):
+        raise RuntimeError("a batch failed")
+
+    monkeypatch.setattr(cmp, "run_cells", failing_run_cells)
+    with pytest.raises(RuntimeError, match="a batch failed"):
+        compare(caps, ["pi2", "pi"], ["auto"], jobs=2, model_options={"pi2": {"n_operators": 6}})
+    assert started == [1]
+    assert not [t for t in threading.enumerate() if t.name == "hystfit-prepare"]
 
 
 # ------------------------------------------------------------------ issue 13: compare takes identify's flags

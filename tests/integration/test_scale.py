@@ -140,6 +140,25 @@ def test_held_local_executor_reuses_its_workers_for_the_same_shared_data():
     assert not (after & first) and ex._kept is None  # not held: a pool per run, shut down after it
 
 
+def test_started_workers_serve_the_run_and_a_pool_broken_while_idle_is_replaced():
+    import signal
+
+    ex = LocalExecutor(2)
+    shared = (1.0,)
+    with ex.holding():
+        ex.start(shared, 4)
+        started = {p.pid for p in ex._kept[0]._processes.values()}
+        assert len(started) == 2
+        assert set(run_cells(_worker_pid, [1, 2, 3, 4], shared=shared, executor=ex)) <= started
+        for pid in list(started)[:1]:  # a worker lost between two runs (killed, out of memory)
+            os.kill(pid, signal.SIGKILL)
+        import time
+
+        time.sleep(0.5)
+        again = set(run_cells(_worker_pid, [1, 2, 3, 4], shared=shared, executor=ex))
+        assert again and not (again & started)  # a new pool, and every cell computed
+
+
 def test_crashed_cell_is_retried_once_then_reported_and_the_rest_goes_on():
     # operator.truediv(1, 0) raises every time: two attempts, then a CellFailed in its place
     out = run_cells(operator.truediv, [1, 0, 4], shared=1.0, executor=LocalExecutor(2))
