@@ -347,112 +347,158 @@ def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_n
     units = {c.y_unit for c in captures}
     if len(units) != 1:
         raise ConfigError(f"captures have different output units {sorted(units)}; convert them to one unit first")
-    if global_fit:
-        amps = sorted({c.amplitude_V for c in captures})
-        freqs = sorted({c.frequency_Hz for c in captures})
-        key = (amps[0], freqs[0]) if len(amps) * len(freqs) == 1 else (float("nan"), float("nan"))
-        groups, labels = {key: list(captures)}, {key: "global"}
-    else:
-        groups = group_by_condition(captures)
-        labels = {k: condition_label(k) for k in groups}
+    groups, labels = _condition_groups(captures, global_fit)
     conds = tuple((k, labels[k]) for k in groups)
-    # structure shared by all conditions (e.g. a Hammerstein model's stage dynamics) is identified
-    # once from all captures and handed to every cell as fixed structure. With cells in worker
-    # processes, the models without any (most) do not wait for it: their cells run while it is
-    # identified here, in a thread, and the cells of the models with it follow on the same workers.
-    # A bound override on such a model is checked against the prepared model first (a typo is exit
-    # 2 before any fit), so then the structure is identified before any cell, as are all when there
-    # is nothing to overlap.
     own = executor is None
     executor = LocalExecutor(jobs) if own else executor
     model_options = {m: dict((model_options or {}).get(m, {})) for m in model_names}
-    later = [m for m in model_names if _shares_structure(m, model_options[m])]
-    overlap = (executor.workers > 1 and bool(later) and len(later) < len(model_names)
-               and not any(bounds[m] for m in later))
-    ready = [m for m in model_names if m not in later] if overlap else list(model_names)
     try:
-        if overlap:
-            _check_bounds(captures, ready, model_options, bounds)
-        else:
-            notes = _prepare_shared_structure(captures, model_names, model_options, store, resume, jobs)
-            _check_bounds(captures, model_names, model_options, bounds)
-    except BaseException:
-        if own:
-            executor.close()
-        raise
+        plan = _preparation_plan(captures, model_names, model_options, bounds, executor, store, resume, jobs)
 
-    def cell_specs() -> list[CellSpec]:
-        out_specs = []
-        for ci, (key, caps) in enumerate(groups.items()):
-            for m in model_names:
-                for oi, o in enumerate(optimizer_names):
-                    # the cell index (for seeds) depends on the condition and optimizer only, so every
-                    # model sees the same seeds on a condition, and the numbers never depend on --jobs
-                    out_specs.append(CellSpec(ci * 1000 + oi, m, o, key, labels[key], tuple(caps), runs, seed, polish,
-                                              dict(model_options.get(m, {})), dict(optimizer_options[o]),
-                                              dict(bounds[m]), mape_floor, ci))
-        return out_specs
+        def cell_specs() -> list[CellSpec]:
+            return _cell_specs(groups, labels, model_names, optimizer_names, runs, seed, polish, model_options,
+                               optimizer_options, bounds, mape_floor)
 
-    specs = cell_specs()  # the later models' cells are specified again once their structure is known
-    if progress:
-        progress("start", {"total": len(specs)})
-
-    reused_cells = set()
-    stats = CellStats()
-    shared = tuple(tuple(caps) for caps in groups.values())
-    out: list = [None] * len(specs)
-
-    def run_batch(indices: list[int]) -> None:
-        keys = [cell_store_key(specs[i], settings[specs[i].optimizer]) for i in indices] if store is not None else None
-
-        def done(k: int, res, reused: bool) -> None:
-            i = indices[k]
-            if reused:
-                reused_cells.add(i)
-            if progress:
-                s = specs[i]
-                progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}", "reused": reused,
-                                     "failed": isinstance(res, CellFailed) or not res.ok})
-
-        got = run_cells(_cell_job, [replace(specs[i], captures=()) for i in indices], shared=shared,
-                        executor=executor, store=store, keys=keys, resume=resume, on_done=done, stats=stats)
-        for i, r in zip(indices, got):
-            out[i] = r
-
-    first = [i for i, s in enumerate(specs) if s.model in ready]
-    preparing = None
-    try:
-        with executor.holding():
-            if overlap:
-                # the workers start (their environment set) and numba loads here before the thread
-                # runs: nothing the thread reads changes under it (numba reads its thread count
-                # from the environment when it is imported)
-                executor.start(shared, len(first))
-                _load_numba()
-                preparing = _BackgroundPreparation(captures, later, model_options, store, resume)
-            run_batch(first)
-            if preparing is not None:
-                notes = preparing.result()
-                specs = cell_specs()
-                run_batch([i for i, s in enumerate(specs) if s.model not in ready])
-    except BaseException as exc:
-        # a failed compare leaves nothing running behind it (the thread may write the store);
-        # Ctrl-C does not wait for it: the thread is a daemon and the command ends
-        if preparing is not None and not isinstance(exc, KeyboardInterrupt):
-            preparing.wait()
-        raise
+        specs = cell_specs()  # the later models' cells are specified again once their structure is known
+        if progress:
+            progress("start", {"total": len(specs)})
+        batches = _CellBatches(executor, tuple(tuple(caps) for caps in groups.values()), settings, store, resume,
+                               progress, len(specs))
+        specs, notes = _run_cells_around_preparation(batches, specs, cell_specs, plan, captures, model_options,
+                                                     store, resume)
     finally:
         if own:
             executor.close()
-    cells = tuple(_failed_cell(s, r) if isinstance(r, CellFailed) else r for s, r in zip(specs, out))
+    cells = tuple(_failed_cell(s, r) if isinstance(r, CellFailed) else r for s, r in zip(specs, batches.out))
+    stats = batches.stats
     # failed: crashed, or recorded an error (e.g. a model that cannot fit); a reused cell counts as reused
-    stats.failed = sum(not c.ok for i, c in enumerate(cells) if i not in reused_cells)
+    stats.failed = sum(not c.ok for i, c in enumerate(cells) if i not in batches.reused)
     stats.computed = len(cells) - stats.reused - stats.failed
     return CompareResult(tuple(model_names), tuple(optimizer_names), conds,
                          {lab: tuple(groups[k]) for k, lab in conds}, cells, runs, seed, units.pop(),
                          executor.workers, polish, tuple(notes), settings, bounds, global_fit,
                          tuple(o for o in optimizer_names if optimizer_registry.get(o).polishes_itself), stats,
                          executor.name)
+
+
+def _condition_groups(captures, global_fit: bool) -> tuple[dict, dict]:
+    """The captures of each cell's condition (one group of all captures with ``global_fit``), and
+    each condition's label."""
+    if global_fit:
+        amps = sorted({c.amplitude_V for c in captures})
+        freqs = sorted({c.frequency_Hz for c in captures})
+        key = (amps[0], freqs[0]) if len(amps) * len(freqs) == 1 else (float("nan"), float("nan"))
+        return {key: list(captures)}, {key: "global"}
+    groups = group_by_condition(captures)
+    return groups, {k: condition_label(k) for k in groups}
+
+
+def _cell_specs(groups, labels, model_names, optimizer_names, runs, seed, polish, model_options, optimizer_options,
+                bounds, mape_floor) -> list[CellSpec]:
+    """Every cell, condition by condition, model by model, optimizer by optimizer."""
+    specs = []
+    for ci, (key, caps) in enumerate(groups.items()):
+        for m in model_names:
+            for oi, o in enumerate(optimizer_names):
+                # the cell index (for seeds) depends on the condition and optimizer only, so every
+                # model sees the same seeds on a condition, and the numbers never depend on --jobs
+                specs.append(CellSpec(ci * 1000 + oi, m, o, key, labels[key], tuple(caps), runs, seed, polish,
+                                      dict(model_options.get(m, {})), dict(optimizer_options[o]), dict(bounds[m]),
+                                      mape_floor, ci))
+    return specs
+
+
+@dataclass(frozen=True)
+class _PreparationPlan:
+    """Which models' cells wait for shared structure (``later``), and whether it is identified
+    beside the other cells (``overlap``) or was identified already (``notes``)."""
+
+    later: tuple[str, ...]
+    overlap: bool
+    notes: tuple[str, ...] = ()
+
+
+def _preparation_plan(captures, model_names, model_options: dict, bounds: dict, executor: Executor, store,
+                      resume: bool, jobs: int | None) -> _PreparationPlan:
+    """Structure shared by all conditions (e.g. a Hammerstein model's stage dynamics) is identified
+    once from all captures and handed to every cell as fixed structure. With cells in worker
+    processes, the models without any (most) do not wait for it: their cells run while it is
+    identified in a thread, and the cells of the models with it follow on the same workers. A bound
+    override on such a model is checked against the prepared model first (a typo is exit 2 before
+    any fit), so then the structure is identified here, before any cell, as it is when there is
+    nothing to overlap. Bounds of the models that do not wait are checked here in every case."""
+    later = tuple(m for m in model_names if _shares_structure(m, model_options[m]))
+    overlap = (executor.workers > 1 and bool(later) and len(later) < len(model_names)
+               and not any(bounds[m] for m in later))
+    if overlap:
+        _check_bounds(captures, [m for m in model_names if m not in later], model_options, bounds)
+        return _PreparationPlan(later, True)
+    notes = _prepare_shared_structure(captures, model_names, model_options, store, resume, jobs)
+    _check_bounds(captures, model_names, model_options, bounds)
+    return _PreparationPlan((), False, tuple(notes))
+
+
+class _CellBatches:
+    """Batches of a compare's cells on one executor: results by cell index (``out``), the indices
+    reused from the store (``reused``), counts (``stats``), progress reported as cells finish."""
+
+    def __init__(self, executor: Executor, shared: tuple, settings: Mapping, store, resume: bool,
+                 progress: Progress, n: int) -> None:
+        self.executor, self.shared, self.settings = executor, shared, settings
+        self.store, self.resume, self.progress = store, resume, progress
+        self.out: list = [None] * n
+        self.reused: set[int] = set()
+        self.stats = CellStats()
+
+    def run(self, specs: Sequence[CellSpec], indices: list[int]) -> None:
+        keys = ([cell_store_key(specs[i], self.settings[specs[i].optimizer]) for i in indices]
+                if self.store is not None else None)
+
+        def done(k: int, res, reused: bool) -> None:
+            i = indices[k]
+            if reused:
+                self.reused.add(i)
+            if self.progress:
+                s = specs[i]
+                self.progress("advance", {"label": f"{s.model}/{s.optimizer}/{s.label}", "reused": reused,
+                                          "failed": isinstance(res, CellFailed) or not res.ok})
+
+        got = run_cells(_cell_job, [replace(specs[i], captures=()) for i in indices], shared=self.shared,
+                        executor=self.executor, store=self.store, keys=keys, resume=self.resume, on_done=done,
+                        stats=self.stats)
+        for i, r in zip(indices, got):
+            self.out[i] = r
+
+
+def _run_cells_around_preparation(batches: _CellBatches, specs: list[CellSpec], cell_specs: Callable,
+                                  plan: _PreparationPlan, captures, model_options: dict, store,
+                                  resume: bool) -> tuple[list[CellSpec], tuple[str, ...]]:
+    """Every cell, with the shared structure identified beside the first batch when ``plan`` says
+    so; returns the final cell specifications and the notes on the structure."""
+    first = [i for i, s in enumerate(specs) if s.model not in plan.later]
+    preparing = None
+    notes = plan.notes
+    try:
+        with batches.executor.holding():
+            if plan.overlap:
+                # the workers start (their environment set) and numba loads here before the thread
+                # runs: nothing the thread reads changes under it (numba reads its thread count
+                # from the environment when it is imported)
+                batches.executor.start(batches.shared, len(first))
+                _load_numba()
+                preparing = _BackgroundPreparation(captures, plan.later, model_options, store, resume)
+            batches.run(specs, first)
+            if preparing is not None:
+                notes = tuple(preparing.result())
+                specs = cell_specs()
+                batches.run(specs, [i for i, s in enumerate(specs) if s.model in plan.later])
+    except BaseException as exc:
+        # a failed compare leaves nothing running behind it (the thread may write the store);
+        # Ctrl-C does not wait for it: the thread is a daemon and the command ends
+        if preparing is not None and not isinstance(exc, KeyboardInterrupt):
+            preparing.wait()
+        raise
+    return specs, notes
 
 
 def _failed_cell(spec: CellSpec, failure: CellFailed) -> CellResult:
