@@ -212,6 +212,7 @@ def test_a_failed_overlapped_compare_leaves_no_preparation_running(monkeypatch):
     """A bound typo on a model without shared structure is exit 2 before the preparation starts;
     a failure during the cells waits for the preparation before it is raised."""
     import threading
+    import time
 
     import hystfit.compare as cmp
     from hystfit.errors import ConfigError
@@ -227,10 +228,20 @@ def test_a_failed_overlapped_compare_leaves_no_preparation_running(monkeypatch):
     def failing_run_cells(*a, **k):
         raise RuntimeError("a batch failed")
 
+    real_prepare = cmp.prepare_shared
+    finished = []
+
+    def slow_prepare(*a, **k):  # still running when the batch fails
+        time.sleep(1.0)
+        result = real_prepare(*a, **k)
+        finished.append(1)
+        return result
+
+    monkeypatch.setattr(cmp, "prepare_shared", slow_prepare)
     monkeypatch.setattr(cmp, "run_cells", failing_run_cells)
     with pytest.raises(RuntimeError, match="a batch failed"):
         compare(caps, ["pi2", "pi"], ["auto"], jobs=2, model_options={"pi2": {"n_operators": 6}})
-    assert started == [1]
+    assert started == [1] and finished == [1]  # waited for, not left behind
     assert not [t for t in threading.enumerate() if t.name == "hystfit-prepare"]
 
 
