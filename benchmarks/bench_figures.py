@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 import tempfile
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -77,19 +78,16 @@ def figure_kinds(fit=None) -> dict[str, tuple[int, float]]:
     render._import_plotting()
     render._warm_up()
     jobs: list = []
-    original = identify_report.render_figures
-    identify_report.render_figures = lambda js, n_jobs=None: jobs.extend(js)  # collect, do not draw
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            identify_report._plots(res, Path(tmp))
-            out: dict[str, tuple[int, float]] = {}
-            for job in jobs:
-                t0 = time.process_time()
-                render._render(job)
-                n, s = out.get(job.function, (0, 0.0))
-                out[job.function] = (n + 1, s + time.process_time() - t0)
-    finally:
-        identify_report.render_figures = original
+    with tempfile.TemporaryDirectory() as tmp:
+        figures = identify_report.ConditionFigures(Path(tmp), res.optimizer_name)
+        figures._stream = types.SimpleNamespace(add=jobs.extend, result=lambda: None, cancel=lambda: None)  # collect
+        figures.result(res)
+        out: dict[str, tuple[int, float]] = {}
+        for job in jobs:
+            t0 = time.process_time()
+            render._render(job)
+            n, s = out.get(job.function, (0, 0.0))
+            out[job.function] = (n + 1, s + time.process_time() - t0)
     return out
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Optional, Sequence
+from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -284,12 +284,19 @@ def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: n
     return out
 
 
+def condition_groups(captures: Sequence[Capture], global_fit: bool = False) -> dict[tuple, list[Capture]]:
+    """The parameter sets :func:`identify` fits: condition → its captures (look-up table), or one
+    group of every capture for a global fit."""
+    return {("all", "all"): list(captures)} if global_fit else group_by_condition(captures)
+
+
 def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0, runs: int = 1,
              polish: bool = True, global_fit: bool = False,
              bounds: Mapping[str, tuple[float, float]] | None = None,
              progress: Progress = None, model_options: Mapping | None = None,
              jobs: int | None = 1, executor: Executor | None = None, store: CellStore | None = None,
-             resume: bool = False, mape_floor: float = MAPE_THRESHOLD_FRACTION) -> IdentifyResult:
+             resume: bool = False, mape_floor: float = MAPE_THRESHOLD_FRACTION,
+             on_fit: Callable[[ConditionFit], None] | None = None) -> IdentifyResult:
     """Identify ``model`` on ``captures``: one fit per condition (look-up table) or one global fit.
 
     ``jobs`` > 1 spreads the (condition, run) cells over a process pool (None: all cores), or
@@ -299,16 +306,16 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     in ``failed`` and left out of its condition; a condition left without runs is left out; when
     nothing is left, :class:`NoResultError`. ``mape_floor``: MAPE/SMAPE leave out samples with
     |y_meas| below this fraction of the stroke (0: every sample, as paper 002; :mod:`hystfit.metrics`).
+    ``on_fit(fit)`` is called in this process as soon as every run of a condition is done, in the
+    order conditions finish (e.g. to draw its figures while the others are fitted); the result lists
+    the fits in condition order.
     """
     check_seed(seed)
     mape_floor = check_mape_floor(mape_floor)
     if not captures:
         raise InputError("no captures to identify")
     unit = _output_unit(captures)
-    if global_fit:
-        groups = {("all", "all"): list(captures)}
-    else:
-        groups = group_by_condition(captures)
+    groups = condition_groups(captures, global_fit)
     if progress:
         progress("start", {"total": len(groups) * runs})
     model = prepare_shared(model, captures, store, resume)  # structure shared by all conditions (e.g. stage dynamics)
@@ -334,11 +341,25 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                          optimizer=optimizer.name, optimizer_settings=settings, bounds=dict(bounds or {}), seed=seed,
                          cell=c, run=r, polish=polish) for c, r in work]
 
+    finished: dict[int, dict[int, Any]] = {}  # cell → run → record, until the cell is summarized
+    summaries: dict[int, ConditionFit] = {}
+
     def done(i: int, rec, reused: bool) -> None:
+        cell, run = work[i]
         if progress:
             failed = isinstance(rec, CellFailed)
-            progress("advance", {"label": f"{cells[work[i][0]][2]} run {work[i][1]}", "run": work[i][1],
+            progress("advance", {"label": f"{cells[cell][2]} run {run}", "run": run,
                                  "rmse": None if failed else rec.rmse, "reused": reused, "failed": failed})
+        got = finished.setdefault(cell, {})
+        got[run] = rec
+        if len(got) == runs:  # the condition is complete: summarize it now
+            recs = [got[r] for r in range(runs) if not isinstance(got[r], CellFailed)]
+            del finished[cell]
+            if recs:
+                problem, cond, label = cells[cell]
+                summaries[cell] = _summarize(problem, recs, label, cond, mape_floor)
+                if on_fit is not None:
+                    on_fit(summaries[cell])
 
     if jobs is None and executor is None:  # all cores, unless every cell is one exact linear solve
         sep = model.separable() if optimizer.uses_separable_structure else None
@@ -352,14 +373,11 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     finally:
         if own:
             executor.close()
-    fits, failed = [], []
+    failed = []
     for (cell, r), rec in zip(work, records):
         if isinstance(rec, CellFailed):
             failed.append(f"{cells[cell][2]} run {r}: {rec.error} (after {rec.attempts} attempts)")
-    for cell, (problem, cond, label) in enumerate(cells):
-        recs = [rec for (job, rec) in zip(work, records) if job[0] == cell and not isinstance(rec, CellFailed)]
-        if recs:
-            fits.append(_summarize(problem, recs, label, cond, mape_floor))
+    fits = [summaries[cell] for cell in range(len(cells)) if cell in summaries]
     if not fits:
         raise NoResultError(f"every run failed ({len(failed)} of {len(work)}); first error: {failed[0]}")
     return IdentifyResult(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Annotated
 
@@ -35,10 +36,10 @@ def identify(
     Writes OUT/params.json, OUT/report.csv, OUT/report.md and OUT/plots/.
     """
     start_figures(output)
-    from ..identify import identify as run_identify
+    from ..identify import condition_groups, identify as run_identify
     from ..io import staged_output_dir
     from ..registry import optimizers
-    from ..report.identify_report import write_identify_outputs
+    from ..report.identify_report import ConditionFigures, write_identify_outputs
     from ..factory import make_model, make_optimizer
 
     opt_cls = optimizers.get(opt)
@@ -51,12 +52,17 @@ def identify(
     with cell_run(out, execution, not quiet) as cr, \
             staged_output_dir(out, output.force) as stage:
         captures = load_for_command(data, options, output, recursive=capture.recursive)
-        with progress_bar(output.chatty, f"identify {m.name} / {opt_cls.name}") as cb:
-            res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish, global_fit=not fit.per_condition,
-                               bounds=bnds, progress=cb, model_options=mopts, jobs=execution.jobs, executor=cr.executor,
-                               store=cr.store, resume=execution.resume, mape_floor=mape_floor)
-        with writing(out, output):
-            write_identify_outputs(res, stage, make_plots=output.plots, n_jobs=execution.jobs)
+        # each condition's figures are drawn while the next conditions are fitted
+        n_conditions = len(condition_groups(captures, not fit.per_condition))
+        with (ConditionFigures(stage, o.name, execution.jobs, n_conditions=n_conditions) if output.plots
+              else nullcontext()) as figures:
+            with progress_bar(output.chatty, f"identify {m.name} / {opt_cls.name}") as cb:
+                res = run_identify(captures, m, o, seed=seed, runs=runs, polish=polish,
+                                   global_fit=not fit.per_condition, bounds=bnds, progress=cb, model_options=mopts,
+                                   jobs=execution.jobs, executor=cr.executor, store=cr.store, resume=execution.resume,
+                                   mape_floor=mape_floor, on_fit=figures.add if figures is not None else None)
+            with writing(out, output):
+                write_identify_outputs(res, stage, make_plots=output.plots, n_jobs=execution.jobs, figures=figures)
     print_cell_summary(res.cell_stats, cr.describe(), quiet or json_out)
     some_failed = None
     if res.failed:

@@ -12,7 +12,7 @@ from ..io import atomic_write_text, write_table
 from ..results import dumps, identify_to_dict
 from . import plots
 from ..params import AT_BOUND_RTOL
-from .render import FigureJob, render_figures
+from .render import FigureJob, FigureStream
 from .tables import fmt, frame, markdown_table, metric_columns, metric_legend
 
 UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m"}
@@ -34,41 +34,96 @@ def summary_rows(res: IdentifyResult) -> list[dict]:
     return rows
 
 
-def _plots(res: IdentifyResult, plot_dir: Path, n_jobs: int | None = None) -> dict[str, list[str]]:
-    """Draw every figure of the report in parallel; return the files per condition (relative to the report).
+class ConditionFigures:
+    """The figures of an identification in ``out_dir/plots``, drawn as each condition is fitted.
 
-    A condition whose optimizer left no iteration history worth drawing (``auto`` on a model with no
-    nonlinear parameter solves exactly: one point) gets no convergence figure; the report says why.
+    Pass :meth:`add` as ``on_fit`` to :func:`hystfit.identify.identify`: a condition's loop, time
+    series and convergence figures go to the figure server (:class:`~hystfit.report.render.FigureStream`)
+    as soon as it is fitted and are drawn while the other conditions are; :meth:`result` adds the
+    overview of all conditions and waits. Used as a context manager, it stops the drawing when the
+    block fails, so nothing is written into ``out_dir`` afterwards. The files do not depend on when
+    or where a figure is drawn.
+
+    Parameters
+    ----------
+    out_dir : Path
+        Report directory (must exist); figures go to its ``plots`` folder.
+    optimizer_name : str
+        Optimizer of the identification (convergence figure titles).
+    n_jobs : int, optional
+        Processes for the figures left when the fits are done (default all cores).
+    n_conditions : int, optional
+        Conditions the identification will fit, when known: the figure server lays out their
+        overview while it waits for the first fit (:func:`~hystfit.report.plots.prepare_overview`).
     """
-    jobs: list[FigureJob] = []
-    out: dict[str, list[str]] = {}
-    panels = []
-    for f in res.fits:
+
+    def __init__(self, out_dir: Path, optimizer_name: str, n_jobs: int | None = None, *,
+                 n_conditions: int | None = None) -> None:
+        self.plot_dir = Path(out_dir) / "plots"
+        self.plot_dir.mkdir(exist_ok=True)
+        self.optimizer_name = optimizer_name
+        self.files: dict[str, list[str]] = {}  # condition → its figures, relative to the report
+        self._stream = FigureStream(n_jobs)
+        if n_conditions:
+            self._stream.prepare("prepare_overview", int(n_conditions), titled=True)
+
+    def __enter__(self) -> "ConditionFigures":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            self.cancel()
+
+    def add(self, f) -> None:
+        """Queue the figures of one fitted condition (a :class:`~hystfit.identify.ConditionFit`)."""
+        if f.label in self.files:
+            raise ValueError(f"condition {f.label!r} was added twice")
         us = [c.u for c in f.captures]
         ys = [c.y for c in f.captures]
-        title = f"{res.model_name} – {f.label}"
+        title = f"{f.model.name} – {f.label}"
         mine = [
-            FigureJob("loop_figure", plot_dir / f"loop_{f.label}.png", (us, ys, list(f.predictions)),
-                      {"unit": res.unit, "title": title}),
-            FigureJob("timeseries_figure", plot_dir / f"timeseries_{f.label}.png",
+            FigureJob("loop_figure", self.plot_dir / f"loop_{f.label}.png", (us, ys, list(f.predictions)),
+                      {"unit": f.unit, "title": title}),
+            FigureJob("timeseries_figure", self.plot_dir / f"timeseries_{f.label}.png",
                       (f.captures[0].t, f.captures[0].y, f.predictions[0]),
-                      {"unit": res.unit, "title": f"{title} ({f.captures[0].name})"}),
+                      {"unit": f.unit, "title": f"{title} ({f.captures[0].name})"}),
         ]
         if plots.has_convergence_history(f.best.result.history_best):
-            mine.append(FigureJob("convergence_figure", plot_dir / f"convergence_{f.label}.png",
+            mine.append(FigureJob("convergence_figure", self.plot_dir / f"convergence_{f.label}.png",
                                   (f.best.result.history_best, f.best.result.history_mean),
-                                  {"title": f"{title}: {res.optimizer_name}",
+                                  {"title": f"{title}: {self.optimizer_name}",
                                    "runs": [r.result.history_best for r in f.runs] if len(f.runs) > 1 else None}))
-        jobs += mine
-        out[f.label] = [str(Path("plots") / j.path.name) for j in mine]
-        r2 = f.metrics.get("r2", np.nan)
-        rmse = f.metrics.get(f"rmse_{res.unit}", np.nan)
-        panels.append({"title": f.label, "u": us, "y_meas": ys, "y_model": list(f.predictions),
-                       "subtitle": f"R²={fmt(r2)} RMSE={fmt(rmse, 3)} {UNIT_DISPLAY.get(res.unit, res.unit)}"})
-    jobs.append(FigureJob("overview_figure", plot_dir / "overview.png", (panels,),
-                          {"unit": res.unit, "title": f"{res.model_name} identified with {res.optimizer_name}"}))
-    render_figures(jobs, n_jobs)
-    return out
+        self.files[f.label] = [str(Path("plots") / j.path.name) for j in mine]
+        self._stream.add(mine)
+
+    def result(self, res: IdentifyResult) -> dict[str, list[str]]:
+        """Queue the conditions of ``res`` not added yet and the overview, wait for every figure,
+        and return the files per condition (relative to the report).
+
+        A condition whose optimizer left no iteration history worth drawing (``auto`` on a model
+        with no nonlinear parameter solves exactly: one point) gets no convergence figure; the
+        report says why.
+        """
+        if res.optimizer_name != self.optimizer_name:
+            raise ValueError(f"figures titled for optimizer {self.optimizer_name!r}, result of {res.optimizer_name!r}")
+        for f in res.fits:
+            if f.label not in self.files:
+                self.add(f)
+        panels = []
+        for f in res.fits:
+            r2 = f.metrics.get("r2", np.nan)
+            rmse = f.metrics.get(f"rmse_{res.unit}", np.nan)
+            panels.append({"title": f.label, "u": [c.u for c in f.captures], "y_meas": [c.y for c in f.captures],
+                           "y_model": list(f.predictions),
+                           "subtitle": f"R²={fmt(r2)} RMSE={fmt(rmse, 3)} {UNIT_DISPLAY.get(res.unit, res.unit)}"})
+        self._stream.add([FigureJob("overview_figure", self.plot_dir / "overview.png", (panels,),
+                                    {"unit": res.unit, "title": f"{res.model_name} identified with {res.optimizer_name}"})])
+        self._stream.result()
+        return {f.label: self.files[f.label] for f in res.fits}
+
+    def cancel(self) -> None:
+        """Stop drawing (the server stops; nothing more is written)."""
+        self._stream.cancel()
 
 
 def _no_convergence_note(f) -> str | None:
@@ -131,11 +186,13 @@ def bound_notes(res: IdentifyResult) -> list[str]:
 
 
 def write_identify_outputs(res: IdentifyResult, out_dir: Path, *, make_plots: bool = True,
-                           n_jobs: int | None = None) -> dict[str, Path]:
+                           n_jobs: int | None = None, figures: ConditionFigures | None = None) -> dict[str, Path]:
     """Write every output of an identification into ``out_dir`` (which must exist).
 
     Figures are drawn by ``n_jobs`` processes (default all cores, :func:`~hystfit.report.render.render_figures`);
-    the files do not depend on it.
+    the files do not depend on it. ``figures``: the :class:`ConditionFigures` the identification
+    already handed its conditions to (their figures drawn while it fitted); by default they are
+    all drawn now.
     """
     out_dir = Path(out_dir)
     paths = {"params": out_dir / "params.json", "report_csv": out_dir / "report.csv",
@@ -144,9 +201,12 @@ def write_identify_outputs(res: IdentifyResult, out_dir: Path, *, make_plots: bo
     write_table(paths["report_csv"], frame(summary_rows(res)))
     plot_files: dict[str, list[str]] = {}
     if make_plots:
-        plot_dir = out_dir / "plots"
-        plot_dir.mkdir(exist_ok=True)
-        plot_files = _plots(res, plot_dir, n_jobs)
-        paths["plots"] = plot_dir
+        if figures is None:
+            figures = ConditionFigures(out_dir, res.optimizer_name, n_jobs)
+        elif figures.plot_dir != out_dir / "plots":
+            raise ValueError(f"the figures go to {figures.plot_dir}, the report to {out_dir}")
+        with figures:
+            plot_files = figures.result(res)
+        paths["plots"] = figures.plot_dir
     atomic_write_text(paths["report_md"], markdown_report(res, plot_files))
     return paths

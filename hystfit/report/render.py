@@ -17,6 +17,10 @@ matplotlib on the other core while this process loads and fits, and :func:`rende
 sends the jobs there (the server forks the pool); this process never imports matplotlib. Before it
 waits for jobs the server draws one small figure of each reused layout (:func:`_warm_up`), so every
 worker it forks starts with those layouts and with filled text caches.
+
+Figures known before the command's work is done (those of a condition as soon as it is fitted)
+go into a :class:`FigureStream`: the server draws them one by one while this process still works,
+and forks its pool only for the figures left when the stream is finished (:meth:`FigureStream.result`).
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-__all__ = ["FigureJob", "preload", "render_figures", "MIN_JOBS_PER_WORKER"]
+__all__ = ["FigureJob", "FigureStream", "PendingFigures", "preload", "render_figures", "MIN_JOBS_PER_WORKER"]
 
 #: a worker is only started for at least this many figures (≈ 35–65 ms each, against ≈ 30 ms to fork one)
 MIN_JOBS_PER_WORKER = 3
@@ -81,15 +85,16 @@ class _FigureServer:
 
     Forked by :func:`preload` before the captures are loaded, it imports matplotlib on another core
     while this process loads and fits (a thread would take turns with the fit for the interpreter
-    lock), and this process never imports matplotlib at all. Each batch is drawn as
-    :func:`render_figures` would draw it here (its own pool, forked from the server, so its workers
-    start with matplotlib). The server ignores SIGINT and leaves when this process closes its end
-    of the pipe or exits; it never returns into the caller's code (``os._exit``).
+    lock), and this process never imports matplotlib at all. It draws one stream of jobs at a time
+    (:class:`FigureStream`): jobs one by one as they are sent, then, when the stream is finished,
+    those left as :func:`render_figures` would draw them here (its own pool, forked from the server,
+    so its workers start with matplotlib). The server ignores SIGINT and leaves when this process
+    closes its end of the pipe or exits; it never returns into the caller's code (``os._exit``).
     """
 
     def __init__(self) -> None:
-        self.drawn = False  # a batch was sent: the server is past its imports
-        self.pending = False  # a batch was sent and its figures not yet collected
+        self.drawn = False  # a stream was opened: the server is past its imports
+        self.pending = False  # a stream was opened and its figures not yet collected
         self.conn, child = mp.Pipe()
         for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
             stream.flush()
@@ -107,22 +112,25 @@ class _FigureServer:
                 os._exit(code)
         child.close()
 
-    def submit(self, jobs: list[FigureJob], n_jobs: int | None) -> bool:
-        """Send a batch to draw and return at once (False when the server is gone or still busy
-        with a batch whose figures were not collected: draw here instead)."""
-        if self.pending:
+    def open_stream(self) -> bool:
+        """Start a stream (False when the server is still busy with one whose figures were not
+        collected: the caller draws here instead)."""
+        if self.pending or self.conn.closed:
             return False
-        self.drawn = True
+        self.drawn = self.pending = True
+        return True
+
+    def send(self, message: tuple) -> bool:
+        """Send one message of the open stream and return at once (False when the server is gone)."""
         try:
-            self.conn.send((jobs, n_jobs))
-        except (OSError, EOFError):
+            self.conn.send(message)
+        except (OSError, EOFError, ValueError):
             self.close()
             return False
-        self.pending = True
         return True
 
     def collect(self) -> list[Path] | None:
-        """Wait for the batch :meth:`submit` sent: its paths, or None when the server is gone."""
+        """Wait for the figures of the finished stream: their paths, or None when the server is gone."""
         self.pending = False
         try:
             status, value = self.conn.recv()
@@ -153,23 +161,63 @@ class _FigureServer:
 
 
 def _serve(conn) -> None:
-    """The server's loop: import matplotlib and warm up (:func:`_warm_up`), then answer each
-    ``(jobs, n_jobs)`` until the pipe closes."""
+    """The server's loop: import matplotlib and warm up (:func:`_warm_up`), then draw each stream:
+    ``("add", jobs)`` queues jobs, ``("prepare", (function, args, kwargs))`` a preparation
+    (drawn when no job waits), ``("finish", n_jobs)`` draws what is left and replies with every
+    job's path, in order, or the first job's error. Between messages the queue is drawn one job at
+    a time, so a job sent while this process works is drawn while it works."""
     _import_plotting()
     _warm_up()
+    stream = _ServerStream()
     while True:
+        if stream.waiting() and not conn.poll():
+            stream.draw_next()
+            continue
         try:
-            jobs, n_jobs = conn.recv()
+            kind, payload = conn.recv()
         except EOFError:
             return
+        if kind == "add":
+            stream.jobs += payload
+        elif kind == "prepare":
+            stream.preparations.append(payload)
+        else:  # "finish"
+            try:
+                reply = ("ok", stream.finish(payload))
+            except Exception as exc:  # noqa: BLE001 - raised again in the caller
+                reply = ("error", exc)
+            stream = _ServerStream()
+            try:
+                conn.send(reply)
+            except Exception as exc:  # noqa: BLE001 - e.g. an exception that does not pickle
+                conn.send(("error", RuntimeError(f"drawing the figures failed: {exc!r}")))
+
+
+class _ServerStream:
+    """The figure server's side of one :class:`FigureStream`."""
+
+    def __init__(self) -> None:
+        self.jobs: list[FigureJob] = []
+        self.outcomes: list[Path | Exception] = []  # of the jobs drawn one by one, in order
+        self.preparations: list[tuple[str, tuple, dict]] = []
+
+    def waiting(self) -> bool:
+        return len(self.outcomes) < len(self.jobs) or bool(self.preparations)
+
+    def draw_next(self) -> None:
+        """Draw the next queued job, or else run the next preparation."""
+        if len(self.outcomes) < len(self.jobs):
+            self.outcomes.append(_outcome(self.jobs[len(self.outcomes)]))
+            return
+        function, args, kwargs = self.preparations.pop(0)
         try:
-            reply = ("ok", _draw_here(jobs, n_jobs))
-        except Exception as exc:  # noqa: BLE001 - raised again in the caller
-            reply = ("error", exc)
-        try:
-            conn.send(reply)
-        except Exception as exc:  # noqa: BLE001 - e.g. an exception that does not pickle
-            conn.send(("error", RuntimeError(f"drawing the figures failed: {exc!r}")))
+            _function(function)(*args, **kwargs)
+        except Exception:  # noqa: BLE001, S110 - a preparation only saves time; the figure is drawn anyway
+            pass
+
+    def finish(self, n_jobs: int | None) -> list[Path]:
+        """Draw the jobs left (a pool as :func:`render_figures`); every path, or the first error."""
+        return _paths(self.outcomes + _outcomes(self.jobs[len(self.outcomes):], n_jobs))
 
 
 def preload(claim_early: bool = False) -> None:
@@ -236,12 +284,6 @@ def _join_preload() -> None:
     _import_plotting()
 
 
-def _render(job: FigureJob) -> Path:
-    module, _, name = job.function.rpartition(":")
-    where = importlib.import_module(module or f"{__package__}.plots")
-    return Path(getattr(where, name)(job.path, *job.args, **job.kwargs))
-
-
 def _default_workers() -> int:
     from ..parallel import default_jobs
 
@@ -265,17 +307,58 @@ def render_figures(jobs: Sequence[FigureJob], n_jobs: int | None = None) -> list
     return PendingFigures(jobs, n_jobs).result()
 
 
-class PendingFigures:
-    """Figures handed to the figure server, drawn there while this process goes on (e.g. fits);
-    :meth:`result` waits for them (as :func:`render_figures` returns them). Without a server, or
-    while it draws another batch, :meth:`result` draws them here. :meth:`cancel` stops a server
-    still drawing them (the caller failed or was interrupted)."""
+class FigureStream:
+    """Figures handed to the figure server as they become known, drawn there one by one while this
+    process goes on (e.g. fits the next condition); :meth:`result` draws what is left (a pool, as
+    :func:`render_figures`) and returns every path in the order the jobs were added.
 
-    def __init__(self, jobs: Sequence[FigureJob], n_jobs: int | None = None) -> None:
-        self.jobs, self.n_jobs = list(jobs), n_jobs
-        self._server = _server if (_server is not None and _server.submit(self.jobs, n_jobs)) else None
+    Without a server, or while it draws another stream, the jobs are kept and :meth:`result` draws
+    them here. :meth:`cancel` stops a server still drawing them (the caller failed or was
+    interrupted), so nothing is written after it returns.
+
+    Parameters
+    ----------
+    n_jobs : int, optional
+        Processes for the figures left when the stream is finished, as in :func:`render_figures`.
+    """
+
+    def __init__(self, n_jobs: int | None = None) -> None:
+        self.jobs: list[FigureJob] = []
+        self.n_jobs = n_jobs
+        self._finished = False
+        self._server = _server if (_server is not None and _server.open_stream()) else None
+
+    def add(self, jobs: Sequence[FigureJob]) -> None:
+        """Queue ``jobs`` (the server starts drawing them at once)."""
+        if self._finished:
+            raise RuntimeError("the figure stream is finished")
+        jobs = list(jobs)
+        self.jobs += jobs
+        if jobs and self._server is not None and not self._server.send(("add", jobs)):
+            self._server = None
+
+    def prepare(self, function: str, *args: Any, **kwargs: Any) -> None:
+        """Let the server call ``function(*args, **kwargs)`` of :mod:`hystfit.report.plots` (or
+        ``"module:function"``) when no job waits, e.g. :func:`~hystfit.report.plots.prepare_overview`:
+        work that makes a later figure cheaper. Nothing happens without a server."""
+        if self._server is not None and not self._finished and not self._server.send(("prepare", (function, args, kwargs))):
+            self._server = None
+
+    def finish(self) -> None:
+        """No more jobs: the server draws those left (a pool), and this process may go on."""
+        if not self._finished:
+            self._finished = True
+            if self._server is not None and not self._server.send(("finish", self.n_jobs)):
+                self._server = None
 
     def result(self) -> list[Path]:
+        """Every job's path in order, once all are drawn (:meth:`finish` first if not yet).
+
+        Raises
+        ------
+        Whatever the figure function raises (the first failing job in order), e.g. ``OutputError``.
+        """
+        self.finish()
         server, self._server = self._server, None
         if server is not None:
             drawn = server.collect()
@@ -292,17 +375,57 @@ class PendingFigures:
                 _server = None
 
 
+class PendingFigures(FigureStream):
+    """Figures all known at once, handed to the figure server to be drawn while this process goes on
+    (a finished :class:`FigureStream`); :meth:`result` waits for them."""
+
+    def __init__(self, jobs: Sequence[FigureJob], n_jobs: int | None = None) -> None:
+        super().__init__(n_jobs)
+        self.add(jobs)
+        self.finish()
+
+
+def _function(name: str):
+    """A figure function by name: ``"loop_figure"`` (of :mod:`hystfit.report.plots`) or ``"module:function"``."""
+    module, _, function = name.rpartition(":")
+    return getattr(importlib.import_module(module or f"{__package__}.plots"), function)
+
+
+def _render(job: FigureJob) -> Path:
+    return Path(_function(job.function)(job.path, *job.args, **job.kwargs))
+
+
+def _outcome(job: FigureJob) -> Path | Exception:
+    try:
+        return _render(job)
+    except Exception as exc:  # noqa: BLE001 - handed to the caller by _paths
+        return exc
+
+
+def _paths(outcomes: Sequence[Path | Exception]) -> list[Path]:
+    """The paths, or the first job's error, in order."""
+    for o in outcomes:
+        if isinstance(o, Exception):
+            raise o
+    return list(outcomes)
+
+
 def _draw_here(jobs: list[FigureJob], n_jobs: int | None) -> list[Path]:
     """:func:`render_figures` in this process: a forked pool, or serially when that cannot pay off."""
+    return _paths(_outcomes(jobs, n_jobs))
+
+
+def _outcomes(jobs: list[FigureJob], n_jobs: int | None) -> list[Path | Exception]:
+    """Each job's path or error, drawn in this process's forked pool, or serially when that cannot pay off."""
     _join_preload()
     n = _default_workers() if n_jobs is None else max(1, int(n_jobs))
     n = min(n, math.ceil(len(jobs) / MIN_JOBS_PER_WORKER))
     if n <= 1 or "fork" not in mp.get_all_start_methods():
-        return [_render(j) for j in jobs]
+        return [_outcome(j) for j in jobs]
     with ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("fork")) as ex:
         # the biggest figures first, so that no worker is left with a long one at the end
         order = sorted(range(len(jobs)), key=lambda i: -_weight(jobs[i]))
-        futs = {i: ex.submit(_render, jobs[i]) for i in order}
+        futs = {i: ex.submit(_outcome, jobs[i]) for i in order}
         return [futs[i].result() for i in range(len(jobs))]
 
 

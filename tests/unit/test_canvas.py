@@ -65,3 +65,43 @@ def test_colour_is_part_of_the_key(empty_cache):
     blue = (px[..., 2] > 200) & (px[..., 0] < 100)
     assert red.any() and blue.any()
     assert red[:, :100].any() and not red[:, 100:].any()
+
+
+@pytest.fixture
+def empty_layouts(monkeypatch):
+    monkeypatch.setattr(canvas, "_layouts", {})
+
+
+def test_cached_text_layouts_give_the_same_pixels(empty_cache, empty_layouts, monkeypatch):
+    from matplotlib.text import Text
+
+    fig = _figure()
+    fig.axes[0].text(0.2, 0.8, "two\nlines", ha="center", va="baseline", multialignment="right")
+    first = _pixels(canvas.Canvas, fig)
+    assert ("Voltage (V)" in {k[0] for k in canvas._layouts}) and ("two\nlines" in {k[0] for k in canvas._layouts})
+    again = _pixels(canvas.Canvas, fig)  # every layout from the cache
+    monkeypatch.setattr(Text, "_get_layout", canvas._matplotlib_layout)
+    computed = _pixels(canvas.Canvas, fig)
+    assert np.array_equal(first, computed) and np.array_equal(again, computed)
+
+
+def test_layouts_on_other_renderers_are_not_kept(empty_layouts):
+    _pixels(FigureCanvasAgg)
+    assert not canvas._layouts
+
+
+def test_layout_key_tells_apart_what_moves_a_text(empty_layouts):
+    fig = Figure(figsize=(2.0, 1.0), dpi=100)
+    texts = [fig.text(0.5, 0.5, "same", ha=ha, va=va, rotation=rot, fontsize=size)
+             for ha, va, rot, size in [("left", "bottom", 0, 10), ("right", "bottom", 0, 10),
+                                       ("left", "top", 0, 10), ("left", "bottom", 90, 10), ("left", "bottom", 0, 12)]]
+    c = canvas.Canvas(fig)
+    c.draw()
+    boxes = [t.get_window_extent(c.get_renderer()).bounds for t in texts]
+    assert len(canvas._layouts) == len(texts) and len(set(boxes)) == len(texts)
+
+
+def test_a_full_layout_cache_starts_again(empty_layouts, monkeypatch):
+    monkeypatch.setattr(canvas, "MAX_CACHED_TEXTS", 3)
+    _pixels(canvas.Canvas)
+    assert 0 < len(canvas._layouts) <= 3

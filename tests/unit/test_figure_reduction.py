@@ -142,10 +142,15 @@ def test_reused_figure_templates_write_the_same_bytes_as_fresh_figures(tmp_path,
     t, u, y = _periodic(30_000, 7, rng, noise=0.01)
     h = np.geomspace(1.0, 1e-4, 200)
 
+    def panels(k, shift=0.0):
+        return [{"u": u * (1 + i), "y_meas": y, "y_model": y + shift + 0.01 * i, "title": f"c{i}",
+                 "subtitle": f"RMSE={i}"} for i in range(k)]
+
     def draw_all(tag):
         return [plots.loop_figure(tmp_path / f"l_{tag}.png", u, y, y + 0.01, title="a"),
                 plots.timeseries_figure(tmp_path / f"t_{tag}.png", t, y, y + 0.01, title="a"),
-                plots.convergence_figure(tmp_path / f"c_{tag}.png", h, h * 2, title="a")]
+                plots.convergence_figure(tmp_path / f"c_{tag}.png", h, h * 2, title="a"),
+                plots.overview_figure(tmp_path / f"o_{tag}.png", panels(5), title="a")]  # 2 × 3, one left empty
 
     plots._templates.figures = {}  # fresh figures
     fresh = [p.read_bytes() for p in draw_all("fresh")]
@@ -155,6 +160,8 @@ def test_reused_figure_templates_write_the_same_bytes_as_fresh_figures(tmp_path,
     plots.loop_figure(tmp_path / "x1.png", u * 2, y, yp, unit="nm", title="a")
     plots.timeseries_figure(tmp_path / "x2.png", None, y[:500], yp[:500], title="a")
     plots.convergence_figure(tmp_path / "x3.png", h - h[-1], None, title="a")
+    plots.overview_figure(tmp_path / "x4.png", panels(5, shift=0.5), unit="nm", title="b")
+    plots.overview_figure(tmp_path / "x5.png", panels(6), title="a")  # the same grid, another layout
     reused = [p.read_bytes() for p in draw_all("reused")]
     assert reused == fresh
 
@@ -167,3 +174,16 @@ def test_first_occurrences_sorting_and_hashing_agree(monkeypatch):
     hashed_route = plots._first_occurrences(keys)
     np.testing.assert_array_equal(sorted_route, hashed_route)
     assert sorted_route.sum() == np.unique(keys).size and sorted_route[0]
+
+
+def test_a_prepared_overview_writes_the_same_bytes_as_a_fresh_one(tmp_path, rng):
+    t, u, y = _periodic(3_000, 3, rng, noise=0.01)
+    panels = [{"u": u, "y_meas": y, "y_model": y + 0.01 * i, "title": f"c{i}", "subtitle": "x"} for i in range(7)]
+    plots._templates.figures = {}
+    fresh = plots.overview_figure(tmp_path / "fresh.png", panels, title="t").read_bytes()
+    plots._templates.figures = {}
+    plots.prepare_overview(7, titled=True)
+    (fig,) = plots._templates.figures.values()
+    assert all(len(ax.xaxis.majorTicks) > 1 for ax in fig.axes[:7])  # the ticks exist before the first drawing
+    assert plots.overview_figure(tmp_path / "prepared.png", panels, title="t").read_bytes() == fresh
+    assert len(plots._templates.figures) == 1  # the prepared layout was the one used

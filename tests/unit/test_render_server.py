@@ -154,3 +154,85 @@ def test_the_console_script_starts_the_figure_server_only_for_commands_that_draw
     monkeypatch.setattr(app_module, "app", lambda **kw: None)
     app_module.main(words)
     assert calls == (["early", "release"] if early else [])
+
+
+def _wait_for(paths, timeout_s=30.0):
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while not all(p.exists() for p in paths):
+        assert time.monotonic() < deadline, "the server did not draw the streamed figures"
+        time.sleep(0.02)
+
+
+def test_a_stream_is_drawn_while_this_process_goes_on_and_gives_the_bytes_drawn_here(tmp_path, rng, server):
+    """Jobs added to a FigureStream are drawn by the server before the stream is finished; the
+    rest after it; the paths come back in the order added, with the bytes drawn here."""
+    seed = int(rng.integers(1 << 30))
+    jobs = _jobs(tmp_path / "s", np.random.default_rng(seed), 3)
+    first, rest = jobs[:2], jobs[2:]
+    stream = render.FigureStream(2)
+    assert stream._server is server and server.pending
+    stream.add(first)
+    _wait_for([j.path for j in first])  # drawn before anything else is sent
+    stream.add(rest)
+    paths = stream.result()
+    here = render._draw_here(_jobs(tmp_path / "here", np.random.default_rng(seed), 3), 1)
+    assert [p.name for p in paths] == [p.name for p in here]
+    assert [p.read_bytes() for p in paths] == [p.read_bytes() for p in here]
+    assert not server.pending
+    with pytest.raises(RuntimeError):
+        stream.add(first)  # finished
+
+
+def test_a_stream_runs_preparations_when_idle_and_ignores_their_errors(tmp_path, rng, server):
+    marker = tmp_path / "prepared"
+    stream = render.FigureStream(1)
+    stream.prepare("hystfit.report.plots:prepare_overview", -3)  # raises: ignored
+    stream.prepare("hystfit.io:atomic_write_bytes", marker, b"x")  # any function, by name
+    _wait_for([marker])
+    stream.add(_jobs(tmp_path / "a", rng, 1))
+    assert all(p.exists() for p in stream.result())
+
+
+def test_the_first_failing_job_of_a_stream_is_raised_also_when_drawn_early(tmp_path, rng, server):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    bad = FigureJob("loop_figure", blocker / "x.png", (np.arange(10.0), np.arange(10.0)), {})
+    stream = render.FigureStream(2)
+    stream.add([bad])
+    ok = _jobs(tmp_path / "ok", rng, 2)
+    stream.add(ok[:1])
+    _wait_for([ok[0].path])  # the failing job was drawn (and failed) before: kept until the end
+    stream.add(ok[1:])
+    with pytest.raises(OutputError):
+        stream.result()
+    assert render_figures(_jobs(tmp_path / "after", rng, 1), 1)[0].exists()  # the server still serves
+
+
+def test_a_cancelled_stream_stops_the_server_and_writes_nothing_more(tmp_path, rng, server):
+    jobs = _jobs(tmp_path / "c", rng, 20)
+    stream = render.FigureStream(1)
+    stream.add(jobs)
+    stream.cancel()
+    assert render._server is None
+    drawn = {p for p in (tmp_path / "c").glob("*.png")} if (tmp_path / "c").exists() else set()
+    import time
+
+    time.sleep(0.3)
+    after = {p for p in (tmp_path / "c").glob("*.png")} if (tmp_path / "c").exists() else set()
+    assert after == drawn and len(after) < len(jobs)
+    with pytest.raises(ChildProcessError):
+        os.waitpid(server.pid, os.WNOHANG)  # reaped
+
+
+def test_without_a_server_a_stream_draws_everything_at_the_end(tmp_path, rng):
+    render._close_server()
+    stream = render.FigureStream(1)
+    assert stream._server is None
+    jobs = _jobs(tmp_path / "n", rng, 2)
+    stream.add(jobs[:2])
+    stream.prepare("prepare_overview", 4)  # nothing happens here
+    assert not any(j.path.exists() for j in jobs)
+    stream.add(jobs[2:])
+    assert [p.name for p in stream.result()] == [j.path.name for j in jobs]
