@@ -82,3 +82,19 @@ def test_every_documented_command_uses_existing_options():
             assert flag in helps[sub], f"{where}: `hystfit {sub}` has no option {flag}"
             checked += 1
     assert checked > 40
+
+
+def test_the_readme_python_api_example_runs(tmp_path, monkeypatch, capsys):
+    """The README's Python API block, as written, from a directory holding sample_data."""
+    import json
+
+    readme = (ROOT / "README.md").read_text()
+    block = readme.split("## Python API", 1)[1].split("```python", 1)[1].split("```", 1)[0]
+    (tmp_path / "sample_data").symlink_to(ROOT / "sample_data")
+    monkeypatch.chdir(tmp_path)
+    exec(compile(block, "README.md (Python API)", "exec"), {})
+    assert "20V_10Hz" in capsys.readouterr().out
+    report = tmp_path / "bw-report"
+    params = json.loads((report / "params.json").read_text())
+    assert params["model"]["name"] == "bw"
+    assert (report / "plots" / "overview.png").exists() and len(list((report / "plots").glob("loop_*.png"))) == 24
