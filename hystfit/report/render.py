@@ -34,7 +34,7 @@ import signal
 import sys
 import threading
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -329,12 +329,14 @@ class FigureStream:
         self._server = _server if (_server is not None and _server.open_stream()) else None
 
     def add(self, jobs: Sequence[FigureJob]) -> None:
-        """Queue ``jobs`` (the server starts drawing them at once)."""
+        """Queue ``jobs`` (the server starts drawing them at once). Relative paths are taken from
+        this process's working directory when added (the server has its own)."""
         if self._finished:
             raise RuntimeError("the figure stream is finished")
         jobs = list(jobs)
         self.jobs += jobs
-        if jobs and self._server is not None and not self._server.send(("add", jobs)):
+        there = [replace(j, path=Path(os.path.abspath(j.path))) for j in jobs]
+        if jobs and self._server is not None and not self._server.send(("add", there)):
             self._server = None
 
     def prepare(self, function: str, *args: Any, **kwargs: Any) -> None:
@@ -362,8 +364,8 @@ class FigureStream:
         server, self._server = self._server, None
         if server is not None:
             drawn = server.collect()
-            if drawn is not None:
-                return drawn
+            if drawn is not None:  # the paths as added (the server drew them at absolute ones)
+                return [j.path if Path(d) == Path(os.path.abspath(j.path)) else d for d, j in zip(drawn, self.jobs)]
         return _draw_here(self.jobs, self.n_jobs)
 
     def cancel(self) -> None:

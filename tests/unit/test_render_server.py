@@ -1,6 +1,7 @@
 """The figure server of report.render: forked early, it draws the same bytes as this process does."""
 
 import os
+from pathlib import Path
 import signal
 
 import numpy as np
@@ -236,3 +237,19 @@ def test_without_a_server_a_stream_draws_everything_at_the_end(tmp_path, rng):
     assert not any(j.path.exists() for j in jobs)
     stream.add(jobs[2:])
     assert [p.name for p in stream.result()] == [j.path.name for j in jobs]
+
+
+def test_relative_paths_are_drawn_where_this_process_works_not_where_the_server_started(tmp_path, rng, server,
+                                                                                         monkeypatch):
+    """The server keeps the working directory it was forked in; a job's relative path means this
+    process's directory when the job is added (the README's Python API writes to "bw-report")."""
+    here = tmp_path / "now_here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    jobs = [FigureJob(j.function, Path("rel") / j.path.name, j.args, j.kwargs) for j in _jobs(tmp_path, rng, 1)]
+    stream = render.FigureStream(1)
+    assert stream._server is server
+    stream.add(jobs)
+    paths = stream.result()
+    assert paths == [j.path for j in jobs]  # as given
+    assert all((here / p).exists() for p in paths)
