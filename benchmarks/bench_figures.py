@@ -41,17 +41,18 @@ def quickstart_figures() -> dict:
     """Wall time of the Quickstart's figures, hystfit against straightforward (same fits)."""
     import straightforward as sf
 
-    from hystfit.report.identify_report import _plots
+    from hystfit.report.identify_report import ConditionFigures
     from hystfit.report.render import _import_plotting
 
     res = _quickstart_fit()
     _import_plotting()
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
+        (d / "h").mkdir()
         t0 = time.perf_counter()
-        files = _plots(res, d / "h")
+        files = ConditionFigures(d / "h", res.optimizer_name).result(res)
         t_h = time.perf_counter() - t0
-        n_h = len(list((d / "h").glob("*.png")))
+        n_h = len(list((d / "h" / "plots").glob("*.png")))
         (d / "s").mkdir()
         t0 = time.perf_counter()
         panels = []
