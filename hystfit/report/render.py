@@ -197,7 +197,7 @@ class _ServerStream:
     """The figure server's side of one :class:`FigureStream`."""
 
     def __init__(self) -> None:
-        self.jobs: list[FigureJob] = []
+        self.jobs: list[FigureJob | None] = []  # a job drawn one by one is dropped (its arrays freed)
         self.outcomes: list[Path | Exception] = []  # of the jobs drawn one by one, in order
         self.preparations: list[tuple[str, tuple, dict]] = []
 
@@ -207,7 +207,9 @@ class _ServerStream:
     def draw_next(self) -> None:
         """Draw the next queued job, or else run the next preparation."""
         if len(self.outcomes) < len(self.jobs):
-            self.outcomes.append(_outcome(self.jobs[len(self.outcomes)]))
+            i = len(self.outcomes)
+            job, self.jobs[i] = self.jobs[i], None
+            self.outcomes.append(_outcome(job))
             return
         function, args, kwargs = self.preparations.pop(0)
         try:
