@@ -928,6 +928,8 @@ def heatmap_figure(path, matrix, row_labels: Sequence[str], col_labels: Sequence
             colour = "0.3" if blank[i, j] else ("white" if dark[i, j] else "black")
             ax.text(j, i, _cell_text(v, fmt), ha="center", va="center", fontsize=size, color=colour)
     cb = fig.colorbar(im, cax=cax)
+    if norm is not None:  # plain numbers (0.01, not 10⁻²): no mathtext to parse and lay out
+        _plain_log_labels(cb.ax.yaxis, masked.compressed())
     if colorbar_label:
         cb.set_label(colorbar_label)
     if title:

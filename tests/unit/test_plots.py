@@ -279,3 +279,22 @@ def test_loop_and_timeseries_axes_have_at_most_tick_bins_intervals(tmp_path, rng
                 for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
                     inside = [v for v in axis.get_majorticklocs() if lo <= v <= hi]
                     assert len(inside) <= plots.TICK_BINS + 1, (axis, inside)
+
+
+def test_a_log_heatmap_colour_bar_is_labelled_with_plain_numbers(tmp_path, monkeypatch):
+    """Like the convergence figure's log axis: 0.01, not 10⁻² (mathtext costs a parse per label)."""
+    import matplotlib.figure
+
+    seen = {}
+    original = matplotlib.figure.Figure.colorbar
+
+    def colorbar(self, *args, **kwargs):
+        seen["cb"] = original(self, *args, **kwargs)
+        return seen["cb"]
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "colorbar", colorbar)
+    m = np.array([[1e-3, 1e-2, 1e-1], [1.0, 0.5, 0.02]])
+    plots.heatmap_figure(tmp_path / "h.png", m, ["a", "b"], ["c", "d", "e"], log=True)
+    labels = [t.get_text() for t in seen["cb"].ax.yaxis.get_ticklabels() if t.get_text()]
+    assert labels and not any("$" in t for t in labels)
+    assert "0.01" in labels and "0.1" in labels
