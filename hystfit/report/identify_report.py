@@ -75,9 +75,14 @@ class ConditionFigures:
             self.cancel()
 
     def add(self, f) -> None:
-        """Queue the figures of one fitted condition (a :class:`~hystfit.identify.ConditionFit`)."""
+        """Queue the figures of one fitted condition (a :class:`~hystfit.identify.ConditionFit`).
+
+        Figures are named by the condition's label; a second condition with the same label (two
+        keys that differ below the label's 12 significant digits, e.g. 0.7 V and 700 mV × 1e-3)
+        keeps the figures of the first one added, as the report lists one figure set per label.
+        """
         if f.label in self.files:
-            raise ValueError(f"condition {f.label!r} was added twice")
+            return
         us = [c.u for c in f.captures]
         ys = [c.y for c in f.captures]
         title = f"{f.model.name} – {f.label}"

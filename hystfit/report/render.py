@@ -34,6 +34,7 @@ import signal
 import sys
 import threading
 from concurrent.futures import ProcessPoolExecutor
+from multiprocessing.reduction import ForkingPickler
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
@@ -104,6 +105,7 @@ class _FigureServer:
             try:
                 self.conn.close()
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
+                signal.signal(signal.SIGTERM, _stop_serving)
                 _detach_output()
                 _serve(child)
             except BaseException:  # noqa: BLE001 - the parent falls back to drawing itself
@@ -123,7 +125,11 @@ class _FigureServer:
     def send(self, message: tuple) -> bool:
         """Send one message of the open stream and return at once (False when the server is gone)."""
         try:
-            self.conn.send(message)
+            data = ForkingPickler.dumps(message)
+        except Exception:  # noqa: BLE001 - a job that does not pickle: drawn here, the server kept
+            return False
+        try:
+            self.conn.send_bytes(data)
         except (OSError, EOFError, ValueError):
             self.close()
             return False
@@ -158,6 +164,18 @@ class _FigureServer:
             os.waitpid(self.pid, 0)
         except (ChildProcessError, ProcessLookupError):  # already gone
             pass
+
+
+def _stop_serving(signum, frame) -> None:
+    """The figure server's SIGTERM (:meth:`_FigureServer.close` with ``stop``, e.g. the caller's
+    Ctrl-C while the pool draws): its pool's workers are killed and reaped before it leaves, so
+    no figure is written after the caller's wait for the server returns."""
+    children = mp.active_children()
+    for child in children:
+        child.kill()
+    for child in children:
+        child.join()
+    os._exit(1)
 
 
 def _serve(conn) -> None:
@@ -325,7 +343,8 @@ class FigureStream:
     """
 
     def __init__(self, n_jobs: int | None = None) -> None:
-        self.jobs: list[FigureJob] = []
+        self.jobs: list[FigureJob] = []  # as added
+        self._there: list[FigureJob] = []  # the same, at absolute paths
         self.n_jobs = n_jobs
         self._finished = False
         self._server = _server if (_server is not None and _server.open_stream()) else None
@@ -336,24 +355,25 @@ class FigureStream:
         if self._finished:
             raise RuntimeError("the figure stream is finished")
         jobs = list(jobs)
-        self.jobs += jobs
         there = [replace(j, path=Path(os.path.abspath(j.path))) for j in jobs]
+        self.jobs += jobs
+        self._there += there
         if jobs and self._server is not None and not self._server.send(("add", there)):
-            self._server = None
+            self.cancel()  # drawn here: a server left with part of a stream would serve no one else
 
     def prepare(self, function: str, *args: Any, **kwargs: Any) -> None:
         """Let the server call ``function(*args, **kwargs)`` of :mod:`hystfit.report.plots` (or
         ``"module:function"``) when no job waits, e.g. :func:`~hystfit.report.plots.prepare_overview`:
         work that makes a later figure cheaper. Nothing happens without a server."""
         if self._server is not None and not self._finished and not self._server.send(("prepare", (function, args, kwargs))):
-            self._server = None
+            self.cancel()
 
     def finish(self) -> None:
         """No more jobs: the server draws those left (a pool), and this process may go on."""
         if not self._finished:
             self._finished = True
             if self._server is not None and not self._server.send(("finish", self.n_jobs)):
-                self._server = None
+                self.cancel()
 
     def result(self) -> list[Path]:
         """Every job's path in order, once all are drawn (:meth:`finish` first if not yet).
@@ -366,11 +386,16 @@ class FigureStream:
         server, self._server = self._server, None
         if server is not None:
             drawn = server.collect()
-            if drawn is not None:  # the paths as added (the server drew them at absolute ones)
-                return [j.path if Path(d) == Path(os.path.abspath(j.path)) else d for d, j in zip(drawn, self.jobs)]
-        return _draw_here(self.jobs, self.n_jobs)
+            if drawn is None:
+                drawn = _draw_here(self._there, self.n_jobs)
+        else:
+            drawn = _draw_here(self._there, self.n_jobs)
+        # the paths as added (drawn at absolute ones)
+        return [j.path if Path(d) == t.path else d for d, j, t in zip(drawn, self.jobs, self._there)]
 
     def cancel(self) -> None:
+        """Stop a server still drawing this stream's figures (it and its pool are gone when this
+        returns; the jobs not drawn yet are not drawn)."""
         global _server
         server, self._server = self._server, None
         if server is not None:

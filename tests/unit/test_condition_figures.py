@@ -83,7 +83,16 @@ def test_figures_must_match_the_result_and_the_report(tmp_path, captures):
     (tmp_path / "other").mkdir()
     with pytest.raises(ValueError, match="figures go to"):
         write_identify_outputs(res, tmp_path / "other", figures=ConditionFigures(tmp_path, res.optimizer_name))
+
+
+
+def test_two_conditions_with_one_label_keep_the_first_ones_figures(tmp_path, captures):
+    """Keys that differ below the label's 12 digits (0.7 V, and 700 mV read as 0.7000000000000001 V)
+    share a label: identify must not fail on it (the report has one figure set per label)."""
+    res = identify(captures[:2], PI(), Auto(), jobs=1)
     figures = ConditionFigures(tmp_path, res.optimizer_name)
     figures.add(res.fits[0])
-    with pytest.raises(ValueError, match="twice"):
-        figures.add(res.fits[0])
+    jobs = list(figures._stream.jobs)
+    figures.add(res.fits[0])  # the same label again
+    assert figures._stream.jobs == jobs
+    assert set(figures.result(res)) == {f.label for f in res.fits}

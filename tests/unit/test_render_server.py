@@ -253,3 +253,30 @@ def test_relative_paths_are_drawn_where_this_process_works_not_where_the_server_
     paths = stream.result()
     assert paths == [j.path for j in jobs]  # as given
     assert all((here / p).exists() for p in paths)
+
+
+def _slow_figure(path, seconds):
+    """A stand-in figure function that takes ``seconds`` (drawn by the server's pool)."""
+    import time
+
+    time.sleep(seconds)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"x")
+    return path
+
+
+def test_cancelling_while_the_pool_draws_stops_the_pool_too(tmp_path, server):
+    """Ctrl-C after the stream was finished: the server's pool, not only the server, is gone when
+    cancel returns — no figure appears afterwards (the staged output is removed next)."""
+    import time
+
+    jobs = [FigureJob(f"{__name__}:_slow_figure", tmp_path / "s" / f"{i}.png", (0.4,)) for i in range(12)]
+    stream = render.FigureStream(2)
+    stream.add(jobs)
+    stream.finish()  # the rest goes to a pool of two
+    time.sleep(1.0)
+    stream.cancel()
+    drawn = set((tmp_path / "s").glob("*.png")) if (tmp_path / "s").exists() else set()
+    time.sleep(1.5)
+    after = set((tmp_path / "s").glob("*.png")) if (tmp_path / "s").exists() else set()
+    assert after == drawn and len(after) < len(jobs)
