@@ -381,3 +381,25 @@ def test_resume_reuses_the_prepared_shared_structure(captures, tmp_path, monkeyp
     fresh = compare(captures, ["pi2"], ["pso"], runs=1, seed=4, optimizer_options=PSO, jobs=1)
     assert calls  # without the store the stage is identified again
     assert [r.fun for c in again.cells for r in c.runs] == [r.fun for c in fresh.cells for r in c.runs]
+
+
+def test_an_interrupted_identify_leaves_no_figures_behind(tmp_path, monkeypatch):
+    """Ctrl-C after half the conditions, whose figures were already handed to the figure server:
+    exit 130, no output, and nothing written into the removed staged directory afterwards."""
+    import time
+
+    from hystfit.report import render
+
+    sample = Path(__file__).resolve().parents[2] / "sample_data"
+    monkeypatch.setattr(hystfit.parallel, "STOP_AFTER_CELLS", 12)
+    drawn = []
+    original = render.FigureStream.add
+    monkeypatch.setattr(render.FigureStream, "add", lambda self, jobs: (drawn.extend(jobs), original(self, jobs)))
+    out = tmp_path / "o"
+    r = run("identify", sample, "--jobs", "1", "--out", out, "-q")
+    assert r.exit_code == 130 and not out.exists()
+    assert len(drawn) >= 2 * 11  # figures of the fitted conditions were on their way
+    time.sleep(1.0)
+    assert not any(p.exists() for p in (j.path for j in drawn))
+    assert [p.name for p in tmp_path.iterdir()] == [partial_dir(out).name]  # only the cells kept for --resume
+    assert not list(tmp_path.rglob("*.png"))  # no staged directory recreated by a late figure
