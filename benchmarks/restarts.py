@@ -99,11 +99,11 @@ def main() -> None:
     models = a.models.split(",")
     restarts = [int(x) for x in a.restarts.split(",")]
     seeds = [int(x) for x in a.seeds.split(",")]
-    work = a.work or Path(tempfile.mkdtemp(prefix="hystfit-restarts-"))
+    work = None if a.data else (a.work or Path(tempfile.mkdtemp(prefix="hystfit-restarts-")))
     data = a.data or default_data(work)
     jobs = [(m, d, r, s) for m in models for d in data for r in restarts for s in seeds]
-    print(f"{len(jobs)} fits of {len(data)} data sets ({', '.join(d.name for d in data)}); synthetic data in {work}",
-          flush=True)
+    print(f"{len(jobs)} fits of {len(data)} data sets ({', '.join(d.name for d in data)})"
+          + (f"; synthetic data in {work}" if work else ""), flush=True)
     with ThreadPoolExecutor(max(1, a.jobs)) as pool:
         results = dict(zip(jobs, pool.map(lambda j: run_one(*j), jobs)))
     for m in models:

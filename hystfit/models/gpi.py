@@ -362,7 +362,9 @@ class GPI(Model):
     invariants a2, a3, b2, b3, τ·α_r, ρ·a1, b1/a1, α_r/a1. A common shift of a4 and b4 changes
     the output only through the virgin operator states, i.e. it is nearly confounded with y0.
     The least-squares landscape has local minima: threshold-step aliasing (α_r → 2α_r with
-    ρ → 2ρ reuses every other threshold) is a typical one — use global-search restarts.
+    ρ → 2ρ reuses every other threshold) is a typical one — use global-search restarts
+    (``--opt-option restarts=3`` with ``auto``: three searches, each polished, the best kept;
+    ``benchmarks/restarts.py``).
 
     Inverse. With equal envelopes (a_i = b_i) the model is the classical PI of γ(u): its exact
     inverse is the inverse PI (paper 003 eq. 17–20) followed by γ⁻¹(v) = (atanh((v − a4)/a1) − a3)/a2.
