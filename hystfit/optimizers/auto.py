@@ -53,7 +53,8 @@ class Auto(IteratedSearch):
     exact): steps 1–2 then run on those samples, followed by a polish on them and a short polish
     (:data:`POLISH_EVALS_AFTER_SUBSAMPLE` cost evaluations) on every sample.
 
-    Without separable structure it falls back to PSO over all parameters plus the polish.
+    Without separable structure it falls back to one PSO over all parameters plus the polish
+    (``restarts`` does not apply).
 
     Settings: ``pop`` (24) particles and ``iters`` (60) iterations per search, ``stall_iter`` (12)
     and ``stall_tol`` (1e-7) for the stall stop of each search, ``restarts`` (1) searches, each
@@ -153,7 +154,8 @@ class Auto(IteratedSearch):
                     final = replace(polisher(), stop=StopRules(max_evals=POLISH_EVALS_AFTER_SUBSAMPLE))
                 else:  # polished on every sample already: that is the fit
                     done = best
-        f = tr.evaluate(np.clip(start, lower, upper)[None, :])
+        # the start's value (for a fit already polished on every sample, its own value: not scored again)
+        f = np.array([done.fun]) if done is not None else tr.evaluate(np.clip(start, lower, upper)[None, :])
         if not hist_b:
             hist_b, hist_m = [float(f[0])], [float(f[0])]
         pol = done if done is not None else final.minimize(objective, lower, upper, rng=rng,
