@@ -34,8 +34,8 @@ import signal
 import sys
 import threading
 from concurrent.futures import ProcessPoolExecutor
-from multiprocessing.reduction import ForkingPickler
 from dataclasses import dataclass, field, replace
+from multiprocessing.reduction import ForkingPickler
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -126,7 +126,7 @@ class _FigureServer:
         """Send one message of the open stream and return at once (False when the server is gone)."""
         try:
             data = ForkingPickler.dumps(message)
-        except Exception:  # noqa: BLE001 - a job that does not pickle: drawn here, the server kept
+        except Exception:  # noqa: BLE001 - a job that does not pickle: nothing sent, the caller draws here
             return False
         try:
             self.conn.send_bytes(data)

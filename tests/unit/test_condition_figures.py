@@ -85,7 +85,6 @@ def test_figures_must_match_the_result_and_the_report(tmp_path, captures):
         write_identify_outputs(res, tmp_path / "other", figures=ConditionFigures(tmp_path, res.optimizer_name))
 
 
-
 def test_two_conditions_with_one_label_keep_the_first_ones_figures(tmp_path, captures):
     """Keys that differ below the label's 12 digits (0.7 V, and 700 mV read as 0.7000000000000001 V)
     share a label: identify must not fail on it (the report has one figure set per label)."""

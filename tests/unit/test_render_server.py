@@ -280,3 +280,25 @@ def test_cancelling_while_the_pool_draws_stops_the_pool_too(tmp_path, server):
     time.sleep(1.5)
     after = set((tmp_path / "s").glob("*.png")) if (tmp_path / "s").exists() else set()
     assert after == drawn and len(after) < len(jobs)
+
+
+def _figure_calling(path, make_bytes):
+    """A stand-in figure function whose argument (a function) need not pickle."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(make_bytes())
+    return path
+
+
+def test_a_job_that_does_not_pickle_is_drawn_here(tmp_path, rng, server):
+    """A job the server cannot be sent (a lambda among its arguments) must not fail the command:
+    the stream stops the server and draws every job, the ones sent before it too, in this process."""
+    jobs = _jobs(tmp_path, rng, 1)
+    odd = FigureJob(f"{__name__}:_figure_calling", tmp_path / "odd.png", (lambda: b"drawn here",))
+    stream = render.FigureStream(1)
+    assert stream._server is server
+    stream.add(jobs)
+    stream.add([odd])
+    assert stream._server is None
+    paths = stream.result()
+    assert paths == [j.path for j in jobs] + [odd.path]
+    assert all(p.exists() for p in paths) and odd.path.read_bytes() == b"drawn here"
