@@ -1,7 +1,7 @@
 """How ``auto``'s ``restarts`` trade fitting time against RMSE, on data nobody tuned it on.
 
 Run:  python benchmarks/restarts.py [--models gpi,pi2,lugre,dahl,ch] [--restarts 1,2,3] [--seeds 0,1]
-                                    [--jobs 2] [--data DIR ...] [--work DIR]
+                                    [--jobs 2] [--data DIR ...] [--work DIR] [--other TREE]
 
 Without ``--data`` the data sets are: the shipped ``sample_data`` (24 conditions), two synthetic
 campaigns written by ``hystfit synth campaign`` (seed 7, every effect at 1.5× strength; seed 3,
@@ -15,6 +15,12 @@ each condition against the best RMSE any run of this benchmark reached on that c
 geometric mean of that ratio, its median and 90th percentile, the worst, and the share of
 conditions within 1 % of the best). A smaller ratio is a better fit; 1.000 everywhere means every
 run found the same optimum.
+
+``--other TREE`` runs every fit also with the hystfit of another source tree (e.g. a worktree of an
+earlier commit: ``git worktree add --detach ../old 31ab6fe``, whose ``auto`` ran two searches for
+m > 2 and polished the better one), in the same table (rows marked ``other``) and against the same
+best RMSE; then, per ``restarts``, the geometric mean over conditions of RMSE(other) / RMSE(this)
+and the CPU ratio.
 """
 
 from __future__ import annotations
@@ -80,8 +86,8 @@ def default_data(work: Path) -> list[Path]:
     return sets
 
 
-def run_one(model: str, data: Path, restarts: int, seed: int) -> dict:
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+def run_one(model: str, data: Path, restarts: int, seed: int, tree: Path = ROOT) -> dict:
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(tree)}
     r = subprocess.run([sys.executable, "-c", CHILD, model, str(data), str(restarts), str(seed)], env=env,
                        capture_output=True, text=True, check=True)
     return json.loads(r.stdout.strip().splitlines()[-1])
@@ -95,31 +101,42 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--data", type=Path, nargs="*", default=None, help="data folders (default: see the docstring)")
     ap.add_argument("--work", type=Path, default=None, help="where the synthetic data sets are written (kept)")
+    ap.add_argument("--other", type=Path, default=None, help="another hystfit source tree to run every fit with too")
     a = ap.parse_args()
     models = a.models.split(",")
     restarts = [int(x) for x in a.restarts.split(",")]
     seeds = [int(x) for x in a.seeds.split(",")]
+    trees = {"this": ROOT, **({"other": a.other.resolve()} if a.other else {})}
     work = None if a.data else (a.work or Path(tempfile.mkdtemp(prefix="hystfit-restarts-")))
     data = a.data or default_data(work)
-    jobs = [(m, d, r, s) for m in models for d in data for r in restarts for s in seeds]
+    jobs = [(m, d, r, s, t) for m in models for d in data for r in restarts for s in seeds for t in trees]
     print(f"{len(jobs)} fits of {len(data)} data sets ({', '.join(d.name for d in data)})"
           + (f"; synthetic data in {work}" if work else ""), flush=True)
     with ThreadPoolExecutor(max(1, a.jobs)) as pool:
-        results = dict(zip(jobs, pool.map(lambda j: run_one(*j), jobs)))
+        results = dict(zip(jobs, pool.map(lambda j: run_one(*j[:4], trees[j[4]]), jobs)))
     for m in models:
         best: dict = {}
-        for (mm, d, r, s), res in results.items():
+        for (mm, d, r, s, t), res in results.items():
             if mm == m:
                 for i, v in enumerate(res["rmse"]):
                     best[(d, i)] = min(best.get((d, i), np.inf), v)
         print(f"\n{m}: RMSE / best RMSE of any run, per condition ({len(best)} conditions × {len(seeds)} seeds)")
-        print(f"{'restarts':>8} {'CPU s':>8} {'gmean':>7} {'median':>7} {'p90':>7} {'worst':>7} {'within 1 %':>10}")
-        for r in restarts:
-            ratio = np.array([v / best[(d, i)] for (mm, d, rr, s), res in results.items() if mm == m and rr == r
-                              for i, v in enumerate(res["rmse"])])
-            cpu = sum(res["cpu_s"] for (mm, d, rr, s), res in results.items() if mm == m and rr == r)
-            print(f"{r:>8} {cpu:>8.1f} {np.exp(np.mean(np.log(ratio))):>7.3f} {np.median(ratio):>7.3f} "
-                  f"{np.quantile(ratio, 0.9):>7.3f} {ratio.max():>7.3f} {np.mean(ratio < 1.01):>10.2f}")
+        print(f"{'tree':>5} {'restarts':>8} {'CPU s':>8} {'gmean':>7} {'median':>7} {'p90':>7} {'worst':>7} {'within 1 %':>10}")
+        for t in trees:
+            for r in restarts:
+                ratio = np.array([v / best[(d, i)] for (mm, d, rr, s, tt), res in results.items()
+                                  if mm == m and rr == r and tt == t for i, v in enumerate(res["rmse"])])
+                cpu = sum(res["cpu_s"] for (mm, d, rr, s, tt), res in results.items() if mm == m and rr == r and tt == t)
+                print(f"{t:>5} {r:>8} {cpu:>8.1f} {np.exp(np.mean(np.log(ratio))):>7.3f} {np.median(ratio):>7.3f} "
+                      f"{np.quantile(ratio, 0.9):>7.3f} {ratio.max():>7.3f} {np.mean(ratio < 1.01):>10.2f}")
+        if "other" in trees:
+            for r in restarts:
+                pairs = [(results[(m, d, r, s, "other")], results[(m, d, r, s, "this")]) for d in data for s in seeds]
+                q = np.concatenate([np.asarray(o["rmse"]) / np.asarray(h["rmse"]) for o, h in pairs])
+                cpu = sum(o["cpu_s"] for o, _ in pairs) / sum(h["cpu_s"] for _, h in pairs)
+                print(f"restarts {r}: RMSE other / this, geometric mean {np.exp(np.mean(np.log(q))):.4f} "
+                      f"(worse by > 1 %: {np.sum(q > 1.01)}, better by > 1 %: {np.sum(q < 0.99)} of {q.size}); "
+                      f"CPU other / this {cpu:.2f}")
 
 
 if __name__ == "__main__":

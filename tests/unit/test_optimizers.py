@@ -184,7 +184,7 @@ def test_auto_keeps_the_polish_with_the_lowest_cost_not_the_best_or_last_search(
 
 def test_auto_runs_one_search_and_one_polish_by_default(monkeypatch):
     """Three nonlinear parameters: one (larger) search, one polish — a second search kept only for
-    its better search value bought no measurable RMSE at 24–42 % of the fit's CPU (CHANGELOG;
+    its better search value bought no measurable RMSE at 31–42 % of the fit's CPU (CHANGELOG;
     benchmarks/restarts.py measures what more searches, each polished, buy)."""
     from hystfit.optimizers.auto import Auto
 
