@@ -30,6 +30,7 @@ the JSON document (``diagnosis.json``) is built by
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -44,10 +45,11 @@ from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Linearization, Pl
                       prepare_design, scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
-from .identify import fit_captures, identify, prepare_shared
+from .identify import adapted_model, condition_groups, fit_captures, identify, prepare_shared
 from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
+from .optimizers.lsq import polisher
 from .parallel import CellFailed, fork_map, fork_workers, run_cells
 from .seeds import check_seed
 from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
@@ -297,6 +299,9 @@ class Diagnosis:
     resolution_before_effects: dict | None = None  # :func:`converge_resolution`, None when not run
     base_resolution: dict | None = None  # {"option", "given", "final"}: the base's resolution at the end
     resolution_during_selection: tuple[dict, ...] = ()  # the checks after each named effect (:class:`_Refiner`)
+    #: the final model fitted on the fit part (base parameters per group, the named effects):
+    #: the start of :func:`fit_recommended`; None when nothing was named
+    final_state: object = field(repr=False, compare=False, default=None)
 
     @property
     def reconciliation(self) -> list[dict]:
@@ -364,11 +369,91 @@ def recommend_expression(base_model: str, named: Sequence[str]) -> str:
     return "+".join(parts + new)
 
 
+def recommended_starts(captures: Sequence[Capture], d: "Diagnosis", model: Model) -> dict[str, np.ndarray] | None:
+    """Per cell of the recommended model's identification (``"global"``, or each condition's label),
+    its start θ₀ from the diagnosis's own final model (:attr:`Diagnosis.final_state`, fitted on the fit
+    part): the base's parameters of that cell's group, then each block's searched parameters φ and
+    shared coefficients as the named effect's fit (nuisance blocks: their defaults).
+
+    ``model`` is the recommended model, prepared (:func:`hystfit.identify.prepare_shared`). None
+    when there is no such start: nothing named, a block not among the fitted effects, or a cell
+    whose base or blocks, adapted to all its data, are not what the diagnosis fitted: the base's
+    structure within 1 % in its numbers (:func:`_same_structure`; e.g. PI thresholds set from an
+    input range larger than the fit part's, as in a capture whose amplitude grows after it), each
+    block the same operator at its start (:func:`_same_operator`; e.g. creep's time constants set
+    from one condition's own duration)."""
+    state = d.final_state
+    if state is None or model.composition is None:
+        return None
+    fitted = {f.effect.name: f for f in state.chain}
+    by_label = {g.label: g for g in state.groups}
+    out = {}
+    for key, caps in condition_groups(captures, d.mode != "per-condition").items():
+        label = "global" if d.mode != "per-condition" else condition_label(key)
+        g = by_label.get(label)
+        adapted, params_all = adapted_model(caps, model)
+        if g is None or not _same_structure(adapted.composition[0], g.model) or g.theta.size != len(
+                params_all) - sum(b.n_theta for b in adapted.composition[1]):
+            return None
+        parts = [np.asarray(g.theta, float)]
+        at = g.theta.size
+        for b in adapted.composition[1]:
+            params, at = params_all[at:at + b.n_theta], at + b.n_theta
+            if b.nuisance:
+                parts.append(np.array([p.default for p in params], float))
+                continue
+            f = fitted.get(b.name)
+            th = None if f is None else np.concatenate([np.asarray(f.phi, float), np.asarray(f.shared, float)])
+            if th is None or th.size != len(params) or not _same_operator(b, f.effect, th, caps[0]):
+                return None
+            parts.append(th)
+        out[label] = np.concatenate(parts)
+    return out
+
+
+def _same_structure(a, b, rtol: float = 1e-2) -> bool:
+    """Whether two adapted models have the same structure up to ``rtol`` in their numbers: the same
+    type and fields, numbers (and tuples of numbers, e.g. PI thresholds set from the input range of
+    slightly different data) within ``rtol`` of each other, models inside compared alike."""
+    if type(a) is not type(b):
+        return False
+    if dataclasses.is_dataclass(a):
+        return all(_same_structure(getattr(a, f.name), getattr(b, f.name), rtol) for f in dataclasses.fields(a))
+    if isinstance(a, (tuple, list)):
+        return len(a) == len(b) and all(_same_structure(x, y, rtol) for x, y in zip(a, b))
+    if isinstance(a, (int, float)) and not isinstance(a, bool):
+        return bool(abs(a - b) <= rtol * max(abs(a), abs(b)) or a == b)
+    if isinstance(a, np.ndarray):
+        return a.shape == b.shape and bool(np.allclose(a, b, rtol=rtol, atol=0.0))
+    return bool(a == b)
+
+
+def _same_operator(block, effect, theta: np.ndarray, capture: Capture, rtol: float = 1e-2) -> bool:
+    """Whether ``block`` (adapted to all the data) and ``effect`` (the same block as the diagnosis
+    configured it on the fit part) are one operator at ``theta``: what each adds to the capture's
+    input (its first 20,000 samples), output − input, agrees within ``rtol`` of the range of the
+    effect's. Fields that only set a search box (f_n's range, the longest delay) do not count;
+    structure set from the data (creep's time constants, the asymmetry's centre and half range) does."""
+    x = np.asarray(capture.u[:20_000], float)[None, :]
+    with np.errstate(all="ignore"):
+        a = block.apply_population(x, theta[None, :], capture.dt) - x
+        b = effect.apply_population(x, theta[None, :], capture.dt) - x
+    span = float(np.ptp(b)) if np.all(np.isfinite(b)) else math.nan
+    return bool(np.all(np.isfinite(a)) and np.isfinite(span) and np.max(np.abs(a - b)) <= rtol * max(span, 1e-300))
+
+
 def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, optimizer: Optimizer, *,
                     seed: int, model_options: dict | None = None, progress=None, executor=None, store=None,
                     resume: bool = False):
     """Identify the recommended model on all the data (globally, or per condition as the diagnosis
     was made), so the diagnosis hands over a model that ``simulate``/``invert``/``track`` accept.
+
+    With ``auto`` (the default optimizer) every cell starts from the diagnosis's own fit of the
+    recommended model on the fit part (:func:`recommended_starts`) and is polished on all the data
+    (the least-squares polish of ``auto``, :func:`hystfit.optimizers.lsq.polisher`): that start is
+    already within a few per cent of the optimum, so ``auto``'s staged start (the base, then each
+    block searched on a grid) would repeat the diagnosis's work. Where there is no such start, and
+    with any other optimizer, the recommended model is identified from scratch by ``optimizer``.
 
     Returns the :class:`hystfit.identify.IdentifyResult`, or None when nothing was named.
     """
@@ -377,8 +462,13 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
         return None
     opts = {**dict(model_options or {}), **d.recommended_options}
     rec = make_model(d.recommended_model, opts)
-    return identify(captures, rec, optimizer, seed=seed, global_fit=d.mode != "per-condition",
-                    model_options=opts, progress=progress, executor=executor, store=store, resume=resume)
+    starts = None
+    if optimizer.name == "auto":
+        rec = prepare_shared(rec, captures, store, resume)
+        starts = recommended_starts(captures, d, rec)
+    return identify(captures, rec, optimizer if starts is None else polisher(), seed=seed,
+                    global_fit=d.mode != "per-condition", model_options=opts, progress=progress, executor=executor,
+                    store=store, resume=resume, starts=starts)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1617,12 +1707,14 @@ def _run_candidates(ctx: _StepContext, remaining: Sequence[Effect], step: int, c
 @dataclass(frozen=True, eq=False)
 class _Selection:
     """The greedy selection for one noise floor: every step's results (best first), the effects
-    named in order, the equally good alternatives per step, and the final model's predictions."""
+    named in order, the equally good alternatives per step, the final model's predictions and its
+    state (base parameters and named effects, fitted on the fit part; None where not kept)."""
 
     steps: tuple[tuple[EffectResult, ...], ...]
     chosen: tuple[str, ...]
     alternatives: tuple[tuple[str, ...], ...]
     preds: list
+    state: "_State | None" = None
 
 
 def _step_results(state, preds_state, remaining, step: int, caps, views, all_effects, sigma: float, where: dict,
@@ -1732,7 +1824,7 @@ def _select_effects(sigma: float, where: dict, *, state0, pred0, caps, views, ca
             finer = refine(state, preds_state, chosen)
             if finer is not None:
                 state, preds_state = finer
-    return _Selection(tuple(steps), tuple(chosen), tuple(alternatives), preds_state)
+    return _Selection(tuple(steps), tuple(chosen), tuple(alternatives), preds_state, state)
 
 
 @dataclass(frozen=True, eq=False)
@@ -2015,9 +2107,9 @@ def _continue_on_finer_base(res: _Resolution, sel: _Selection, select_from) -> _
     k = len(sel.chosen)
     more = select_from(res.state, res.preds, list(sel.chosen), k)
     if more is None:
-        return _Selection(sel.steps[:k], sel.chosen, sel.alternatives[:k], res.preds)
+        return _Selection(sel.steps[:k], sel.chosen, sel.alternatives[:k], res.preds, res.state)
     return _Selection(sel.steps[:k] + more.steps, sel.chosen + more.chosen, sel.alternatives[:k] + more.alternatives,
-                      more.preds)
+                      more.preds, more.state)
 
 
 def _base_resolution(given: Model, final: Model) -> dict | None:
@@ -2196,7 +2288,8 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                      alternatives=sel.alternatives, split=split, captures=_capture_info(caps, d, base.calibration),
                      runtime_s=time.perf_counter() - t_start, figures_data=figures_data, findings=tuple(found),
                      resolution=resolution, split_choice=d.split, resolution_before_effects=converged,
-                     base_resolution=_base_resolution(given, final), resolution_during_selection=during)
+                     base_resolution=_base_resolution(given, final), resolution_during_selection=during,
+                     final_state=sel.state if sel.chosen else None)
 
 
 # ----------------------------------------------------------------------------------------------

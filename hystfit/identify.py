@@ -8,7 +8,7 @@ derives every run's seed, keeps the best run and reports the spread.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
@@ -129,7 +129,8 @@ def unit_param(p: Param, unit: str) -> str:
 
 @dataclass(frozen=True)
 class _Problem:
-    """What every run of one cell shares: the adapted model, its box and the pooled captures."""
+    """What every run of one cell shares: the adapted model, its box, the pooled captures and the
+    start point of its runs (None: the model's defaults)."""
 
     captures: tuple[Capture, ...]
     model: Model
@@ -138,6 +139,7 @@ class _Problem:
     lower: np.ndarray
     upper: np.ndarray
     unit: str
+    start: np.ndarray | None = None
 
     def objective(self) -> Objective:
         return Objective(self.model, [Series(c.u, c.y, c.dt, c.warmup_samples) for c in self.captures])
@@ -156,6 +158,14 @@ def _problem(captures: Sequence[Capture], model: Model,
                     np.array([p.upper for p in params]), unit)
 
 
+def adapted_model(captures: Sequence[Capture], model: Model) -> tuple[Model, tuple[Param, ...]]:
+    """``model`` as :func:`identify` fits it on ``captures`` pooled, adapted to their scale (e.g. PI
+    thresholds from their input range), and its parameters (names, units, box, defaults).
+    ``model`` is prepared already (:func:`prepare_shared`)."""
+    problem = _problem(captures, model, None)
+    return problem.model, problem.params
+
+
 def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int, polish: bool,
          objective: Objective | None = None) -> RunRecord:
     """One seeded optimizer run (plus the least-squares polish) on one cell."""
@@ -166,8 +176,11 @@ def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int
     for opt in (optimizer,) if final is None else (optimizer, final):
         opt.load_libraries()  # a one-time import is not the run's time (the command's wall time has it)
     t_run = time.perf_counter()
-    # optimizers that declare `uses_start_point` start from (or seed their search with) the defaults
-    x0 = np.array([p.default for p in problem.params]) if optimizer.uses_start_point else None
+    # optimizers that declare `uses_start_point` start from (or seed their search with) the cell's
+    # start: the one given to identify (``starts``), else the defaults
+    x0 = None
+    if optimizer.uses_start_point:
+        x0 = problem.start if problem.start is not None else np.array([p.default for p in problem.params])
     res = optimizer.minimize(objective, problem.lower, problem.upper, rng=rng, x0=x0)
     pol = None
     x, fun = res.x, res.fun
@@ -296,7 +309,8 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
              progress: Progress = None, model_options: Mapping | None = None,
              jobs: int | None = 1, executor: Executor | None = None, store: CellStore | None = None,
              resume: bool = False, mape_floor: float = MAPE_THRESHOLD_FRACTION,
-             on_fit: Callable[[ConditionFit], None] | None = None) -> IdentifyResult:
+             on_fit: Callable[[ConditionFit], None] | None = None,
+             starts: Mapping[str, np.ndarray] | None = None) -> IdentifyResult:
     """Identify ``model`` on ``captures``: one fit per condition (look-up table) or one global fit.
 
     ``jobs`` > 1 spreads the (condition, run) cells over a process pool (None: all cores), or
@@ -308,7 +322,10 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     |y_meas| below this fraction of the stroke (0: every sample, as paper 002; :mod:`hystfit.metrics`).
     ``on_fit(fit)`` is called in this process as soon as every run of a condition is done, in the
     order conditions finish (e.g. to draw its figures while the others are fitted); the result lists
-    the fits in condition order.
+    the fits in condition order. ``starts``: per cell label (``"global"`` for a global fit, else the
+    condition's label) a start θ₀ in the model's parameter order, clipped to the box, that replaces
+    the defaults as the start point of an optimizer that takes one (e.g. a fit to polish on more
+    data, :func:`hystfit.diagnose.fit_recommended`); cells without one start from the defaults.
     """
     check_seed(seed)
     mape_floor = check_mape_floor(mape_floor)
@@ -331,7 +348,14 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
             label = "global"
         else:
             cond, label = key, condition_label(key)
-        cells.append((_problem(caps, model, bounds), cond, label))
+        problem = _problem(caps, model, bounds)
+        if starts is not None and label in starts:
+            x0 = np.asarray(starts[label], dtype=np.float64)
+            if x0.shape != problem.lower.shape:
+                raise ConfigError(f"identify: the start of {label} has {x0.size} values; {model.name} has "
+                                  f"{problem.lower.size} parameters ({', '.join(p.name for p in problem.params)})")
+            problem = replace(problem, start=np.clip(x0, problem.lower, problem.upper))
+        cells.append((problem, cond, label))
     work = [(cell, r) for cell in range(len(cells)) for r in range(runs)]
     keys = None
     if store is not None:
@@ -339,7 +363,9 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         opts = model.as_options()
         keys = [cell_key("identify", captures=cells[c][0].captures, model=model.name, model_options=opts,
                          optimizer=optimizer.name, optimizer_settings=settings, bounds=dict(bounds or {}), seed=seed,
-                         cell=c, run=r, polish=polish) for c, r in work]
+                         cell=c, run=r, polish=polish,
+                         **({} if cells[c][0].start is None else {"start": [float(v) for v in cells[c][0].start]}))
+                for c, r in work]
 
     finished: dict[int, dict[int, Any]] = {}  # cell → run → record, until the cell is summarized
     summaries: dict[int, ConditionFit] = {}

@@ -1,0 +1,103 @@
+"""The recommended model diagnose hands over: started from the diagnosis's fit, or from scratch.
+
+Run:  python benchmarks/diagnose_handover.py [--data DIR[,DIR…] …] [--work DIR]     (≈ 3 min on 2 cores)
+
+For each data set (default: ``sample_data``; ``sample_data`` with its broadband captures; three
+``hystfit synth campaign``s — seed 7 with every effect at 1.5×, seed 3 with asymmetry + dynamics +
+noise, seed 11 with creep + delay + drift + noise; three rising-amplitude sines at 5, 20 and 50 Hz
+with creep + delay + noise), ``diagnose`` with the PI base and ``auto``, then the recommended model
+identified on all the data twice: as ``hystfit diagnose`` does it (``auto``: from the diagnosis's own
+fit, :func:`hystfit.diagnose.recommended_starts`, polished) and from scratch (``auto``'s own staged
+start and polish, as before). Printed per data set: the effects named, which route was taken, the
+wall time of each and the pooled RMSE over all samples of each. Markdown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def _hystfit(*args: str) -> None:
+    subprocess.run([sys.executable, "-m", "hystfit", *args], check=True, capture_output=True, text=True)
+
+
+def default_data(work: Path) -> list[list[Path]]:
+    """The data sets of the module docstring (each a list of folders), written under ``work``."""
+    sets = [[ROOT / "sample_data"], [ROOT / "sample_data", ROOT / "sample_data" / "broadband"]]
+    for name, args in (("campaign_s7_all", ["--seed", "7", "--effects", "all", "--strength", "1.5"]),
+                       ("campaign_s3_asym", ["--seed", "3", "--effects", "asymmetry,dynamics,noise"]),
+                       ("campaign_s11_creep_delay_drift", ["--seed", "11", "--effects", "creep,delay,drift,noise"])):
+        d = work / name
+        if not d.exists():
+            _hystfit("synth", "campaign", "--out", str(d), *args)
+        sets.append([d])
+    rising = work / "rising_sines"
+    if not rising.exists():
+        rising.mkdir(parents=True)
+        for f in (5, 20, 50):
+            _hystfit("synth", "capture", str(rising / f"rs_{f}Hz.csv"), "-a", "80", "-e", "rising-sine", "-f", str(f),
+                     "--cycles", "12", "--seed", str(f), "--effects", "creep,delay,noise")
+    sets.append([rising])
+    return sets
+
+
+def _pooled_rmse(result) -> float:
+    sse = n = 0.0
+    for f in result.fits:
+        k = sum(c.n for c in f.captures)
+        sse += f.metrics[f"rmse_{result.unit}"] ** 2 * k
+        n += k
+    return math.sqrt(sse / n)
+
+
+def main() -> None:
+    import hystfit.cli  # noqa: F401  (the command line's BLAS thread settings, before numpy loads)
+    import hystfit.diagnose as diag
+    from hystfit.factory import make_model, make_optimizer
+    from hystfit.io import load_captures
+    from hystfit.registry import optimizers
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", nargs="*", default=None, help="data sets, each DIR[,DIR…] (default: the docstring's)")
+    ap.add_argument("--work", type=Path, default=None, help="where the synthetic data sets are written (kept)")
+    a = ap.parse_args()
+    if a.data:
+        sets = [[Path(p) for p in s.split(",")] for s in a.data]
+    else:
+        sets = default_data(a.work or Path(tempfile.mkdtemp(prefix="hystfit-handover-")))
+    base, opt = make_model("pi", {}), make_optimizer(optimizers.get("auto"))
+    starts = diag.recommended_starts
+    print("| data | named | recommended | route | time (s) | from scratch (s) | RMSE | from scratch RMSE |")
+    print("|---|---|---|---|---:|---:|---:|---:|")
+    for folders in sets:
+        caps = load_captures(folders)
+        d = diag.diagnose(caps, base, opt, seed=0)
+        name = " + ".join(f.name for f in folders)
+        if not d.explained_by:
+            print(f"| {name} | none | – | – | – | – | – | – |")
+            continue
+        rows = {}
+        for how in ("handed over", "scratch"):
+            diag.recommended_starts = starts if how == "handed over" else (lambda *args, **kw: None)
+            t = time.perf_counter()
+            rec = diag.fit_recommended(caps, d, base, opt, seed=0)
+            rows[how] = (time.perf_counter() - t, _pooled_rmse(rec), rec.optimizer_name)
+        diag.recommended_starts = starts
+        (tw, rw, route), (tc, rc, _) = rows["handed over"], rows["scratch"]
+        route = "diagnosis's fit, polished" if route != "auto" else "from scratch (no start)"
+        opts = "".join(f" {k}={v}" for k, v in d.recommended_options.items())
+        print(f"| {name} | {', '.join(d.explained_by)} | {d.recommended_model}{opts} | {route} | {tw:.2f} | {tc:.2f} "
+              f"| {rw:.6f} | {rc:.6f} |")
+
+
+if __name__ == "__main__":
+    main()
