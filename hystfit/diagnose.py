@@ -30,7 +30,6 @@ the JSON document (``diagnosis.json``) is built by
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -369,77 +368,69 @@ def recommend_expression(base_model: str, named: Sequence[str]) -> str:
     return "+".join(parts + new)
 
 
-def recommended_starts(captures: Sequence[Capture], d: "Diagnosis", model: Model) -> dict[str, np.ndarray] | None:
+def recommended_starts(captures: Sequence[Capture], d: "Diagnosis", model: Model,
+                       rtol: float = 1e-2) -> dict[str, np.ndarray] | None:
     """Per cell of the recommended model's identification (``"global"``, or each condition's label),
     its start θ₀ from the diagnosis's own final model (:attr:`Diagnosis.final_state`, fitted on the fit
     part): the base's parameters of that cell's group, then each block's searched parameters φ and
-    shared coefficients as the named effect's fit (nuisance blocks: their defaults).
+    shared coefficients as the named effect's fit (nuisance blocks: their defaults), clipped to the
+    box of ``model`` adapted to the cell's data.
 
-    ``model`` is the recommended model, prepared (:func:`hystfit.identify.prepare_shared`). None
-    when there is no such start: nothing named, a block not among the fitted effects, or a cell
-    whose base or blocks, adapted to all its data, are not what the diagnosis fitted: the base's
-    structure within 1 % in its numbers (:func:`_same_structure`; e.g. PI thresholds set from an
-    input range larger than the fit part's, as in a capture whose amplitude grows after it), each
-    block the same operator at its start (:func:`_same_operator`; e.g. creep's time constants set
-    from one condition's own duration)."""
+    ``model`` is the recommended model, prepared (:func:`hystfit.identify.prepare_shared`). A start
+    must *be* the diagnosis's model: ``model`` at θ₀ has, on all the cell's samples, an RMSE within
+    ``rtol`` of the diagnosis's final predictions (whatever could make it another model shows
+    there: blocks in another order than the effects were named where the order matters, a block
+    whose structure the data set differently — creep's time constants from one condition's
+    duration, the asymmetry's centre from a wider output range —, PI thresholds from a larger
+    input range, a per-capture calibration the diagnosis fitted and the model lacks). None when
+    any cell has no such start, or nothing was named, or a block is not among the named effects
+    (e.g. a composite base given to diagnose: its blocks were fitted with the base)."""
     state = d.final_state
     if state is None or model.composition is None:
         return None
     fitted = {f.effect.name: f for f in state.chain}
     by_label = {g.label: g for g in state.groups}
+    preds = {id(c): p for c, p in zip(d.figures_data.get("captures", ()),
+                                       d.figures_data.get("explained_predictions", ()))}
     out = {}
     for key, caps in condition_groups(captures, d.mode != "per-condition").items():
         label = "global" if d.mode != "per-condition" else condition_label(key)
         g = by_label.get(label)
-        adapted, params_all = adapted_model(caps, model)
-        if g is None or not _same_structure(adapted.composition[0], g.model) or g.theta.size != len(
-                params_all) - sum(b.n_theta for b in adapted.composition[1]):
+        adapted, params = adapted_model(caps, model)
+        blocks = adapted.composition[1]
+        n_base = len(params) - sum(b.n_theta for b in blocks)
+        if g is None or g.theta.size != n_base or any(id(c) not in preds for c in caps):
             return None
-        parts = [np.asarray(g.theta, float)]
-        at = g.theta.size
-        for b in adapted.composition[1]:
-            params, at = params_all[at:at + b.n_theta], at + b.n_theta
+        parts, at = [np.asarray(g.theta, float)], n_base
+        for b in blocks:
+            own, at = params[at:at + b.n_theta], at + b.n_theta
             if b.nuisance:
-                parts.append(np.array([p.default for p in params], float))
+                parts.append(np.array([p.default for p in own], float))
                 continue
             f = fitted.get(b.name)
             th = None if f is None else np.concatenate([np.asarray(f.phi, float), np.asarray(f.shared, float)])
-            if th is None or th.size != len(params) or not _same_operator(b, f.effect, th, caps[0]):
+            if th is None or th.size != len(own):
                 return None
             parts.append(th)
-        out[label] = np.concatenate(parts)
+        theta = np.clip(np.concatenate(parts), [p.lower for p in params], [p.upper for p in params])
+        if not _reproduces(adapted, theta, caps, [preds[id(c)] for c in caps], rtol):
+            return None
+        out[label] = theta
     return out
 
 
-def _same_structure(a, b, rtol: float = 1e-2) -> bool:
-    """Whether two adapted models have the same structure up to ``rtol`` in their numbers: the same
-    type and fields, numbers (and tuples of numbers, e.g. PI thresholds set from the input range of
-    slightly different data) within ``rtol`` of each other, models inside compared alike."""
-    if type(a) is not type(b):
-        return False
-    if dataclasses.is_dataclass(a):
-        return all(_same_structure(getattr(a, f.name), getattr(b, f.name), rtol) for f in dataclasses.fields(a))
-    if isinstance(a, (tuple, list)):
-        return len(a) == len(b) and all(_same_structure(x, y, rtol) for x, y in zip(a, b))
-    if isinstance(a, (int, float)) and not isinstance(a, bool):
-        return bool(abs(a - b) <= rtol * max(abs(a), abs(b)) or a == b)
-    if isinstance(a, np.ndarray):
-        return a.shape == b.shape and bool(np.allclose(a, b, rtol=rtol, atol=0.0))
-    return bool(a == b)
-
-
-def _same_operator(block, effect, theta: np.ndarray, capture: Capture, rtol: float = 1e-2) -> bool:
-    """Whether ``block`` (adapted to all the data) and ``effect`` (the same block as the diagnosis
-    configured it on the fit part) are one operator at ``theta``: what each adds to the capture's
-    input (its first 20,000 samples), output − input, agrees within ``rtol`` of the range of the
-    effect's. Fields that only set a search box (f_n's range, the longest delay) do not count;
-    structure set from the data (creep's time constants, the asymmetry's centre and half range) does."""
-    x = np.asarray(capture.u[:20_000], float)[None, :]
+def _reproduces(model: Model, theta: np.ndarray, caps: Sequence[Capture], preds: Sequence[np.ndarray],
+                rtol: float) -> bool:
+    """Whether ``model`` at ``theta`` fits ``caps`` (every sample after the warm-up) at most ``rtol``
+    worse in RMSE than the predictions ``preds``."""
+    objective = Objective(model, [Series(c.u, c.y, c.dt, c.warmup_samples) for c in caps])
     with np.errstate(all="ignore"):
-        a = block.apply_population(x, theta[None, :], capture.dt) - x
-        b = effect.apply_population(x, theta[None, :], capture.dt) - x
-    span = float(np.ptp(b)) if np.all(np.isfinite(b)) else math.nan
-    return bool(np.all(np.isfinite(a)) and np.isfinite(span) and np.max(np.abs(a - b)) <= rtol * max(span, 1e-300))
+        mse = float(objective(theta[None, :])[0])
+    sse = n = 0.0
+    for c, p in zip(caps, preds):
+        e = np.asarray(p, float)[c.warmup_samples:] - c.y[c.warmup_samples:]
+        sse, n = sse + float(e @ e), n + e.size
+    return bool(np.isfinite(mse) and n > 0 and mse <= (1.0 + rtol) ** 2 * (sse / n))
 
 
 def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, optimizer: Optimizer, *,
@@ -466,9 +457,15 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
     if optimizer.name == "auto":
         rec = prepare_shared(rec, captures, store, resume)
         starts = recommended_starts(captures, d, rec)
-    return identify(captures, rec, optimizer if starts is None else polisher(), seed=seed,
-                    global_fit=d.mode != "per-condition", model_options=opts, progress=progress, executor=executor,
-                    store=store, resume=resume, starts=starts)
+    res = identify(captures, rec, optimizer if starts is None else polisher(), seed=seed,
+                   global_fit=d.mode != "per-condition", model_options=opts, progress=progress, executor=executor,
+                   store=store, resume=resume, starts=starts)
+    return res if starts is None else replace(res, start=HANDED_OVER_START)
+
+
+#: the ``start`` of the recommended model's fit (``params.json``'s ``optimizer.start``) when it was
+#: polished from the diagnosis's own fit (:func:`recommended_starts`)
+HANDED_OVER_START = "diagnosis: its final model fitted on the fit part"
 
 
 # ----------------------------------------------------------------------------------------------

@@ -113,6 +113,7 @@ class IdentifyResult:
     model_options: dict = field(default_factory=dict)
     failed: tuple[str, ...] = ()  # "CONDITION run R: error" of every run that failed on every attempt
     cell_stats: CellStats = field(default_factory=CellStats)  # runs computed / reused / failed, wall time
+    start: str = "defaults"  # where the runs started: the model's defaults, or the starts given (what they are)
 
 
 def _output_unit(captures: Sequence[Capture]) -> str:
@@ -325,7 +326,10 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     the fits in condition order. ``starts``: per cell label (``"global"`` for a global fit, else the
     condition's label) a start θ₀ in the model's parameter order, clipped to the box, that replaces
     the defaults as the start point of an optimizer that takes one (e.g. a fit to polish on more
-    data, :func:`hystfit.diagnose.fit_recommended`); cells without one start from the defaults.
+    data, :func:`hystfit.diagnose.fit_recommended`); cells without one start from the defaults. A
+    label that is no cell's, a start of another size or with a value that is not a number, and
+    starts for an optimizer that takes no start point are errors. The result's ``start`` is then
+    ``"given"`` (the caller may say more).
     """
     check_seed(seed)
     mape_floor = check_mape_floor(mape_floor)
@@ -339,6 +343,9 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     summary = model.structure_summary()
     if progress and summary is not None:  # say how the shared structure was found (e.g. which route)
         progress("note", {"text": f"{model.name}: {summary}"})
+    if starts is not None and not optimizer.uses_start_point:
+        raise ConfigError(f"identify: {optimizer.name} takes no start point; starts need an optimizer that does "
+                          "(e.g. lsq)")
     cells = []
     for cell, (key, caps) in enumerate(groups.items()):
         if global_fit:
@@ -352,10 +359,17 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         if starts is not None and label in starts:
             x0 = np.asarray(starts[label], dtype=np.float64)
             if x0.shape != problem.lower.shape:
-                raise ConfigError(f"identify: the start of {label} has {x0.size} values; {model.name} has "
+                raise ConfigError(f"identify: the start of {label} has shape {x0.shape}; {model.name} has "
                                   f"{problem.lower.size} parameters ({', '.join(p.name for p in problem.params)})")
+            if not np.all(np.isfinite(x0)):
+                raise ConfigError(f"identify: the start of {label} has values that are not numbers "
+                                  f"(at {', '.join(problem.params[i].name for i in np.flatnonzero(~np.isfinite(x0)))})")
             problem = replace(problem, start=np.clip(x0, problem.lower, problem.upper))
         cells.append((problem, cond, label))
+    unknown = sorted(set(starts or {}) - {label for _, _, label in cells})
+    if unknown:
+        raise ConfigError(f"identify: starts for {', '.join(unknown)}, which no cell is; the cells are "
+                          f"{', '.join(label for _, _, label in cells)}")
     work = [(cell, r) for cell in range(len(cells)) for r in range(runs)]
     keys = None
     if store is not None:
@@ -410,5 +424,5 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         model_name=model.name, optimizer_name=optimizer.name, optimizer_settings=optimizer.settings(),
         seed=seed, runs=runs, polish=polish, mode="global" if global_fit else "per-condition", unit=unit,
         fits=tuple(fits), bounds_overrides=dict(bounds or {}), model_options=dict(model_options or {}),
-        failed=tuple(failed), cell_stats=stats,
+        failed=tuple(failed), cell_stats=stats, start="defaults" if not starts else "given",
     )

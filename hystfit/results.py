@@ -10,7 +10,8 @@ Schema ``hystfit.params`` version 2 (version 1, before composite models, is stil
     {"schema": "hystfit.params", "schema_version": 2,
      "tool": {"name": "hystfit", "version": "..."},
      "model": {"name", "title", "reference", "equation", "base", "blocks", "options"},
-     "optimizer": {"name", "settings", "polish", "runs"},
+     "optimizer": {"name", "settings", "polish", "runs", "start"},   # start: "defaults", "given" or what
+                                                                      # it was (diagnose: its own fit)
      "seed": int, "mode": "per-condition" | "global",
      "units": {"input": "V", "output": "um", "time": "s"},
      "bounds_overrides": {name: [lo, hi]},
@@ -241,7 +242,7 @@ class ParamsFile:
         return cls(path, res.fits[0].model.name if res.fits else res.model_name, res.unit, res.mode,
                    tuple(Cell.from_fit(f) for f in res.fits), dict(res.model_options),
                    {"name": res.optimizer_name, "settings": res.optimizer_settings, "polish": res.polish,
-                    "runs": res.runs},
+                    "runs": res.runs, "start": res.start},
                    res.seed, {k: list(v) for k, v in res.bounds_overrides.items()})
 
     def to_dict(self) -> dict[str, Any]:
