@@ -15,7 +15,6 @@ wall time of each and the pooled RMSE over all samples of each. Markdown.
 from __future__ import annotations
 
 import argparse
-import math
 import subprocess
 import sys
 import tempfile
@@ -50,15 +49,6 @@ def default_data(work: Path) -> list[list[Path]]:
     return sets
 
 
-def _pooled_rmse(result) -> float:
-    sse = n = 0.0
-    for f in result.fits:
-        k = sum(c.n for c in f.captures)
-        sse += f.metrics[f"rmse_{result.unit}"] ** 2 * k
-        n += k
-    return math.sqrt(sse / n)
-
-
 def main() -> None:
     import hystfit.cli  # noqa: F401  (the command line's BLAS thread settings, before numpy loads)
     import hystfit.diagnose as diag
@@ -90,7 +80,7 @@ def main() -> None:
             diag.recommended_starts = starts if how == "handed over" else (lambda *args, **kw: None)
             t = time.perf_counter()
             rec = diag.fit_recommended(caps, d, base, opt, seed=0)
-            rows[how] = (time.perf_counter() - t, _pooled_rmse(rec), rec.optimizer_name)
+            rows[how] = (time.perf_counter() - t, rec.pooled_rmse, rec.optimizer_name)
         diag.recommended_starts = starts
         (tw, rw, route), (tc, rc, _) = rows["handed over"], rows["scratch"]
         route = "diagnosis's fit, polished" if route != "auto" else "from scratch (no start)"

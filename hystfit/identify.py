@@ -7,6 +7,7 @@ derives every run's seed, keeps the best run and reports the spread.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping, Optional, Sequence
@@ -114,6 +115,15 @@ class IdentifyResult:
     failed: tuple[str, ...] = ()  # "CONDITION run R: error" of every run that failed on every attempt
     cell_stats: CellStats = field(default_factory=CellStats)  # runs computed / reused / failed, wall time
     start: str = "defaults"  # where the runs started: the model's defaults, or the starts given (what they are)
+
+    @property
+    def pooled_rmse(self) -> float:
+        """The RMSE over every scored sample of every fit (each fit's RMSE weighted by its samples)."""
+        sse = n = 0.0
+        for f in self.fits:
+            k = float(f.metrics["n_samples"])
+            sse, n = sse + f.metrics[f"rmse_{self.unit}"] ** 2 * k, n + k
+        return math.sqrt(sse / n) if n else float("nan")
 
 
 def _output_unit(captures: Sequence[Capture]) -> str:

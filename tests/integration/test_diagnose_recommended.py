@@ -3,7 +3,6 @@ fit (``auto``), or from scratch where that start does not apply; and identify's 
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -34,13 +33,17 @@ def diagnosed():
     return caps, model, opt, d
 
 
-def _pooled_rmse(result) -> float:
-    sse = n = 0.0
-    for f in result.fits:
-        k = sum(c.n for c in f.captures)
-        sse += f.metrics[f"rmse_{result.unit}"] ** 2 * k
-        n += k
-    return math.sqrt(sse / n)
+def _spy_on_lsq_starts(monkeypatch) -> list:
+    """The start point of every LSQ run from now on."""
+    seen = []
+    real = LSQ.minimize
+
+    def spy(self, objective, lower, upper, *, rng, x0=None, callback=None):
+        seen.append(np.array(x0))
+        return real(self, objective, lower, upper, rng=rng, x0=x0, callback=callback)
+
+    monkeypatch.setattr(LSQ, "minimize", spy)
+    return seen
 
 
 def test_the_start_is_the_diagnosis_final_model_in_the_recommended_model_order(diagnosed):
@@ -67,14 +70,7 @@ def test_auto_polishes_the_diagnosis_fit_and_reaches_the_fit_from_scratch(diagno
     caps, model, opt, d = diagnosed
     rec = prepare_shared(make_model(d.recommended_model, d.recommended_options), caps)
     theta0 = recommended_starts(caps, d, rec)["global"]
-    seen = []
-    real = LSQ.minimize
-
-    def spy(self, objective, lower, upper, *, rng, x0=None, callback=None):
-        seen.append(np.array(x0))
-        return real(self, objective, lower, upper, rng=rng, x0=x0, callback=callback)
-
-    monkeypatch.setattr(LSQ, "minimize", spy)
+    seen = _spy_on_lsq_starts(monkeypatch)
     warm = fit_recommended(caps, d, model, opt, seed=0)
     assert warm.optimizer_name == "lsq" and warm.model_name == d.recommended_model
     assert len(seen) == 1 and np.array_equal(seen[0], theta0)  # the polish starts at the diagnosis's fit
@@ -82,7 +78,7 @@ def test_auto_polishes_the_diagnosis_fit_and_reaches_the_fit_from_scratch(diagno
     monkeypatch.setattr(diag, "recommended_starts", lambda *a, **k: None)
     cold = fit_recommended(caps, d, model, opt, seed=0)
     assert cold.optimizer_name == "auto" and cold.start == "defaults"
-    assert _pooled_rmse(warm) <= _pooled_rmse(cold) * (1 + 1e-3)
+    assert warm.pooled_rmse <= cold.pooled_rmse * (1 + 1e-3)
 
 
 def test_other_optimizers_and_starts_that_are_not_the_diagnosis_model_identify_from_scratch(diagnosed, monkeypatch):
@@ -130,14 +126,7 @@ def test_effects_named_in_another_order_than_the_model_applies_them_give_no_star
 def test_identify_starts_each_cell_where_it_is_told(monkeypatch, tmp_path):
     caps = load_captures([SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a40V_f10Hz.csv"])
     model = make_model("pi", {"n_operators": 4})
-    seen = []
-    real = LSQ.minimize
-
-    def spy(self, objective, lower, upper, *, rng, x0=None, callback=None):
-        seen.append(np.array(x0))
-        return real(self, objective, lower, upper, rng=rng, x0=x0, callback=callback)
-
-    monkeypatch.setattr(LSQ, "minimize", spy)
+    seen = _spy_on_lsq_starts(monkeypatch)
     lsq = make_optimizer(optimizers.get("lsq"), {"max_evals": 20})
     base = identify(caps, model, lsq, seed=0)
     defaults = [np.array([p.default for p in f.params]) for f in base.fits]
@@ -160,6 +149,8 @@ def test_identify_starts_each_cell_where_it_is_told(monkeypatch, tmp_path):
     with pytest.raises(ConfigError, match="pso takes no start point"):
         identify(caps, model, make_optimizer(optimizers.get("pso")), seed=0, starts={labels[0]: start})
     assert res.start == "given" and base.start == "defaults"
+    (r1, n1), (r2, n2) = ((f.metrics[f"rmse_{base.unit}"], f.metrics["n_samples"]) for f in base.fits)
+    assert base.pooled_rmse == pytest.approx(np.sqrt((r1 ** 2 * n1 + r2 ** 2 * n2) / (n1 + n2)), rel=1e-12)
     # a stored cell is reused only for the same start
     store = CellStore(tmp_path / "cells")
     identify(caps[:1], model, lsq, seed=0, starts={labels[0]: start}, store=store)
