@@ -80,3 +80,45 @@ def test_one_process_inside_a_pool_worker(monkeypatch):
     monkeypatch.setattr(parallel, "_SINGLE_THREADED", True)
     assert fork_workers(4) == 1
     assert fork_map(lambda i: os.getpid(), 6, 4) == [os.getpid()] * 6
+
+
+def test_fork_ahead_computes_in_a_child_and_gives_the_same_value():
+    ahead = parallel.fork_ahead(lambda: (os.getpid(), _item(5)))
+    pid, value = ahead.result()
+    assert pid != os.getpid() and value == _item(5)
+    assert ahead.result() == (pid, value)  # taken once, kept
+
+
+def test_fork_ahead_cancel_stops_the_child_at_once():
+    import time
+
+    ahead = parallel.fork_ahead(lambda: time.sleep(60))
+    child = ahead._pid
+    t0 = time.monotonic()
+    ahead.cancel()
+    assert time.monotonic() - t0 < 5
+    with pytest.raises(ChildProcessError):
+        os.waitpid(child, os.WNOHANG)  # reaped: no such child any more
+    with parallel.fork_ahead(lambda: time.sleep(60)) as unused:
+        child = unused._pid
+    with pytest.raises(ChildProcessError):
+        os.waitpid(child, os.WNOHANG)  # leaving the block without the result stops it too
+
+
+def test_fork_ahead_raises_here_and_computes_here_what_does_not_pickle():
+    def boom():
+        raise InputError("from the item")
+
+    with pytest.raises(InputError, match="from the item"):
+        parallel.fork_ahead(boom).result()
+    parent = os.getpid()
+    f = parallel.fork_ahead(lambda: (os.getpid(), lambda: 1)).result()
+    assert f[0] == parent and f[1]() == 1
+
+
+def test_fork_ahead_in_one_process_computes_when_asked(monkeypatch):
+    monkeypatch.setattr(parallel, "_SINGLE_THREADED", True)
+    calls = []
+    ahead = parallel.fork_ahead(lambda: calls.append(os.getpid()) or 7)
+    assert calls == [] and ahead._pid is None  # nothing started
+    assert ahead.result() == 7 and calls == [os.getpid()]
