@@ -49,7 +49,7 @@ from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
 from .optimizers.lsq import polisher
-from .parallel import Ahead, CellFailed, fork_ahead, fork_map, fork_workers, run_cells
+from .parallel import CellFailed, fork_map, fork_workers, run_cells
 from .seeds import check_seed
 from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
 
@@ -1846,7 +1846,11 @@ def _fine_base_fits(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: i
     (same captures, optimizer and seed: the same fits), so each resolution is fitted the first time
     only. A model that cannot be a key (not hashable) is fitted every time."""
     G = len(d.group_idx)
-    key = _fine_key(fine, optimizer, seed)
+    try:
+        key = (fine, optimizer.name, repr(optimizer.settings()), int(seed))
+        hash(key)
+    except TypeError:
+        key = None
     if key is None or key not in d.fine_fits:
         jobs = _base_fit_jobs(caps, d.views, d.group_idx, d.labels, d.conds, None)[G:]
         fits = _base_fits(jobs, 0, fine, optimizer, seed, executor, None, False, lambda label: None)
@@ -1854,16 +1858,6 @@ def _fine_base_fits(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: i
             return fits
         d.fine_fits[key] = fits
     return d.fine_fits[key]
-
-
-def _fine_key(fine: Model, optimizer: Optimizer, seed: int):
-    """The key of :attr:`_Design.fine_fits` for the base ``fine`` (None when it cannot be one)."""
-    try:
-        key = (fine, optimizer.name, repr(optimizer.settings()), int(seed))
-        hash(key)
-    except TypeError:
-        return None
-    return key
 
 
 def _design(caps: Sequence[Capture], settings: "DiagnoseSettings", per_condition: bool) -> _Design:
@@ -2000,30 +1994,25 @@ class _Resolution:
 
 
 def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, gap: _Gap, sel: _Selection,
-                     sigma: float, settings: "DiagnoseSettings", executor=None,
-                     ahead: Ahead | None = None) -> _Resolution | None:
+                     sigma: float, settings: "DiagnoseSettings", executor=None) -> _Resolution | None:
     """Is the base's resolution, rather than a missing effect, what limits the model with the named
     effects? The base at twice its resolution (:meth:`Model.refined`) is fitted on the fit part, the
     named effects are refitted on it in the order they were named, and the held-out RMSE is compared
     with the coarse base's. None when the base has no resolution option or the held-out excess
     √(RMSE² − floor²) is within the noise floor; otherwise the check's numbers and ``adopted``: the
     finer base removes at least ``settings.resolution_threshold`` of the held-out excess mean square
-    (the rule of :func:`converge_resolution`). ``ahead``: the refit at the finer base
-    (:func:`_refit_finer`), started ahead in a forked child (:func:`_refit_ahead`)."""
+    (the rule of :func:`converge_resolution`)."""
     fine = model.refined()
     before = _rmse(sel.preds, d.views, "test")
     if fine is None or not _excess(before, sigma) > sigma:  # as in converge_resolution
-        if ahead is not None:
-            ahead.cancel()
         return None
-    if ahead is not None:
-        fits, state, preds = ahead.result()
-        key = _fine_key(fine, optimizer, seed)
-        if key is not None:
-            d.fine_fits.setdefault(key, fits)  # the child fitted them: kept for the later checks
-    else:
-        fits, state, preds = _refit_finer(caps, d, fine, optimizer, seed, gap, sel.chosen, sigma, settings, executor)
+    fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
+    base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
     views = list(d.views)
+    state = base.state
+    for eff in _configured(list(sel.chosen), base.preds, views):
+        state, _ = _augment(state, eff, caps, views, _linearize(state, caps, views), settings.iterations)
+    preds = _predictions(state, caps, views)
     after = _rmse(preds, views, "test")
     (opt, n_from), (_, n_to) = _resolution_of(model), _resolution_of(fine)
     info = {"option": opt, "from": n_from, "to": n_to, "effects": list(sel.chosen),
@@ -2031,30 +2020,6 @@ def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed:
             "threshold": settings.resolution_threshold}
     info["adopted"] = bool(info["reduction_mean_square"] >= settings.resolution_threshold)
     return _Resolution(info, state, preds, fine)
-
-
-def _refit_finer(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int, gap: _Gap, chosen: Sequence[str],
-                 sigma: float, settings: "DiagnoseSettings", executor=None) -> tuple[list, "_State", list]:
-    """The base ``fine`` fitted on the fit part and the ``chosen`` effects refitted on it in the order
-    they were named: (the base fits, the state, its predictions) — what :func:`resolution_check` judges."""
-    fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
-    base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
-    views = list(d.views)
-    state = base.state
-    for eff in _configured(list(chosen), base.preds, views):
-        state, _ = _augment(state, eff, caps, views, _linearize(state, caps, views), settings.iterations)
-    return fits, state, _predictions(state, caps, views)
-
-
-def _refit_ahead(caps, d: _Design, fine: Model | None, optimizer: Optimizer, seed: int, gap: _Gap,
-                 chosen: Sequence[str], sigma: float, settings: "DiagnoseSettings", executor=None) -> Ahead | None:
-    """:func:`_refit_finer` at ``fine`` started in a forked child while this process checks the
-    resolution below it: a check that adopts its finer base is followed by one at twice that, whose
-    refit is then ready (or under way). None without a ``fine`` base, or when the base fits run on
-    an executor's workers (a forked child must not use them)."""
-    if fine is None or not (executor is None or getattr(executor, "workers", None) == 1):
-        return None
-    return fork_ahead(lambda: _refit_finer(caps, d, fine, optimizer, seed, gap, chosen, sigma, settings, None))
 
 
 def _shares(before: float, after: float, sigma: float) -> dict:
@@ -2072,40 +2037,21 @@ def resolution_check_converged(caps, d: _Design, model: Model, optimizer: Optimi
     """:func:`resolution_check`, repeated on the finer base while it is adopted: the base with the
     named effects at the resolution the data support before the selection goes on. The section
     keeps the first check's ``from`` and held-out RMSE before; ``to``, the held-out RMSE after and
-    the reduction are those of the last adopted doubling, and ``steps`` lists every check. While a
-    check runs, the refit of the next doubling is computed ahead in a forked child
-    (:func:`_refit_ahead`; cancelled when the check does not adopt): the same numbers, the chain's
-    checks side by side on two cores."""
-    started: list[Ahead] = []
-
-    def ahead_of(m: Model | None) -> Ahead | None:  # the refit two doublings above m, started now
-        twice = m.refined() if m is not None else None
-        a = _refit_ahead(caps, d, twice.refined() if twice is not None else None, optimizer, seed, gap, sel.chosen,
-                         sigma, settings, executor)
-        if a is not None:
-            started.append(a)
-        return a
-
-    ahead = ahead_of(model)  # computed beside this check: used if it adopts its finer base
-    try:
-        res = resolution_check(caps, d, model, optimizer, seed, gap, sel, sigma, settings, executor)
-        if res is None:
-            return None
-        info, steps = dict(res.info), [dict(res.info)]
-        cur, fine = res, model.refined()
-        while cur.info["adopted"] and fine is not None:
-            this, ahead = ahead, ahead_of(fine)
-            nxt = resolution_check(caps, d, fine, optimizer, seed, gap, replace(sel, preds=cur.preds), sigma,
-                                   settings, executor, ahead=this)
-            if nxt is None:
-                break
-            steps.append(dict(nxt.info))
-            if not nxt.info["adopted"]:
-                break
-            cur, fine = nxt, fine.refined()
-    finally:
-        for a in started:  # those not used: the chain stopped below them (a used one: nothing to stop)
-            a.cancel()
+    the reduction are those of the last adopted doubling, and ``steps`` lists every check."""
+    res = resolution_check(caps, d, model, optimizer, seed, gap, sel, sigma, settings, executor)
+    if res is None:
+        return None
+    info, steps = dict(res.info), [dict(res.info)]
+    cur, fine = res, model.refined()
+    while cur.info["adopted"] and fine is not None:
+        nxt = resolution_check(caps, d, fine, optimizer, seed, gap, replace(sel, preds=cur.preds), sigma, settings,
+                               executor)
+        if nxt is None:
+            break
+        steps.append(dict(nxt.info))
+        if not nxt.info["adopted"]:
+            break
+        cur, fine = nxt, fine.refined()
     before, after = info["heldout_rmse_before_out"], cur.info["heldout_rmse_after_out"]
     info.update(to=cur.info["to"], heldout_rmse_after_out=after, steps=steps, **_shares(before, after, sigma))
     return _Resolution(info, cur.state, cur.preds, cur.model if cur.info["adopted"] else model)

@@ -38,7 +38,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any, Callable, Generic, Iterator, Optional, Sequence, TypeVar
+from typing import Any, Callable, Iterator, Optional, Sequence, TypeVar
 
 from .errors import ConfigError, HystfitError
 
@@ -659,86 +659,3 @@ def fork_map(fn: Callable[[int], R], n: int, workers: int | None = None) -> list
             except (ChildProcessError, ProcessLookupError):
                 pass
     return [results[i] if i in results else fn(i) for i in range(n)]
-
-
-class Ahead(Generic[R]):
-    """``fn()`` computed ahead, in a forked child, while this process goes on (:func:`fork_ahead`).
-
-    :meth:`result` waits for the child's value; it computes ``fn()`` here when there is no child
-    (one process), the child died or raised (its exception, if any, is raised here as in serial
-    code) or its value does not pickle. :meth:`cancel` stops the child when the value is not
-    needed after all (a speculation that did not pay); leaving a ``with`` block cancels it too
-    unless its result was taken. The value is the same whichever way it was computed."""
-
-    def __init__(self, fn: Callable[[], R], pid: int | None = None, conn=None) -> None:
-        self._fn, self._pid, self._conn = fn, pid, conn
-        self._has, self._value = False, None
-
-    def result(self) -> R:
-        if not self._has:
-            got = None
-            if self._pid is not None:
-                try:
-                    got = self._conn.recv()
-                except (EOFError, OSError):  # the child died: computed here
-                    got = None
-                finally:
-                    self._stop(kill=False)
-            self._value = got[1] if isinstance(got, tuple) and got[0] == "ok" else self._fn()
-            self._has = True
-        return self._value
-
-    def cancel(self) -> None:
-        self._stop(kill=True)
-
-    def _stop(self, kill: bool) -> None:
-        pid, self._pid = self._pid, None
-        if pid is None:
-            return
-        self._conn.close()
-        try:
-            if kill:
-                os.kill(pid, signal.SIGTERM)
-            os.waitpid(pid, 0)
-        except (ChildProcessError, ProcessLookupError):
-            pass
-
-    def __enter__(self) -> "Ahead[R]":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if not self._has:
-            self.cancel()
-
-
-def fork_ahead(fn: Callable[[], R]) -> Ahead[R]:
-    """Start computing ``fn()`` (deterministic, reading data already in this process) in a forked
-    child, for a value that may be needed next — e.g. the next step of a chain that usually goes on.
-    With one process (:func:`fork_workers`: one core, inside a pool or dask worker, no ``fork``)
-    nothing starts and :meth:`Ahead.result` computes it here."""
-    if fork_workers() <= 1:
-        return Ahead(fn)
-    recv, send = mp.get_context("fork").Pipe(duplex=False)
-    for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
-        stream.flush()
-    pid = os.fork()
-    if pid == 0:
-        code = 0
-        try:
-            recv.close()
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-            _single_threaded()
-            try:
-                out = ("ok", fn())
-            except BaseException:  # noqa: BLE001 - the parent computes it again (and raises)
-                out = ("failed",)
-            try:
-                send.send(out)
-            except BaseException:  # noqa: BLE001 - a value that does not pickle: computed in the parent
-                send.send(("failed",))
-        except BaseException:  # noqa: BLE001 - never return into the caller's code
-            code = 1
-        finally:
-            os._exit(code)
-    send.close()
-    return Ahead(fn, pid, recv)
