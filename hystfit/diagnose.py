@@ -440,11 +440,13 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
     was made), so the diagnosis hands over a model that ``simulate``/``invert``/``track`` accept.
 
     With ``auto`` (the default optimizer) every cell starts from the diagnosis's own fit of the
-    recommended model on the fit part (:func:`recommended_starts`) and is polished on all the data
-    (the least-squares polish of ``auto``, :func:`hystfit.optimizers.lsq.polisher`): that start is
-    already within a few per cent of the optimum, so ``auto``'s staged start (the base, then each
-    block searched on a grid) would repeat the diagnosis's work. Where there is no such start, and
-    with any other optimizer, the recommended model is identified from scratch by ``optimizer``.
+    recommended model on the fit part, when that fit is the recommended model
+    (:func:`recommended_starts`), and is polished on all the data (the least-squares polish of
+    ``auto``, :func:`hystfit.optimizers.lsq.polisher`; the result's ``start`` says so):
+    ``auto``'s staged start (the base, then each block searched on a grid) would repeat the
+    diagnosis's work (on sample_data the start's RMSE on all the data is 1.6 % above the
+    polished fit's). Where there is no such start, and with any other optimizer, the recommended
+    model is identified from scratch by ``optimizer``.
 
     Returns the :class:`hystfit.identify.IdentifyResult`, or None when nothing was named.
     """
