@@ -9,7 +9,8 @@ with creep + delay + noise), ``diagnose`` with the PI base and ``auto``, then th
 identified on all the data twice: as ``hystfit diagnose`` does it (``auto``: from the diagnosis's own
 fit, :func:`hystfit.diagnose.recommended_starts`, polished) and from scratch (``auto``'s own staged
 start and polish, as before). Printed per data set: the effects named, which route was taken, the
-wall time of each and the pooled RMSE over all samples of each. Markdown.
+wall time of each, the pooled RMSE over all samples at the handed-over start and after each.
+Markdown.
 """
 
 from __future__ import annotations
@@ -49,6 +50,30 @@ def default_data(work: Path) -> list[list[Path]]:
     return sets
 
 
+def _start_rmse(caps, d, diag) -> float | None:
+    """The pooled RMSE on all the data of the recommended model at the handed-over start (None
+    without one)."""
+    import math
+
+    from hystfit.factory import make_model
+    from hystfit.identify import adapted_model, condition_groups, prepare_shared
+    from hystfit.conditions import condition_label
+    from hystfit.objective import Objective, Series
+
+    rec = prepare_shared(make_model(d.recommended_model, d.recommended_options), caps)
+    starts = diag.recommended_starts(caps, d, rec)
+    if starts is None:
+        return None
+    sse = n = 0.0
+    for key, cs in condition_groups(caps, d.mode != "per-condition").items():
+        theta = starts["global" if d.mode != "per-condition" else condition_label(key)]
+        model, _ = adapted_model(cs, rec)
+        obj = Objective(model, [Series(c.u, c.y, c.dt, c.warmup_samples) for c in cs])
+        sse += float(obj(theta[None, :])[0]) * obj.n_total
+        n += obj.n_total
+    return math.sqrt(sse / n)
+
+
 def main() -> None:
     import hystfit.cli  # noqa: F401  (the command line's BLAS thread settings, before numpy loads)
     import hystfit.diagnose as diag
@@ -66,16 +91,17 @@ def main() -> None:
         sets = default_data(a.work or Path(tempfile.mkdtemp(prefix="hystfit-handover-")))
     base, opt = make_model("pi", {}), make_optimizer(optimizers.get("auto"))
     starts = diag.recommended_starts
-    print("| data | named | recommended | route | time (s) | from scratch (s) | RMSE | from scratch RMSE |")
-    print("|---|---|---|---|---:|---:|---:|---:|")
+    print("| data | named | recommended | route | time (s) | from scratch (s) | start RMSE | RMSE | from scratch RMSE |")
+    print("|---|---|---|---|---:|---:|---:|---:|---:|")
     for folders in sets:
         caps = load_captures(folders)
         d = diag.diagnose(caps, base, opt, seed=0)
         name = " + ".join(f.name for f in folders)
         if not d.explained_by:
-            print(f"| {name} | none | – | – | – | – | – | – |")
+            print(f"| {name} | none | – | – | – | – | – | – | – |")
             continue
         rows = {}
+        start_rmse = _start_rmse(caps, d, diag)
         for how in ("handed over", "scratch"):
             diag.recommended_starts = starts if how == "handed over" else (lambda *args, **kw: None)
             t = time.perf_counter()
@@ -85,8 +111,9 @@ def main() -> None:
         (tw, rw, route), (tc, rc, _) = rows["handed over"], rows["scratch"]
         route = "diagnosis's fit, polished" if route != "auto" else "from scratch (no start)"
         opts = "".join(f" {k}={v}" for k, v in d.recommended_options.items())
+        start = "–" if start_rmse is None else f"{start_rmse:.6f}"
         print(f"| {name} | {', '.join(d.explained_by)} | {d.recommended_model}{opts} | {route} | {tw:.2f} | {tc:.2f} "
-              f"| {rw:.6f} | {rc:.6f} |")
+              f"| {start} | {rw:.6f} | {rc:.6f} |")
 
 
 if __name__ == "__main__":
