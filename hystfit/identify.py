@@ -353,11 +353,46 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     summary = model.structure_summary()
     if progress and summary is not None:  # say how the shared structure was found (e.g. which route)
         progress("note", {"text": f"{model.name}: {summary}"})
+    cells = _cells(groups, model, optimizer, bounds, global_fit, starts)
+    work = [(cell, r) for cell in range(len(cells)) for r in range(runs)]
+    keys = None if store is None else _store_keys(cells, work, model, optimizer, bounds, seed, polish)
+    collect = _Summaries(cells, work, runs, mape_floor, progress, on_fit)
+    if jobs is None and executor is None:  # all cores, unless every cell is one exact linear solve
+        sep = model.separable() if optimizer.uses_separable_structure else None
+        jobs = 1 if (sep is not None and not sep.nonlinear) else default_jobs()
+    own = executor is None
+    executor = LocalExecutor(jobs) if own else executor
+    stats = CellStats()
+    try:
+        records = run_cells(_run_job, work, shared=(tuple(c[0] for c in cells), optimizer, seed, polish),
+                            executor=executor, store=store, keys=keys, resume=resume, on_done=collect.done,
+                            stats=stats)
+    finally:
+        if own:
+            executor.close()
+    failed = [f"{cells[cell][2]} run {r}: {rec.error} (after {rec.attempts} attempts)"
+              for (cell, r), rec in zip(work, records) if isinstance(rec, CellFailed)]
+    fits = [collect.summaries[cell] for cell in range(len(cells)) if cell in collect.summaries]
+    if not fits:
+        raise NoResultError(f"every run failed ({len(failed)} of {len(work)}); first error: {failed[0]}")
+    return IdentifyResult(
+        model_name=model.name, optimizer_name=optimizer.name, optimizer_settings=optimizer.settings(),
+        seed=seed, runs=runs, polish=polish, mode="global" if global_fit else "per-condition", unit=unit,
+        fits=tuple(fits), bounds_overrides=dict(bounds or {}), model_options=dict(model_options or {}),
+        failed=tuple(failed), cell_stats=stats, start="defaults" if not starts else "given",
+    )
+
+
+def _cells(groups: Mapping[tuple, list[Capture]], model: Model, optimizer: Optimizer,
+           bounds: Mapping[str, tuple[float, float]] | None, global_fit: bool,
+           starts: Mapping[str, np.ndarray] | None) -> list[tuple[_Problem, tuple[float, float], str]]:
+    """The cells of :func:`identify`: per parameter set its problem (with its start, if given), its
+    condition and its label; one-line errors for starts that do not fit them."""
     if starts is not None and not optimizer.uses_start_point:
         raise ConfigError(f"identify: {optimizer.name} takes no start point; starts need an optimizer that does "
                           "(e.g. lsq)")
     cells = []
-    for cell, (key, caps) in enumerate(groups.items()):
+    for key, caps in groups.items():
         if global_fit:
             amps = sorted({c.amplitude_V for c in caps})
             freqs = sorted({c.frequency_Hz for c in caps})
@@ -367,72 +402,63 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
             cond, label = key, condition_label(key)
         problem = _problem(caps, model, bounds)
         if starts is not None and label in starts:
-            x0 = np.asarray(starts[label], dtype=np.float64)
-            if x0.shape != problem.lower.shape:
-                raise ConfigError(f"identify: the start of {label} has shape {x0.shape}; {model.name} has "
-                                  f"{problem.lower.size} parameters ({', '.join(p.name for p in problem.params)})")
-            if not np.all(np.isfinite(x0)):
-                raise ConfigError(f"identify: the start of {label} has values that are not numbers "
-                                  f"(at {', '.join(problem.params[i].name for i in np.flatnonzero(~np.isfinite(x0)))})")
-            problem = replace(problem, start=np.clip(x0, problem.lower, problem.upper))
+            problem = _with_start(problem, label, starts[label], model.name)
         cells.append((problem, cond, label))
     unknown = sorted(set(starts or {}) - {label for _, _, label in cells})
     if unknown:
         raise ConfigError(f"identify: starts for {', '.join(unknown)}, which no cell is; the cells are "
                           f"{', '.join(label for _, _, label in cells)}")
-    work = [(cell, r) for cell in range(len(cells)) for r in range(runs)]
-    keys = None
-    if store is not None:
-        settings = optimizer.settings()
-        opts = model.as_options()
-        keys = [cell_key("identify", captures=cells[c][0].captures, model=model.name, model_options=opts,
-                         optimizer=optimizer.name, optimizer_settings=settings, bounds=dict(bounds or {}), seed=seed,
-                         cell=c, run=r, polish=polish,
-                         **({} if cells[c][0].start is None else {"start": [float(v) for v in cells[c][0].start]}))
-                for c, r in work]
+    return cells
 
-    finished: dict[int, dict[int, Any]] = {}  # cell → run → record, until the cell is summarized
-    summaries: dict[int, ConditionFit] = {}
 
-    def done(i: int, rec, reused: bool) -> None:
-        cell, run = work[i]
-        if progress:
+def _with_start(problem: _Problem, label: str, start, model_name: str) -> _Problem:
+    """``problem`` starting at ``start`` (clipped to its box), or a one-line error for a start of
+    another shape or with values that are not numbers."""
+    x0 = np.asarray(start, dtype=np.float64)
+    if x0.shape != problem.lower.shape:
+        raise ConfigError(f"identify: the start of {label} has shape {x0.shape}; {model_name} has "
+                          f"{problem.lower.size} parameters ({', '.join(p.name for p in problem.params)})")
+    if not np.all(np.isfinite(x0)):
+        raise ConfigError(f"identify: the start of {label} has values that are not numbers "
+                          f"(at {', '.join(problem.params[i].name for i in np.flatnonzero(~np.isfinite(x0)))})")
+    return replace(problem, start=np.clip(x0, problem.lower, problem.upper))
+
+
+def _store_keys(cells, work, model: Model, optimizer: Optimizer, bounds, seed: int, polish: bool) -> list[str]:
+    """The store key of every (cell, run) of ``work``: everything that decides its result."""
+    settings = optimizer.settings()
+    opts = model.as_options()
+    return [cell_key("identify", captures=cells[c][0].captures, model=model.name, model_options=opts,
+                     optimizer=optimizer.name, optimizer_settings=settings, bounds=dict(bounds or {}), seed=seed,
+                     cell=c, run=r, polish=polish,
+                     **({} if cells[c][0].start is None else {"start": [float(v) for v in cells[c][0].start]}))
+            for c, r in work]
+
+
+class _Summaries:
+    """The ``on_done`` of :func:`identify`'s cells: reports progress and summarizes a condition as soon
+    as all its runs are in (then calls ``on_fit``); ``summaries`` maps cell → :class:`ConditionFit`."""
+
+    def __init__(self, cells, work, runs: int, mape_floor: float, progress: Progress,
+                 on_fit: Callable[[ConditionFit], None] | None) -> None:
+        self.cells, self.work, self.runs, self.mape_floor = cells, work, runs, mape_floor
+        self.progress, self.on_fit = progress, on_fit
+        self.finished: dict[int, dict[int, Any]] = {}  # cell → run → record, until the cell is summarized
+        self.summaries: dict[int, ConditionFit] = {}
+
+    def done(self, i: int, rec, reused: bool) -> None:
+        cell, run = self.work[i]
+        if self.progress:
             failed = isinstance(rec, CellFailed)
-            progress("advance", {"label": f"{cells[cell][2]} run {run}", "run": run,
-                                 "rmse": None if failed else rec.rmse, "reused": reused, "failed": failed})
-        got = finished.setdefault(cell, {})
+            self.progress("advance", {"label": f"{self.cells[cell][2]} run {run}", "run": run,
+                                      "rmse": None if failed else rec.rmse, "reused": reused, "failed": failed})
+        got = self.finished.setdefault(cell, {})
         got[run] = rec
-        if len(got) == runs:  # the condition is complete: summarize it now
-            recs = [got[r] for r in range(runs) if not isinstance(got[r], CellFailed)]
-            del finished[cell]
+        if len(got) == self.runs:  # the condition is complete: summarize it now
+            recs = [got[r] for r in range(self.runs) if not isinstance(got[r], CellFailed)]
+            del self.finished[cell]
             if recs:
-                problem, cond, label = cells[cell]
-                summaries[cell] = _summarize(problem, recs, label, cond, mape_floor)
-                if on_fit is not None:
-                    on_fit(summaries[cell])
-
-    if jobs is None and executor is None:  # all cores, unless every cell is one exact linear solve
-        sep = model.separable() if optimizer.uses_separable_structure else None
-        jobs = 1 if (sep is not None and not sep.nonlinear) else default_jobs()
-    own = executor is None
-    executor = LocalExecutor(jobs) if own else executor
-    stats = CellStats()
-    try:
-        records = run_cells(_run_job, work, shared=(tuple(c[0] for c in cells), optimizer, seed, polish),
-                            executor=executor, store=store, keys=keys, resume=resume, on_done=done, stats=stats)
-    finally:
-        if own:
-            executor.close()
-    failed = []
-    for (cell, r), rec in zip(work, records):
-        if isinstance(rec, CellFailed):
-            failed.append(f"{cells[cell][2]} run {r}: {rec.error} (after {rec.attempts} attempts)")
-    fits = [summaries[cell] for cell in range(len(cells)) if cell in summaries]
-    if not fits:
-        raise NoResultError(f"every run failed ({len(failed)} of {len(work)}); first error: {failed[0]}")
-    return IdentifyResult(
-        model_name=model.name, optimizer_name=optimizer.name, optimizer_settings=optimizer.settings(),
-        seed=seed, runs=runs, polish=polish, mode="global" if global_fit else "per-condition", unit=unit,
-        fits=tuple(fits), bounds_overrides=dict(bounds or {}), model_options=dict(model_options or {}),
-        failed=tuple(failed), cell_stats=stats, start="defaults" if not starts else "given",
-    )
+                problem, cond, label = self.cells[cell]
+                self.summaries[cell] = _summarize(problem, recs, label, cond, self.mape_floor)
+                if self.on_fit is not None:
+                    self.on_fit(self.summaries[cell])
