@@ -1,11 +1,11 @@
 """The recommended model diagnose hands over: started from the diagnosis's fit, or from scratch.
 
-Run:  python benchmarks/diagnose_handover.py [--data DIR[,DIR…] …] [--work DIR]     (≈ 3 min on 2 cores)
+Run:  python benchmarks/diagnose_handover.py [--data DIR[,DIR…] …] [--work DIR] [--base MODEL]   (≈ 3 min on 2 cores)
 
 For each data set (default: ``sample_data``; ``sample_data`` with its broadband captures; three
 ``hystfit synth campaign``s — seed 7 with every effect at 1.5×, seed 3 with asymmetry + dynamics +
 noise, seed 11 with creep + delay + drift + noise; three rising-amplitude sines at 5, 20 and 50 Hz
-with creep + delay + noise), ``diagnose`` with the PI base and ``auto``, then the recommended model
+with creep + delay + noise), ``diagnose`` with the base ``--base`` (default PI) and ``auto``, then the recommended model
 identified on all the data twice: as ``hystfit diagnose`` does it (``auto``: from the diagnosis's own
 fit, :func:`hystfit.diagnose.recommended_starts`, polished) and from scratch (``auto``'s own staged
 start and polish, as before). Printed per data set: the effects named, which route was taken, the
@@ -84,12 +84,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", nargs="*", default=None, help="data sets, each DIR[,DIR…] (default: the docstring's)")
     ap.add_argument("--work", type=Path, default=None, help="where the synthetic data sets are written (kept)")
+    ap.add_argument("--base", default="pi", help="the base model diagnosed (default pi)")
     a = ap.parse_args()
     if a.data:
         sets = [[Path(p) for p in s.split(",")] for s in a.data]
     else:
         sets = default_data(a.work or Path(tempfile.mkdtemp(prefix="hystfit-handover-")))
-    base, opt = make_model("pi", {}), make_optimizer(optimizers.get("auto"))
+    base, opt = make_model(a.base, {}), make_optimizer(optimizers.get("auto"))
     starts = diag.recommended_starts
     print("| data | named | recommended | route | time (s) | from scratch (s) | start RMSE | RMSE | from scratch RMSE |")
     print("|---|---|---|---|---:|---:|---:|---:|---:|")
