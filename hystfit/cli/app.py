@@ -182,7 +182,8 @@ def main(argv: list[str] | None = None) -> None:
             # the console script: the process ends here. The interpreter's last collections would
             # walk every object the command made and imported (numba's, scipy's) only to free memory
             # the exit frees anyway (after a diagnose 0.33 s, frozen 0.06 s: benchmarks/exit_time.py);
-            # frozen objects are left out of them. Files are closed by their context managers; atexit handlers still run.
+            # frozen objects are left out of them. Files are closed by their context managers;
+            # atexit handlers still run.
             gc.freeze()
 
 
