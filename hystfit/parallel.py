@@ -9,8 +9,12 @@ never depend on the executor, the number of workers or the order in which cells 
 
 Two executors:
 
-* :class:`LocalExecutor` — a spawned process pool on this machine (not forked: numba's threading
-  layer is not fork-safe). ``shared`` is shipped once to each worker (the pool's initializer).
+* :class:`LocalExecutor` — a process pool on this machine whose workers are forked from a fork
+  server (multiprocessing's ``forkserver``; ``spawn`` where there is none): a single-threaded
+  process that has loaded what cells need once (:mod:`hystfit._pool_preload`). Not forked from
+  the command itself, which may run threads (progress bars, a background preparation) and numba's
+  thread pool, neither of which survives a fork. ``shared`` is shipped once to each worker (the
+  pool's initializer).
 * :class:`DaskExecutor` — ``dask.distributed``: a ``LocalCluster`` of ``jobs`` single-threaded
   worker processes, or an existing scheduler (``tcp://host:8786``). ``shared`` is scattered to
   the workers once (``Client.scatter(broadcast=True)``), not once per cell. Optional extra
@@ -69,7 +73,8 @@ def default_jobs() -> int:
 
 @contextmanager
 def single_threaded_children():
-    """Spawned workers inherit the environment: one thread each."""
+    """Within the block, every thread-count variable (:data:`THREAD_VARS`) is 1: a worker, or the
+    pools' fork server, started now inherits that environment and runs one thread of each kind."""
     saved = {k: os.environ.get(k) for k in THREAD_VARS}
     os.environ.update({k: "1" for k in THREAD_VARS})
     try:
@@ -210,7 +215,11 @@ def _inline(fn: Callable, shared: Any, job: Any) -> Any:
 
 
 class LocalExecutor(Executor):
-    """A spawned process pool on this machine (serial in this process for one job or one cell).
+    """A process pool on this machine (serial in this process for one job or one cell).
+
+    Workers are forked from the fork server of :func:`pool_context` (a fresh interpreter where
+    there is none): they start in milliseconds with hystfit, numpy, scipy and numba loaded,
+    instead of ≈ 1 s of CPU each (``benchmarks/pool_start.py``).
 
     At most ``workers`` cells are in flight, so a lost worker (the pool breaks) costs an attempt
     only to the cells that were running; the pool is rebuilt and those cells are retried one at a
@@ -257,8 +266,7 @@ class LocalExecutor(Executor):
 
     @staticmethod
     def _pool(n: int, shared: Any):
-        return _ProcessPool(max_workers=n, mp_context=mp.get_context("spawn"), initializer=_init_worker,
-                            initargs=(shared,))
+        return _ProcessPool(max_workers=n, mp_context=pool_context(), initializer=_init_worker, initargs=(shared,))
 
     def _release(self) -> None:
         kept, self._kept = self._kept, None
@@ -350,14 +358,35 @@ class LocalExecutor(Executor):
         self._release()
 
 
+#: the module the pools' fork server imports before it forks any worker
+POOL_PRELOAD = "hystfit._pool_preload"
+
+
+def pool_context():
+    """The multiprocessing context of :class:`LocalExecutor`'s pools: ``forkserver`` where the
+    platform has it (Linux, macOS), with :data:`POOL_PRELOAD` loaded by the server, else ``spawn``.
+
+    The fork server is one process per Python process, started (a fresh interpreter, with this
+    process's environment and ``sys.path`` at that moment) when the first pool starts its first
+    worker; :func:`single_threaded_children` is in force then, so the server and every worker
+    forked from it run one BLAS/OpenMP/numba thread. It ignores Ctrl-C and ends with this process.
+    """
+    if "forkserver" not in mp.get_all_start_methods():
+        return mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload([POOL_PRELOAD])
+    return ctx
+
+
 def _started(shared: Any, job: Any) -> None:
     """The job :meth:`LocalExecutor.start` submits: each submit starts a worker."""
 
 
 def _submit(ex, n: int, fn: Callable, job: Any):
-    """``ex.submit`` of one cell. A spawn pool starts a worker inside ``submit`` while it has fewer
-    than ``n``: only then is the environment set for it (:func:`single_threaded_children`), so no
-    variable changes under other threads of this process once the workers run. ``_processes`` is
+    """``ex.submit`` of one cell. A pool starts a worker (and the fork server its first one) inside
+    ``submit`` while it has fewer than ``n``: only then is the environment set for it
+    (:func:`single_threaded_children`), so no variable changes under other threads of this process
+    once the workers run. ``_processes`` is
     the executor's own table of workers (no public accessor)."""
     if len(getattr(ex, "_processes", None) or {}) < n:
         with single_threaded_children():

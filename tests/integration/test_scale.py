@@ -126,6 +126,34 @@ def _worker_pid(shared, job):
     return os.getpid()
 
 
+def _worker_origin(shared, job):
+    import numba
+
+    return {"parent": os.getppid(), "preloaded": "hystfit._pool_preload" in sys.modules,
+            "numba_threads": numba.get_num_threads(), "value": shared + job}
+
+
+@pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(),
+                    reason="no fork server on this platform (spawned workers)")
+def test_pool_workers_are_forked_from_the_preloaded_fork_server_not_from_this_process():
+    import threading
+
+    from hystfit.parallel import pool_context
+
+    assert pool_context().get_start_method() == "forkserver"
+    stop = threading.Event()
+    beside = threading.Thread(target=stop.wait, daemon=True)  # a thread here, as a progress bar runs one
+    beside.start()
+    try:
+        out = run_cells(_worker_origin, [1, 2, 3, 4], shared=10, executor=LocalExecutor(2))
+    finally:
+        stop.set()
+    assert [o["value"] for o in out] == [11, 12, 13, 14]
+    parents = {o["parent"] for o in out}
+    assert os.getpid() not in parents and len(parents) == 1  # all forked by the one server
+    assert all(o["preloaded"] and o["numba_threads"] == 1 for o in out)
+
+
 def test_held_local_executor_reuses_its_workers_for_the_same_shared_data():
     ex = LocalExecutor(2)
     shared = (1.0,)
