@@ -1,6 +1,6 @@
 """Figures: hystfit's per-pixel reduction and parallel rendering against the straightforward way.
 
-Run:  python benchmarks/bench_figures.py [--kinds]
+Run:  python benchmarks/bench_figures.py [--kinds | --compare]
 
 1. The Quickstart's figures (``identify sample_data``: 24 conditions, a loop, time series and
    convergence figure each, and the overview), drawn by hystfit (``render_figures``: a process per
@@ -9,7 +9,8 @@ Run:  python benchmarks/bench_figures.py [--kinds]
    k-th sample, every convergence figure). Same fits, same process, so only the drawing differs.
 2. The CPU seconds of each figure kind of the Quickstart, drawn one after another in one process
    (``--kinds``: after the server's warm-up, as a worker draws them; the least noisy number on a
-   shared machine).
+   shared machine). ``--compare``: the same for the figures of ``compare sample_data --models all
+   --opts auto`` (fitted first, ≈ 20 s).
 3. One loop figure of a long periodic capture (10⁶ and 10⁷ samples, 20,000 cycles): time, points
    drawn, and the voltage span of what is drawn against the data's span (stride: aliasing).
 """
@@ -83,13 +84,42 @@ def figure_kinds(fit=None) -> dict[str, tuple[int, float]]:
         figures = identify_report.ConditionFigures(Path(tmp), res.optimizer_name)
         figures._stream = types.SimpleNamespace(add=jobs.extend, result=lambda: None, cancel=lambda: None)  # collect
         figures.result(res)
-        out: dict[str, tuple[int, float]] = {}
-        for job in jobs:
-            t0 = time.process_time()
-            render._render(job)
-            n, s = out.get(job.function, (0, 0.0))
-            out[job.function] = (n + 1, s + time.process_time() - t0)
+        return _cpu_per_kind(jobs)
+
+
+def _cpu_per_kind(jobs) -> dict[str, tuple[int, float]]:
+    """Draw ``jobs`` one after another here; kind → (figures, CPU seconds)."""
+    from hystfit.report import render
+
+    out: dict[str, tuple[int, float]] = {}
+    for job in jobs:
+        t0 = time.process_time()
+        render._render(job)
+        n, s = out.get(job.function, (0, 0.0))
+        out[job.function] = (n + 1, s + time.process_time() - t0)
     return out
+
+
+def compare_figure_kinds() -> dict[str, tuple[int, float]]:
+    """CPU seconds per figure kind of ``compare sample_data --models all --opts auto`` (fitted first,
+    ≈ 20 s), drawn serially here after the figure server's warm-up, as one worker draws them."""
+    from hystfit.compare import compare
+    from hystfit.io import LoadOptions, load_captures
+    from hystfit.registry import models
+    from hystfit.report import compare_report, render
+
+    res = compare(load_captures([ROOT / "sample_data"], LoadOptions()), models.names(), ["auto"], seed=0)
+    render._import_plotting()
+    render._warm_up()
+    jobs: list = []
+    drawing = compare_report.render_figures
+    compare_report.render_figures = lambda js, n_jobs=None: (jobs.extend(js), [j.path for j in js])[1]  # collect
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            compare_report._figures(res, Path(tmp))
+            return _cpu_per_kind(jobs)
+    finally:
+        compare_report.render_figures = drawing
 
 
 def long_loop(n: int, cycles: int = 20_000) -> dict:
@@ -128,8 +158,8 @@ def long_loop(n: int, cycles: int = 20_000) -> dict:
 
 
 def main() -> None:
-    if "--kinds" in sys.argv[1:]:
-        kinds = figure_kinds()
+    if "--kinds" in sys.argv[1:] or "--compare" in sys.argv[1:]:
+        kinds = compare_figure_kinds() if "--compare" in sys.argv[1:] else figure_kinds()
         print("| figure kind | figures | CPU s | ms per figure |\n|---|---:|---:|---:|")
         for name, (n, s) in kinds.items():
             print(f"| {name} | {n} | {s:.2f} | {1e3 * s / n:.0f} |")

@@ -1004,8 +1004,9 @@ def loop_overlay_figure(path, u_V, y_meas, models: Mapping[str, np.ndarray], *, 
     unit, title : str
     """
     u = np.asarray(u_V, float).ravel()
-    fig = _new_figure(6.8, 5.0, _margins(0.75, 0.15, 0.55, 0.12, title), dpi=dpi)
-    ax = fig.add_subplot()
+    margins = _margins(0.75, 0.15, 0.55, 0.12, title)
+    fig = _template(("loop_overlay", dpi, margins), lambda: _with_axes(_new_figure(6.8, 5.0, margins, dpi=dpi)))
+    ax = fig.axes[0]
     _plot_xy(ax, u, np.asarray(y_meas, float).ravel(), _MEAS_STYLE, "measured")
     for i, (name, y) in enumerate(models.items()):
         _plot_xy(ax, u, np.asarray(y, float).ravel(), {"lw": 0.9, "alpha": 0.8, "color": f"C{i % 10}"}, str(name))
@@ -1030,8 +1031,8 @@ def convergence_compare_figure(path, histories: Mapping[str, Sequence[Sequence[f
     title, ylabel : str
     log : bool, default True
     """
-    fig = _new_figure(6.8, 4.6)
-    ax = fig.add_subplot()
+    fig = _template(("convergence_compare", dpi), lambda: _with_axes(_new_figure(6.8, 4.6, dpi=dpi)))
+    ax = fig.axes[0]
     any_nonpos = False
     for i, (name, runs) in enumerate(histories.items()):
         color = f"C{i % 10}"

@@ -150,7 +150,10 @@ def test_reused_figure_templates_write_the_same_bytes_as_fresh_figures(tmp_path,
         return [plots.loop_figure(tmp_path / f"l_{tag}.png", u, y, y + 0.01, title="a"),
                 plots.timeseries_figure(tmp_path / f"t_{tag}.png", t, y, y + 0.01, title="a"),
                 plots.convergence_figure(tmp_path / f"c_{tag}.png", h, h * 2, title="a"),
-                plots.overview_figure(tmp_path / f"o_{tag}.png", panels(5), title="a")]  # 2 × 3, one left empty
+                plots.overview_figure(tmp_path / f"o_{tag}.png", panels(5), title="a"),  # 2 × 3, one left empty
+                plots.loop_overlay_figure(tmp_path / f"lo_{tag}.png", u, y, {"m1": y + 0.01, "m2": y - 0.02}, title="a"),
+                plots.convergence_compare_figure(tmp_path / f"cc_{tag}.png", {"o1": [h, h * 3], "o2": [h * 2]},
+                                                 title="a")]
 
     plots._templates.figures = {}  # fresh figures
     fresh = [p.read_bytes() for p in draw_all("fresh")]
@@ -162,6 +165,8 @@ def test_reused_figure_templates_write_the_same_bytes_as_fresh_figures(tmp_path,
     plots.convergence_figure(tmp_path / "x3.png", h - h[-1], None, title="a")
     plots.overview_figure(tmp_path / "x4.png", panels(5, shift=0.5), unit="nm", title="b")
     plots.overview_figure(tmp_path / "x5.png", panels(6), title="a")  # the same grid, another layout
+    plots.loop_overlay_figure(tmp_path / "x6.png", u * 2, y, {"m1": yp, "m2": y, "m3": y * 2}, unit="nm", title="a")
+    plots.convergence_compare_figure(tmp_path / "x8.png", {"o1": [h - h[-1]]}, log=False, title="a")
     reused = [p.read_bytes() for p in draw_all("reused")]
     assert reused == fresh
 
