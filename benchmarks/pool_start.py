@@ -3,8 +3,8 @@
 Run:  python benchmarks/pool_start.py [--repeat 5]
 
 Each measurement is a fresh Python process (as a command is) that runs two cells on a
-:class:`hystfit.parallel.LocalExecutor` of two workers: each cell identifies ``pi`` with ``auto``
-on one capture of ``sample_data`` (a compiled kernel, the least-squares polish). Printed per start
+:class:`hystfit.parallel.LocalExecutor` of two workers: each cell identifies ``bw`` with ``auto``
+on one capture of ``sample_data`` (compiled kernels, the least-squares polish). Printed per start
 method, best of ``--repeat``: the wall time from the pool's creation until both cells are back,
 and the CPU seconds of every process involved (the workers, the fork server, and this process's
 share), counted by stopping the fork server and reaping it so its children's time is included.
@@ -28,11 +28,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 def _cell(shared, job):
-    """One cell: ``pi`` identified with ``auto`` on capture ``job``; its RMSE (µm)."""
+    """One cell: ``bw`` identified with ``auto`` on capture ``job`` (compiled kernels, the least-squares
+    polish); its RMSE (µm)."""
     from hystfit.identify import identify
     from hystfit.registry import models, optimizers
 
-    res = identify([shared[job]], models.get("pi")(), optimizers.get("auto")(), seed=0, jobs=1)
+    res = identify([shared[job]], models.get("bw")(), optimizers.get("auto")(), seed=0, jobs=1)
     return res.fits[0].metrics["rmse_um"]
 
 
@@ -85,7 +86,7 @@ def main() -> None:
     for _ in range(args.repeat):
         for m in methods:  # alternately: both see the same moment of a shared machine
             runs[m].append(run_once(m))
-    print(f"Two cells (pi, auto, one capture each) on a pool of two workers; best of {args.repeat}, alternately\n")
+    print(f"Two cells (bw, auto, one capture each) on a pool of two workers; best of {args.repeat}, alternately\n")
     print("| start method | wall (s) | CPU (s) | every wall (s) | RMSE of the cells (µm) |")
     print("|---|---:|---:|---|---|")
     for m in methods:

@@ -218,8 +218,8 @@ class LocalExecutor(Executor):
     """A process pool on this machine (serial in this process for one job or one cell).
 
     Workers are forked from the fork server of :func:`pool_context` (a fresh interpreter where
-    there is none): they start in milliseconds with hystfit, numpy, scipy and numba loaded,
-    instead of ≈ 1 s of CPU each (``benchmarks/pool_start.py``).
+    there is none): they start with hystfit, numpy, scipy and numba loaded and set up, which a
+    fresh interpreter would do again in each worker (``benchmarks/pool_start.py``).
 
     At most ``workers`` cells are in flight, so a lost worker (the pool breaks) costs an attempt
     only to the cells that were running; the pool is rebuilt and those cells are retried one at a
