@@ -100,39 +100,15 @@ COMMAND_TARGETS = [
 
 def _children_cpu() -> float:
     """CPU seconds of every child reaped so far (and of the children they reaped)."""
-    _reap_orphans()
+    e2e.reap_orphans()
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
-
-
-def _adopt_orphans() -> bool:
-    """Become the reaper of this process's orphaned descendants (Linux ``PR_SET_CHILD_SUBREAPER``).
-
-    A command leaves processes that end just after it: its figure server and its pools' fork
-    server (whose children, the workers, it reaped). Nobody waits for them, so their CPU time
-    would be counted nowhere; adopted here and reaped by :func:`_reap_orphans`, it is counted in
-    the command's CPU seconds. False where the call is not available (then it is not counted)."""
-    try:
-        import ctypes
-
-        return ctypes.CDLL(None, use_errno=True).prctl(36, 1, 0, 0, 0) == 0  # PR_SET_CHILD_SUBREAPER
-    except (OSError, AttributeError):
-        return False
-
-
-def _reap_orphans() -> None:
-    """Wait for every child left (the adopted orphans end when the command that left them has)."""
-    while True:
-        try:
-            os.waitpid(-1, 0)
-        except ChildProcessError:
-            return
 
 
 def command_targets(repeat: int) -> list[dict]:
     """Best wall time and the CPU seconds of that run for each command of :data:`COMMAND_TARGETS`."""
     commands = dict(e2e.COMMANDS)
-    _adopt_orphans()
+    e2e.adopt_orphans()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for label, target in COMMAND_TARGETS:
