@@ -369,7 +369,9 @@ def pool_context():
     The fork server is one process per Python process, started (a fresh interpreter, with this
     process's environment and ``sys.path`` at that moment) when the first pool starts its first
     worker; :func:`single_threaded_children` is in force then, so the server and every worker
-    forked from it run one BLAS/OpenMP/numba thread. It ignores Ctrl-C and ends with this process.
+    forked from it run one BLAS/OpenMP/numba thread. It ignores Ctrl-C and ends with this process:
+    a long Python session (a notebook) keeps it idle in between, ≈ 190 MB resident on Linux, about
+    half of it shared libraries.
     """
     if "forkserver" not in mp.get_all_start_methods():
         return mp.get_context("spawn")
