@@ -10,7 +10,7 @@ never depend on the executor, the number of workers or the order in which cells 
 Two executors:
 
 * :class:`LocalExecutor` — a process pool on this machine whose workers are forked from a fork
-  server (multiprocessing's ``forkserver``; ``spawn`` where there is none): a single-threaded
+  server (multiprocessing's ``forkserver`` on Linux; ``spawn`` elsewhere): a single-threaded
   process that has loaded what cells need once (:mod:`hystfit._pool_preload`). Not forked from
   the command itself, which may run threads (progress bars, a background preparation) and numba's
   thread pool, neither of which survives a fork. ``shared`` is shipped once to each worker (the
@@ -363,8 +363,10 @@ POOL_PRELOAD = "hystfit._pool_preload"
 
 
 def pool_context():
-    """The multiprocessing context of :class:`LocalExecutor`'s pools: ``forkserver`` where the
-    platform has it (Linux, macOS), with :data:`POOL_PRELOAD` loaded by the server, else ``spawn``.
+    """The multiprocessing context of :class:`LocalExecutor`'s pools: ``forkserver`` on Linux, with
+    :data:`POOL_PRELOAD` loaded by the server, else ``spawn`` (on macOS, as Python itself chooses,
+    because system frameworks there, Accelerate's BLAS among them, are not safe in a forked child;
+    Windows has no fork).
 
     The fork server is one process per Python process, started (a fresh interpreter, with this
     process's environment and ``sys.path`` at that moment) when the first pool starts its first
@@ -373,7 +375,7 @@ def pool_context():
     a long Python session (a notebook) keeps it idle in between, ≈ 190 MB resident on Linux, about
     half of it shared libraries.
     """
-    if "forkserver" not in mp.get_all_start_methods():
+    if not sys.platform.startswith("linux") or "forkserver" not in mp.get_all_start_methods():
         return mp.get_context("spawn")
     ctx = mp.get_context("forkserver")
     ctx.set_forkserver_preload([POOL_PRELOAD])

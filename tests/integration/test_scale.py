@@ -133,8 +133,7 @@ def _worker_origin(shared, job):
             "numba_threads": numba.get_num_threads(), "value": shared + job}
 
 
-@pytest.mark.skipif("forkserver" not in __import__("multiprocessing").get_all_start_methods(),
-                    reason="no fork server on this platform (spawned workers)")
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="spawned workers outside Linux")
 def test_pool_workers_are_forked_from_the_preloaded_fork_server_not_from_this_process():
     import threading
 
