@@ -97,6 +97,7 @@ class _FigureServer:
         self.drawn = False  # a stream was opened: the server is past its imports
         self.pending = False  # a stream was opened and its figures not yet collected
         self.conn, child = mp.Pipe()
+        _widen_send_buffer(self.conn)
         for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
             stream.flush()
         self.pid = os.fork()
@@ -164,6 +165,25 @@ class _FigureServer:
             os.waitpid(self.pid, 0)
         except (ChildProcessError, ProcessLookupError):  # already gone
             pass
+
+
+#: bytes this process may have sent to the figure server before a send waits for it to read
+SEND_BUFFER_BYTES = 4 << 20
+
+
+def _widen_send_buffer(conn) -> None:
+    """Let ``conn`` (this process's end of the figure server's socket pair) hold
+    :data:`SEND_BUFFER_BYTES` of jobs not yet read, within the system's limit (Linux:
+    ``net.core.wmem_max``). The server reads between two figures, so with the default buffer
+    (≈ 200 kB on Linux, one or two conditions' arrays) a send could wait for the figure being drawn
+    while this process had fits to do. Nothing changes where the option is refused."""
+    import socket
+
+    try:
+        with socket.socket(fileno=os.dup(conn.fileno())) as sock:  # the same socket; closing the copy keeps it
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
+    except (OSError, ValueError):
+        pass
 
 
 def _stop_serving(signum, frame) -> None:

@@ -302,3 +302,17 @@ def test_a_job_that_does_not_pickle_is_drawn_here(tmp_path, rng, server):
     paths = stream.result()
     assert paths == [j.path for j in jobs] + [odd.path]
     assert all(p.exists() for p in paths) and odd.path.read_bytes() == b"drawn here"
+
+
+def test_the_servers_socket_holds_megabytes_of_jobs_before_a_send_waits(server):
+    """The server reads between two figures: this process's send buffer is widened (within the
+    system's limit) so that queuing a condition's arrays does not wait for the figure being drawn."""
+    import socket
+
+    with socket.socket(fileno=os.dup(server.conn.fileno())) as sock:
+        size = sock.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF)
+    try:
+        limit = int(Path("/proc/sys/net/core/wmem_max").read_text())
+    except OSError:
+        pytest.skip("no net.core.wmem_max to compare with")
+    assert size >= min(render.SEND_BUFFER_BYTES, limit) > 212_992 or limit <= 212_992
