@@ -1,8 +1,8 @@
 """What every worker of a local process pool needs, loaded once by the pool's fork server.
 
 :class:`hystfit.parallel.LocalExecutor` starts its workers (on Linux) with multiprocessing's
-``forkserver`` method: a server process is started (a fresh interpreter) the first time a pool needs a worker,
-imports this module, and from then on forks each worker from itself. So every worker starts with
+``forkserver`` method: a server process is started (a fresh interpreter) the first time a pool
+needs a worker, imports this module, and from then on forks each worker from itself. So every worker starts with
 what is loaded here (hystfit's cell functions, numba and its own set-up at the first compiled
 kernel, ``scipy.optimize``) instead of a fresh interpreter loading it again. ``python
 benchmarks/pool_start.py`` (two workers, two ``bw`` cells, development machine with 2 cores):
