@@ -27,6 +27,9 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_end_to_end import command_env  # noqa: E402
 
 PROBE = r"""
 import json, time
@@ -65,8 +68,8 @@ print(json.dumps([(n, t, c) for n, t, c in marks]))
 
 def probe() -> list[tuple[str, float, float]]:
     """One fresh process: (step, wall s, CPU s) of each step."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    env.pop("PYTHONDONTWRITEBYTECODE", None)  # the bytecode cache on, as an installed hystfit has it
+    # the bytecode cache on, as an installed hystfit has it
+    env = {**command_env(), "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     out = subprocess.run([sys.executable, "-c", PROBE], cwd=ROOT, env=env, check=True, capture_output=True,
                          text=True).stdout
     marks = json.loads(out.strip().splitlines()[-1])

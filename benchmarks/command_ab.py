@@ -18,7 +18,6 @@ with the load than the wall time.
 from __future__ import annotations
 
 import argparse
-import os
 import resource
 import statistics
 import subprocess
@@ -41,8 +40,7 @@ def _children_cpu_s() -> float:
 
 def run(tree: Path, args: list[str]) -> tuple[float, float]:
     """Wall time and CPU seconds (every process of the command: :func:`bench_end_to_end.adopt_orphans`)."""
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env["PYTHONPATH"] = str(tree)
+    env = {**e2e.command_env(), "PYTHONPATH": str(tree)}
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-c", "from hystfit.cli import main; main()", *args, "--out", str(Path(tmp) / "out"),
                "--quiet"]

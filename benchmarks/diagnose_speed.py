@@ -25,6 +25,9 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_end_to_end import command_env  # noqa: E402
 
 #: runs the command and prints its own and its children's CPU seconds and its wall time as JSON
 CHILD = """
@@ -43,9 +46,8 @@ main()
 
 def run_once(tree: Path, blas_threads: int | None = None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        # the bytecode cache on, as an installed hystfit has it (bench_end_to_end.command_env)
-        env = {**{k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"},
-               "PYTHONPATH": str(Path(tree).resolve())}
+        # the bytecode cache on, as an installed hystfit has it
+        env = {**command_env(), "PYTHONPATH": str(Path(tree).resolve())}
         if blas_threads is not None:
             env.update(OPENBLAS_NUM_THREADS=str(blas_threads), OMP_NUM_THREADS=str(blas_threads))
         # run from the temporary directory: ``python -c`` puts the working directory first on sys.path

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -21,6 +20,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_end_to_end import command_env  # noqa: E402
 
 #: runs the command as the console script (``main()``) or as a library call (``main(argv)``) and
 #: prints, from an atexit hook that runs after every other, when the command returned
@@ -39,8 +41,7 @@ else:
 
 def run(way: str, words: list[str]) -> tuple[float, float]:
     """(exit time, wall time) in seconds of one run."""
-    env = {**os.environ}
-    env.pop("PYTHONDONTWRITEBYTECODE", None)  # as an installed hystfit runs
+    env = command_env()  # as an installed hystfit runs
     t0 = time.time()
     r = subprocess.run([sys.executable, "-c", CHILD, way, *words], cwd=ROOT, env=env, capture_output=True, text=True)
     end = time.time()

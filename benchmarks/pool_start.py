@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import resource
 import subprocess
 import sys
@@ -26,6 +25,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_end_to_end import command_env  # noqa: E402
 
 def _cell(shared, job):
     """One cell: ``bw`` identified with ``auto`` on capture ``job`` (compiled kernels, the least-squares
@@ -66,8 +68,7 @@ def child(method: str) -> None:
 
 
 def run_once(method: str) -> dict:
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env["PYTHONPATH"] = str(ROOT)
+    env = {**command_env(), "PYTHONPATH": str(ROOT)}
     r = subprocess.run([sys.executable, __file__, "--child", method], cwd=ROOT, env=env,
                        capture_output=True, text=True, check=True)
     return json.loads(r.stdout.strip().splitlines()[-1])

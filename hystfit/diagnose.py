@@ -445,8 +445,8 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
     ``auto``, :func:`hystfit.optimizers.lsq.polisher`; the result's ``start`` says so):
     ``auto``'s staged start (the base, then each block searched on a grid) would repeat the
     diagnosis's work (on sample_data the start's RMSE on all the data is 1.6 % above the
-    polished fit's, ``benchmarks/diagnose_handover.py``). Where there is no such start, and with any other optimizer, the recommended
-    model is identified from scratch by ``optimizer``.
+    polished fit's, ``benchmarks/diagnose_handover.py``). Where there is no such start, and with
+    any other optimizer, the recommended model is identified from scratch by ``optimizer``.
 
     Returns the :class:`hystfit.identify.IdentifyResult`, or None when nothing was named.
     """
