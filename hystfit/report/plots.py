@@ -3,7 +3,9 @@
 Every function takes plain arrays, a unit and a title (and ``dpi``, the resolution, default 110),
 draws one figure, writes it atomically (:func:`hystfit.io.atomic_write_bytes`: a hidden temporary
 file in the target directory, then :func:`os.replace`, so a reader never sees a half-written PNG)
-and returns the :class:`~pathlib.Path` written. Nothing is printed and nothing is shown on screen.
+and returns the :class:`~pathlib.Path` written. ``path`` may instead be a binary file object
+(:class:`io.BytesIO`, an open file): the PNG is written to it, and it is returned. Nothing is
+printed and nothing is shown on screen.
 
 Figures are built with the object-oriented :class:`matplotlib.figure.Figure` API and rendered by
 the Agg canvas directly, without :mod:`matplotlib.pyplot`: no global backend is selected and no
@@ -368,8 +370,9 @@ def _save(fig: Figure, path, dpi: int) -> Path:
     their images), whose pixels are encoded by :func:`png_bytes` (without Pillow's filter search) and written by :func:`hystfit.io.atomic_write_bytes`
     (temporary file in the same directory, then :func:`os.replace`; parent directories are
     created), so a reader sees the previous file or the complete new one, and a failed render
-    leaves nothing. The figure is not cleared: a template (:func:`_template`) is reset on its next
-    use, any other figure is dropped by its caller.
+    leaves nothing. ``path`` may also be a binary file object (e.g. :class:`io.BytesIO`): the PNG is
+    written to it and nothing touches the disk. The figure is not cleared: a template
+    (:func:`_template`) is reset on its next use, any other figure is dropped by its caller.
 
     Raises
     ------
@@ -378,12 +381,16 @@ def _save(fig: Figure, path, dpi: int) -> Path:
     """
     from .canvas import Canvas
 
-    path = Path(path)
     if fig.dpi != dpi:
         fig.set_dpi(dpi)
     canvas = fig.canvas if isinstance(fig.canvas, Canvas) else Canvas(fig)
     canvas.draw()
-    atomic_write_bytes(path, png_bytes(np.asarray(canvas.buffer_rgba()), dpi))
+    png = png_bytes(np.asarray(canvas.buffer_rgba()), dpi)
+    if hasattr(path, "write"):  # a binary file object, as matplotlib's savefig takes
+        path.write(png)
+        return path
+    path = Path(path)
+    atomic_write_bytes(path, png)
     return path
 
 

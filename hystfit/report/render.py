@@ -487,7 +487,7 @@ def _warm_up() -> None:
     instead of paying for them on its first figure of each kind. Pixels do not depend on these
     caches (tested).
     """
-    import tempfile
+    import io
 
     import numpy as np
 
@@ -495,9 +495,9 @@ def _warm_up() -> None:
 
     t = np.linspace(0.0, 1.0, 200)
     u = 10.0 * (1.0 - np.cos(2 * np.pi * t))
-    with tempfile.TemporaryDirectory(prefix="hystfit-warm-up-") as tmp:
-        plots.loop_figure(Path(tmp) / "loop.png", u, 0.1 * u, 0.1 * u + 0.01, title="warm-up")
-        plots.timeseries_figure(Path(tmp) / "ts.png", t, 0.1 * u, 0.1 * u + 0.01, title="warm-up")
+    # into memory: a server stopped during its warm-up (SIGTERM, SIGKILL) leaves nothing on disk
+    plots.loop_figure(io.BytesIO(), u, 0.1 * u, 0.1 * u + 0.01, title="warm-up")
+    plots.timeseries_figure(io.BytesIO(), t, 0.1 * u, 0.1 * u + 0.01, title="warm-up")
 
 
 def _weight(job: FigureJob) -> int:

@@ -316,3 +316,40 @@ def test_the_servers_socket_holds_megabytes_of_jobs_before_a_send_waits(server):
     except OSError:
         pytest.skip("no net.core.wmem_max to compare with")
     assert size >= min(render.SEND_BUFFER_BYTES, limit) > 212_992 or limit <= 212_992
+
+
+def test_a_server_killed_during_its_warm_up_leaves_nothing_on_disk(tmp_path, monkeypatch):
+    """The warm-up draws into memory: a server stopped in the middle of it (here killed at its
+    second figure) leaves no file or directory behind, neither in the temporary directory nor
+    where the command works."""
+    import tempfile
+
+    from hystfit.report import plots
+
+    scratch, cwd = tmp_path / "tmp", tmp_path / "cwd"
+    scratch.mkdir()
+    cwd.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    monkeypatch.chdir(cwd)
+    monkeypatch.setattr(plots, "timeseries_figure", lambda *a, **k: os.kill(os.getpid(), signal.SIGKILL))
+    render._close_server()
+    server = render._FigureServer()
+    try:
+        _, status = os.waitpid(server.pid, 0)
+        assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL
+    finally:
+        server.conn.close()
+    assert list(scratch.iterdir()) == [] and list(cwd.iterdir()) == []
+
+
+def test_a_figure_can_be_written_to_a_file_object_with_the_bytes_of_a_file(tmp_path):
+    import io
+
+    from hystfit.report import plots
+
+    u = np.linspace(0.0, 20.0, 300)
+    buf = io.BytesIO()
+    assert plots.loop_figure(buf, u, 0.1 * u, 0.1 * u + 0.01, title="t") is buf
+    path = plots.loop_figure(tmp_path / "loop.png", u, 0.1 * u, 0.1 * u + 0.01, title="t")
+    assert buf.getvalue() == path.read_bytes() and buf.getvalue()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["loop.png"]
