@@ -374,12 +374,30 @@ def pool_context():
     forked from it run one BLAS/OpenMP/numba thread. It ignores Ctrl-C and ends with this process:
     a long Python session (a notebook) keeps it idle in between, ≈ 190 MB resident on Linux, about
     half of it shared libraries.
+
+    Where the fork server cannot start, ``spawn`` is used instead (the same numbers, slower
+    workers): its socket lives in the temporary directory, and a Unix socket's path is limited to
+    107 bytes, which a long ``TMPDIR`` (a cluster job's scratch directory) exceeds.
     """
     if not sys.platform.startswith("linux") or "forkserver" not in mp.get_all_start_methods():
         return mp.get_context("spawn")
     ctx = mp.get_context("forkserver")
     ctx.set_forkserver_preload([POOL_PRELOAD])
-    return ctx
+    return ctx if _fork_server_running() else mp.get_context("spawn")
+
+
+def _fork_server_running() -> bool:
+    """Start the pools' fork server if it is not running (with :func:`single_threaded_children` in
+    force, as for a worker); False when it cannot start (an OSError: e.g. its socket's path too
+    long, no usable temporary directory)."""
+    from multiprocessing import forkserver
+
+    try:
+        with single_threaded_children():
+            forkserver.ensure_running()
+    except OSError:
+        return False
+    return True
 
 
 def _started(shared: Any, job: Any) -> None:

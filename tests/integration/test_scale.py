@@ -153,6 +153,33 @@ def test_pool_workers_are_forked_from_the_preloaded_fork_server_not_from_this_pr
     assert all(o["preloaded"] and o["numba_threads"] == 1 for o in out)
 
 
+LONG_TMPDIR_SCRIPT = """
+import os
+from hystfit.parallel import LocalExecutor, pool_context, run_cells
+
+def value(shared, job):
+    return shared + job
+
+if __name__ == "__main__":
+    method = pool_context().get_start_method()
+    print(method, run_cells(value, [1, 2, 3, 4], shared=10, executor=LocalExecutor(2)))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="spawned workers outside Linux")
+def test_a_temporary_directory_too_long_for_the_fork_servers_socket_means_spawned_workers(tmp_path):
+    import subprocess
+
+    long_tmp = tmp_path / ("x" * 60) / ("y" * 60)  # a Unix socket's path holds at most 107 bytes
+    long_tmp.mkdir(parents=True)
+    script = tmp_path / "pool.py"
+    script.write_text(LONG_TMPDIR_SCRIPT)
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "TMPDIR": str(long_tmp)})
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split() == ["spawn", "[11,", "12,", "13,", "14]"]
+
+
 def test_held_local_executor_reuses_its_workers_for_the_same_shared_data():
     ex = LocalExecutor(2)
     shared = (1.0,)
