@@ -307,6 +307,15 @@ class LocalExecutor(Executor):
                     except BrokenProcessPool:  # lost before this cell reached it: no attempt charged
                         queue.append((i, job))
                         break
+                    except OSError as exc:  # a worker cannot be started (process or memory limits)
+                        left = sorted([(i, job), *queue, *running.values()], key=lambda item: item[0])
+                        _stop_now(ex)
+                        ex, running, queue = None, {}, []
+                        warnings.warn(f"hystfit: the worker processes could not be started ({exc}); the "
+                                      f"{len(left)} cells left run in this process", RuntimeWarning, stacklevel=2)
+                        for k, item in left:  # no attempt charged: the same numbers, one at a time
+                            yield k, _inline(fn, shared, item)
+                        return
                     attempts[i] = attempts.get(i, 0) + 1
                 if not running:  # the pool broke before any cell was submitted to it: a new one
                     _stop_now(ex)
@@ -655,7 +664,12 @@ def _fork_one(fn: Callable[[int], Any], n: int, claim) -> tuple[int, Any]:
     recv, send = mp.get_context("fork").Pipe(duplex=False)
     for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
         stream.flush()
-    pid = os.fork()
+    try:
+        pid = os.fork()
+    except OSError:
+        recv.close()
+        send.close()
+        raise
     if pid == 0:
         code = 0
         try:
@@ -679,13 +693,19 @@ def fork_map(fn: Callable[[int], R], n: int, workers: int | None = None) -> list
     list is in index order — the results never depend on the number of processes. An item a child
     did not return (it raised, or died) is computed here, so its exception, if any, is raised here
     as in a serial loop; results that do not pickle are computed here too, with a RuntimeWarning
-    (the work is done twice). Serial for one worker or one item.
+    (the work is done twice). Serial for one worker or one item; a fork the system refuses
+    (process or memory limits) leaves fewer children, or none.
     """
     k = min(fork_workers(workers), n)
     if k <= 1:
         return [fn(i) for i in range(n)]
     claim = mp.get_context("fork").Value("l", 0)
-    children = [_fork_one(fn, n, claim) for _ in range(k - 1)]
+    children = []
+    for _ in range(k - 1):
+        try:
+            children.append(_fork_one(fn, n, claim))
+        except OSError:  # a fork refused (process or memory limits): fewer processes, the same results
+            break
     results: dict[int, Any] = {}
     try:
         while (i := _claim_next(claim)) < n:

@@ -165,6 +165,7 @@ def main(argv: list[str] | None = None) -> None:
     every object is frozen out of the garbage collector at the end (:func:`gc.freeze`): the
     interpreter's exit then does not walk them.
     """
+    _one_line_warnings()
     words = sys.argv[1:] if argv is None else list(argv)
     early = bool(words) and words[0] in FIGURE_COMMANDS and not {"--no-plots", "--help", "-h"} & set(words)
     if early:
@@ -185,6 +186,23 @@ def main(argv: list[str] | None = None) -> None:
             # frozen objects are left out of them. Files are closed by their context managers;
             # atexit handlers still run.
             gc.freeze()
+
+
+def _one_line_warnings() -> None:
+    """hystfit's own warnings (their message starts with ``hystfit:``, e.g. cells run in this
+    process because no worker could be started) are printed as their message alone, one line, as
+    the command's errors are; other warnings keep Python's format."""
+    import warnings
+
+    python_format = getattr(warnings.formatwarning, "python_format", warnings.formatwarning)
+
+    def formatwarning(message, category, filename, lineno, line=None):
+        if str(message).startswith("hystfit:"):
+            return f"{message}\n"
+        return python_format(message, category, filename, lineno, line)
+
+    formatwarning.python_format = python_format
+    warnings.formatwarning = formatwarning
 
 
 if __name__ == "__main__":  # pragma: no cover

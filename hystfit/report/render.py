@@ -100,7 +100,12 @@ class _FigureServer:
         _widen_send_buffer(self.conn)
         for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
             stream.flush()
-        self.pid = os.fork()
+        try:
+            self.pid = os.fork()
+        except OSError:
+            self.conn.close()
+            child.close()
+            raise
         if self.pid == 0:  # the server
             code = 0
             try:
@@ -276,8 +281,12 @@ def preload(claim_early: bool = False) -> None:
     _early = False
     _close_server()
     if "fork" in mp.get_all_start_methods() and threading.active_count() == 1:
-        _server = _FigureServer()
-    elif _preload_thread is None:
+        try:
+            _server = _FigureServer()
+            return
+        except OSError:  # a fork refused (process or memory limits): matplotlib is imported here
+            _server = None
+    if _preload_thread is None:
         _preload_thread = threading.Thread(target=_import_plotting, name="hystfit-preload-matplotlib", daemon=True)
         _preload_thread.start()
 
@@ -471,11 +480,16 @@ def _outcomes(jobs: list[FigureJob], n_jobs: int | None) -> list[Path | Exceptio
     n = min(n, math.ceil(len(jobs) / MIN_JOBS_PER_WORKER))
     if n <= 1 or "fork" not in mp.get_all_start_methods():
         return [_outcome(j) for j in jobs]
-    with ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("fork")) as ex:
-        # the biggest figures first, so that no worker is left with a long one at the end
-        order = sorted(range(len(jobs)), key=lambda i: -_weight(jobs[i]))
-        futs = {i: ex.submit(_outcome, jobs[i]) for i in order}
-        return [futs[i].result() for i in range(len(jobs))]
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        with ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("fork")) as ex:
+            # the biggest figures first, so that no worker is left with a long one at the end
+            order = sorted(range(len(jobs)), key=lambda i: -_weight(jobs[i]))
+            futs = {i: ex.submit(_outcome, jobs[i]) for i in order}
+            return [futs[i].result() for i in range(len(jobs))]
+    except (OSError, BrokenProcessPool):  # a fork refused (process or memory limits), a worker killed
+        return [_outcome(j) for j in jobs]  # drawn here (a figure drawn twice has the same bytes)
 
 
 def _warm_up() -> None:

@@ -180,6 +180,20 @@ def test_a_temporary_directory_too_long_for_the_fork_servers_socket_means_spawne
     assert r.stdout.split() == ["spawn", "[11,", "12,", "13,", "14]"]
 
 
+def test_workers_that_cannot_be_started_leave_the_cells_to_this_process_with_a_warning(monkeypatch):
+    """Process or memory limits refuse the workers: the cells run here, the same results."""
+    import errno
+    import multiprocessing.process
+
+    def refuse(self):
+        raise BlockingIOError(errno.EAGAIN, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(multiprocessing.process.BaseProcess, "start", refuse)
+    with pytest.warns(RuntimeWarning, match="could not be started.*4 cells left run in this process"):
+        out = run_cells(_worker_origin, [1, 2, 3, 4], shared=10, executor=LocalExecutor(2))
+    assert [o["value"] for o in out] == [11, 12, 13, 14] and {o["parent"] for o in out} == {os.getppid()}
+
+
 def test_held_local_executor_reuses_its_workers_for_the_same_shared_data():
     ex = LocalExecutor(2)
     shared = (1.0,)

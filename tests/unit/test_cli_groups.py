@@ -77,3 +77,18 @@ def test_the_console_script_freezes_every_object_before_the_interpreter_exits(mo
     monkeypatch.setattr(sys, "argv", ["hystfit", "models"])
     app_module.main(argv)
     assert calls == ["app"] + ["freeze"] * frozen
+
+
+def test_hystfits_own_warnings_are_printed_as_one_line_others_in_pythons_format(monkeypatch):
+    import importlib
+    import warnings
+
+    app = importlib.import_module("hystfit.cli.app")  # the module (``hystfit.cli.app`` the package exports is the Typer app)
+    monkeypatch.setattr(warnings, "formatwarning", warnings.formatwarning)
+    app._one_line_warnings()
+    app._one_line_warnings()  # installed twice (two commands in one process): still one line
+    ours = warnings.formatwarning("hystfit: the worker processes could not be started (x); the 4 cells left run "
+                                  "in this process", RuntimeWarning, "/x/parallel.py", 12)
+    assert ours == "hystfit: the worker processes could not be started (x); the 4 cells left run in this process\n"
+    other = warnings.formatwarning("something else", UserWarning, "/x/y.py", 3, line="")
+    assert other.startswith("/x/y.py:3: UserWarning: something else")

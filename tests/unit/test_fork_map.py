@@ -80,3 +80,15 @@ def test_one_process_inside_a_pool_worker(monkeypatch):
     monkeypatch.setattr(parallel, "_SINGLE_THREADED", True)
     assert fork_workers(4) == 1
     assert fork_map(lambda i: os.getpid(), 6, 4) == [os.getpid()] * 6
+
+
+def _refuse_fork():
+    import errno
+
+    raise BlockingIOError(errno.EAGAIN, "Resource temporarily unavailable")
+
+
+def test_a_fork_the_system_refuses_leaves_the_items_to_this_process(monkeypatch):
+    """Process or memory limits (a cluster's login node): no child, the same results, nothing raised."""
+    monkeypatch.setattr(os, "fork", _refuse_fork)
+    assert fork_map(_item, 9, 3) == [_item(i) for i in range(9)]

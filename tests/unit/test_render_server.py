@@ -353,3 +353,25 @@ def test_a_figure_can_be_written_to_a_file_object_with_the_bytes_of_a_file(tmp_p
     path = plots.loop_figure(tmp_path / "loop.png", u, 0.1 * u, 0.1 * u + 0.01, title="t")
     assert buf.getvalue() == path.read_bytes() and buf.getvalue()[:8] == b"\x89PNG\r\n\x1a\n"
     assert [p.name for p in tmp_path.iterdir()] == ["loop.png"]
+
+
+def _refuse_fork():
+    import errno
+
+    raise BlockingIOError(errno.EAGAIN, "Resource temporarily unavailable")
+
+
+def test_a_fork_the_system_refuses_means_the_figures_are_drawn_here_with_the_same_bytes(tmp_path, rng, monkeypatch):
+    """Process or memory limits: no figure server and no pool can be forked; preload and
+    render_figures go on in this process and write the bytes a pool writes."""
+    seed = int(rng.integers(1 << 30))
+    render._close_server()
+    pooled = render._draw_here(_jobs(tmp_path / "pool", np.random.default_rng(seed), n=6), 2)
+    monkeypatch.setattr(os, "fork", _refuse_fork)
+    try:
+        render.preload()
+        assert render._server is None
+        here = render_figures(_jobs(tmp_path / "here", np.random.default_rng(seed), n=6), 2)
+    finally:
+        render._close_server()
+    assert [p.read_bytes() for p in here] == [p.read_bytes() for p in pooled]
