@@ -31,6 +31,7 @@ directory cannot be created, numba's own choice is left untouched.
 from __future__ import annotations
 
 import functools
+import math
 import os
 import sys
 import threading
@@ -38,7 +39,7 @@ from pathlib import Path
 from types import CodeType, ModuleType
 from typing import Any, Callable
 
-__all__ = ["njit", "prange", "cache_dir", "Kernel", "numba_loaded"]
+__all__ = ["njit", "prange", "fma", "cache_dir", "Kernel", "numba_loaded"]
 
 _lock = threading.RLock()
 _numba: ModuleType | None = None
@@ -65,15 +66,34 @@ def _configure(numba: ModuleType) -> None:
 
 def _load_numba() -> ModuleType:
     """numba, imported and configured (once)."""
-    global _numba, prange
+    global _numba, prange, _fma_intrinsic
     with _lock:
         if _numba is None:
             import numba
 
             _configure(numba)
             prange = numba.prange
+            _fma_intrinsic = _make_fma(numba)
             _numba = numba
         return _numba
+
+
+def _make_fma(numba: ModuleType):
+    """The compiled ``fma``: LLVM's ``llvm.fma.f64``, one correctly rounded a·b + c."""
+    from numba.core import types
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def fma_f64(typingctx, a, b, c):
+        f64 = types.float64
+
+        def codegen(context, builder, signature, args):
+            x, y, z = (context.cast(builder, v, t, f64) for v, t in zip(args, signature.args))
+            return builder.fma(x, y, z)
+
+        return f64(a, b, c), codegen
+
+    return fma_f64
 
 
 def numba_loaded() -> bool:
@@ -99,6 +119,44 @@ class _Prange:
 
 _PRANGE = _Prange()
 prange: Any = _PRANGE
+
+
+class _Fma:
+    """``fma(a, b, c)``: a·b + c rounded once (a fused multiply–add), the same number in every
+    kernel and every process. In a kernel it is LLVM's ``llvm.fma.f64`` (put in place by
+    :func:`_materialize`, as ``prange``); called from Python, the exact value rounded once.
+
+    Why kernels write their multiply–adds this way instead of letting the compiler fuse them
+    (``fastmath={"contract", ...}``): a compiler fuses (and, with ``reassoc``, reorders) where the
+    optimised code allows, and the same kernel is optimised in more than one context — alone,
+    and inlined into each kernel that calls it — so the last bits of a result depended on which
+    compiled copy ran, that is on what the process had compiled or loaded before (a first,
+    compiling run gave other digits than the runs after it). An explicit fused multiply–add is
+    one IEEE operation everywhere: the speed of fusing, and the same numbers in every process.
+    """
+
+    def __call__(self, a, b, c):
+        from fractions import Fraction
+
+        a, b, c = float(a), float(b), float(c)
+        if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
+            return a * b + c  # inf/NaN: what the fused operation gives too
+        exact = Fraction(a) * Fraction(b) + Fraction(c)
+        if exact == 0:  # the sign IEEE gives: −0 only when a·b and c are both −0
+            z = a * b + c
+            return z if z == 0 else 0.0
+        try:
+            return float(exact)  # correctly rounded
+        except OverflowError:
+            return math.inf if exact > 0 else -math.inf
+
+    def __repr__(self) -> str:
+        return "<hystfit._jit.fma: llvm.fma.f64 once numba is loaded>"
+
+
+_FMA = _Fma()
+fma: Any = _FMA
+_fma_intrinsic: Any = None
 
 
 class Kernel:
@@ -171,6 +229,8 @@ def _make(kernel: Kernel, made: dict, numba: ModuleType) -> None:
         value = g.get(name)
         if value is _PRANGE:
             g[name] = numba.prange
+        elif value is _FMA:
+            g[name] = _fma_intrinsic
         elif isinstance(value, Kernel):
             g[name] = _dispatcher_of(value, made, numba)
         elif isinstance(value, ModuleType):  # module.kernel inside a kernel (no module __getattr__ runs)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .._jit import njit, numba_loaded, prange
+from .._jit import fma, njit, numba_loaded, prange
 
 
 #: below this many operator outputs (N · n) per call, play operators are computed with numpy (a few
@@ -144,20 +144,30 @@ _BW_SERIES_MAX = 0.1
 #: arguments are halved until they fit and the result is squared back (see :func:`_bw_block`)
 _BW_SERIES11_MAX = 0.35
 
-#: fastmath flags of the Bouc–Wen kernels: no ``nnan``/``ninf`` (a diverging candidate must stay inf/NaN)
-_BW_FASTMATH = {"contract", "arcp", "nsz", "reassoc"}
+# The Bouc–Wen kernels write their multiply–adds as explicit fused operations (:data:`fma`) and
+# use no fastmath flags: a compiler that fuses or reorders by itself does so differently in each
+# context a helper is compiled in (alone, or inlined into each caller), and the last bits then
+# depended on which compiled copy a process ran (see :class:`hystfit._jit._Fma`).
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_phi11(x):
     """φ(x) = (1 − e^{−x})/x for |x| ≤ 0.35 by its series to x¹¹ (error < 6e-16)."""
     mx = -x
-    return 1.0 + mx * (0.5 + mx * (1.0 / 6 + mx * (1.0 / 24 + mx * (1.0 / 120 + mx * (
-        1.0 / 720 + mx * (1.0 / 5040 + mx * (1.0 / 40320 + mx * (1.0 / 362880 + mx * (
-            1.0 / 3628800 + mx * (1.0 / 39916800 + mx * (1.0 / 479001600)))))))))))
+    r = fma(mx, 1.0 / 479001600, 1.0 / 39916800)  # Horner, one fused multiply–add per degree
+    r = fma(mx, r, 1.0 / 3628800)
+    r = fma(mx, r, 1.0 / 362880)
+    r = fma(mx, r, 1.0 / 40320)
+    r = fma(mx, r, 1.0 / 5040)
+    r = fma(mx, r, 1.0 / 720)
+    r = fma(mx, r, 1.0 / 120)
+    r = fma(mx, r, 1.0 / 24)
+    r = fma(mx, r, 1.0 / 6)
+    r = fma(mx, r, 0.5)
+    return fma(mx, r, 1.0)
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_coefs7(dv):
     """q_j = dv^{j+1}/(j+1)!, j = 0..7: ψ(c) = dv·φ(c·dv) = Σ_j (−c)^j·q_j."""
     q0 = dv
@@ -171,7 +181,7 @@ def _bw_coefs7(dv):
     return (q0, q1, q2, q3, q4, q5, q6, q7)
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_coefs11(q, dv):
     """q_j = dv^{j+1}/(j+1)!, j = 0..11, from those to j = 7 (``q``)."""
     q8 = q[7] * dv * (1.0 / 9)
@@ -181,13 +191,13 @@ def _bw_coefs11(q, dv):
     return (q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7], q8, q9, q10, q11)
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_neg(x):
     """Sign bit of x (set for −0.0): compiles to a bit test, not a floating-point comparison."""
     return math.copysign(1.0, x) < 0.0
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_next(kind, h, mcp, mcn, sa, q, psi):
     """Exact Bouc–Wen update of one state h over one input segment, branch-free.
 
@@ -200,15 +210,17 @@ def _bw_next(kind, h, mcp, mcn, sa, q, psi):
     h does not change; the caller redoes the other candidates.
     """
     mc = mcn if _bw_neg(h) else mcp
-    if kind == 7:
-        f = q[0] + mc * (q[1] + mc * (q[2] + mc * (q[3] + mc * (q[4] + mc * (q[5] + mc * (
-            q[6] + mc * q[7]))))))
+    if kind == 7:  # Horner, one fused multiply–add per degree
+        f = fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, q[7], q[6]), q[5]), q[4]), q[3]), q[2]),
+                        q[1]), q[0])
     elif kind == 11:
-        f = q[0] + mc * (q[1] + mc * (q[2] + mc * (q[3] + mc * (q[4] + mc * (q[5] + mc * (
-            q[6] + mc * (q[7] + mc * (q[8] + mc * (q[9] + mc * (q[10] + mc * q[11]))))))))))
+        f = fma(mc, q[11], q[10])
+        f = fma(mc, fma(mc, fma(mc, f, q[9]), q[8]), q[7])
+        f = fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, f, q[6]), q[5]), q[4]), q[3]), q[2]),
+                        q[1]), q[0])
     else:
         f = psi
-    return h + (sa + mc * h) * f
+    return fma(fma(mc, h, sa), f, h)
 
 
 #: what a Bouc–Wen block kernel produces
@@ -216,7 +228,7 @@ _BW_STATES, _BW_SSE, _BW_MOMENTS = 0, 1, 2
 
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_regimes(alpha, beta, gamma, p0, p1):
     """Per-block constants of :func:`_bw_block` for the candidates p0:p1.
 
@@ -246,7 +258,7 @@ def _bw_regimes(alpha, beta, gamma, p0, p1):
     return a, be, ga, sa, mcp, mcn, cabs_max
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_series_kind(xmax, dv):
     """Series of ψ for a sample whose largest argument is ``xmax`` = max|c|·Δv: 7, 11 or 0 (halving)."""
     kind = 7 if xmax <= _BW_SERIES_MAX else (11 if xmax <= _BW_SERIES11_MAX else 0)
@@ -255,7 +267,7 @@ def _bw_series_kind(xmax, dv):
     return kind
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_psi_halved(F, X, H, c, mcp, mcn, j, dv, xmax):
     """ψ = Δv·φ(c·Δv) per candidate into ``F`` for a large argument: c·Δv is halved ``nsq`` times
     to ≤ 0.35, φ by :func:`_bw_phi11`, then φ(2x) = φ(x)·(1 + e^{−x})/2 with e^{−x} = 1 − x·φ(x)
@@ -273,33 +285,32 @@ def _bw_psi_halved(F, X, H, c, mcp, mcn, j, dv, xmax):
         F[i] = _bw_phi11(x)
     for _ in range(nsq):
         for i in range(m):
-            e = 1.0 - X[i] * F[i]
+            e = fma(-X[i], F[i], 1.0)
             F[i] = F[i] * (1.0 + e) * 0.5
             X[i] = 2.0 * X[i]
     for i in range(m):
         F[i] *= dv
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_take(mode, i, kvi, hn, offi, bad, uk, yk, acc, out, k, p0):
     """Add candidate i's contribution at sample k (state ``hn``, Kv ``kvi``, offset ``offi``) to
     the kernel's output (``mode``); a ``bad`` state (wrong regime, redone later) adds nothing
-    to the sums. The callers read ``kvi``, ``hn``, ``offi`` in the order their loops always did:
-    with ``reassoc``, the order of the loads decides how LLVM associates the sum."""
+    to the sums (every multiply–add one fused operation: :data:`fma`)."""
     if mode == _BW_SSE:
-        e = kvi * uk + hn + offi - yk
-        acc[0][i] += 0.0 if bad else e * e
+        e = 0.0 if bad else fma(kvi, uk, hn) + offi - yk
+        acc[0][i] = fma(e, e, acc[0][i])
     elif mode == _BW_MOMENTS:
         hm = 0.0 if bad else hn
-        acc[0][i] += hm * hm
-        acc[1][i] += hm * uk
+        acc[0][i] = fma(hm, hm, acc[0][i])
+        acc[1][i] = fma(hm, uk, acc[1][i])
         acc[2][i] += hm
-        acc[3][i] += hm * yk
+        acc[3][i] = fma(hm, yk, acc[3][i])
     else:
-        out[k, p0 + i] = kvi * uk + hn + offi
+        out[k, p0 + i] = fma(kvi, uk, hn) + offi
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_candidate(mode, kind, i, H, c, sa, mcp, mcn, j, q, F, uk, yk, k_v, off, acc, out, k, p0):
     """Advance candidate i by one sample (:func:`_bw_next`, series ``kind``) from row c of ``H``
     into row 1 − c and add its contribution (:func:`_bw_take`); True when its state changed its
@@ -312,7 +323,7 @@ def _bw_candidate(mode, kind, i, H, c, sa, mcp, mcn, j, q, F, uk, yk, k_v, off, 
     return bad
 
 
-@njit(cache=True, inline="always", fastmath=_BW_FASTMATH)
+@njit(cache=True, inline="always")
 def _bw_time_loop(mode, u, y, H, X, F, a, be, ga, sa, mcp, mcn, cabs_max, k_v, off, acc, out, p0):
     """The time loop of :func:`_bw_block`, inlined once per ``mode`` (a constant there, so every
     candidate loop is specialised). Arrays are handed to helpers only outside the time loop and
@@ -357,7 +368,7 @@ def _bw_time_loop(mode, u, y, H, X, F, a, be, ga, sa, mcp, mcn, cabs_max, k_v, o
         c = d
 
 
-@njit(cache=True, fastmath=_BW_FASTMATH)
+@njit(cache=True)
 def _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1):
     """Bouc–Wen (n = 1, h(0) = 0) over the candidates p0:p1, time loop outside, candidates inside.
 

@@ -2,13 +2,14 @@
 
 import importlib
 import json
+from pathlib import Path
 import pickle
 import subprocess
 import sys
 
 import numpy as np
 
-from hystfit._jit import Kernel, njit, prange
+from hystfit._jit import Kernel, fma, njit, prange
 
 
 KERNELS = """
@@ -104,3 +105,83 @@ def test_importing_the_package_does_not_import_numba_or_pandas():
             "print(json.dumps(sorted(m for m in ('numba', 'pandas', 'rich', 'matplotlib') if m in sys.modules)))\n")
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
     assert json.loads(out) == []
+
+
+FMA_KERNEL = """
+from hystfit._jit import fma, njit
+
+
+@njit(cache=False)
+def fused(a, b, c):
+    out = a.copy()
+    for i in range(a.shape[0]):
+        out[i] = fma(a[i], b[i], c[i])
+    return out
+"""
+
+
+def test_fma_is_one_rounding_in_a_kernel_and_from_python(tmp_path, monkeypatch):
+    """``fma`` in a kernel is the fused operation (it differs from a·b + c rounded twice), and
+    the Python stand-in gives the same numbers."""
+    (tmp_path / "jit_fma_kernel.py").write_text(FMA_KERNEL)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    mod = importlib.import_module("jit_fma_kernel")
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=2000), rng.normal(size=2000)
+    c = -a * b  # a·b + c is then exactly the rounding error of a·b: 0 unfused, not 0 fused
+    got = mod.fused(a, b, c)
+    assert np.count_nonzero(got) > 1000 and np.all(a * b + c == 0.0)
+    assert [fma(x, y, z) for x, y, z in zip(a, b, c)] == list(got)
+    assert fma(2.0, 3.0, 1.0) == 7.0 and np.isnan(fma(np.inf, 0.0, 1.0)) and fma(1e308, 10.0, 0.0) == np.inf
+
+
+def test_no_kernel_asks_the_compiler_to_fuse_or_reorder_by_itself():
+    """No hystfit kernel uses fastmath: fusing or reordering is decided per compiled copy of a
+    helper (alone, inlined into each caller), so the last bits would depend on what a process
+    compiled or loaded before. Multiply–adds are written as :data:`hystfit._jit.fma`."""
+    import pkgutil
+
+    import hystfit
+
+    flagged = []
+    for info in pkgutil.walk_packages(hystfit.__path__, "hystfit."):
+        if info.name.startswith("hystfit.cli") or info.name.startswith("hystfit.report"):
+            continue
+        module = importlib.import_module(info.name)
+        for name, value in vars(module).items():
+            options = value._options if isinstance(value, Kernel) else getattr(value, "targetoptions", None)
+            if isinstance(options, dict) and options.get("fastmath"):
+                flagged.append(f"{info.name}.{name}")
+    assert flagged == []
+
+
+BW_SERIAL = """
+import hashlib
+import sys
+import numpy as np
+from hystfit.io import load_capture
+from hystfit.models import _kernels as K
+
+c = load_capture(sys.argv[1])
+rng = np.random.default_rng(11)
+P = 400
+kv, alpha, beta, gamma, y0 = (rng.uniform(lo, hi, P) for lo, hi in ((0.0, 1.0), (-1.0, 1.0), (0.0, 3.0), (-2.0, 2.0),
+                                                                      (-2.0, 11.0)))
+for mode in (K._BW_STATES, K._BW_SSE, K._BW_MOMENTS):
+    out = np.zeros((c.u.size, P)) if mode == K._BW_STATES else np.zeros((P, 4))
+    K._bw_serial(np.ascontiguousarray(c.u), c.y, kv, alpha, beta, gamma, y0, mode, out)
+    print(hashlib.sha256(out.tobytes()).hexdigest())
+"""
+
+
+def test_a_kernel_gives_the_same_bits_compiled_here_and_loaded_from_the_cache(tmp_path):
+    """The Bouc–Wen kernel in a process that compiles it (a first run after installing) and in one
+    that loads it from numba's cache: the same bits in all three modes. With fastmath flags the
+    first run's squared errors differed in the last digits from every later run's (on this
+    capture and population; the search of a compare cell then ended on another last digit)."""
+    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    capture = str(Path(__file__).resolve().parents[2] / "sample_data" / "a40V_f80Hz.csv")
+    runs = [subprocess.run([sys.executable, "-c", BW_SERIAL, capture], check=True, capture_output=True, text=True,
+                           env=env, timeout=300).stdout for _ in range(2)]
+    assert any((tmp_path / "numba").rglob("*.nbi"))  # the first run compiled and cached, the second loaded
+    assert runs[0] == runs[1] and len(runs[0].split()) == 3
