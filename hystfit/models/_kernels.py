@@ -210,16 +210,12 @@ def _bw_next(kind, h, mcp, mcn, sa, q, psi):
     h does not change; the caller redoes the other candidates.
     """
     mc = mcn if _bw_neg(h) else mcp
-    if kind == 7:  # Horner, one fused multiply–add per degree
-        f = fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, q[7], q[6]), q[5]), q[4]), q[3]), q[2]),
-                        q[1]), q[0])
-    elif kind == 11:
-        f = fma(mc, q[11], q[10])
-        f = fma(mc, fma(mc, fma(mc, f, q[9]), q[8]), q[7])
-        f = fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, fma(mc, f, q[6]), q[5]), q[4]), q[3]), q[2]),
-                        q[1]), q[0])
-    else:
+    if kind == 0:
         f = psi
+    else:  # Horner, one fused multiply–add per degree (degrees 11…8 only for kind 11)
+        f = q[7] if kind == 7 else fma(mc, fma(mc, fma(mc, fma(mc, q[11], q[10]), q[9]), q[8]), q[7])
+        for j in (6, 5, 4, 3, 2, 1, 0):
+            f = fma(mc, f, q[j])
     return fma(fma(mc, h, sa), f, h)
 
 
