@@ -24,6 +24,13 @@ DEFAULT_DIFFERS = {
 #: Spellings retired in favour of one name: they may only exist as hidden aliases.
 RETIRED = {"--figures": "--plots"}
 
+def _range(p) -> tuple:
+    """(min, max) of an option: on the parameter (typer >= 0.29) or on its click range type."""
+    kind = getattr(p, "type", None)
+    return tuple(getattr(p, k, None) if getattr(p, k, None) is not None else getattr(kind, k, None)
+                 for k in ("min", "max"))
+
+
 def _commands():
     root = typer.main.get_command(app)
 
@@ -59,8 +66,7 @@ def test_shared_options_have_one_spelling_default_and_range():
                                 f"{first.opts + first.secondary_opts} in {first_cmd}")
             if flag not in DEFAULT_DIFFERS and p.default != first.default:
                 problems.append(f"{flag}: default {p.default!r} in {cmd}, {first.default!r} in {first_cmd}")
-            if (getattr(p, "min", None), getattr(p, "max", None)) != (getattr(first, "min", None),
-                                                                      getattr(first, "max", None)):
+            if _range(p) != _range(first):
                 problems.append(f"{flag}: range differs between {cmd} and {first_cmd}")
     assert not problems, "\n".join(problems)
 
@@ -92,7 +98,7 @@ def test_numeric_options_state_their_range(flag):
     for name, cmd in _commands().items():
         for p in cmd.params:
             if flag in p.opts:
-                checked = getattr(p, "min", None) is not None or p.callback is not None
+                checked = _range(p)[0] is not None or p.callback is not None
                 assert checked, f"{name} {flag}: no lower limit"
                 if flag == "--seed":
                     assert p.callback is not None and "4294967295" in p.help, f"{name} --seed: not the shared check"
