@@ -44,3 +44,15 @@ class CellsFailedError(HystfitError):
     """
 
     exit_code = 4
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM reached the command line (a job scheduler's time limit, ``timeout``, ``kill``).
+
+    Raised in the command's main thread by the console script's handler, it takes the path of
+    Ctrl-C (a :class:`KeyboardInterrupt`): process pools are stopped at once, nothing half-written
+    is left, a resumable run keeps the cells it stored. The command says so in one line and exits
+    143 (128 + SIGTERM, what a shell reports for a process the signal ended).
+    """
+
+    exit_code = 143

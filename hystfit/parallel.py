@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
+import select
 import signal
 import sys
 import threading
@@ -141,13 +142,55 @@ def _single_threaded() -> None:
         pass
 
 
-def _init_worker(shared: Any) -> None:
+def _init_worker(shared: Any, client_pid: int | None = None) -> None:
     # Ctrl-C reaches the whole process group: the parent alone decides (it terminates the workers),
     # so the workers ignore SIGINT instead of each printing a KeyboardInterrupt traceback.
     global _SHARED
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _single_threaded()
     _SHARED = shared
+    if client_pid is not None:
+        _end_with(client_pid)
+
+
+#: seconds between two looks at the command's process where the system cannot notify its end
+WATCH_INTERVAL_S = 0.5
+
+
+def _end_with(pid: int) -> None:
+    """End this worker as soon as process ``pid`` (the command whose pool it serves) has ended.
+
+    A pool's workers wait for their next cell on a queue whose writing end each of them holds
+    too, and a fork server's workers keep the server alive: when the command is killed (SIGKILL,
+    the out-of-memory killer; or SIGTERM outside the console script) nothing else would end them,
+    and they stay idle forever with the command's data in memory (hundreds of MB each). A daemon
+    thread waits for ``pid``'s end — a pidfd on Linux, otherwise a look every
+    :data:`WATCH_INTERVAL_S` — and leaves at once; the fork server leaves when its last worker has."""
+
+    def watch() -> None:
+        try:
+            fd = os.pidfd_open(pid)
+        except (AttributeError, OSError):  # not Linux ≥ 5.3, or the process is already gone
+            fd = None
+        if fd is not None:
+            select.select([fd], [], [])  # readable when the process has ended
+        else:
+            while _alive(pid):
+                time.sleep(WATCH_INTERVAL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="hystfit-end-with-command", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still exists."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it exists (owned by another user: a reused pid would not be ours either)
+        return True
+    return True
 
 
 def _call_pool(fn: Callable, job: Any) -> Any:
@@ -266,7 +309,8 @@ class LocalExecutor(Executor):
 
     @staticmethod
     def _pool(n: int, shared: Any):
-        return _ProcessPool(max_workers=n, mp_context=pool_context(), initializer=_init_worker, initargs=(shared,))
+        return _ProcessPool(max_workers=n, mp_context=pool_context(), initializer=_init_worker,
+                            initargs=(shared, os.getpid()))
 
     def _release(self) -> None:
         kept, self._kept = self._kept, None
@@ -380,9 +424,10 @@ def pool_context():
     The fork server is one process per Python process, started (a fresh interpreter, with this
     process's environment and ``sys.path`` at that moment) when the first pool starts its first
     worker; :func:`single_threaded_children` is in force then, so the server and every worker
-    forked from it run one BLAS/OpenMP/numba thread. It ignores Ctrl-C and ends with this process:
-    a long Python session (a notebook) keeps it idle in between, ≈ 190 MB resident on Linux, about
-    half of it shared libraries.
+    forked from it run one BLAS/OpenMP/numba thread. It ignores Ctrl-C and ends with this process,
+    however this process ends (killed too: each worker leaves when this process has ended,
+    :func:`_end_with`, and the server when its last worker has): a long Python session (a notebook)
+    keeps it idle in between, ≈ 190 MB resident on Linux, about half of it shared libraries.
 
     Where the fork server cannot start, ``spawn`` is used instead (the same numbers, slower
     workers): its socket lives in the temporary directory, and a Unix socket's path is limited to
@@ -641,8 +686,10 @@ def _claim_next(claim) -> int:
 
 
 def _fork_child(fn: Callable[[int], Any], n: int, claim, conn) -> None:
-    """A child of :func:`fork_map`: claims items until none is left, then sends ``{index: result}``."""
+    """A child of :func:`fork_map`: claims items until none is left, then sends ``{index: result}``.
+    SIGTERM (the parent stopping it) ends it at once, whatever handler the parent had."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _single_threaded()
     done: dict[int, Any] = {}
     try:

@@ -15,14 +15,17 @@ import dataclasses
 import functools
 import gc
 import inspect
+import signal
 import sys
+import threading
 import typing
+from contextlib import contextmanager
 from typing import Callable, TypeVar
 
 import typer
 from typer.core import TyperGroup
 
-from ..errors import HystfitError
+from ..errors import HystfitError, Terminated
 
 try:  # recent typer vendors click (its exceptions are not the click package's)
     from typer._click import exceptions as click_exceptions
@@ -50,9 +53,10 @@ class OneLineErrors(TyperGroup):
             where = exc.ctx.command_path if getattr(exc, "ctx", None) is not None else "hystfit"
             error_line(f"{exc.format_message()} (see '{where} --help')")
             sys.exit(exc.exit_code)
-        except typer.Abort:
-            error_line("interrupted")
-            sys.exit(130)
+        except typer.Abort as exc:  # Ctrl-C or SIGTERM while the command line was parsed
+            stop = exc.__context__ if isinstance(exc.__context__, KeyboardInterrupt) else KeyboardInterrupt()
+            error_line(stop_message(stop))
+            sys.exit(stop_code(stop))
         sys.exit(code if isinstance(code, int) else 0)
 
 
@@ -81,11 +85,42 @@ def guarded(fn: F) -> F:
         except HystfitError as exc:
             error_line(str(exc))
             raise typer.Exit(exc.exit_code) from None
-        except KeyboardInterrupt:
-            error_line("interrupted")
-            raise typer.Exit(130) from None
+        except KeyboardInterrupt as exc:
+            error_line(stop_message(exc))
+            raise typer.Exit(stop_code(exc)) from None
 
     return wrapper  # type: ignore[return-value]
+
+
+def stop_message(exc: KeyboardInterrupt) -> str:
+    """The one line for a command stopped by Ctrl-C or by SIGTERM (:class:`hystfit.errors.Terminated`)."""
+    return "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+
+
+def stop_code(exc: KeyboardInterrupt) -> int:
+    """The exit code of a command stopped by Ctrl-C (130) or by SIGTERM (143)."""
+    return Terminated.exit_code if isinstance(exc, Terminated) else 130
+
+
+def _raise_terminated(signum, frame) -> None:
+    """The console script's SIGTERM handler: the command stops as on Ctrl-C (:class:`Terminated`)."""
+    raise Terminated(f"signal {signum}")
+
+
+@contextmanager
+def _sigterm_stops_command():
+    """While the command runs, SIGTERM raises :class:`Terminated` in it instead of ending the
+    process on the spot, so its pools, servers and staged outputs are cleaned up as on Ctrl-C
+    (processes it forks reset the handler: :func:`hystfit.parallel.fork_map`'s children, the
+    figure server). Main thread only; the previous handler is restored afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, saved)
 
 
 class OptionGroup:
@@ -163,9 +198,15 @@ def main(argv: list[str] | None = None) -> None:
     while the command line is parsed (≈ 0.3 s: typer's validators) and the command loads and fits;
     the command claims it, or it is closed unused. Called without ``argv`` (the console script),
     every object is frozen out of the garbage collector at the end (:func:`gc.freeze`): the
-    interpreter's exit then does not walk them.
+    interpreter's exit then does not walk them. SIGTERM stops the command as Ctrl-C does, with its
+    own line and exit code 143 (:func:`_sigterm_stops_command`).
     """
     _one_line_warnings()
+    with _sigterm_stops_command():
+        _main(argv)
+
+
+def _main(argv: list[str] | None) -> None:
     words = sys.argv[1:] if argv is None else list(argv)
     early = bool(words) and words[0] in FIGURE_COMMANDS and not {"--no-plots", "--help", "-h"} & set(words)
     if early:

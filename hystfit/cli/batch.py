@@ -9,14 +9,16 @@ from typing import Annotated
 
 import typer
 
-from .app import app, click_exceptions, command, error_line
+from ..errors import Terminated
+from .app import app, click_exceptions, command, error_line, stop_code
 from .common import (ExecutorOpt, JsonOut, Quiet, Resume, Scheduler, jobs_option, new_table, print_json, stderr,
                      stdout)
 
 BatchJobs = jobs_option("Parallel processes of every job that has none of its own (the numbers do not depend on it).")
 
 #: exit code → what it means for a job (see docs/scale.md)
-JOB_STATUS = {0: "ok", 2: "bad input", 3: "no result", 4: "some cells failed", 130: "interrupted"}
+JOB_STATUS = {0: "ok", 2: "bad input", 3: "no result", 4: "some cells failed", 130: "interrupted",
+              143: "terminated"}
 
 
 def _argv(job, command, path: Path) -> list[str]:
@@ -61,8 +63,8 @@ def _run(root, argv: list[str]) -> int:
     except click_exceptions.ClickException as exc:
         error_line(f"{exc.format_message()} (see 'hystfit {argv[0]} --help')")
         return exc.exit_code
-    except click_exceptions.Abort:
-        return 130
+    except click_exceptions.Abort as exc:  # Ctrl-C or SIGTERM while the job's command line was parsed
+        return stop_code(exc.__context__) if isinstance(exc.__context__, KeyboardInterrupt) else 130
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else 1
 
@@ -83,7 +85,7 @@ def batch(
     A job that fails does not stop the others; the table gives each job's exit code. With --resume
     a job whose output directory is already written is skipped and the others continue from the
     cells they stored. Exit code 0 when every job succeeded, 3 when every job failed, 4 when some
-    did, 130 on Ctrl-C.
+    did, 130 on Ctrl-C, 143 on SIGTERM (no further job is started).
     """
     from typer.main import get_command
 
@@ -108,7 +110,7 @@ def batch(
             opts.setdefault("quiet", True)
         runs.append((job, _argv(replace(job, options=opts), command, jobs_file)))
     rows = []
-    interrupted = False
+    interrupted: KeyboardInterrupt | None = None
     for job, argv in runs:
         t0 = time.perf_counter()
         if resume and job.out.is_dir() and any(job.out.iterdir()):
@@ -119,8 +121,8 @@ def batch(
                          soft_wrap=True)
         code = _run(root, argv)
         rows.append((job, code, JOB_STATUS.get(code, "error"), time.perf_counter() - t0))
-        if code == 130:
-            interrupted = True
+        if code in (130, Terminated.exit_code):  # Ctrl-C or SIGTERM: the batch stops too
+            interrupted = Terminated() if code == Terminated.exit_code else KeyboardInterrupt()
             break
     if json_out:
         print_json({"jobs": [{"name": j.name, "command": j.command, "out": str(j.out), "exit_code": c, "status": s,
@@ -134,7 +136,7 @@ def batch(
         stdout.print(table)
     failed = [r for r in rows if r[1] != 0]
     if interrupted:
-        raise KeyboardInterrupt
+        raise interrupted
     if failed and len(failed) == len(rows):
         raise NoResultError(f"every job of {jobs_file} failed (exit codes {', '.join(str(r[1]) for r in failed)})")
     if failed:

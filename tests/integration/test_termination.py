@@ -1,0 +1,150 @@
+"""A command stopped from outside (a scheduler's SIGTERM, SIGKILL, the out-of-memory killer) leaves
+no process behind, and SIGTERM stops it as Ctrl-C does: one line, exit 143, nothing half-written."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from hystfit import parallel
+from hystfit.cli.app import stop_code, stop_message
+from hystfit.errors import Terminated
+
+SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+
+#: a command that keeps a two-worker pool busy for several seconds
+POOLED = ["compare", str(SAMPLE), "--models", "bw", "--opts", "pso", "--jobs", "2", "--no-figures", "--quiet"]
+
+
+def session_processes(sid: int) -> list[str]:
+    """The command lines of every process of session ``sid`` (the command started in a new session
+    and every process it started, forked or spawned)."""
+    out = []
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            if int(fields[3]) == sid and fields[0] != "Z":
+                with open(f"/proc/{d}/cmdline", "rb") as f:
+                    out.append(f.read().replace(b"\0", b" ").decode(errors="replace")[:120])
+        except (OSError, IndexError, ValueError):  # gone meanwhile
+            pass
+    return out
+
+
+def start_pooled(out: Path) -> subprocess.Popen:
+    """The pooled command, in a session of its own, once its pool's workers run."""
+    cmd = [sys.executable, "-c", "from hystfit.cli import main; main()", *POOLED, "--out", str(out)]
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while sum("forkserver" in c for c in session_processes(p.pid)) < 3:  # the server and two workers
+        assert p.poll() is None, p.communicate()[1]
+        assert time.monotonic() < deadline, "the pool's workers did not start"
+        time.sleep(0.1)
+    time.sleep(0.5)  # the workers are busy with their first cells
+    return p
+
+
+def left_after(sid: int, seconds: float) -> list[str]:
+    deadline = time.monotonic() + seconds
+    while (left := session_processes(sid)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return left
+
+
+def test_sigterm_stops_a_pooled_command_as_ctrl_c_does_and_leaves_no_process(tmp_path):
+    out = tmp_path / "out"
+    p = start_pooled(out)
+    os.kill(p.pid, signal.SIGTERM)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 143
+    lines = [ln for ln in err.splitlines() if ln.startswith("hystfit")]
+    assert lines == ["hystfit: error: terminated (SIGTERM)"], err
+    assert "Traceback" not in err
+    assert left_after(p.pid, 10) == []
+    assert not out.exists()  # nothing half-written; the finished cells stay for --resume
+    assert not [x for x in tmp_path.iterdir() if x.name.startswith(".out.tmp")]
+
+
+def test_a_killed_command_leaves_no_pool_process_behind(tmp_path):
+    # SIGKILL runs no handler: the workers see the command's end themselves (parallel._end_with),
+    # the fork server leaves with its last worker. Before, both stayed forever.
+    p = start_pooled(tmp_path / "out")
+    os.kill(p.pid, signal.SIGKILL)
+    p.communicate(timeout=60)
+    assert left_after(p.pid, 10) == []
+
+
+def test_a_worker_ends_when_the_command_it_serves_has_ended():
+    # the command here is a short-lived process; the worker is a forked child watching it
+    doomed = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(0.5)"])
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the worker: watches, then would wait forever
+        os.close(r)
+        try:
+            parallel._end_with(doomed.pid)
+            os.write(w, b"watching")
+            time.sleep(60)
+        finally:
+            os._exit(0)
+    os.close(w)
+    assert os.read(r, 16) == b"watching"
+    doomed.wait()
+    t0 = time.monotonic()
+    _, status = os.waitpid(pid, 0)
+    assert time.monotonic() - t0 < 5 and os.WEXITSTATUS(status) == 1
+
+
+def test_the_polling_watch_sees_a_process_end():
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    assert parallel._alive(os.getpid())
+    p.wait()
+    assert not parallel._alive(p.pid)
+
+
+def test_fork_map_children_end_at_sigterm_whatever_handler_the_parent_has():
+    saved = signal.signal(signal.SIGTERM, lambda s, f: None)
+    try:
+        def where(i):
+            time.sleep(0.05)
+            return os.getpid(), signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+        got = parallel.fork_map(where, 8, workers=2)
+    finally:
+        signal.signal(signal.SIGTERM, saved)
+    by_children = [default for pid, default in got if pid != os.getpid()]
+    assert by_children and all(by_children)
+
+
+def test_stop_line_and_exit_code():
+    assert (stop_message(KeyboardInterrupt()), stop_code(KeyboardInterrupt())) == ("interrupted", 130)
+    assert (stop_message(Terminated()), stop_code(Terminated())) == ("terminated (SIGTERM)", 143)
+
+
+def test_sigterm_in_a_batch_job_stops_the_batch_with_143(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    import hystfit.identify
+    from hystfit.cli import app
+
+    def terminated(*args, **kwargs):
+        raise Terminated("signal 15")
+
+    monkeypatch.setattr(hystfit.identify, "identify", terminated)
+    jobs = tmp_path / "jobs.toml"
+    jobs.write_text("\n".join(f'[[job]]\nname = "{n}"\ncommand = "identify"\ndata = "{SAMPLE}/a20V_f10Hz.csv"\n'
+                              f'out = "{tmp_path / n}"\n' for n in ("first", "second")))
+    r = CliRunner().invoke(app, ["batch", str(jobs), "--json"])
+    assert r.exit_code == 143, r.output
+    rows = json.loads(r.stdout)["jobs"]
+    assert [(j["name"], j["exit_code"], j["status"]) for j in rows] == [("first", 143, "terminated")]
+    assert "hystfit: error: terminated (SIGTERM)" in r.stderr
