@@ -98,6 +98,67 @@ COMMAND_TARGETS = [
 ]
 
 
+def cpu_model() -> str:
+    """The processor's model name and widest vector extension (Linux: /proc/cpuinfo), else platform's."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            info = f.read()
+    except OSError:
+        return platform.processor() or platform.machine()
+    name = next((ln.split(":", 1)[1].strip() for ln in info.splitlines() if ln.startswith("model name")), "")
+    flags = set(next((ln.split(":", 1)[1].split() for ln in info.splitlines() if ln.startswith("flags")), []))
+    widest = next((f for f in ("avx512f", "avx2", "avx", "sse4_2") if f in flags), "none")
+    mhz = next((ln.split(":", 1)[1].strip() for ln in info.splitlines() if ln.startswith("cpu MHz")), "")
+    return f"{name or platform.machine()}{f' {float(mhz):.0f} MHz' if mhz else ''}, widest vectors {widest}"
+
+
+#: :func:`reference_seconds`' workloads, run in a fresh process with one BLAS thread
+REFERENCE = """
+import json, time
+import numpy as np
+
+def loop():
+    s = 0
+    for i in range(1_000_000):
+        s += i
+
+a = np.random.default_rng(0).standard_normal((1000, 1000))
+out = {}
+for name, fn in (("python_loop_1e6_s", loop), ("matmul_1000_s", lambda: a @ a)):
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    out[name] = min(times)
+print(json.dumps(out))
+"""
+
+
+def reference_seconds() -> dict[str, float]:
+    """The same small workloads on any machine (best of 3, one BLAS thread), to hold one machine's
+    command times against another's: a Python loop of 10⁶ additions (what start-up, imports and
+    orchestration cost) and a 1000 × 1000 float64 matrix product (the BLAS of the least-squares
+    solves)."""
+    import json
+
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    r = subprocess.run([sys.executable, "-c", REFERENCE], env=env, capture_output=True, text=True, check=True)
+    return json.loads(r.stdout)
+
+
+def machine_line() -> str:
+    """One line naming the machine, with its :func:`reference_seconds` and the load average."""
+    import numba
+
+    ref = reference_seconds()
+    return (f"Machine: {platform.machine()}, {cpu_model()}, {os.cpu_count()} cores, numba {numba.__version__}, "
+            f"Python {platform.python_version()}; reference workloads: Python loop of 10⁶ additions "
+            f"{ref['python_loop_1e6_s'] * 1e3:.0f} ms, 1000 × 1000 matrix product (one thread) "
+            f"{ref['matmul_1000_s'] * 1e3:.0f} ms; load average at the start {os.getloadavg()[0]:.1f} "
+            f"(above 0.5 the machine is shared: compare ratios within one run)\n")
+
+
 def _children_cpu() -> float:
     """CPU seconds of every child reaped so far (and of the children they reaped)."""
     e2e.reap_orphans()
@@ -128,7 +189,8 @@ def command_targets(repeat: int) -> list[dict]:
 def print_command_targets(repeat: int) -> None:
     import os
 
-    print(f"Load average at the start {os.getloadavg()[0]:.1f}; best of {repeat} runs after a warm-up\n")
+    print(machine_line())
+    print(f"Best of {repeat} runs after a warm-up\n")
     print("| command | wall (s) | target (s) | met | CPU of that run (s) | every run (s) |\n|---|---:|---:|---|---:|---|")
     rows = command_targets(repeat)
     for r in rows:
@@ -172,12 +234,7 @@ def main() -> None:
     if args.imports:
         print_import_breakdowns()
         return
-    import numba
-    import os
-
-    print(f"Machine: {platform.machine()}, {os.cpu_count()} cores, numba {numba.__version__} "
-          f"({numba.get_num_threads()} threads), Python {platform.python_version()}; load average at the start "
-          f"{os.getloadavg()[0]:.1f} (above 0.5 the machine is shared: compare ratios within one run)\n")
+    print(machine_line())
     krows = kern.measure()
     print("### Population evaluation (P = 200, N = 5,000)\n")
     print(kern.table(krows, markdown=True))
