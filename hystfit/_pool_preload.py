@@ -16,9 +16,31 @@ The numbers of a cell do not depend on it: a worker computes exactly what a fres
 
 from __future__ import annotations
 
+import os
+import sys
+import traceback
+
 import numpy as np
 
 from . import compare, diagnose, identify  # noqa: F401 - the cell functions and all they import
+
+
+def _late_worker_hook(exc_type, exc, tb) -> None:
+    """``sys.excepthook`` of the server and its children. A worker whose start the command asked
+    for just before it stopped (Ctrl-C, SIGTERM, an error) is forked after the command has let go
+    of its pool: reading what the command sent it then fails inside multiprocessing's own start-up
+    (the data cut short, the pool's semaphores already gone), which would print a traceback on the
+    command's stderr after its one error line. A worker that fails before it ever runs hystfit's
+    code leaves silently — the command, if it is still there, sees a lost worker and says so in
+    its own words; any other error is printed as before."""
+    frames = traceback.extract_tb(tb)
+    starting = any(f.name == "_main" and f.filename.endswith(os.path.join("multiprocessing", "spawn.py"))
+                   for f in frames)
+    if not starting:
+        sys.__excepthook__(exc_type, exc, tb)
+
+
+sys.excepthook = _late_worker_hook
 
 
 def _load_compiled_kernels() -> None:

@@ -41,6 +41,7 @@ from typing import Mapping, Iterator, Sequence
 
 import numpy as np
 
+from ._process import alive
 from .capture import Capture
 from .conditions import count_cycles, detect_condition, nonstationary_notes
 from .errors import InputError, OutputError
@@ -1352,9 +1353,11 @@ def staged_output_dir(out: str | os.PathLike, force: bool) -> Iterator[Path]:
     Yields
     ------
     Path
-        A fresh sibling directory ``out.parent/.<name>.tmp-<pid>-<rand>`` to write into. On
-        normal exit it becomes ``out`` (an existing ``out`` is replaced: only when empty or
-        ``force``); on an exception it is deleted and ``out`` is untouched.
+        A fresh sibling directory ``out.parent/.<name>.tmp-<pid>-<rand>@<host>`` to write into.
+        On normal exit it becomes ``out`` (an existing ``out`` is replaced: only when empty or
+        ``force``); on an exception it is deleted and ``out`` is untouched. Staging directories
+        of ``out`` that a killed command left (this host's, whose process has ended:
+        :func:`remove_stale_stages`) are removed first.
 
     Raises
     ------
@@ -1368,7 +1371,8 @@ def staged_output_dir(out: str | os.PathLike, force: bool) -> Iterator[Path]:
     _check_out(out, force)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        stage = out.parent / f".{out.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
+        remove_stale_stages(out)
+        stage = out.parent / f".{out.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}@{_host()}"
         stage.mkdir()
     except OSError as exc:
         raise OutputError(f"{out}: cannot create the output directory ({exc.strerror or exc}); check the "
@@ -1383,6 +1387,41 @@ def staged_output_dir(out: str | os.PathLike, force: bool) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise
+
+
+def _host() -> str:
+    """Where this process's PID means something, as it may stand in a file name: the machine's
+    name, and on Linux its PID namespace (two containers on one machine can share the name but
+    not their PIDs)."""
+    name = re.sub(r"[^A-Za-z0-9._-]", "_", os.uname().nodename if hasattr(os, "uname") else "") or "host"
+    try:
+        ns = re.sub(r"\D", "", os.readlink("/proc/self/ns/pid"))
+    except OSError:
+        return name
+    return f"{name}~{ns}" if ns else name
+
+
+def remove_stale_stages(out: Path) -> list[Path]:
+    """Remove the staging directories of ``out`` (:func:`staged_output_dir`) that a command killed
+    before it could clean up (SIGKILL, the out-of-memory killer, a power cut) left beside it:
+    those named for this host (and PID namespace) whose process no longer exists. Another host's
+    (a cluster's shared file system: its process may still be writing) and unnamed older ones are
+    left alone, and so
+    are the ``.<name>.old-…`` directories of an interrupted replacement (they may hold the only
+    copy of the previous results). Returns what was removed; an error removes nothing more."""
+    pattern = re.compile(rf"^\.{re.escape(out.name)}\.tmp-(\d+)-[0-9a-f]+@(.+)$")
+    removed = []
+    try:
+        siblings = list(out.parent.iterdir())
+    except OSError:
+        return removed
+    for p in siblings:
+        m = pattern.match(p.name)
+        if m is None or m.group(2) != _host() or int(m.group(1)) == os.getpid() or alive(int(m.group(1))):
+            continue
+        shutil.rmtree(p, ignore_errors=True)
+        removed.append(p)
+    return removed
 
 
 def _publish(stage: Path, out: Path, force: bool) -> None:

@@ -45,6 +45,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Optional, Sequence, TypeVar
 
+from ._process import alive
 from .errors import ConfigError, HystfitError
 
 J = TypeVar("J")
@@ -175,22 +176,12 @@ def _end_with(pid: int) -> None:
         if fd is not None:
             select.select([fd], [], [])  # readable when the process has ended
         else:
-            while _alive(pid):
+            while alive(pid):
                 time.sleep(WATCH_INTERVAL_S)
         os._exit(1)
 
     threading.Thread(target=watch, name="hystfit-end-with-command", daemon=True).start()
 
-
-def _alive(pid: int) -> bool:
-    """Whether process ``pid`` still exists."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # it exists (owned by another user: a reused pid would not be ours either)
-        return True
-    return True
 
 
 def _call_pool(fn: Callable, job: Any) -> Any:

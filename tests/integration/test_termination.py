@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from hystfit import parallel
+from hystfit._process import alive
 from hystfit.cli.app import stop_code, stop_message
 from hystfit.errors import Terminated
 
@@ -106,9 +107,9 @@ def test_a_worker_ends_when_the_command_it_serves_has_ended():
 
 def test_the_polling_watch_sees_a_process_end():
     p = subprocess.Popen([sys.executable, "-c", "pass"])
-    assert parallel._alive(os.getpid())
+    assert alive(os.getpid())
     p.wait()
-    assert not parallel._alive(p.pid)
+    assert not alive(p.pid)
 
 
 def test_fork_map_children_end_at_sigterm_whatever_handler_the_parent_has():
@@ -148,3 +149,20 @@ def test_sigterm_in_a_batch_job_stops_the_batch_with_143(tmp_path, monkeypatch):
     rows = json.loads(r.stdout)["jobs"]
     assert [(j["name"], j["exit_code"], j["status"]) for j in rows] == [("first", 143, "terminated")]
     assert "hystfit: error: terminated (SIGTERM)" in r.stderr
+
+
+def test_a_worker_started_after_its_command_stopped_leaves_without_a_traceback(monkeypatch, capsys):
+    # multiprocessing's start-up of a worker forked after the command let go of its pool fails
+    # (data cut short, semaphores gone) and the fork server prints the error through sys.excepthook
+    monkeypatch.setattr(sys, "excepthook", sys.excepthook)  # the import below replaces it: restored after
+    from hystfit import _pool_preload
+
+    namespace: dict = {}
+    exec(compile("def _main():\n    raise EOFError('pickle data was truncated')\n",
+                 os.path.join("lib", "multiprocessing", "spawn.py"), "exec"), namespace)
+    for fn, printed in ((namespace["_main"], False), (lambda: 1 / 0, True)):
+        try:
+            fn()
+        except Exception:  # noqa: BLE001
+            _pool_preload._late_worker_hook(*sys.exc_info())
+        assert ("Traceback" in capsys.readouterr().err) is printed

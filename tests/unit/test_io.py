@@ -581,6 +581,31 @@ def test_staged_output_dir_success_creates_out(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
 
 
+def test_a_killed_commands_staging_directory_is_removed_by_the_next_run(tmp_path):
+    import subprocess
+    import sys
+
+    from hystfit.io import _host
+
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    host = _host()
+    stale = tmp_path / f".res.tmp-{gone.pid}-0badcafe@{host}"  # this host's, its process has ended
+    kept = [tmp_path / f".res.tmp-{os.getppid()}-1badcafe@{host}",  # its process still runs
+            tmp_path / f".res.tmp-{gone.pid}-2badcafe@{host}x",  # another host's: it may still write
+            tmp_path / f".res.tmp-{gone.pid}-3badcafe",  # no host in the name
+            tmp_path / f".res.old-{gone.pid}-4badcafe",  # may hold the previous results
+            tmp_path / f".other.tmp-{gone.pid}-5badcafe@{host}"]  # another output's
+    for d in [stale, *kept]:
+        d.mkdir()
+        (d / "report.csv").write_text("x")
+    with staged_output_dir(tmp_path / "res", force=False) as stage:
+        assert stage.name.endswith(f"@{host}")
+        (stage / "params.json").write_text("{}")
+    assert not stale.exists() and all(d.exists() for d in kept)
+    assert (tmp_path / "res" / "params.json").exists()
+
+
 def test_staged_output_dir_exception_leaves_nothing(tmp_path):
     out = tmp_path / "res"
     with pytest.raises(RuntimeError):
