@@ -130,17 +130,31 @@ _SINGLE_THREADED = False
 
 
 def _single_threaded() -> None:
-    """One numba thread in this worker process (once per process)."""
+    """One numba thread in this worker process (once per process).
+
+    numba guards the start of its threading layer with a multiprocessing lock of the process's
+    default start method. In a fork server's (or spawned) worker that is a *named* semaphore,
+    registered with multiprocessing's resource tracker; a worker stopped at once (Ctrl-C,
+    SIGTERM, :func:`_stop_now`) cannot unregister it, and the tracker then printed "There appear
+    to be 2 leaked semaphore objects" after the command's one error line. Made while the default
+    is ``fork``, the lock is anonymous (no name, nothing to track or leak)."""
     global _SINGLE_THREADED
     if _SINGLE_THREADED:
         return
     _SINGLE_THREADED = True
+    saved = mp.get_start_method(allow_none=True)
+    anonymous = "fork" in mp.get_all_start_methods() and saved != "fork"
     try:
         import numba
 
+        if anonymous:
+            mp.set_start_method("fork", force=True)
         numba.set_num_threads(1)
     except Exception:  # pragma: no cover - numba without threading layer
         pass
+    finally:
+        if anonymous:
+            mp.set_start_method(saved, force=True)
 
 
 def _init_worker(shared: Any, client_pid: int | None = None) -> None:

@@ -116,10 +116,10 @@ def test_fork_map_children_end_at_sigterm_whatever_handler_the_parent_has():
     saved = signal.signal(signal.SIGTERM, lambda s, f: None)
     try:
         def where(i):
-            time.sleep(0.05)
+            time.sleep(0.25)  # long enough for the child to claim items while this process works
             return os.getpid(), signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
 
-        got = parallel.fork_map(where, 8, workers=2)
+        got = parallel.fork_map(where, 16, workers=2)
     finally:
         signal.signal(signal.SIGTERM, saved)
     by_children = [default for pid, default in got if pid != os.getpid()]
@@ -166,3 +166,31 @@ def test_a_worker_started_after_its_command_stopped_leaves_without_a_traceback(m
         except Exception:  # noqa: BLE001
             _pool_preload._late_worker_hook(*sys.exc_info())
         assert ("Traceback" in capsys.readouterr().err) is printed
+
+
+INTERRUPTED_POOL = """
+import os, signal, sys, threading, time
+from hystfit.parallel import LocalExecutor, run_cells
+
+def slow(shared, job):
+    time.sleep(1.0)
+    return job
+
+if __name__ == "__main__":
+    threading.Timer(float(sys.argv[1]), lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    try:
+        run_cells(slow, list(range(12)), shared=None, executor=LocalExecutor(2))
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+"""
+
+
+def test_a_pool_stopped_at_once_leaves_no_semaphore_for_the_resource_tracker_to_complain_about(tmp_path):
+    # each worker's numba start-up made a named multiprocessing lock that a terminated worker could
+    # not unregister: the resource tracker then printed "There appear to be 2 leaked semaphore
+    # objects" after the command's error line (parallel._single_threaded)
+    script = tmp_path / "interrupted_pool.py"
+    script.write_text(INTERRUPTED_POOL)
+    r = subprocess.run([sys.executable, str(script), "6"], capture_output=True, text=True, timeout=120)
+    assert r.stderr.strip().splitlines()[0] == "interrupted", r.stderr
+    assert "leaked" not in r.stderr and "Traceback" not in r.stderr, r.stderr
