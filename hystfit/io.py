@@ -1406,10 +1406,11 @@ def remove_stale_stages(out: Path) -> list[Path]:
     before it could clean up (SIGKILL, the out-of-memory killer, a power cut) left beside it:
     those named for this host (and PID namespace) whose process no longer exists. Another host's
     (a cluster's shared file system: its process may still be writing) and unnamed older ones are
-    left alone, and so
-    are the ``.<name>.old-…`` directories of an interrupted replacement (they may hold the only
-    copy of the previous results). Returns what was removed; an error removes nothing more."""
+    left alone, and so are the ``.<name>.old-…`` directories of an interrupted replacement (they
+    may hold the only copy of the previous results). Returns what was removed; a directory that
+    cannot be listed or removed is left as it is."""
     pattern = re.compile(rf"^\.{re.escape(out.name)}\.tmp-(\d+)-[0-9a-f]+@(.+)$")
+    host = _host()
     removed = []
     try:
         siblings = list(out.parent.iterdir())
@@ -1417,10 +1418,11 @@ def remove_stale_stages(out: Path) -> list[Path]:
         return removed
     for p in siblings:
         m = pattern.match(p.name)
-        if m is None or m.group(2) != _host() or int(m.group(1)) == os.getpid() or alive(int(m.group(1))):
+        if m is None or m.group(2) != host or int(m.group(1)) == os.getpid() or alive(int(m.group(1))):
             continue
         shutil.rmtree(p, ignore_errors=True)
-        removed.append(p)
+        if not p.exists():
+            removed.append(p)
     return removed
 
 

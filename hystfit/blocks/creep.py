@@ -76,8 +76,8 @@ def lowpass_bank(x, p):
     return out
 
 
-#: rows of a population that :func:`creep_rows` runs side by side (independent recursions, one SIMD
-#: vector and more: 1.3–2.5× the row-by-row loop at 85 rows, measured with the kernels alone)
+#: rows of a population that :func:`creep_rows` runs side by side (independent recursions:
+#: 1.4× the row-by-row loop at 85 rows, 1.1–1.2× at 200; ``python benchmarks/creep_lanes.py``)
 CREEP_LANES = 8
 
 

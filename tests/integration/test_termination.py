@@ -84,8 +84,15 @@ def test_a_killed_command_leaves_no_pool_process_behind(tmp_path):
     assert left_after(p.pid, 10) == []
 
 
-def test_a_worker_ends_when_the_command_it_serves_has_ended():
-    # the command here is a short-lived process; the worker is a forked child watching it
+@pytest.mark.parametrize("pidfd", [True, False], ids=["pidfd", "polling"])
+def test_a_worker_ends_when_the_command_it_serves_has_ended(pidfd, monkeypatch):
+    # the command here is a short-lived process; the worker is a forked child watching it, through
+    # a pidfd or, where the system has none, by looking every WATCH_INTERVAL_S
+    if not pidfd:
+        def no_pidfd(pid):
+            raise OSError("no pidfd here")
+
+        monkeypatch.setattr(os, "pidfd_open", no_pidfd, raising=False)
     doomed = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(0.5)"])
     r, w = os.pipe()
     pid = os.fork()
@@ -105,7 +112,7 @@ def test_a_worker_ends_when_the_command_it_serves_has_ended():
     assert time.monotonic() - t0 < 5 and os.WEXITSTATUS(status) == 1
 
 
-def test_the_polling_watch_sees_a_process_end():
+def test_alive_sees_a_process_end():
     p = subprocess.Popen([sys.executable, "-c", "pass"])
     assert alive(os.getpid())
     p.wait()
