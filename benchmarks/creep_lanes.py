@@ -3,8 +3,9 @@ loop it replaced: the same bits, and the time of each.
 
 Run:  python benchmarks/creep_lanes.py [--repeat 50]
 
-The row-by-row loop is kept here as the reference (``rows_one_by_one``: what ``creep_rows`` was
-before it ran :data:`hystfit.blocks.creep.CREEP_LANES` rows together). Shapes: a finite-difference
+The reference is the row-by-row loop (``creep_rows_one_by_one`` over every row: what
+``creep_rows`` was before it ran :data:`hystfit.blocks.creep.CREEP_LANES` rows together; it still
+runs its last few rows). Shapes: a finite-difference
 Jacobian's population of an 80-operator ``pi+creep`` (85 rows) over captures of 700 and 1,700
 samples, a PSO population (200 × 5,000), and one row. Both kernels are run alternately, best of
 ``--repeat`` calls each; printed as Markdown, with whether the outputs are bit for bit equal.
@@ -17,29 +18,14 @@ import math
 import time
 
 import numpy as np
-from numba import njit
-
-from hystfit.blocks.creep import CREEP_LANES, creep_rows
+from hystfit.blocks.creep import CREEP_LANES, creep_rows, creep_rows_one_by_one
 
 
-@njit(cache=True)
 def rows_one_by_one(x, p, c):
     """The former ``creep_rows``: one row's recursion after the other."""
-    P, N = x.shape
-    K = p.shape[0]
     out = x.copy()
-    if N == 0:
-        return out
-    for r in range(P):
-        for i in range(K):
-            pi = p[i]
-            b = 1.0 - pi
-            ci = c[r, i]
-            prev = x[r, 0]
-            for k in range(N):
-                v = pi * prev + b * x[r, k]
-                prev = v
-                out[r, k] += ci * (v - x[r, k])
+    if x.shape[1]:
+        creep_rows_one_by_one(x, p, c, out, 0)
     return out
 
 

@@ -77,8 +77,27 @@ def lowpass_bank(x, p):
 
 
 #: rows of a population that :func:`creep_rows` runs side by side (independent recursions:
-#: 1.4× the row-by-row loop at 85 rows, 1.1–1.2× at 200; ``python benchmarks/creep_lanes.py``)
+#: 1.4× the row-by-row loop at 85 rows, 1.1–1.4× at 200; ``python benchmarks/creep_lanes.py``)
 CREEP_LANES = 8
+
+
+@njit(cache=True)
+def creep_rows_one_by_one(x, p, c, out, first):
+    """:func:`creep_rows` for rows ``first``, ``first`` + 1, … of x, one row's recursion after the
+    other, added into ``out`` (which holds x): the last few rows of :func:`creep_rows`, and all of
+    them before it ran rows side by side (``benchmarks/creep_lanes.py`` compares the two)."""
+    P, N = x.shape
+    K = p.shape[0]
+    for r in range(first, P):
+        for i in range(K):
+            pi = p[i]
+            b = 1.0 - pi
+            cr = c[r, i]
+            pv = x[r, 0]
+            for k in range(N):
+                v = pi * pv + b * x[r, k]
+                pv = v
+                out[r, k] += cr * (v - x[r, k])
 
 
 @njit(cache=True)
@@ -106,16 +125,7 @@ def creep_rows(x, p, c):
     while r0 < P:
         nb = min(B, P - r0)
         if nb < 4:  # too few rows to interleave: one at a time
-            for r in range(r0, P):
-                for i in range(K):
-                    pi = p[i]
-                    b = 1.0 - pi
-                    cr = c[r, i]
-                    pv = x[r, 0]
-                    for k in range(N):
-                        v = pi * pv + b * x[r, k]
-                        pv = v
-                        out[r, k] += cr * (v - x[r, k])
+            creep_rows_one_by_one(x, p, c, out, r0)
             break
         for k in range(N):
             for m in range(nb):
