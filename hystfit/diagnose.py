@@ -266,6 +266,38 @@ class EffectResult:
         return all(self.passes.values())
 
 
+@dataclass(frozen=True, eq=False)
+class WhereFigureData:
+    """What the where-figures of a diagnosis show (:mod:`hystfit.report.diagnose_report`): the
+    where-analysis' sections, the noise floor they were computed with, the output unit, the mode,
+    the fit fraction, the number of captures and the residual spectra of the periodic captures.
+    Known as soon as the base model's where-analysis is done (:func:`diagnose`'s ``on_where``), so
+    the figures can be drawn while the selection runs; :attr:`Diagnosis.where_figure_data` is the
+    final one (the same object's data unless the noise floor was refined)."""
+
+    where: dict
+    sigma: float
+    unit: str
+    mode: str
+    fit_fraction: float
+    n_captures: int
+    spectra: list = field(repr=False)
+
+    def same_as(self, other: "WhereFigureData") -> bool:
+        """Whether ``other`` draws the same figures: the same where-analysis (the same ``where``
+        object: a refined noise floor makes a new one) at the same floor, unit, mode and split."""
+        return (self.where is other.where and self.sigma == other.sigma and self.unit == other.unit
+                and self.mode == other.mode and self.fit_fraction == other.fit_fraction
+                and self.n_captures == other.n_captures)
+
+
+def where_figure_data(where: dict, sigma: float, unit: str, mode: str, settings: "DiagnoseSettings",
+                      n_captures: int, spectra) -> WhereFigureData:
+    """The :class:`WhereFigureData` of a where-analysis."""
+    return WhereFigureData(where, float(sigma), unit, mode, float(settings.fit_fraction), int(n_captures),
+                           list(spectra))
+
+
 @dataclass(frozen=True)
 class Diagnosis:
     """The outcome of :func:`diagnose`: numbers, codes and records only. The JSON contract
@@ -301,6 +333,12 @@ class Diagnosis:
     #: the final model fitted on the fit part (base parameters per group, the named effects):
     #: the start of :func:`fit_recommended`; None when nothing was named
     final_state: object = field(repr=False, compare=False, default=None)
+
+    @property
+    def where_figure_data(self) -> WhereFigureData:
+        """The data of the where-figures of this diagnosis (:class:`WhereFigureData`)."""
+        return where_figure_data(self.where, self.noise["sigma"], self.unit, self.mode, self.settings,
+                                 len(self.captures), self.figures_data.get("spectra", []))
 
     @property
     def reconciliation(self) -> list[dict]:
@@ -1665,37 +1703,46 @@ def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[f
                         pl_mean, pl_red, refit.fit.n_parameters, refit.share, refit.r2, params, ev, passes, refit.fit)
 
 
+def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
+    """Per effect with searched parameters, the :meth:`~hystfit.effects.Effect.score` of every
+    candidate of its search grid on ``scoring`` (a :func:`scoring_design`): each grid split over
+    :data:`SELECTION_WORKERS` processes (the same numbers on any number), the largest grids first."""
+    searched = sorted((e for e in effects if e.searched_bounds()[0].size), key=lambda e: -e.searched_bounds()[0].size)
+    chunks = [(e, rows) for e in searched for rows in np.array_split(np.arange(len(e.search_grid())), fork_workers(
+        SELECTION_WORKERS)) if rows.size]
+    out = fork_map(lambda i: np.array([chunks[i][0].score(c, scoring) for c in chunks[i][0].search_grid()[chunks[i][1]]]),
+                   len(chunks), SELECTION_WORKERS)
+    return {e.name: np.concatenate([r for (c, _), r in zip(chunks, out) if c is e]) for e in searched}
+
+
 def _run_candidates(ctx: _StepContext, remaining: Sequence[Effect], step: int, caps, views,
                     settings: "DiagnoseSettings", rng) -> tuple[list[EffectResult], dict]:
-    """Every remaining candidate refitted and judged against its placebos (the refits and the placebo
-    fits are independent: they run on :data:`SELECTION_WORKERS` processes, longest first, and give
-    the same numbers on any number). The search grids of the effects with searched parameters are
-    scored first, split over the processes beside the other refits and the placebos; their searches
-    then go on from those scores (:meth:`hystfit.effects.Effect.fit`'s ``grid_scores``). The results
-    in the order of ``remaining``, and per effect the (state, predictions) of the model with it."""
+    """Every remaining candidate refitted and judged against its placebos. The refits and the placebo
+    fits are independent: they run on :data:`SELECTION_WORKERS` processes and give the same numbers
+    on any number. First the search grids of the effects with searched parameters are scored
+    (:func:`_grid_scores`, split over the processes); then, longest first, the searches of those
+    effects go on from their grid scores (:meth:`hystfit.effects.Effect.fit`'s ``grid_scores``: a
+    Nelder–Mead polish, one evaluation after the other) while the other processes refit the
+    effects without searched parameters and fit the placebos. The results in the order of
+    ``remaining``, and per effect the (state, predictions) of the model with it."""
     draws = _placebo_draws(ctx, remaining, settings, rng)
     searched = sorted((e for e in remaining if e.searched_bounds()[0].size), key=lambda e: -e.searched_bounds()[0].size)
     others = [e for e in remaining if not e.searched_bounds()[0].size]
-    scoring = scoring_design(ctx.lin_cache[2]) if searched else None  # made here: every worker shares it
-    chunks = [(e, rows) for e in searched for rows in np.array_split(np.arange(len(e.search_grid())), fork_workers(
-        SELECTION_WORKERS)) if rows.size]  # the grid searches take longest: split, first
+    grids = _grid_scores(searched, scoring_design(ctx.lin_cache[2])) if searched else {}  # every worker shares it
 
     def run(i: int):
-        if i < len(chunks):
-            e, rows = chunks[i]
-            return np.array([e.score(c, scoring) for c in e.search_grid()[rows]])
-        if i < len(chunks) + len(others):
-            return _refit_effect(ctx, others[i - len(chunks)], caps, views, settings)
-        key, start = draws[i - len(chunks) - len(others)]
+        if i < len(searched):
+            return _refit_effect(ctx, searched[i], caps, views, settings, grids[searched[i].name])
+        if i < len(searched) + len(others):
+            return _refit_effect(ctx, others[i - len(searched)], caps, views, settings)
+        key, start = draws[i - len(searched) - len(others)]
         return _placebo_gain(ctx, key, start, caps, views)
 
-    out = fork_map(run, len(chunks) + len(others) + len(draws), SELECTION_WORKERS)
-    grids = {e.name: np.concatenate([r for (c, _), r in zip(chunks, out) if c is e]) for e in searched}
-    polished = fork_map(lambda i: _refit_effect(ctx, searched[i], caps, views, settings, grids[searched[i].name]),
-                        len(searched), SELECTION_WORKERS)
-    refits = {e.name: r for e, r in zip(searched + others, polished + out[len(chunks):len(chunks) + len(others)])}
+    out = fork_map(run, len(searched) + len(others) + len(draws), SELECTION_WORKERS)
+    k = len(searched) + len(others)
+    refits = {e.name: r for e, r in zip(searched + others, out[:k])}
     gains: dict[tuple[int, int], list[float]] = {}
-    for (key, _), g in zip(draws, out[len(chunks) + len(others):]):
+    for (key, _), g in zip(draws, out[k:]):
         gains.setdefault(key, []).append(g)
     placebo = {key: (max(g), float(np.mean(g))) for key, g in gains.items()}
     results = [_test_effect(ctx, e, refits[e.name], placebo[_placebo_layout(e)], step, caps, views, settings)
@@ -2013,7 +2060,11 @@ def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed:
     views = list(d.views)
     state = base.state
     for eff in _configured(list(sel.chosen), base.preds, views):
-        state, _ = _augment(state, eff, caps, views, _linearize(state, caps, views), settings.iterations)
+        xs, lin = _linearize(state, caps, views)
+        design = prepare_design(xs, views, lin)
+        grids = _grid_scores([eff], scoring_design(design))  # split over the processes
+        state, _ = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations,
+                            grid_scores=grids.get(eff.name))
     preds = _predictions(state, caps, views)
     after = _rmse(preds, views, "test")
     (opt, n_from), (_, n_to) = _resolution_of(model), _resolution_of(fine)
@@ -2194,7 +2245,8 @@ def _capture_info(caps, d: _Design, calib: Sequence[dict]) -> tuple[dict, ...]:
 def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0,
              per_condition: bool = False, effects: Sequence[str] | None = None,
              settings: DiagnoseSettings = DiagnoseSettings(), progress: Progress = None,
-             executor=None, store=None, resume: bool = False, stats=None) -> Diagnosis:
+             executor=None, store=None, resume: bool = False, stats=None,
+             on_where: Callable[[WhereFigureData], None] | None = None) -> Diagnosis:
     """Diagnose the gap between ``model`` and the captures (see the module docstring).
 
     Parameters
@@ -2210,6 +2262,10 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     executor : :class:`hystfit.parallel.Executor` of the base fits (default: this process).
     store, resume : a :class:`hystfit.cells.CellStore` keeping the base fits; ``resume`` reuses them.
     stats : a :class:`hystfit.parallel.CellStats` that counts the base fits computed, reused, failed.
+    on_where : called with the :class:`WhereFigureData` of the base model's where-analysis as soon
+        as it is done (before the effects are tested), e.g. to draw its figures meanwhile. The
+        final diagnosis's :attr:`Diagnosis.where_figure_data` is the same unless the noise floor
+        was refined (:meth:`WhereFigureData.same_as` tells).
 
     Returns
     -------
@@ -2235,6 +2291,9 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     base_fits = _base_fits(jobs, G, model, optimizer, seed, executor, store, resume, advance, stats)
     gap = _gap_step(caps, d, base_fits, alone)   # 1. gap: base fitted on everything
     first = where_analysis(caps, gap.residuals, gap.noise["sigma"], d.periodic, gap.residuals_alone)
+    if on_where is not None:
+        on_where(where_figure_data(first[0], gap.noise["sigma"], unit, "per-condition" if per_condition else "global",
+                                   settings, len(caps), first[1]["spectra"]))
     advance("where")
     base = _base_step(caps, d, base_fits[G:2 * G], gap.full_pred, gap.noise["sigma"], settings)  # 2. fit part
     model, base, converged = converge_resolution(caps, d, model, optimizer, seed, gap, base, gap.noise["sigma"],

@@ -68,7 +68,7 @@ def diagnose(
     from ..io import staged_output_dir
     from ..registry import optimizers
     from ..report.diagnose_report import diagnosis_document, next_step_line, write_diagnose_outputs
-    from ..report.diagnose_report import start_figures as start_diagnose_figures
+    from ..report.diagnose_report import start_figures as start_diagnose_figures, start_where_figures
     from ..report.diagnose_wording import pointers_text
     from ..factory import make_model, make_optimizer
 
@@ -84,12 +84,22 @@ def diagnose(
     stats = CellStats()
     with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force) as stage:
         captures = load_for_command(data, options, output, recursive=capture.recursive)
-        with progress_bar(output.chatty, f"diagnose {m.name}") as cb:
-            d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
-                             settings=settings, progress=cb, executor=cr.pool(default_jobs=1), store=cr.store,
-                             resume=resume, stats=stats)
-        # the figures are drawn by the figure server while the recommended model is fitted here
-        figures = start_diagnose_figures(d, stage / "figures") if output.plots else None
+        early = []  # the where-figures, drawn by the figure server while the effects are tested
+
+        def on_where(where_data) -> None:
+            early.append(start_where_figures(where_data, stage / "figures"))
+
+        try:
+            with progress_bar(output.chatty, f"diagnose {m.name}") as cb:
+                d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
+                                 settings=settings, progress=cb, executor=cr.pool(default_jobs=1), store=cr.store,
+                                 resume=resume, stats=stats, on_where=on_where if output.plots else None)
+        except BaseException:
+            for f in early:
+                f.cancel()
+            raise
+        # the other figures are drawn by the figure server while the recommended model is fitted here
+        figures = start_diagnose_figures(d, stage / "figures", early=early[0] if early else None) if output.plots else None
         try:
             with progress_bar(output.chatty and bool(d.explained_by),
                               f"identify {d.recommended_model} on all the data") as cb:

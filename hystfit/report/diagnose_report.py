@@ -9,18 +9,20 @@ Agg-only machinery as :mod:`hystfit.report.plots`).
 from __future__ import annotations
 
 import math
+import os
+import shutil
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-from ..diagnose import Diagnosis, EffectResult
+from ..diagnose import Diagnosis, EffectResult, WhereFigureData
 from ..effects import EFFECTS
 from ..io import atomic_write_text
 from ..results import dumps, identify_to_dict, json_safe, schema_fields, unit_keys
 from . import plots
 from .plots import _decimate, _decimate_minmax, _new_figure, _save, _stride, display_unit
-from .render import FigureJob, PendingFigures
+from .render import FigureJob, FigureStream
 from .tables import fmt
 from .diagnose_wording import (DEFINITIONS, evidence_text, noise_method_text, pointers_text, reconciliation_why,
                                resolution_text, split_description, split_why,
@@ -50,17 +52,17 @@ def _u(unit: str) -> str:
 # ----------------------------------------------------------------------------------------------
 
 
-def _fig_conditions(path: Path, d: Diagnosis) -> Path:
+def _fig_conditions(path: Path, data: WhereFigureData) -> Path:
     """Excess RMSE (above noise) vs excitation frequency per amplitude, global fit and alone."""
-    w = d.where
-    unit = d.unit
-    panels = [("fitted as configured" if d.mode == "per-condition" else "one model for all captures",
+    w = data.where
+    unit = data.unit
+    panels = [("fitted as configured" if data.mode == "per-condition" else "one model for all captures",
                w["by_condition"])]
     if "by_condition_alone" in w:
         panels.append(("each condition fitted on its own", w["by_condition_alone"]))
     fig = _new_figure(5.2 * len(panels) + 0.6, 4.4)
     axes = fig.subplots(1, len(panels), squeeze=False, sharey=True)[0]  # one scale: the panels compare
-    sigma = d.noise["sigma"]
+    sigma = data.sigma
     freqs = sorted({r["frequency_Hz"] for _, rows in panels for r in rows if np.isfinite(r["frequency_Hz"])})
     for ax, (title, rows) in zip(axes, panels):
         per = [r for r in rows if r["periodic"]]
@@ -101,10 +103,10 @@ def _plain_log_ticks(ax, x_ticks: Sequence[float]) -> None:
     ax.yaxis.set_minor_formatter(NullFormatter())
 
 
-def _fig_branch_position(path: Path, d: Diagnosis) -> Path:
+def _fig_branch_position(path: Path, data: WhereFigureData) -> Path:
     """Branch bars, RMSE along the half-cycle and the residual loop (mean residual vs input level)."""
-    w = d.where
-    unit = d.unit
+    w = data.where
+    unit = data.unit
     fig = _new_figure(13.0, 4.2)
     ax1, ax2, ax3 = fig.subplots(1, 3)
     names = ["ascending", "descending", "hold"]
@@ -116,7 +118,7 @@ def _fig_branch_position(path: Path, d: Diagnosis) -> Path:
     x = np.arange(len(names))
     ax1.bar(x - 0.2, [0 if not math.isfinite(v) else v for v in rm], 0.4, label="RMSE")
     ax1.bar(x + 0.2, [0 if not math.isfinite(v) else v for v in mn], 0.4, label="mean (model − measured)")
-    ax1.axhline(d.noise["sigma"], color="tab:red", ls="--", lw=1, label="noise floor")
+    ax1.axhline(data.sigma, color="tab:red", ls="--", lw=1, label="noise floor")
     ax1.axhline(0, color="0.5", lw=0.6)
     ax1.set_xticks(x, [f"{'input constant' if n == 'hold' else 'input ' + ('rising' if n == 'ascending' else 'falling')}"
                        f"\n{w['by_branch'][n]['n_samples']} samples" for n in names], fontsize=8)
@@ -129,7 +131,7 @@ def _fig_branch_position(path: Path, d: Diagnosis) -> Path:
         ax2.plot(pos, v, "o-", color=col, label=f"{name} (input {'rising' if name == 'ascending' else 'falling'})")
     ax2.axvspan(0, 0.1, color="0.85")
     ax2.axvspan(0.9, 1.0, color="0.85")
-    ax2.axhline(d.noise["sigma"], color="tab:red", ls="--", lw=1)
+    ax2.axhline(data.sigma, color="tab:red", ls="--", lw=1)
     ax2.set_xlabel("Position in the half-cycle (0 = last turning point, 1 = next)")
     ax2.set_ylabel(f"RMSE ({_u(unit)})")
     ax2.set_title("By position in the stroke\n(grey: near the turning points)", fontsize=10)
@@ -147,10 +149,10 @@ def _fig_branch_position(path: Path, d: Diagnosis) -> Path:
     return _save(fig, path, plots.DPI)
 
 
-def _fig_time(path: Path, d: Diagnosis) -> Path:
+def _fig_time(path: Path, data: WhereFigureData) -> Path:
     """RMSE and mean residual per tenth of the capture, first cycle vs later."""
-    w = d.where["by_time"]
-    unit = d.unit
+    w = data.where["by_time"]
+    unit = data.unit
     fig = _new_figure(9.0, 4.0)
     ax1, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [2.2, 1.0]})
     pos = np.linspace(0.05, 0.95, 10)
@@ -158,17 +160,17 @@ def _fig_time(path: Path, d: Diagnosis) -> Path:
     m = [np.nan if q is None else q for q in w["mean_by_tenth_out"]]
     ax1.plot(pos, r, "o-", label="RMSE")
     ax1.plot(pos, m, "s-", label="mean (model − measured)")
-    ax1.axhline(d.noise["sigma"], color="tab:red", ls="--", lw=1, label="noise floor")
+    ax1.axhline(data.sigma, color="tab:red", ls="--", lw=1, label="noise floor")
     ax1.axhline(0, color="0.5", lw=0.6)
-    ax1.axvline(d.settings.fit_fraction, color="0.4", ls=":", lw=1, label="≈ fit / held-out split")
+    ax1.axvline(data.fit_fraction, color="0.4", ls=":", lw=1, label="≈ fit / held-out split")
     ax1.set_xlabel("Time in the capture (fraction of its duration)")
     ax1.set_ylabel(f"Model − measured ({_u(unit)})")
     ax1.legend(fontsize="small")
-    n = len(d.captures)
+    n = data.n_captures
     ax1.set_title(f"By time in the capture ({n} capture{'s' if n != 1 else ''} pooled)", fontsize=10)
     ax2.bar([0, 1], [w["first_cycle"]["rmse_out"], w["later"]["rmse_out"]], color=["C2", "C0"])
     ax2.set_xticks([0, 1], ["first cycle", "later"])
-    ax2.axhline(d.noise["sigma"], color="tab:red", ls="--", lw=1)
+    ax2.axhline(data.sigma, color="tab:red", ls="--", lw=1)
     ax2.set_ylabel(f"RMSE ({_u(unit)})")
     ax2.set_title("Start-up vs steady state", fontsize=10)
     for ax in (ax1, ax2):
@@ -214,11 +216,11 @@ def _harmonic_summary(spectra, max_order: int = 200):
     return orders, harm, centers, level
 
 
-def _fig_bands(path: Path, d: Diagnosis) -> Path:
+def _fig_bands(path: Path, data: WhereFigureData) -> Path:
     """Residual RMS per band (with the white-noise expectation) and the typical residual spectrum
     of the periodic captures against harmonic order."""
-    b = d.where["by_band"]
-    unit = d.unit
+    b = data.where["by_band"]
+    unit = data.unit
     names = ["drift", "low_harmonics", "high_harmonics", "broadband"]
     labels = [BAND_LABELS[n].replace(" (", "\n(").replace(" and ", "\nand ").replace("harmonics 6", "harmonics\n6")
               for n in names]
@@ -234,7 +236,7 @@ def _fig_bands(path: Path, d: Diagnosis) -> Path:
     ax1.set_ylabel(f"RMS ({_u(unit)})")
     ax1.set_title("By frequency band, f0 = drive frequency\n(labels: share of the error above noise)", fontsize=10)
     ax1.legend(fontsize="small")
-    spectra = d.figures_data.get("spectra", [])
+    spectra = data.spectra
     if spectra:
         orders, harm, centers, level = _harmonic_summary(spectra)
         if centers.size:
@@ -244,7 +246,7 @@ def _fig_bands(path: Path, d: Diagnosis) -> Path:
             ax2.loglog(orders, np.maximum(harm, 1e-300), "o", ms=3.5, color="C3",
                        label="at harmonics of the drive (repeats every cycle)")
         n_med = float(np.median([h.size * 2 for h, _, _ in spectra]))
-        noise = 2.0 * d.noise["sigma"] / math.sqrt(max(n_med, 1.0)) * math.sqrt(math.log(2.0))
+        noise = 2.0 * data.sigma / math.sqrt(max(n_med, 1.0)) * math.sqrt(math.log(2.0))
         ax2.axhline(noise, color="tab:red", ls="--", lw=1, label="sensor noise (typical level)")
         for edge in (0.5, 5.5, 50.5):
             ax2.axvline(edge, color="0.4", ls=":", lw=1)
@@ -370,32 +372,77 @@ def write_figures(d: Diagnosis, fig_dir: Path, n_jobs: int | None = None) -> dic
     return start_figures(d, fig_dir, n_jobs).paths()
 
 
+#: the where-figures: key → (figure function, file name); drawn from a :class:`WhereFigureData`
+WHERE_FIGURES = {"conditions": ("_fig_conditions", "where_conditions.png"),
+                 "branch": ("_fig_branch_position", "where_branch_position.png"),
+                 "time": ("_fig_time", "where_time.png"),
+                 "bands": ("_fig_bands", "where_bands.png")}
+
+#: the folder of ``figures/`` that the where-figures started early are drawn into (:func:`start_where_figures`)
+EARLY_DIR = ".where-early"
+
+
+def _where_jobs(data: WhereFigureData, fig_dir: Path) -> dict[str, FigureJob]:
+    return {key: FigureJob(f"{__name__}:{fn}", fig_dir / name, (data,)) for key, (fn, name) in WHERE_FIGURES.items()}
+
+
+class WhereFiguresStarted:
+    """The where-figures of the base model's where-analysis, being drawn before the selection is
+    done (:func:`start_where_figures`): their data, the figure folder and the stream they are in."""
+
+    def __init__(self, data: WhereFigureData, fig_dir: Path, stream: FigureStream) -> None:
+        self.data, self.fig_dir, self.stream = data, fig_dir, stream
+
+    def cancel(self) -> None:
+        self.stream.cancel()
+
+
+def start_where_figures(data: WhereFigureData, fig_dir: Path, n_jobs: int | None = None) -> WhereFiguresStarted:
+    """Start drawing the where-figures of ``data`` (:func:`hystfit.diagnose.diagnose`'s ``on_where``)
+    by the figure server while this process tests the effects. They go into ``fig_dir/.where-early``:
+    :func:`start_figures` moves them into ``fig_dir`` when the final diagnosis has the same
+    where-analysis, and draws them again from the final one when not (a refined noise floor)."""
+    scratch = fig_dir / EARLY_DIR
+    scratch.mkdir(parents=True, exist_ok=True)
+    stream = FigureStream(n_jobs)
+    stream.add(list(_where_jobs(data, scratch).values()))
+    return WhereFiguresStarted(data, fig_dir, stream)
+
+
 class DiagnoseFigures:
     """The figures of a diagnosis being drawn (:func:`start_figures`); :meth:`paths` waits for
     them, :meth:`cancel` stops the drawing."""
 
-    def __init__(self, keys: list[str], fig_dir: Path, pending: PendingFigures) -> None:
-        self.keys, self.fig_dir, self.pending = keys, fig_dir, pending
+    def __init__(self, keys: list[str], fig_dir: Path, stream: FigureStream, early: int = 0, reuse: bool = False) -> None:
+        self.keys, self.fig_dir, self.stream = keys, fig_dir, stream
+        self.early, self.reuse = early, reuse  # where-figures drawn early (first in the stream); kept or not
 
     def paths(self) -> dict[str, str]:
         """Figure name → path relative to the report."""
-        made = self.pending.result()
-        return {key: str(Path(self.fig_dir.name) / p.name) for key, p in zip(self.keys, made)}
+        made = self.stream.result()
+        if self.early:
+            drawn, made = made[:self.early], made[self.early:]
+            if self.reuse:
+                for p in drawn:
+                    os.replace(p, self.fig_dir / Path(p).name)
+                made = [self.fig_dir / Path(p).name for p in drawn] + made
+            shutil.rmtree(self.fig_dir / EARLY_DIR, ignore_errors=True)
+        return {key: str(Path(self.fig_dir.name) / Path(p).name) for key, p in zip(self.keys, made)}
 
     def cancel(self) -> None:
-        self.pending.cancel()
+        self.stream.cancel()
 
 
-def start_figures(d: Diagnosis, fig_dir: Path, n_jobs: int | None = None) -> DiagnoseFigures:
+def start_figures(d: Diagnosis, fig_dir: Path, n_jobs: int | None = None,
+                  early: WhereFiguresStarted | None = None) -> DiagnoseFigures:
     """Start drawing every figure into ``fig_dir``: by the figure server while this process goes
     on (the CLI fits the recommended model meanwhile), else when :meth:`DiagnoseFigures.paths`
-    is asked."""
+    is asked. ``early``: the where-figures already started (:func:`start_where_figures`), kept when
+    ``d`` has the same where-analysis (the same bytes as drawing them now), else drawn again."""
     fig_dir.mkdir(parents=True, exist_ok=True)
     here = f"{__name__}:"
-    jobs = {"conditions": FigureJob(here + "_fig_conditions", fig_dir / "where_conditions.png", (d,)),
-            "branch": FigureJob(here + "_fig_branch_position", fig_dir / "where_branch_position.png", (d,)),
-            "time": FigureJob(here + "_fig_time", fig_dir / "where_time.png", (d,)),
-            "bands": FigureJob(here + "_fig_bands", fig_dir / "where_bands.png", (d,))}
+    reuse = early is not None and early.data.same_as(d.where_figure_data)
+    jobs = {} if reuse else _where_jobs(d.where_figure_data, fig_dir)
     if d.effects:
         jobs["effects"] = FigureJob(here + "_fig_effects", fig_dir / "effects_heldout.png", (d,))
     caps = d.figures_data["captures"]
@@ -407,7 +454,11 @@ def start_figures(d: Diagnosis, fig_dir: Path, n_jobs: int | None = None) -> Dia
         jobs[key] = FigureJob(here + "_fig_explained", fig_dir / f"explained_{stem}.png", (d, i))
         if periodic:
             jobs["loop"] = FigureJob(here + "_fig_loop", fig_dir / f"loop_{stem}.png", (d, i))
-    return DiagnoseFigures(list(jobs), fig_dir, PendingFigures(list(jobs.values()), n_jobs))
+    stream = early.stream if early is not None else FigureStream(n_jobs)
+    stream.add(list(jobs.values()))
+    stream.finish()
+    keys = (list(WHERE_FIGURES) if reuse else []) + list(jobs)
+    return DiagnoseFigures(keys, fig_dir, stream, len(WHERE_FIGURES) if early is not None else 0, reuse)
 
 
 def _safe(name: str) -> str:

@@ -296,6 +296,7 @@ def test_cli_writes_the_json_contract(small_dataset, tmp_path):
     assert "Verdict: `delay`" in md and "held-out" in md
     figs = sorted(p.name for p in (out / "figures").iterdir())
     assert "effects_heldout.png" in figs and "where_conditions.png" in figs and "where_bands.png" in figs
+    assert not [n for n in figs if n.startswith(".")]  # the early where-figures' folder is gone
 
 
 @pytest.mark.parametrize("args,message", [
