@@ -49,7 +49,7 @@ from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
 from .optimizers.lsq import polisher
-from .parallel import CellFailed, fork_map, fork_workers, run_cells
+from .parallel import CellFailed, LocalExecutor, fork_call, fork_map, fork_workers, run_cells
 from .seeds import check_seed
 from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
 
@@ -1889,17 +1889,23 @@ class _Design:
     fine_fits: dict = field(default_factory=dict, repr=False)  # finer base → its fits on the fit part
 
 
+def _fine_key(fine: Model, optimizer: Optimizer, seed: int):
+    """The key of :func:`_fine_base_fits`'s cache (None for a model that cannot be a key)."""
+    key = (fine, optimizer.name, repr(optimizer.settings()), int(seed))
+    try:
+        hash(key)
+    except TypeError:
+        return None
+    return key
+
+
 def _fine_base_fits(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int, executor) -> list:
     """The base at the finer resolution ``fine`` fitted on the fit part, once per diagnosis: the
     resolution checks before and after each named effect refit the same base at the same resolution
     (same captures, optimizer and seed: the same fits), so each resolution is fitted the first time
     only. A model that cannot be a key (not hashable) is fitted every time."""
     G = len(d.group_idx)
-    try:
-        key = (fine, optimizer.name, repr(optimizer.settings()), int(seed))
-        hash(key)
-    except TypeError:
-        key = None
+    key = _fine_key(fine, optimizer, seed)
     if key is None or key not in d.fine_fits:
         jobs = _base_fit_jobs(caps, d.views, d.group_idx, d.labels, d.conds, None)[G:]
         fits = _base_fits(jobs, 0, fine, optimizer, seed, executor, None, False, lambda label: None)
@@ -2043,36 +2049,75 @@ class _Resolution:
 
 
 def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, gap: _Gap, sel: _Selection,
-                     sigma: float, settings: "DiagnoseSettings", executor=None) -> _Resolution | None:
+                     sigma: float, settings: "DiagnoseSettings", executor=None, refit=None) -> _Resolution | None:
     """Is the base's resolution, rather than a missing effect, what limits the model with the named
     effects? The base at twice its resolution (:meth:`Model.refined`) is fitted on the fit part, the
     named effects are refitted on it in the order they were named, and the held-out RMSE is compared
     with the coarse base's. None when the base has no resolution option or the held-out excess
     √(RMSE² − floor²) is within the noise floor; otherwise the check's numbers and ``adopted``: the
     finer base removes at least ``settings.resolution_threshold`` of the held-out excess mean square
-    (the rule of :func:`converge_resolution`)."""
+    (the rule of :func:`converge_resolution`). ``refit``: that finer model's :func:`_refit_finer`
+    when already computed (e.g. by a forked child, :func:`resolution_check_converged`)."""
     fine = model.refined()
     before = _rmse(sel.preds, d.views, "test")
     if fine is None or not _excess(before, sigma) > sigma:  # as in converge_resolution
         return None
-    fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
-    base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
-    views = list(d.views)
-    state = base.state
-    for eff in _configured(list(sel.chosen), base.preds, views):
-        xs, lin = _linearize(state, caps, views)
-        design = prepare_design(xs, views, lin)
-        grids = _grid_scores([eff], scoring_design(design))  # split over the processes
-        state, _ = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations,
-                            grid_scores=grids.get(eff.name))
-    preds = _predictions(state, caps, views)
-    after = _rmse(preds, views, "test")
+    if refit is None:
+        refit = _refit_finer(caps, d, fine, optimizer, seed, gap, sel.chosen, sigma, settings, executor)
+    else:
+        key = _fine_key(fine, optimizer, seed)
+        if key is not None:
+            d.fine_fits.setdefault(key, refit.fits)  # as if fitted here
+    after = _rmse(refit.preds, d.views, "test")
     (opt, n_from), (_, n_to) = _resolution_of(model), _resolution_of(fine)
     info = {"option": opt, "from": n_from, "to": n_to, "effects": list(sel.chosen),
             "heldout_rmse_before_out": before, "heldout_rmse_after_out": after, **_shares(before, after, sigma),
             "threshold": settings.resolution_threshold}
     info["adopted"] = bool(info["reduction_mean_square"] >= settings.resolution_threshold)
-    return _Resolution(info, state, preds, fine)
+    return _Resolution(info, refit.state, refit.preds, fine)
+
+
+@dataclass(frozen=True, eq=False)
+class _FinerRefit:
+    """The base at a finer resolution fitted on the fit part with the named effects refitted on it:
+    the model's state, its predictions and the finer base's fits (the cache of :func:`_fine_base_fits`)."""
+
+    state: _State
+    preds: list
+    fits: list
+
+
+def _refit_finer(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int, gap: _Gap, chosen: Sequence[str],
+                 sigma: float, settings: "DiagnoseSettings", executor=None) -> _FinerRefit:
+    """The work of a :func:`resolution_check` of the base ``fine``: its fits on the fit part, then
+    the ``chosen`` effects refitted on it in order (each search grid scored over the processes)."""
+    fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
+    base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
+    views = list(d.views)
+    state = base.state
+    for eff in _configured(list(chosen), base.preds, views):
+        xs, lin = _linearize(state, caps, views)
+        design = prepare_design(xs, views, lin)
+        grids = _grid_scores([eff], scoring_design(design))  # split over the processes
+        state, _ = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations,
+                            grid_scores=grids.get(eff.name))
+    return _FinerRefit(state, _predictions(state, caps, views), fits)
+
+
+def _speculate(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, gap: _Gap, chosen, sigma: float,
+               settings: "DiagnoseSettings", executor):
+    """The :func:`_refit_finer` of the doubling after the one of ``model`` (``model`` refined twice),
+    started in a forked child while this process checks the first doubling (:func:`fork_call`), or
+    None: no such resolution, one process, or base fits that would run on a pool or a cluster
+    (a forked child must not share them)."""
+    fine = model.refined()
+    finer = fine.refined() if fine is not None else None
+    inline = executor is None or (isinstance(executor, LocalExecutor) and (executor.workers == 1
+                                                                           or len(d.group_idx) <= 1))
+    if finer is None or not inline:
+        return None
+    return fork_call(lambda: _refit_finer(caps, d, finer, optimizer, seed, gap, chosen, sigma, settings, executor),
+                     SELECTION_WORKERS)
 
 
 def _shares(before: float, after: float, sigma: float) -> dict:
@@ -2090,21 +2135,36 @@ def resolution_check_converged(caps, d: _Design, model: Model, optimizer: Optimi
     """:func:`resolution_check`, repeated on the finer base while it is adopted: the base with the
     named effects at the resolution the data support before the selection goes on. The section
     keeps the first check's ``from`` and held-out RMSE before; ``to``, the held-out RMSE after and
-    the reduction are those of the last adopted doubling, and ``steps`` lists every check."""
-    res = resolution_check(caps, d, model, optimizer, seed, gap, sel, sigma, settings, executor)
-    if res is None:
-        return None
-    info, steps = dict(res.info), [dict(res.info)]
-    cur, fine = res, model.refined()
-    while cur.info["adopted"] and fine is not None:
-        nxt = resolution_check(caps, d, fine, optimizer, seed, gap, replace(sel, preds=cur.preds), sigma, settings,
-                               executor)
-        if nxt is None:
-            break
-        steps.append(dict(nxt.info))
-        if not nxt.info["adopted"]:
-            break
-        cur, fine = nxt, fine.refined()
+    the reduction are those of the last adopted doubling, and ``steps`` lists every check.
+
+    While a doubling is checked here, the refit of the next one (which does not depend on this
+    check's outcome, only whether it is needed does) is computed in a forked child
+    (:func:`_speculate`) and used when the doubling is adopted; it is stopped when not. The same
+    numbers as one check after the other."""
+    ahead = _speculate(caps, d, model, optimizer, seed, gap, sel.chosen, sigma, settings, executor)
+    try:
+        res = resolution_check(caps, d, model, optimizer, seed, gap, sel, sigma, settings, executor)
+        if res is None:
+            return None
+        info, steps = dict(res.info), [dict(res.info)]
+        cur, fine = res, model.refined()
+        while cur.info["adopted"] and fine is not None:
+            if fine.refined() is None or not _excess(_rmse(cur.preds, d.views, "test"), sigma) > sigma:
+                break  # resolution_check would say None at once: the refit ahead is not needed
+            refit, ahead = (ahead.result() if ahead is not None else None), None
+            if refit is not None:  # the check of the doubling after it: its refit is started now
+                ahead = _speculate(caps, d, fine, optimizer, seed, gap, sel.chosen, sigma, settings, executor)
+            nxt = resolution_check(caps, d, fine, optimizer, seed, gap, replace(sel, preds=cur.preds), sigma, settings,
+                                   executor, refit=refit)
+            if nxt is None:
+                break
+            steps.append(dict(nxt.info))
+            if not nxt.info["adopted"]:
+                break
+            cur, fine = nxt, fine.refined()
+    finally:
+        if ahead is not None:
+            ahead.cancel()
     before, after = info["heldout_rmse_before_out"], cur.info["heldout_rmse_after_out"]
     info.update(to=cur.info["to"], heldout_rmse_after_out=after, steps=steps, **_shares(before, after, sigma))
     return _Resolution(info, cur.state, cur.preds, cur.model if cur.info["adopted"] else model)

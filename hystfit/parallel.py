@@ -735,6 +735,58 @@ def _fork_one(fn: Callable[[int], Any], n: int, claim) -> tuple[int, Any]:
     return pid, recv
 
 
+class ForkedCall:
+    """``fn()`` computed in a forked child while this process goes on (:func:`fork_call`):
+    :meth:`result` waits for it — computing it here when the child could not return it, so an
+    exception is raised here as in a plain call —, :meth:`cancel` stops the child when its result
+    is not needed after all. Use one or the other, once."""
+
+    def __init__(self, fn: Callable[[], R], pid: int, conn) -> None:
+        self.fn, self.pid, self.conn = fn, pid, conn
+
+    def result(self) -> R:
+        try:
+            got = self.conn.recv()
+        except (EOFError, OSError):  # the child died
+            got = {}
+        finally:
+            self._end(stop=False)
+        if isinstance(got, str):  # the same numbers, computed twice: a bug to see, not to hide
+            warnings.warn(f"fork_call: the child's result could not be sent back ({got}); it is computed again "
+                          f"in this process", RuntimeWarning, stacklevel=2)
+        return got[0] if isinstance(got, dict) and 0 in got else self.fn()
+
+    def cancel(self) -> None:
+        self._end(stop=True)
+
+    def _end(self, stop: bool) -> None:
+        if self.pid is None:
+            return
+        pid, self.pid = self.pid, None
+        self.conn.close()
+        try:
+            if stop:
+                os.kill(pid, signal.SIGTERM)
+            os.waitpid(pid, 0)
+        except (ChildProcessError, ProcessLookupError):
+            pass
+
+
+def fork_call(fn: Callable[[], R], workers: int | None = None) -> ForkedCall | None:
+    """Start ``fn()`` (deterministic, reading data already in this process) in a forked child, or
+    None where :func:`fork_map` with ``workers`` would not fork (one process inside pool workers,
+    no ``fork``, one worker, a fork the system refuses): then the caller computes it itself when
+    it needs it."""
+    if fork_workers(workers) <= 1:
+        return None
+    claim = mp.get_context("fork").Value("l", 0)
+    try:
+        pid, conn = _fork_one(lambda i: fn(), 1, claim)
+    except OSError:
+        return None
+    return ForkedCall(fn, pid, conn)
+
+
 def fork_map(fn: Callable[[int], R], n: int, workers: int | None = None) -> list[R]:
     """``[fn(i) for i in range(n)]``, spread over this process and forked children.
 

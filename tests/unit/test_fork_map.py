@@ -92,3 +92,64 @@ def test_a_fork_the_system_refuses_leaves_the_items_to_this_process(monkeypatch)
     """Process or memory limits (a cluster's login node): no child, the same results, nothing raised."""
     monkeypatch.setattr(os, "fork", _refuse_fork)
     assert fork_map(_item, 9, 3) == [_item(i) for i in range(9)]
+
+
+# ------------------------------------------------------------------------ fork_call
+
+
+def _alive(pid: int) -> bool:
+    from hystfit._process import alive
+
+    return alive(pid)
+
+
+def test_fork_call_computes_in_a_child_and_returns_the_result():
+    parent = os.getpid()
+    call = parallel.fork_call(lambda: (os.getpid(), _item(5)))
+    assert call is not None
+    pid, value = call.result()
+    assert pid != parent and value == _item(5)
+
+
+def test_fork_call_cancel_stops_the_child_at_once():
+    import time
+
+    call = parallel.fork_call(lambda: time.sleep(60))
+    child = call.pid
+    assert _alive(child)
+    t = time.perf_counter()
+    call.cancel()
+    assert time.perf_counter() - t < 5.0
+    assert not _alive(child)
+    call.cancel()  # a second cancel does nothing
+
+
+def test_fork_call_that_raises_raises_here():
+    def fn():
+        raise InputError("bad")
+
+    call = parallel.fork_call(fn)
+    with pytest.raises(InputError, match="bad"):
+        call.result()
+
+
+def test_fork_call_whose_child_dies_is_computed_here():
+    parent = os.getpid()
+
+    def fn():
+        if os.getpid() != parent:
+            os._exit(3)
+        return 42
+
+    assert parallel.fork_call(fn).result() == 42
+
+
+def test_fork_call_forks_nothing_where_fork_map_would_not(monkeypatch):
+    assert parallel.fork_call(lambda: 1, workers=1) is None
+    monkeypatch.setattr(parallel, "_SINGLE_THREADED", True)
+    assert parallel.fork_call(lambda: 1) is None
+
+
+def test_fork_call_a_fork_the_system_refuses_gives_none(monkeypatch):
+    monkeypatch.setattr(os, "fork", _refuse_fork)
+    assert parallel.fork_call(lambda: 1) is None
