@@ -2141,6 +2141,8 @@ def resolution_check_converged(caps, d: _Design, model: Model, optimizer: Optimi
     check's outcome, only whether it is needed does) is computed in a forked child
     (:func:`_speculate`) and used when the doubling is adopted; it is stopped when not. The same
     numbers as one check after the other."""
+    if model.refined() is None or not _excess(_rmse(sel.preds, d.views, "test"), sigma) > sigma:
+        return None  # as resolution_check would say at once: nothing to compute ahead
     ahead = _speculate(caps, d, model, optimizer, seed, gap, sel.chosen, sigma, settings, executor)
     try:
         res = resolution_check(caps, d, model, optimizer, seed, gap, sel, sigma, settings, executor)

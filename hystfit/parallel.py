@@ -690,11 +690,26 @@ def _claim_next(claim) -> int:
     return i
 
 
+def _private_numba_init_lock() -> None:
+    """In a forked child: numba's lock around the start of its threading layer made this process's own.
+
+    numba makes that lock once per process, a multiprocessing RLock, and takes it at every
+    ``set_num_threads`` (:func:`_single_threaded`) and kernel launch. A forked child inherits the
+    parent's, one semaphore shared by the parent and all its children: a child stopped while it
+    holds it (:meth:`ForkedCall.cancel`, the SIGTERM of :func:`fork_map`, SIGKILL) leaves it held
+    for ever, and every later child — and the parent — waits on it without end. The lock guards
+    the start of threads in one process; a child's own is all it needs."""
+    mod = sys.modules.get("numba.np.ufunc.parallel")
+    if mod is not None and getattr(mod, "_backend_init_process_lock", None) is not None:
+        mod._backend_init_process_lock = threading.RLock()
+
+
 def _fork_child(fn: Callable[[int], Any], n: int, claim, conn) -> None:
     """A child of :func:`fork_map`: claims items until none is left, then sends ``{index: result}``.
     SIGTERM (the parent stopping it) ends it at once, whatever handler the parent had."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _private_numba_init_lock()
     _single_threaded()
     done: dict[int, Any] = {}
     try:

@@ -153,3 +153,38 @@ def test_fork_call_forks_nothing_where_fork_map_would_not(monkeypatch):
 def test_fork_call_a_fork_the_system_refuses_gives_none(monkeypatch):
     monkeypatch.setattr(os, "fork", _refuse_fork)
     assert parallel.fork_call(lambda: 1) is None
+
+
+_POISONED_LOCK = """
+import os, signal, time, multiprocessing as mp
+import numba
+from numba.np.ufunc import parallel as threading_layer
+from hystfit.parallel import fork_call, fork_map
+numba.get_num_threads()
+lock = mp.get_context("fork").RLock()
+threading_layer._backend_init_process_lock = lock
+held = mp.get_context("fork").Event()
+pid = os.fork()
+if pid == 0:  # a child that holds the inherited lock when it is killed
+    lock.acquire()
+    held.set()
+    time.sleep(60)
+    os._exit(0)
+assert held.wait(30)
+os.kill(pid, signal.SIGKILL)
+os.waitpid(pid, 0)
+assert fork_map(lambda i: i * i, 6, 2) == [i * i for i in range(6)]
+assert fork_call(lambda: 7).result() == 7
+print("ok")
+"""
+
+
+def test_a_child_stopped_holding_numbas_start_lock_blocks_no_later_child():
+    """numba takes a lock shared with forked children at every set_num_threads: a child stopped
+    while it held it (a cancelled fork_call, SIGKILL) must not leave every later child (and the
+    parent) waiting for ever. In a process of its own: before the fix it hung."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", _POISONED_LOCK], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
