@@ -764,8 +764,10 @@ class ForkedCall:
             got = self.conn.recv()
         except (EOFError, OSError):  # the child died
             got = {}
-        finally:
-            self._end(stop=False)
+        except BaseException:  # Ctrl-C or SIGTERM while waiting: stop the child, do not wait for its work
+            self._end(stop=True)
+            raise
+        self._end(stop=False)
         if isinstance(got, str):  # the same numbers, computed twice: a bug to see, not to hide
             warnings.warn(f"fork_call: the child's result could not be sent back ({got}); it is computed again "
                           f"in this process", RuntimeWarning, stacklevel=2)

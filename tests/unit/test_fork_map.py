@@ -188,3 +188,28 @@ def test_a_child_stopped_holding_numbas_start_lock_blocks_no_later_child():
 
     r = subprocess.run([sys.executable, "-c", _POISONED_LOCK], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def test_fork_call_interrupted_while_waiting_stops_the_child():
+    """Ctrl-C (or the command's SIGTERM) while this process waits for the result: the child is
+    stopped at once, not waited for."""
+    import signal
+    import time
+
+    call = parallel.fork_call(lambda: time.sleep(60))
+    child = call.pid
+
+    def interrupt(*_):
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGALRM, interrupt)
+    signal.setitimer(signal.ITIMER_REAL, 0.3)
+    t = time.perf_counter()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            call.result()
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+    assert time.perf_counter() - t < 10.0
+    assert not _alive(child)
