@@ -731,6 +731,7 @@ def _fork_one(fn: Callable[[int], Any], n: int, claim) -> tuple[int, Any]:
     recv, send = mp.get_context("fork").Pipe(duplex=False)
     for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
         stream.flush()
+    parent = os.getpid()
     try:
         pid = os.fork()
     except OSError:
@@ -741,6 +742,7 @@ def _fork_one(fn: Callable[[int], Any], n: int, claim) -> tuple[int, Any]:
         code = 0
         try:
             recv.close()
+            _end_with(parent)  # a parent killed outright (SIGKILL) does not leave its children computing
             _fork_child(fn, n, claim, send)
         except BaseException:  # noqa: BLE001 - never return into the caller's code
             code = 1

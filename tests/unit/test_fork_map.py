@@ -213,3 +213,44 @@ def test_fork_call_interrupted_while_waiting_stops_the_child():
         signal.signal(signal.SIGALRM, old)
     assert time.perf_counter() - t < 10.0
     assert not _alive(child)
+
+
+_KILLED_PARENT = """
+import sys, time
+from hystfit.parallel import fork_call, fork_map
+if sys.argv[1] == "call":
+    call = fork_call(lambda: time.sleep(60))
+    print(call.pid, flush=True)
+    time.sleep(60)
+else:
+    print("started", flush=True)
+    fork_map(lambda i: time.sleep(60), 2, 2)
+"""
+
+
+@pytest.mark.parametrize("how", ["call", "map"])
+def test_forked_children_leave_when_their_parent_is_killed(how):
+    """SIGKILL runs no handler in the parent: its fork_call and fork_map children see its end
+    themselves (:func:`hystfit.parallel._end_with`) instead of computing on for nothing."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    p = subprocess.Popen([sys.executable, "-c", _KILLED_PARENT, how], stdout=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    p.stdout.readline()
+    time.sleep(1.0)  # the children run
+    group = p.pid  # its own session and process group
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait(timeout=30)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(group, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        os.killpg(group, signal.SIGKILL)
+        pytest.fail("a forked child outlived its killed parent by 10 s")
