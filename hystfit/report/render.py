@@ -14,9 +14,11 @@ the figures are drawn in this process.
 
 A command that will draw calls :func:`preload` first: it forks a figure server that imports
 matplotlib on the other core while this process loads and fits, and :func:`render_figures` then
-sends the jobs there (the server forks the pool); this process never imports matplotlib. Before it
-waits for jobs the server draws one small figure of each reused layout (:func:`_warm_up`), so every
-worker it forks starts with those layouts and with filled text caches.
+sends the jobs there (the server forks the pool); this process never imports matplotlib. When no
+job is waiting yet once its imports are done, the server draws one small figure of each reused
+layout (:func:`_warm_up`), so every worker it forks starts with those layouts and with filled text
+caches; when jobs are already waiting (a command whose fit was done before matplotlib was
+imported), it draws them at once instead, and their own first figures lay the layouts out.
 
 Figures known before the command's work is done (those of a condition as soon as it is fitted)
 go into a :class:`FigureStream`: the server draws them one by one while this process still works,
@@ -210,7 +212,8 @@ def _serve(conn) -> None:
     job's path, in order, or the first job's error. Between messages the queue is drawn one job at
     a time, so a job sent while this process works is drawn while it works."""
     _import_plotting()
-    _warm_up()
+    if not conn.poll():  # idle: warm up now; with jobs already waiting, their own first figures do it
+        _warm_up()
     stream = _ServerStream()
     while True:
         if stream.waiting() and not conn.poll():

@@ -375,3 +375,38 @@ def test_a_fork_the_system_refuses_means_the_figures_are_drawn_here_with_the_sam
     finally:
         render._close_server()
     assert [p.read_bytes() for p in here] == [p.read_bytes() for p in pooled]
+
+
+@pytest.mark.parametrize("jobs_waiting", [True, False], ids=["jobs-waiting", "idle"])
+def test_the_server_warms_up_only_when_no_job_waits(tmp_path, rng, monkeypatch, jobs_waiting):
+    """A server whose imports end with jobs already sent (a one-condition command: its fit is
+    done first) draws them at once: their own first figures lay the templates out. An idle one
+    warms up (the Quickstart's server, while the first conditions are fitted). The same bytes."""
+    import multiprocessing as mp
+    import time
+
+    imported = mp.get_context("fork").Event()
+    marker = tmp_path / "warmed-up"
+    importing = render._import_plotting
+    monkeypatch.setattr(render, "_import_plotting", lambda: (imported.wait(60), importing()))
+    monkeypatch.setattr(render, "_warm_up", lambda: marker.touch())
+    seed = int(rng.integers(1 << 30))
+    render._close_server()
+    render._server = render._FigureServer()
+    try:
+        if not jobs_waiting:
+            imported.set()
+            for _ in range(600):
+                if marker.exists():
+                    break
+                time.sleep(0.1)
+        stream = render.FigureStream(1)
+        stream.add(_jobs(tmp_path / "s", np.random.default_rng(seed), n=2))
+        stream.finish()
+        imported.set()
+        paths = stream.result()
+    finally:
+        render._close_server()
+    assert marker.exists() == (not jobs_waiting)
+    here = render._draw_here(_jobs(tmp_path / "h", np.random.default_rng(seed), n=2), 1)
+    assert [p.read_bytes() for p in paths] == [p.read_bytes() for p in here]
