@@ -2304,6 +2304,28 @@ def _capture_info(caps, d: _Design, calib: Sequence[dict]) -> tuple[dict, ...]:
                  for c, p, sw, cal in zip(caps, d.periodic, d.swept, calib))
 
 
+def _all_base_fits(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, per_condition: bool, executor,
+                   store, resume: bool, advance, stats) -> tuple[list, _Gap]:
+    """The base fits as the cells of ``executor`` — per group on everything, per group on the fit
+    part, and (global mode, several conditions) per condition alone — and the gap of the first."""
+    by_cond = group_by_condition(caps)
+    alone = by_cond if not per_condition and len(by_cond) > 1 else None
+    jobs = _base_fit_jobs(caps, d.views, d.group_idx, d.labels, d.conds, alone)
+    base_fits = _base_fits(jobs, len(d.group_idx), model, optimizer, seed, executor, store, resume, advance, stats)
+    return base_fits, _gap_step(caps, d, base_fits, alone)
+
+
+def _split_section(caps, d: _Design, settings: "DiagnoseSettings", untested, chosen, temporal) -> dict:
+    """The ``split`` section; when ``auto`` chose a capture or cycles split, with the verdict of the
+    temporal split beside it (``temporal()``: that diagnosis), for agreement."""
+    split = _split_info(d.split, caps, d.views, d.swept, settings)
+    if untested:
+        split["not_tested"] = list(untested)
+    if d.split.kind in ("capture", "cycles") and settings.split == "auto":
+        split["other_scheme"] = _other_scheme(temporal(), chosen, "temporal")
+    return split
+
+
 def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0,
              per_condition: bool = False, effects: Sequence[str] | None = None,
              settings: DiagnoseSettings = DiagnoseSettings(), progress: Progress = None,
@@ -2346,12 +2368,8 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         if progress:
             progress("advance", {"label": label})
 
-    # the base fits (on everything, on the fit part, per condition alone) are the cells of the executor
-    by_cond = group_by_condition(caps)
-    alone = by_cond if not per_condition and len(by_cond) > 1 else None
-    jobs = _base_fit_jobs(caps, d.views, d.group_idx, d.labels, d.conds, alone)
-    base_fits = _base_fits(jobs, G, model, optimizer, seed, executor, store, resume, advance, stats)
-    gap = _gap_step(caps, d, base_fits, alone)   # 1. gap: base fitted on everything
+    base_fits, gap = _all_base_fits(caps, d, model, optimizer, seed, per_condition, executor, store, resume,
+                                    advance, stats)  # 1. gap: base fitted on everything
     first = where_analysis(caps, gap.residuals, gap.noise["sigma"], d.periodic, gap.residuals_alone)
     if on_where is not None:
         on_where(where_figure_data(first[0], gap.noise["sigma"], unit, "per-condition" if per_condition else "global",
@@ -2386,13 +2404,9 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
 
     sel, final, res, during = checks.finish(model, out.selection, out.sigma, select_from)
     resolution = res.info if res is not None else None
-    split = _split_info(d.split, caps, d.views, d.swept, settings)
-    if untested:
-        split["not_tested"] = list(untested)
-    if d.split.kind in ("capture", "cycles") and settings.split == "auto":  # the temporal split beside, for agreement
-        split["other_scheme"] = _other_scheme(
-            diagnose(caps, given, optimizer, seed=seed, per_condition=per_condition, effects=effects,
-                     settings=replace(settings, split="temporal")), sel.chosen, "temporal")
+    split = _split_section(caps, d, settings, untested, sel.chosen, lambda: diagnose(
+        caps, given, optimizer, seed=seed, per_condition=per_condition, effects=effects,
+        settings=replace(settings, split="temporal")))
     found = list(out.findings)
     if base.calibrated:
         found.append(_calibration_finding(caps, base.calibration))
