@@ -27,7 +27,7 @@ from .identify import fit_captures, prepare_shared
 from .seeds import check_seed
 from .metrics import check_mape_floor, compute_metrics_pooled
 from .objective import Objective, Series
-from .parallel import CellFailed, CellStats, Executor, LocalExecutor, fork_map, run_cells
+from .parallel import CellFailed, CellStats, Executor, LocalExecutor, fork_map, one_blas_thread, run_cells
 from .params import DataScale, apply_bound_overrides
 from .registry import optimizers as optimizer_registry
 from .factory import make_model, make_optimizer
@@ -317,6 +317,7 @@ def _check_bounds(captures, model_names, model_options: dict, bounds: dict) -> N
                 raise ConfigError(f"model {m!r}: {exc} (a bound for one model only: --bounds MODEL.NAME=LOWER:UPPER)") from None
 
 
+@one_blas_thread
 def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_names: Sequence[str], *,
             runs: int = 1, seed: int = 0, jobs: int | None = None, polish: bool = True,
             model_options: Mapping[str, dict] | None = None, optimizer_options: Mapping[str, dict] | None = None,

@@ -49,7 +49,7 @@ from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
 from .optimizers.lsq import polisher
-from .parallel import CellFailed, LocalExecutor, fork_call, fork_map, fork_workers, run_cells
+from .parallel import CellFailed, LocalExecutor, fork_call, fork_map, fork_workers, one_blas_thread, run_cells
 from .seeds import check_seed
 from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
 
@@ -471,6 +471,7 @@ def _reproduces(model: Model, theta: np.ndarray, caps: Sequence[Capture], preds:
     return bool(np.isfinite(mse) and n > 0 and mse <= (1.0 + rtol) ** 2 * (sse / n))
 
 
+@one_blas_thread
 def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, optimizer: Optimizer, *,
                     seed: int, model_options: dict | None = None, progress=None, executor=None, store=None,
                     resume: bool = False):
@@ -2326,6 +2327,7 @@ def _split_section(caps, d: _Design, settings: "DiagnoseSettings", untested, cho
     return split
 
 
+@one_blas_thread
 def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0,
              per_condition: bool = False, effects: Sequence[str] | None = None,
              settings: DiagnoseSettings = DiagnoseSettings(), progress: Progress = None,

@@ -24,7 +24,7 @@ from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import OptimizeResult, Optimizer
 from .optimizers.lsq import polisher
-from .parallel import CellFailed, CellStats, Executor, LocalExecutor, default_jobs, run_cells
+from .parallel import CellFailed, CellStats, Executor, LocalExecutor, default_jobs, one_blas_thread, run_cells
 from .params import DataScale, Param, apply_bound_overrides, bound_side, with_output_unit
 
 #: progress(event, info) — events: "start" (total units), "advance" (one run done), "note" (text).
@@ -314,6 +314,7 @@ def condition_groups(captures: Sequence[Capture], global_fit: bool = False) -> d
     return {("all", "all"): list(captures)} if global_fit else group_by_condition(captures)
 
 
+@one_blas_thread
 def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *, seed: int = 0, runs: int = 1,
              polish: bool = True, global_fit: bool = False,
              bounds: Mapping[str, tuple[float, float]] | None = None,

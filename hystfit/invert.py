@@ -91,6 +91,7 @@ from .capture import UniformSamples
 from .conditions import LookupTable, detect_condition
 from .errors import ConfigError, InputError
 from .io import TARGET_NAMES, load_table
+from .parallel import one_blas_thread
 from .results import Cell, ParamsFile
 
 __all__ = [
@@ -1111,6 +1112,7 @@ def _inversion_notes(pf: ParamsFile, target: Target, opts: InvertLimits, desired
     return tuple(notes)
 
 
+@one_blas_thread
 def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate",
                   condition: tuple[float, float] | None = None, initial_voltage: float | None = None,
                   vmin: float | None = None, vmax: float | None = None, max_slew: float | None = None,

@@ -28,6 +28,7 @@ again the result is a :class:`CellFailed` and the batch goes on.
 
 from __future__ import annotations
 
+import functools
 import logging
 import multiprocessing as mp
 import os
@@ -87,6 +88,70 @@ def single_threaded_children():
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+#: the variables by which a user chooses the BLAS thread count (OpenMP's also sets OpenBLAS's)
+BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "OMP_NUM_THREADS")
+
+_blas_lock = threading.Lock()
+_blas_depth = 0
+_blas_limits = None  # threadpoolctl's limits while the outermost block runs
+
+
+def _new_blas_lock() -> None:  # a child forked while another thread held the lock gets a free one
+    global _blas_lock
+    _blas_lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_new_blas_lock)
+
+
+def _enter_one_blas_thread() -> None:
+    global _blas_depth, _blas_limits
+    with _blas_lock:
+        _blas_depth += 1
+        if _blas_depth > 1 or any(v in os.environ for v in BLAS_THREAD_VARS):
+            return
+        from threadpoolctl import threadpool_limits
+
+        _blas_limits = threadpool_limits(limits=1, user_api="blas")
+
+
+def _exit_one_blas_thread() -> None:
+    global _blas_depth, _blas_limits
+    with _blas_lock:
+        _blas_depth -= 1
+        if _blas_depth == 0 and _blas_limits is not None:
+            limits, _blas_limits = _blas_limits, None
+            limits.restore_original_limits()
+
+
+def one_blas_thread(fn: Callable[..., R]) -> Callable[..., R]:
+    """Run ``fn`` with one BLAS thread (numpy's and scipy's), as the command line does.
+
+    The command line sets ``OPENBLAS_NUM_THREADS`` and its kin to 1 before numpy loads
+    (:mod:`hystfit.cli`); a program that imports hystfit as a library has a BLAS thread per core,
+    and hystfit's small matrix products, run beside forked children, then fight over the cores:
+    ``diagnose`` on sample_data took 28 s instead of 8 s (``python benchmarks/library_threads.py``).
+    The library's entry points (``identify``, ``compare``, ``diagnose``, ``fit_recommended``,
+    ``invert_target``, ``track``, ``measure_bandwidths``) are wrapped in this: for the duration of
+    the call, and in the children it forks, the BLAS libraries already loaded (numpy's always, scipy's
+    once imported) run one thread (threadpoolctl); the caller's counts are restored on return.
+    (Importing scipy's BLAS first, to limit it too, costs the calls that never use it ≈ 0.2 s, and
+    its few calls inside hystfit are not where the threads fought.) A user who set one of :data:`BLAS_THREAD_VARS`
+    has chosen, and is left alone. The numbers are the command line's.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        _enter_one_blas_thread()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            _exit_one_blas_thread()
+
+    return wrapper
 
 
 @dataclass(frozen=True)

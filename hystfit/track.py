@@ -100,6 +100,7 @@ from .seeds import check_seed
 from .invert import (CellUse, InversionResult, SegmentChoice, Span, Target, blend_segments, find_spans,
                      invert_target, preroll_voltage, select_cells, sine_target, target_from_array,
                      tracking_metrics)
+from .parallel import one_blas_thread
 from .models.pi import PI
 from .results import Cell, ParamsFile
 
@@ -1016,6 +1017,7 @@ def _run_controller(name: str, plant: _Plant, target: Target, inv: InversionResu
                          _run_details(name, design))
 
 
+@one_blas_thread
 def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid",), *,
           plant_pf: ParamsFile | None = None, method: str = "interpolate",
           condition: tuple[float, float] | None = None, initial_voltage: float | None = None,
@@ -1106,6 +1108,7 @@ def _crossing(freqs: np.ndarray, mags: np.ndarray, level: float, below: bool) ->
     return float("nan")
 
 
+@one_blas_thread
 def measure_bandwidths(pf: ParamsFile, controllers: Sequence[str], *, amplitude: float, offset: float, fs: float,
                        freqs_Hz: Sequence[float] | None = None, **track_options) -> dict:
     """Tracking (−3 dB) and disturbance-rejection (0 dB) bandwidths of each controller, by simulation.

@@ -1,0 +1,80 @@
+"""hystfit.parallel.one_blas_thread: the library's entry points run one BLAS thread, as the CLI does.
+
+Run in fresh processes: the test session itself sets OPENBLAS_NUM_THREADS=1 (tests/conftest.py)
+before numpy loads, which is the case the limit leaves alone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+PROBE = r"""
+import json, os
+import numpy as np
+from threadpoolctl import threadpool_info
+from hystfit.parallel import one_blas_thread, fork_map
+
+def blas():
+    return sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+
+@one_blas_thread
+def inner():
+    return blas()
+
+@one_blas_thread
+def outer():
+    first = blas()
+    nested = inner()
+    after_nested = blas()
+    in_child = fork_map(lambda i: blas(), 2, 2)
+    return first, nested, after_nested, in_child
+
+before = blas()
+first, nested, after_nested, in_child = outer()
+print(json.dumps({"before": before, "first": first, "nested": nested, "after_nested": after_nested,
+                  "in_child": in_child, "after": blas()}))
+"""
+
+BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "OMP_NUM_THREADS")
+
+
+def _probe(**env_vars) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_VARS}
+    env.update(env_vars)
+    out = subprocess.run([sys.executable, "-c", PROBE], env=env, check=True, capture_output=True, text=True,
+                         timeout=120).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="BLAS runs one thread on one core anyway")
+def test_one_blas_thread_inside_nested_and_in_children_then_restored():
+    got = _probe()
+    assert max(got["before"]) > 1  # numpy loaded without a variable: a thread per core
+    assert got["first"] == [1]
+    assert got["nested"] == [1]
+    assert got["after_nested"] == [1], "a nested call must not restore the caller's threads early"
+    assert got["in_child"] == [[1], [1]]
+    assert got["after"] == got["before"]
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="BLAS runs one thread on one core anyway")
+def test_a_users_explicit_blas_threads_are_left_alone():
+    got = _probe(OPENBLAS_NUM_THREADS="2")
+    assert got["before"] == [2]
+    assert got["first"] == [2] and got["nested"] == [2] and got["after"] == [2]
+
+
+def test_the_library_entry_points_are_limited():
+    from hystfit import compare, diagnose, identify, invert, track
+    from hystfit.parallel import one_blas_thread
+
+    limited = one_blas_thread(len).__code__
+    for fn in (identify.identify, compare.compare, diagnose.diagnose, diagnose.fit_recommended,
+               invert.invert_target, track.track, track.measure_bandwidths):
+        assert getattr(fn, "__wrapped__", None) is not None, fn.__qualname__
+        assert fn.__code__ is limited, fn.__qualname__
