@@ -14,6 +14,10 @@ a fitting command meets them:
   (``play_matrix_from``), which is all a further kernel costs,
 - pandas and matplotlib, for comparison (a report table, the figure process).
 
+Then the figure server's own import (:func:`hystfit.report.render._import_plotting`: matplotlib's
+figure and Agg canvas, hystfit's plots, the default font), after numpy, whole and ``lean`` (without
+the 3-D toolkit and with the TeX glyph list deferred, as the server imports it), alternately.
+
 A first run warms numba's on-disk cache. The machine is shared: compare rows within one run.
 """
 
@@ -41,8 +45,11 @@ import numpy as np
 mark("import numpy")
 import hystfit.cli
 mark("import hystfit.cli (typer, the commands)")
-import typer._adapters
-mark("typer's pydantic validators")
+try:  # typer versions that build pydantic validators import them here; others have no such module
+    import typer._adapters
+except ImportError:
+    pass
+mark("typer's pydantic validators (where typer has them)")
 from hystfit.registry import blocks, models, optimizers
 models.names(), optimizers.names(), blocks.names()
 mark("hystfit registries (models, optimizers, blocks)")
@@ -83,6 +90,28 @@ def measure(repeat: int = 5) -> list[dict]:
             for i, (name, _, _) in enumerate(runs[0])]
 
 
+FIGURE_PROBE = r"""
+import json, sys, time
+import numpy
+t, c = time.perf_counter(), time.process_time()
+from hystfit.report.render import _import_plotting
+_import_plotting(lean=sys.argv[1] == "lean")
+print(json.dumps([time.perf_counter() - t, time.process_time() - c]))
+"""
+
+
+def figure_imports(repeat: int = 5) -> dict[str, tuple[float, float]]:
+    """Best (wall s, CPU s) of the figure server's import, ``whole`` and ``lean``, fresh processes."""
+    env = {**command_env(), "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    runs: dict[str, list] = {"whole": [], "lean": []}
+    for _ in range(repeat + 1):  # the first pair warms the bytecode cache
+        for way in runs:
+            out = subprocess.run([sys.executable, "-c", FIGURE_PROBE, way], cwd=ROOT, env=env, check=True,
+                                 capture_output=True, text=True).stdout
+            runs[way].append(json.loads(out.strip().splitlines()[-1]))
+    return {way: (min(w for w, _ in r[1:]), min(c for _, c in r[1:])) for way, r in runs.items()}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
@@ -91,6 +120,9 @@ def main() -> None:
     print("| step | wall (s) | CPU (s) |\n|---|---:|---:|")
     for row in measure(args.repeat):
         print(f"| {row['step']} | {row['wall_s']:.3f} | {row['cpu_s']:.3f} |")
+    print("\n| the figure server's import | wall (s) | CPU (s) |\n|---|---:|---:|")
+    for way, (wall, cpu) in figure_imports(args.repeat).items():
+        print(f"| {way} | {wall:.3f} | {cpu:.3f} |")
 
 
 if __name__ == "__main__":

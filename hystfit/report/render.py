@@ -35,6 +35,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from multiprocessing.reduction import ForkingPickler
@@ -74,13 +75,63 @@ class FigureJob:
     kwargs: dict[str, Any] = field(default_factory=dict)
 
 
-def _import_plotting() -> None:
+#: what matplotlib imports that hystfit's figures never use: the 3-D toolkit (its registry treats a
+#: failed import as "no 3-D projection") and the Adobe glyph list of TeX's fonts (used only by usetex)
+_UNUSED_3D = "mpl_toolkits.mplot3d"
+_TEX_GLYPHS = "fontTools.agl"
+
+
+def _import_plotting(lean: bool = False) -> None:
+    """Import matplotlib's figure and Agg canvas, hystfit's plots, and load the default font.
+
+    ``lean``: the figure server's own import (a process of hystfit's that draws 2-D PNGs and runs no
+    other code): without the 3-D toolkit, and with the TeX glyph list imported only if used
+    (:func:`_deferred`): ≈ 0.14 s of its ≈ 0.7–1 s (``python benchmarks/bench_startup.py``), on
+    the critical path of a command whose fit ends first. In any other process (a program that uses
+    hystfit as a library draws here when it cannot fork) matplotlib is imported whole.
+    """
+    if lean and "matplotlib" not in sys.modules:
+        _deferred(_TEX_GLYPHS)
+        saved = sys.modules.get(_UNUSED_3D)
+        sys.modules[_UNUSED_3D] = None  # type: ignore[assignment] - the import of the toolkit fails at once
+        try:
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message="Unable to import Axes3D", category=UserWarning)
+                from matplotlib.figure import Figure  # noqa: F401
+        finally:
+            if saved is None:
+                del sys.modules[_UNUSED_3D]
+            else:
+                sys.modules[_UNUSED_3D] = saved
     from matplotlib import font_manager
-    from matplotlib.figure import Figure  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401, F811
 
     from . import canvas, plots  # noqa: F401
 
     font_manager.get_font(font_manager.findfont(font_manager.FontProperties()))  # the first text loads the font
+
+
+def _deferred(name: str) -> None:
+    """Make ``import name`` bind a module that is executed on its first attribute access
+    (:class:`importlib.util.LazyLoader`, the standard library's recipe); nothing when it is
+    imported already or cannot be found."""
+    import importlib.util
+
+    if name in sys.modules:
+        return
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return
+    if spec is None or spec.loader is None:
+        return
+    spec.loader = importlib.util.LazyLoader(spec.loader)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    parent, _, child = name.rpartition(".")
+    if parent:  # ``import a.b`` finds a.b in sys.modules and does not set it on ``a`` itself
+        setattr(sys.modules[parent], child, module)
 
 
 class _FigureServer:
@@ -211,7 +262,7 @@ def _serve(conn) -> None:
     (drawn when no job waits), ``("finish", n_jobs)`` draws what is left and replies with every
     job's path, in order, or the first job's error. Between messages the queue is drawn one job at
     a time, so a job sent while this process works is drawn while it works."""
-    _import_plotting()
+    _import_plotting(lean=True)
     if not conn.poll():  # idle: warm up now; with jobs already waiting, their own first figures do it
         _warm_up()
     stream = _ServerStream()

@@ -388,7 +388,7 @@ def test_the_server_warms_up_only_when_no_job_waits(tmp_path, rng, monkeypatch, 
     imported = mp.get_context("fork").Event()
     marker = tmp_path / "warmed-up"
     importing = render._import_plotting
-    monkeypatch.setattr(render, "_import_plotting", lambda: (imported.wait(60), importing()))
+    monkeypatch.setattr(render, "_import_plotting", lambda lean=False: (imported.wait(60), importing(lean)))
     monkeypatch.setattr(render, "_warm_up", lambda: marker.touch())
     seed = int(rng.integers(1 << 30))
     render._close_server()
@@ -410,3 +410,44 @@ def test_the_server_warms_up_only_when_no_job_waits(tmp_path, rng, monkeypatch, 
     assert marker.exists() == (not jobs_waiting)
     here = render._draw_here(_jobs(tmp_path / "h", np.random.default_rng(seed), n=2), 1)
     assert [p.read_bytes() for p in paths] == [p.read_bytes() for p in here]
+
+
+LEAN_PROBE = r"""
+import hashlib, io, sys
+import numpy as np
+from hystfit.report import render
+render._import_plotting(lean=sys.argv[1] == "lean")
+three_d = "mpl_toolkits.mplot3d" in sys.modules
+from hystfit.report import plots
+t = np.linspace(0.0, 0.2, 2001)
+u = 30.0 * (1.0 - np.cos(2 * np.pi * 10.0 * t))
+y = 0.3 * u + 0.5 * np.sin(2 * np.pi * 10.0 * t)
+digests = []
+for draw in (lambda f: plots.loop_figure(f, u, y, y + 0.01, title="20V_10Hz"),
+             lambda f: plots.timeseries_figure(f, t, y, y + 0.01, title="20V_10Hz"),
+             lambda f: plots.convergence_figure(f, np.geomspace(1.0, 1e-3, 50), title="pso")):
+    buf = io.BytesIO()
+    draw(buf)
+    digests.append(hashlib.sha256(buf.getvalue()).hexdigest())
+import fontTools.agl  # the deferred module is the real one once used
+print(three_d, fontTools.agl.toUnicode("Aacute") == "\u00c1", *digests)
+"""
+
+
+def test_the_servers_lean_import_draws_the_same_bytes_without_the_3d_toolkit():
+    """The figure server imports matplotlib without mplot3d and with the TeX glyph list deferred
+    (render._import_plotting(lean=True)): the same PNG bytes as a whole import, and the deferred
+    module works when something uses it. Fresh processes: this one has matplotlib imported."""
+    import os
+    import subprocess
+    import sys
+
+    def run(way):
+        out = subprocess.run([sys.executable, "-c", LEAN_PROBE, way], check=True, capture_output=True, text=True,
+                             timeout=300, env={**os.environ, "PYTHONWARNINGS": "error::UserWarning"}).stdout
+        return out.split()
+
+    lean, whole = run("lean"), run("whole")
+    assert lean[0] == "False" and whole[0] == "True"  # the 3-D toolkit: skipped, imported
+    assert lean[1] == whole[1] == "True"
+    assert lean[2:] == whole[2:]
