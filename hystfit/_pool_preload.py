@@ -43,17 +43,6 @@ def _late_worker_hook(exc_type, exc, tb) -> None:
 sys.excepthook = _late_worker_hook
 
 
-def _load_compiled_kernels() -> None:
-    """Import ``scipy.optimize`` and numba, and run one small cached kernel, so that numba's
-    set-up at its first kernel (typing and lowering registries, the code generator) is done here."""
-    import scipy.optimize  # noqa: F401 - the local optimizers and the polish import it on first use
+from ._warm import load_ahead  # noqa: E402
 
-    from .models._kernels import _play_recurrence
-
-    _play_recurrence(np.zeros(2), np.zeros(1), np.zeros(1))
-
-
-try:
-    _load_compiled_kernels()
-except Exception:  # noqa: BLE001, S110 - only saves time: a worker that lacks it loads it itself
-    pass
+load_ahead()  # numba, its set-up at the first cached kernel, scipy.optimize: once, before any worker

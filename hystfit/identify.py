@@ -359,8 +359,7 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     keys = None if store is None else _store_keys(cells, work, model, optimizer, bounds, seed, polish)
     collect = _Summaries(cells, work, runs, mape_floor, progress, on_fit)
     if jobs is None and executor is None:  # all cores, unless every cell is one exact linear solve
-        sep = model.separable() if optimizer.uses_separable_structure else None
-        jobs = 1 if (sep is not None and not sep.nonlinear) else default_jobs()
+        jobs = _default_jobs(model, optimizer)
     own = executor is None
     executor = LocalExecutor(jobs) if own else executor
     stats = CellStats()
@@ -382,6 +381,24 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
         fits=tuple(fits), bounds_overrides=dict(bounds or {}), model_options=dict(model_options or {}),
         failed=tuple(failed), cell_stats=stats, start="defaults" if not starts else "given",
     )
+
+
+def _default_jobs(model: Model, optimizer: Optimizer) -> int:
+    """Processes of :func:`identify` without ``jobs``: one when every cell is one exact linear solve
+    (a pool would only add its start-up), else all cores."""
+    sep = model.separable() if optimizer.uses_separable_structure else None
+    return 1 if (sep is not None and not sep.nonlinear) else default_jobs()
+
+
+def fits_here(model: Model, optimizer: Optimizer, jobs: int | None = 1, executor: Executor | None = None,
+              n_cells: int | None = None) -> bool:
+    """Whether :func:`identify` with these arguments fits in this process (not in a pool's
+    workers): a command then loads what the fit needs while it reads its captures."""
+    if executor is not None:
+        return False
+    if jobs is None:
+        jobs = _default_jobs(model, optimizer)
+    return jobs == 1 or (n_cells is not None and n_cells <= 1)
 
 
 def _cells(groups: Mapping[tuple, list[Capture]], model: Model, optimizer: Optimizer,

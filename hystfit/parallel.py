@@ -769,13 +769,15 @@ def _private_numba_init_lock() -> None:
         mod._backend_init_process_lock = threading.RLock()
 
 
-def _fork_child(fn: Callable[[int], Any], n: int, claim, conn) -> None:
+def _fork_child(fn: Callable[[int], Any], n: int, claim, conn, kernels: bool = True) -> None:
     """A child of :func:`fork_map`: claims items until none is left, then sends ``{index: result}``.
-    SIGTERM (the parent stopping it) ends it at once, whatever handler the parent had."""
+    SIGTERM (the parent stopping it) ends it at once, whatever handler the parent had. ``kernels``:
+    its items may run numba kernels (one numba thread; False: numba is left as it is, not imported)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _private_numba_init_lock()
-    _single_threaded()
+    if kernels:
+        _single_threaded()
     done: dict[int, Any] = {}
     try:
         while (i := _claim_next(claim)) < n:
@@ -791,7 +793,7 @@ def _fork_child(fn: Callable[[int], Any], n: int, claim, conn) -> None:
             pass
 
 
-def _fork_one(fn: Callable[[int], Any], n: int, claim) -> tuple[int, Any]:
+def _fork_one(fn: Callable[[int], Any], n: int, claim, kernels: bool = True) -> tuple[int, Any]:
     """Fork one child of :func:`fork_map`; its pid and the parent's end of its pipe."""
     recv, send = mp.get_context("fork").Pipe(duplex=False)
     for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
@@ -808,7 +810,7 @@ def _fork_one(fn: Callable[[int], Any], n: int, claim) -> tuple[int, Any]:
         try:
             recv.close()
             _end_with(parent)  # a parent killed outright (SIGKILL) does not leave its children computing
-            _fork_child(fn, n, claim, send)
+            _fork_child(fn, n, claim, send, kernels)
         except BaseException:  # noqa: BLE001 - never return into the caller's code
             code = 1
         finally:
@@ -840,6 +842,13 @@ class ForkedCall:
                           f"in this process", RuntimeWarning, stacklevel=2)
         return got[0] if isinstance(got, dict) and 0 in got else self.fn()
 
+    def ready(self) -> bool:
+        """The child has sent its result (or died): :meth:`result` will not wait."""
+        try:
+            return self.pid is None or self.conn.poll()
+        except (EOFError, OSError):
+            return True
+
     def cancel(self) -> None:
         self._end(stop=True)
 
@@ -856,16 +865,17 @@ class ForkedCall:
             pass
 
 
-def fork_call(fn: Callable[[], R], workers: int | None = None) -> ForkedCall | None:
+def fork_call(fn: Callable[[], R], workers: int | None = None, *, kernels: bool = True) -> ForkedCall | None:
     """Start ``fn()`` (deterministic, reading data already in this process) in a forked child, or
     None where :func:`fork_map` with ``workers`` would not fork (one process inside pool workers,
     no ``fork``, one worker, a fork the system refuses): then the caller computes it itself when
-    it needs it."""
+    it needs it. ``kernels=False``: ``fn`` runs no numba kernel, and the child does not set numba
+    up (nor import it, when this process has not)."""
     if fork_workers(workers) <= 1:
         return None
     claim = mp.get_context("fork").Value("l", 0)
     try:
-        pid, conn = _fork_one(lambda i: fn(), 1, claim)
+        pid, conn = _fork_one(lambda i: fn(), 1, claim, kernels)
     except OSError:
         return None
     return ForkedCall(fn, pid, conn)

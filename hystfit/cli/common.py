@@ -490,16 +490,53 @@ def start_figures(output: FigureOutputArgs) -> None:
         preload(claim_early=True)
 
 
-def load_for_command(data, options, output: OutputArgs, *, recursive: bool):
-    """The captures of a command (``options``: :meth:`CaptureArgs.load_options`): loaded with a
-    progress line when slow, the loader's notes printed."""
-    from ..io import load_captures
+#: captures of at most this many bytes in all are read by a forked child while the command loads
+#: what its first fit needs (:func:`load_for_command`); larger ones are read here (their transfer
+#: would cost more than it saves, and memory twice)
+LOAD_ASIDE_MAX_BYTES = 64 << 20
 
+
+def load_for_command(data, options, output: OutputArgs, *, recursive: bool, ahead=()):
+    """The captures of a command (``options``: :meth:`CaptureArgs.load_options`): loaded with a
+    progress line when slow, the loader's notes printed.
+
+    ``ahead``: what the command's fit, in this process, is sure to load first (steps of
+    :mod:`hystfit._warm`). Then a forked child reads the captures (up to
+    :data:`LOAD_ASIDE_MAX_BYTES`) while this process runs those steps, until the captures are
+    read (:func:`hystfit._warm.load_ahead`): the two overlap instead of following each other. The
+    same captures (the child's, pickled; an error is raised here, by reading them again); where
+    the child cannot be forked, or this process runs threads, they are read here.
+    """
+    import threading
+
+    from ..io import expand_paths, load_capture
+    from ..parallel import fork_call
+
+    paths = expand_paths(data, recursive)
+    load = lambda: [load_capture(p, options) for p in paths]  # noqa: E731
+    aside = None
+    if ahead and paths and threading.active_count() == 1 and _total_bytes(paths) <= LOAD_ASIDE_MAX_BYTES:
+        aside = fork_call(load, kernels=False)
+    if aside is not None:
+        from .._warm import load_ahead
+
+        try:
+            load_ahead(ahead, stop=aside.ready)
+        except BaseException:
+            aside.cancel()
+            raise
     with phase(output.chatty, "loading the captures"):
-        captures = load_captures(data, options, recursive=recursive)
+        captures = aside.result() if aside is not None else load()
     if not output.quiet:
         print_capture_notes(captures)
     return captures
+
+
+def _total_bytes(paths) -> int:
+    try:
+        return sum(p.stat().st_size for p in paths)
+    except OSError:  # the loader says what is wrong with the file
+        return LOAD_ASIDE_MAX_BYTES + 1
 
 
 def writing(out, output: OutputArgs):

@@ -83,7 +83,10 @@ def diagnose(
     quiet, json_out, resume = output.quiet, output.json_out, execution.resume
     stats = CellStats()
     with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force) as stage:
-        captures = load_for_command(data, options, output, recursive=capture.recursive)
+        from .._warm import STEPS
+
+        # the base fits and the effects' kernels run here: numba and scipy.optimize load meanwhile
+        captures = load_for_command(data, options, output, recursive=capture.recursive, ahead=STEPS)
         early = []  # the where-figures, drawn by the figure server while the effects are tested
 
         def on_where(where_data) -> None:

@@ -51,7 +51,9 @@ def identify(
     quiet, json_out = output.quiet, output.json_out
     with cell_run(out, execution, not quiet) as cr, \
             staged_output_dir(out, output.force) as stage:
-        captures = load_for_command(data, options, output, recursive=capture.recursive)
+        captures = load_for_command(data, options, output, recursive=capture.recursive,
+                                    ahead=_ahead(m, o, execution.jobs, cr.executor, data, runs, polish,
+                                                 not fit.per_condition))
         # each condition's figures are drawn while the next conditions are fitted
         n_conditions = len(condition_groups(captures, not fit.per_condition))
         with (ConditionFigures(stage, o.name, execution.jobs, n_conditions=n_conditions) if output.plots
@@ -122,3 +124,21 @@ def _print_summary_table(res, title: str) -> None:
         table.add_row(row["condition"], f"{row[f'rmse_{u}']:.4g}", f"{row['nrmse_pct']:.3g}", fmt(row['r2'], 5),
                       f"{row[f'max_error_{u}']:.4g}", f"{row['runtime_s']:.2f}")
     stdout.print(table)
+
+
+def _ahead(model, optimizer, jobs, executor, data, runs: int, polish: bool, global_fit: bool) -> tuple:
+    """What the fit is sure to load first when it runs in this process
+    (:func:`hystfit.identify.fits_here`; one capture file or a global fit is ``runs`` cells): the
+    optimizer's libraries and, with the polish, ``scipy.optimize``. Not numba: a PI fit of short
+    captures runs without it."""
+    from .._warm import import_optimize
+    from ..identify import fits_here
+
+    one = global_fit or (len(data) == 1 and Path(data[0]).is_file())
+    try:
+        here = fits_here(model, optimizer, jobs, executor, runs if one else None)
+    except Exception:  # noqa: BLE001 - only decides what to load ahead; identify says what is wrong
+        return ()
+    if not here:
+        return ()
+    return (*((optimizer.load_libraries,) if optimizer.libraries else ()), *((import_optimize,) if polish else ()))
