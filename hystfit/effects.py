@@ -539,8 +539,13 @@ def _regressor_gram(effect: "Effect", design: _Design, c: int, T: np.ndarray | N
         return A.T @ A, A.T @ y
     X, XX, Xy = _plain_gram(design, c)
     R = np.hstack([Rs, Rl])
-    RX = R.T @ X
-    return np.block([[R.T @ R, RX], [RX.T, XX]]), np.concatenate([R.T @ y, Xy])
+    k = R.shape[1]
+    P = np.empty((k + XX.shape[0], k + XX.shape[0]))  # [[RᵀR, RᵀX], [XᵀR, XᵀX]] (np.block: the same, slower)
+    P[:k, :k] = R.T @ R
+    P[:k, k:] = R.T @ X
+    P[k:, :k] = P[:k, k:].T
+    P[k:, k:] = XX
+    return P, np.concatenate([R.T @ y, Xy])
 
 
 def _knot_gram(effect: "Effect", design: _Design, c: int, knots: tuple) -> tuple[np.ndarray, np.ndarray]:
