@@ -76,22 +76,20 @@ class FigureJob:
 
 
 #: what matplotlib imports that hystfit's figures never use: the 3-D toolkit (its registry treats a
-#: failed import as "no 3-D projection") and the Adobe glyph list of TeX's fonts (used only by usetex)
+#: failed import as "no 3-D projection")
 _UNUSED_3D = "mpl_toolkits.mplot3d"
-_TEX_GLYPHS = "fontTools.agl"
 
 
 def _import_plotting(lean: bool = False) -> None:
     """Import matplotlib's figure and Agg canvas, hystfit's plots, and load the default font.
 
     ``lean``: the figure server's own import (a process of hystfit's that draws 2-D PNGs and runs no
-    other code): without the 3-D toolkit, and with the TeX glyph list imported only if used
-    (:func:`_deferred`): ≈ 0.14 s of its ≈ 0.7–1 s (``python benchmarks/bench_startup.py``), on
-    the critical path of a command whose fit ends first. In any other process (a program that uses
-    hystfit as a library draws here when it cannot fork) matplotlib is imported whole.
+    other code), with matplotlib ≥ 3.9 (:func:`_tolerates_no_3d`): without the 3-D toolkit
+    (``python benchmarks/bench_startup.py`` compares the two), on the critical path of a command
+    whose fit ends first. In any other process (a program that uses hystfit as a library draws here when it
+    cannot fork) matplotlib is imported whole.
     """
-    if lean and "matplotlib" not in sys.modules:
-        _deferred(_TEX_GLYPHS)
+    if lean and "matplotlib" not in sys.modules and _tolerates_no_3d():
         saved = sys.modules.get(_UNUSED_3D)
         sys.modules[_UNUSED_3D] = None  # type: ignore[assignment] - the import of the toolkit fails at once
         try:
@@ -111,27 +109,17 @@ def _import_plotting(lean: bool = False) -> None:
     font_manager.get_font(font_manager.findfont(font_manager.FontProperties()))  # the first text loads the font
 
 
-def _deferred(name: str) -> None:
-    """Make ``import name`` bind a module that is executed on its first attribute access
-    (:class:`importlib.util.LazyLoader`, the standard library's recipe); nothing when it is
-    imported already or cannot be found."""
-    import importlib.util
+def _tolerates_no_3d() -> bool:
+    """matplotlib ≥ 3.9, whose projection registry imports the 3-D toolkit in a try/except (3.7 and
+    3.8.0 import it bare: blocking it there would fail the import). Read from the installed
+    distribution's metadata, without importing matplotlib."""
+    from importlib import metadata
 
-    if name in sys.modules:
-        return
     try:
-        spec = importlib.util.find_spec(name)
-    except (ImportError, ValueError):
-        return
-    if spec is None or spec.loader is None:
-        return
-    spec.loader = importlib.util.LazyLoader(spec.loader)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    parent, _, child = name.rpartition(".")
-    if parent:  # ``import a.b`` finds a.b in sys.modules and does not set it on ``a`` itself
-        setattr(sys.modules[parent], child, module)
+        major, minor = (int(x) for x in metadata.version("matplotlib").split(".")[:2])
+    except (metadata.PackageNotFoundError, ValueError):
+        return False
+    return (major, minor) >= (3, 9)
 
 
 class _FigureServer:

@@ -23,8 +23,9 @@ def _same(a, b) -> None:
     for x, y in zip(a, b):
         assert x.source == y.source and x.notes == y.notes
         assert (x.amplitude_V, x.frequency_Hz, x.dt) == (y.amplitude_V, y.frequency_Hz, y.dt)
-        for name in ("u", "y"):
+        for name in ("t", "u", "y"):
             np.testing.assert_array_equal(getattr(x, name), getattr(y, name))
+            assert getattr(x, name).flags.writeable == getattr(y, name).flags.writeable, name
 
 
 def test_the_child_reads_the_same_captures_while_the_steps_run_here(monkeypatch):
@@ -39,22 +40,34 @@ def test_the_child_reads_the_same_captures_while_the_steps_run_here(monkeypatch)
         return got
 
     monkeypatch.setattr(parallel, "fork_call", counting_fork_call)
+    monkeypatch.setattr(threading, "active_count", lambda: 1)  # whatever threads earlier tests left
     got = common.load_for_command([SAMPLE], LoadOptions(), OUT, recursive=False,
                                   ahead=(lambda: ran.append(os.getpid()),))
     _same(got, load_captures([SAMPLE], LoadOptions()))
-    if hasattr(os, "fork") and threading.active_count() == 1 and len(os.sched_getaffinity(0)) > 1:
+    assert any(not c.y.flags.writeable for c in got)  # the fast reader's read-only arrays, kept
+    if hasattr(os, "fork") and parallel.fork_workers() > 1:
         assert forked == [True]
     assert ran in ([], [os.getpid()])  # here, and only while the child read (it may have been done first)
 
 
-def test_an_error_reading_is_raised_here_with_the_loaders_message(tmp_path):
+def test_an_error_reading_is_raised_here_with_the_loaders_message_read_once(tmp_path, monkeypatch):
+    from hystfit import io
+
     bad = tmp_path / "bad.csv"
     bad.write_text("time_s,voltage_V,displacement_um\n0,1,2\n0.001,x,3\n")
     with pytest.raises(InputError) as plain:
         load_captures([bad], LoadOptions())
+    monkeypatch.setattr(threading, "active_count", lambda: 1)
+    here = []
+    real = io.load_capture
+    monkeypatch.setattr(io, "load_capture", lambda *a, **k: (here.append(os.getpid()), real(*a, **k))[1])
     with pytest.raises(InputError) as aside:
         common.load_for_command([bad], LoadOptions(), OUT, recursive=False, ahead=(lambda: None,))
     assert str(aside.value) == str(plain.value)
+    from hystfit import parallel
+
+    if hasattr(os, "fork") and parallel.fork_workers() > 1:
+        assert here == []  # read by the child only: its error came back, the file was not read again
 
 
 def test_large_captures_or_threads_are_read_here(monkeypatch):
