@@ -519,6 +519,13 @@ def pool_context():
     return ctx if _fork_server_running() else mp.get_context("spawn")
 
 
+def start_pool_server() -> None:
+    """Start the local pools' fork server now (:func:`pool_context`; nothing where there is none, or
+    when it runs already): it loads :data:`POOL_PRELOAD` — hystfit, numba and its set-up,
+    ``scipy.optimize`` — while this process goes on, e.g. reads the captures, instead of after."""
+    pool_context()
+
+
 def _fork_server_running() -> bool:
     """Start the pools' fork server if it is not running (with :func:`single_threaded_children` in
     force, as for a worker); False when it cannot start (an OSError: e.g. its socket's path too

@@ -130,7 +130,8 @@ def _ahead(model, optimizer, jobs, executor, data, runs: int, polish: bool, glob
     """What the fit is sure to load first when it runs in this process
     (:func:`hystfit.identify.fits_here`; one capture file or a global fit is ``runs`` cells): the
     optimizer's libraries and, with the polish, ``scipy.optimize``. Not numba: a PI fit of short
-    captures runs without it."""
+    captures runs without it. When the fits run in a local pool instead, its fork server is
+    started now, so that it loads what they need while the captures are read."""
     from .._warm import import_optimize
     from ..identify import fits_here
 
@@ -140,5 +141,9 @@ def _ahead(model, optimizer, jobs, executor, data, runs: int, polish: bool, glob
     except Exception:  # noqa: BLE001 - only decides what to load ahead; identify says what is wrong
         return ()
     if not here:
+        if executor is None and jobs != 1:  # a local pool: its fork server loads while the captures are read
+            from ..parallel import start_pool_server
+
+            start_pool_server()
         return ()
     return (*((optimizer.load_libraries,) if optimizer.libraries else ()), *((import_optimize,) if polish else ()))

@@ -108,3 +108,27 @@ def test_load_ahead_runs_the_steps_in_order_until_stopped_and_skips_failing_ones
 
 def test_the_pool_preload_and_the_command_share_one_list_of_steps():
     assert _warm.STEPS == (*_warm.KERNELS, _warm.import_optimize)
+
+
+def test_identify_loads_ahead_where_it_fits_and_starts_the_pool_server_where_a_pool_fits(monkeypatch):
+    from hystfit import parallel
+    from hystfit.cli.identify import _ahead
+    from hystfit.factory import make_model, make_optimizer
+    from hystfit.registry import optimizers
+
+    started = []
+    monkeypatch.setattr(parallel, "start_pool_server", lambda: started.append(1))
+    auto, pso = make_optimizer(optimizers.get("auto"), {}), make_optimizer(optimizers.get("pso"), {})
+    pi, bw = make_model("pi", {}), make_model("bw", {})
+    one = [str(SAMPLE / "a20V_f10Hz.csv")]
+    # PI with auto: one exact linear solve per condition, here: its libraries and the polish's
+    assert _ahead(pi, auto, None, None, [SAMPLE], 1, True, False) == (auto.load_libraries, _warm.import_optimize)
+    assert _ahead(pi, pso, None, None, one, 1, False, False) == ()  # nothing a PSO fit is sure to load
+    assert started == []
+    # bw on 24 conditions: a pool of all cores, whose fork server starts now
+    if parallel.default_jobs() > 1:
+        assert _ahead(bw, auto, None, None, [SAMPLE], 1, True, False) == ()
+        assert started == [1]
+    # one capture file: one cell, fitted here whatever the model
+    assert _ahead(bw, auto, None, None, one, 1, True, False) == (auto.load_libraries, _warm.import_optimize)
+    assert _ahead(bw, auto, 1, None, [SAMPLE], 1, True, False) != ()  # --jobs 1
