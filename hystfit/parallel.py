@@ -141,8 +141,8 @@ def one_blas_thread(fn: Callable[..., R]) -> Callable[..., R]:
     The command line sets ``OPENBLAS_NUM_THREADS`` and its kin to 1 before numpy loads
     (:mod:`hystfit.cli`); a program that imports hystfit as a library has a BLAS thread per core,
     and hystfit's small matrix products, run beside forked children, then fight over the cores:
-    ``diagnose`` on sample_data took 32.8 s instead of 7.9 s, with other numbers than the command
-    line's (``python benchmarks/library_threads.py``). The library's entry points (``identify``,
+    ``diagnose`` on sample_data took about 33 s instead of 8 s, with other numbers than the
+    command line's (``python benchmarks/library_threads.py``). The library's entry points (``identify``,
     ``compare``, ``diagnose``, ``fit_recommended``, ``invert_target``, ``track``,
     ``measure_bandwidths``) are wrapped in this: for the duration of the call, and in the children
     it forks, numpy's and scipy's BLAS run one thread (threadpoolctl; ``scipy.linalg`` is imported
