@@ -317,6 +317,15 @@ def _check_bounds(captures, model_names, model_options: dict, bounds: dict) -> N
                 raise ConfigError(f"model {m!r}: {exc} (a bound for one model only: --bounds MODEL.NAME=LOWER:UPPER)") from None
 
 
+def startup_steps(*, jobs: int | None = None, executor: Executor | None = None) -> tuple:
+    """What :func:`compare` will start first, as steps a caller can run while it reads the captures
+    (``hystfit.io.load_captures(..., ahead=...)``): the local pool's fork server
+    (:func:`hystfit.parallel.start_pool_server`), unless the cells run here or elsewhere."""
+    from .parallel import start_pool_server
+
+    return (start_pool_server,) if executor is None and jobs != 1 else ()
+
+
 @one_blas_thread
 def compare(captures: Sequence[Capture], model_names: Sequence[str], optimizer_names: Sequence[str], *,
             runs: int = 1, seed: int = 0, jobs: int | None = None, polish: bool = True,

@@ -390,15 +390,27 @@ def _default_jobs(model: Model, optimizer: Optimizer) -> int:
     return 1 if (sep is not None and not sep.nonlinear) else default_jobs()
 
 
-def fits_here(model: Model, optimizer: Optimizer, jobs: int | None = 1, executor: Executor | None = None,
-              n_cells: int | None = None) -> bool:
-    """Whether :func:`identify` with these arguments fits in this process (not in a pool's
-    workers): a command then loads what the fit needs while it reads its captures."""
+def startup_steps(model: Model, optimizer: Optimizer, *, jobs: int | None = 1, executor: Executor | None = None,
+                  n_cells: int | None = None, polish: bool = True) -> tuple:
+    """What :func:`identify` with these arguments will load or start first, as steps a caller can
+    run while it reads the captures (``hystfit.io.load_captures(..., ahead=...)``). Fitted in this
+    process (one job, one cell, or every cell one exact linear solve): the optimizer's libraries
+    and, with the polish, ``scipy.optimize`` — not numba, which a PI fit of short captures never
+    loads. In a local pool: its fork server, which loads hystfit, numba and ``scipy.optimize``
+    (:func:`hystfit.parallel.start_pool_server`). Nothing for another executor."""
+    from ._warm import import_optimize
+    from .parallel import start_pool_server
+
     if executor is not None:
-        return False
+        return ()
     if jobs is None:
-        jobs = _default_jobs(model, optimizer)
-    return jobs == 1 or (n_cells is not None and n_cells <= 1)
+        try:
+            jobs = _default_jobs(model, optimizer)
+        except Exception:  # noqa: BLE001 - a model that cannot say: identify reports what is wrong
+            return ()
+    if jobs == 1 or (n_cells is not None and n_cells <= 1):
+        return (*((optimizer.load_libraries,) if optimizer.libraries else ()), *((import_optimize,) if polish else ()))
+    return (start_pool_server,)
 
 
 def _cells(groups: Mapping[tuple, list[Capture]], model: Model, optimizer: Optimizer,

@@ -1148,10 +1148,74 @@ def _condition(table, chosen, opts, notes, u, dt) -> tuple[float, float, str]:
     return a, f, "detected"
 
 
+#: captures of at most this many bytes in all are read by a forked child while this process runs
+#: the ``ahead`` steps of :func:`load_captures`; larger ones are read here (their transfer would cost
+#: more than it saves, and memory twice). A Parquet file counts :data:`PARQUET_EXPANSION` times its
+#: size: it is compressed.
+LOAD_ASIDE_MAX_BYTES = 64 << 20
+PARQUET_EXPANSION = 8
+
+
 def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = LoadOptions(),
-                  recursive: bool = False) -> list[Capture]:
-    """Load every capture of :func:`expand_paths` ``(paths, recursive)`` with ``options``."""
-    return [load_capture(p, options) for p in expand_paths(paths, recursive)]
+                  recursive: bool = False, *, ahead: Sequence = ()) -> list[Capture]:
+    """Load every capture of :func:`expand_paths` ``(paths, recursive)`` with ``options``.
+
+    ``ahead``: steps (callables, e.g. of :mod:`hystfit._warm`) that the caller would run next —
+    loading what its first fit needs, starting a pool. Then a forked child reads the captures (up
+    to :data:`LOAD_ASIDE_MAX_BYTES`) while this process runs the steps, until the captures are
+    read (:func:`hystfit._warm.load_ahead`): the two overlap instead of following each other. The
+    same captures as read here (the child's, pickled, with the same read-only arrays); the
+    loader's error, if any, is raised here. Where the child cannot be forked, or this process runs
+    threads, they are read here and the steps are left to the caller's code.
+    """
+    import threading
+
+    files = expand_paths(paths, recursive)
+    aside = None
+    if ahead and threading.active_count() == 1 and _load_bytes(files) <= LOAD_ASIDE_MAX_BYTES:
+        from .parallel import fork_call
+
+        aside = fork_call(lambda: _read(files, options), kernels=False)
+    if aside is None:
+        got = _read(files, options)
+    else:
+        from ._warm import load_ahead
+
+        try:
+            load_ahead(ahead, stop=aside.ready)
+        except BaseException:
+            aside.cancel()
+            raise
+        got = aside.result()
+    if isinstance(got, Exception):
+        raise got
+    captures, read_only = got
+    for c, names in zip(captures, read_only):  # as read here: a pickled array comes back writeable
+        for name in names:
+            getattr(c, name).flags.writeable = False
+    return captures
+
+
+def _read(files: Sequence[Path], options: LoadOptions):
+    """(the captures of ``files``, per capture the names of its read-only arrays), or the
+    :class:`~hystfit.errors.HystfitError` that stopped the reading (a value: it crosses a pipe)."""
+    from .errors import HystfitError
+
+    try:
+        captures = [load_capture(p, options) for p in files]
+    except HystfitError as exc:
+        return exc
+    return captures, [[f.name for f in dataclasses.fields(c)
+                       if isinstance(getattr(c, f.name), np.ndarray) and not getattr(c, f.name).flags.writeable]
+                      for c in captures]
+
+
+def _load_bytes(files: Sequence[Path]) -> int:
+    try:
+        return sum(p.stat().st_size * (PARQUET_EXPANSION if p.suffix.lower() in PARQUET_SUFFIXES else 1)
+                   for p in files)
+    except OSError:  # the loader says what is wrong with the file
+        return LOAD_ASIDE_MAX_BYTES + 1
 
 
 # ----------------------------------------------------------------------------------------------

@@ -490,85 +490,17 @@ def start_figures(output: FigureOutputArgs) -> None:
         preload(claim_early=True)
 
 
-#: captures of at most this many bytes in all are read by a forked child while the command loads
-#: what its first fit needs (:func:`load_for_command`); larger ones are read here (their transfer
-#: would cost more than it saves, and memory twice). A Parquet file counts
-#: :data:`PARQUET_EXPANSION` times its size: it is compressed.
-LOAD_ASIDE_MAX_BYTES = 64 << 20
-PARQUET_EXPANSION = 8
-
-
 def load_for_command(data, options, output: OutputArgs, *, recursive: bool, ahead=()):
     """The captures of a command (``options``: :meth:`CaptureArgs.load_options`): loaded with a
-    progress line when slow, the loader's notes printed.
+    progress line when slow, the loader's notes printed. ``ahead``: what the command loads or
+    starts while a forked child reads them (:func:`hystfit.io.load_captures`)."""
+    from ..io import load_captures
 
-    ``ahead``: what the command's fit, in this process, is sure to load first (steps of
-    :mod:`hystfit._warm`). Then a forked child reads the captures (up to
-    :data:`LOAD_ASIDE_MAX_BYTES`) while this process runs those steps, until the captures are
-    read (:func:`hystfit._warm.load_ahead`): the two overlap instead of following each other. The
-    same captures as read here (the child's, pickled, with the same read-only arrays); the
-    loader's error, if any, is raised here. Where the child cannot be forked, or this process
-    runs threads, they are read here.
-    """
-    import threading
-
-    from ..io import expand_paths
-    from ..parallel import fork_call
-
-    paths = expand_paths(data, recursive)
     with phase(output.chatty, "loading the captures"):
-        aside = None
-        if ahead and paths and threading.active_count() == 1 and _load_bytes(paths) <= LOAD_ASIDE_MAX_BYTES:
-            aside = fork_call(lambda: _read(paths, options), kernels=False)
-        if aside is None:
-            got = _read(paths, options)
-        else:
-            from .._warm import load_ahead
-
-            try:
-                load_ahead(ahead, stop=aside.ready)
-            except BaseException:
-                aside.cancel()
-                raise
-            got = aside.result()
-    if isinstance(got, Exception):
-        raise got
-    captures, read_only = got
-    for c, names in zip(captures, read_only):  # as read here: a pickled array comes back writeable
-        for name in names:
-            getattr(c, name).flags.writeable = False
+        captures = load_captures(data, options, recursive=recursive, ahead=ahead)
     if not output.quiet:
         print_capture_notes(captures)
     return captures
-
-
-def _read(paths, options):
-    """(the captures of ``paths``, per capture the names of its read-only arrays), or the
-    :class:`~hystfit.errors.HystfitError` that stopped the reading (a value: it crosses a pipe)."""
-    import dataclasses
-
-    import numpy as np
-
-    from ..errors import HystfitError
-    from ..io import load_capture
-
-    try:
-        captures = [load_capture(p, options) for p in paths]
-    except HystfitError as exc:
-        return exc
-    return captures, [[f.name for f in dataclasses.fields(c)
-                       if isinstance(getattr(c, f.name), np.ndarray) and not getattr(c, f.name).flags.writeable]
-                      for c in captures]
-
-
-def _load_bytes(paths) -> int:
-    from ..io import PARQUET_SUFFIXES
-
-    try:
-        return sum(p.stat().st_size * (PARQUET_EXPANSION if p.suffix.lower() in PARQUET_SUFFIXES else 1)
-                   for p in paths)
-    except OSError:  # the loader says what is wrong with the file
-        return LOAD_ASIDE_MAX_BYTES + 1
 
 
 def writing(out, output: OutputArgs):

@@ -85,11 +85,10 @@ def compare(
     options = capture.load_options()
     quiet, json_out = output.quiet, output.json_out
     with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force) as stage:
-        if cr.executor is None and execution.jobs != 1:  # its fork server loads while the captures are read
-            from ..parallel import start_pool_server
+        from ..compare import startup_steps
 
-            start_pool_server()
-        captures = load_for_command(data, options, output, recursive=capture.recursive)
+        captures = load_for_command(data, options, output, recursive=capture.recursive,
+                                    ahead=startup_steps(jobs=execution.jobs, executor=cr.executor))
         with progress_bar(output.chatty, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=execution.jobs,
                               polish=polish, model_options=mopts, optimizer_options=opt_options, bounds=bnds,

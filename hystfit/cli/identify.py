@@ -36,7 +36,7 @@ def identify(
     Writes OUT/params.json, OUT/report.csv, OUT/report.md and OUT/plots/.
     """
     start_figures(output)
-    from ..identify import condition_groups, identify as run_identify
+    from ..identify import condition_groups, identify as run_identify, startup_steps
     from ..io import staged_output_dir
     from ..registry import optimizers
     from ..report.identify_report import ConditionFigures, write_identify_outputs
@@ -51,9 +51,10 @@ def identify(
     quiet, json_out = output.quiet, output.json_out
     with cell_run(out, execution, not quiet) as cr, \
             staged_output_dir(out, output.force) as stage:
+        one_cell = not fit.per_condition or (len(data) == 1 and Path(data[0]).is_file())  # × runs
         captures = load_for_command(data, options, output, recursive=capture.recursive,
-                                    ahead=_ahead(m, o, execution.jobs, cr.executor, data, runs, polish,
-                                                 not fit.per_condition))
+                                    ahead=startup_steps(m, o, jobs=execution.jobs, executor=cr.executor,
+                                                        n_cells=runs if one_cell else None, polish=polish))
         # each condition's figures are drawn while the next conditions are fitted
         n_conditions = len(condition_groups(captures, not fit.per_condition))
         with (ConditionFigures(stage, o.name, execution.jobs, n_conditions=n_conditions) if output.plots
@@ -124,26 +125,3 @@ def _print_summary_table(res, title: str) -> None:
         table.add_row(row["condition"], f"{row[f'rmse_{u}']:.4g}", f"{row['nrmse_pct']:.3g}", fmt(row['r2'], 5),
                       f"{row[f'max_error_{u}']:.4g}", f"{row['runtime_s']:.2f}")
     stdout.print(table)
-
-
-def _ahead(model, optimizer, jobs, executor, data, runs: int, polish: bool, global_fit: bool) -> tuple:
-    """What the fit is sure to load first when it runs in this process
-    (:func:`hystfit.identify.fits_here`; one capture file or a global fit is ``runs`` cells): the
-    optimizer's libraries and, with the polish, ``scipy.optimize``. Not numba: a PI fit of short
-    captures runs without it. When the fits run in a local pool instead, its fork server is
-    started now, so that it loads what they need while the captures are read."""
-    from .._warm import import_optimize
-    from ..identify import fits_here
-
-    one = global_fit or (len(data) == 1 and Path(data[0]).is_file())
-    try:
-        here = fits_here(model, optimizer, jobs, executor, runs if one else None)
-    except Exception:  # noqa: BLE001 - only decides what to load ahead; identify says what is wrong
-        return ()
-    if not here:
-        if executor is None and jobs != 1:  # a local pool: its fork server loads while the captures are read
-            from ..parallel import start_pool_server
-
-            start_pool_server()
-        return ()
-    return (*((optimizer.load_libraries,) if optimizer.libraries else ()), *((import_optimize,) if polish else ()))

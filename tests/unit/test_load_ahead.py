@@ -1,21 +1,23 @@
-"""Captures read by a forked child while the command loads what its fit needs (cli.common.load_for_command)."""
+"""Captures read by a forked child while the caller loads what its fit needs (io.load_captures(ahead=...)),
+and what identify and compare name as those steps (startup_steps)."""
 
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from hystfit import _warm
-from hystfit.cli import common
+from hystfit import _warm, io, parallel
 from hystfit.errors import InputError
 from hystfit.io import LoadOptions, load_captures
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_data"
-OUT = common.OutputArgs(quiet=True)
+CAN_FORK = hasattr(os, "fork") and parallel.fork_workers() > 1
 
 
 def _same(a, b) -> None:
@@ -28,67 +30,72 @@ def _same(a, b) -> None:
             assert getattr(x, name).flags.writeable == getattr(y, name).flags.writeable, name
 
 
-def test_the_child_reads_the_same_captures_while_the_steps_run_here(monkeypatch):
-    forked, ran = [], []
-    from hystfit import parallel
-
+def _counting_forks(monkeypatch) -> list:
+    forked = []
     real = parallel.fork_call
 
-    def counting_fork_call(fn, *a, **k):
+    def counting(fn, *a, **k):
         got = real(fn, *a, **k)
         forked.append(got is not None)
         return got
 
-    monkeypatch.setattr(parallel, "fork_call", counting_fork_call)
+    monkeypatch.setattr(parallel, "fork_call", counting)
     monkeypatch.setattr(threading, "active_count", lambda: 1)  # whatever threads earlier tests left
-    got = common.load_for_command([SAMPLE], LoadOptions(), OUT, recursive=False,
-                                  ahead=(lambda: ran.append(os.getpid()),))
+    return forked
+
+
+def test_the_child_reads_the_same_captures_while_the_steps_run_here(monkeypatch):
+    forked = _counting_forks(monkeypatch)
+    ran = []
+    got = load_captures([SAMPLE], LoadOptions(), ahead=(lambda: ran.append(os.getpid()),))
     _same(got, load_captures([SAMPLE], LoadOptions()))
     assert any(not c.y.flags.writeable for c in got)  # the fast reader's read-only arrays, kept
-    if hasattr(os, "fork") and parallel.fork_workers() > 1:
+    if CAN_FORK:
         assert forked == [True]
-    assert ran in ([], [os.getpid()])  # here, and only while the child read (it may have been done first)
+    assert ran in ([], [os.getpid()])  # here, never in the child (it may have been done first)
 
 
 def test_an_error_reading_is_raised_here_with_the_loaders_message_read_once(tmp_path, monkeypatch):
-    from hystfit import io
-
     bad = tmp_path / "bad.csv"
     bad.write_text("time_s,voltage_V,displacement_um\n0,1,2\n0.001,x,3\n")
     with pytest.raises(InputError) as plain:
         load_captures([bad], LoadOptions())
-    monkeypatch.setattr(threading, "active_count", lambda: 1)
+    forked = _counting_forks(monkeypatch)
     here = []
     real = io.load_capture
     monkeypatch.setattr(io, "load_capture", lambda *a, **k: (here.append(os.getpid()), real(*a, **k))[1])
     with pytest.raises(InputError) as aside:
-        common.load_for_command([bad], LoadOptions(), OUT, recursive=False, ahead=(lambda: None,))
+        load_captures([bad], LoadOptions(), ahead=(lambda: None,))
     assert str(aside.value) == str(plain.value)
-    from hystfit import parallel
-
-    if hasattr(os, "fork") and parallel.fork_workers() > 1:
-        assert here == []  # read by the child only: its error came back, the file was not read again
+    if CAN_FORK:
+        assert forked == [True] and here == []  # read by the child only: its error came back, no second read
 
 
-def test_large_captures_or_threads_are_read_here(monkeypatch):
-    from hystfit import parallel
-
+def test_large_captures_threads_or_no_steps_mean_reading_here(monkeypatch):
     calls = []
     monkeypatch.setattr(parallel, "fork_call", lambda *a, **k: calls.append(1))
-    monkeypatch.setattr(common, "LOAD_ASIDE_MAX_BYTES", 0)
-    _same(common.load_for_command([SAMPLE], LoadOptions(), OUT, recursive=False, ahead=(lambda: None,)),
-          load_captures([SAMPLE], LoadOptions()))
-    monkeypatch.setattr(common, "LOAD_ASIDE_MAX_BYTES", 1 << 40)
+    monkeypatch.setattr(io, "LOAD_ASIDE_MAX_BYTES", 0)
+    _same(load_captures([SAMPLE], LoadOptions(), ahead=(lambda: None,)), load_captures([SAMPLE], LoadOptions()))
+    monkeypatch.setattr(io, "LOAD_ASIDE_MAX_BYTES", 1 << 40)
     stop = threading.Event()
     t = threading.Thread(target=stop.wait, daemon=True)
     t.start()
     try:
-        common.load_for_command([SAMPLE], LoadOptions(), OUT, recursive=False, ahead=(lambda: None,))
+        load_captures([SAMPLE], LoadOptions(), ahead=(lambda: None,))
     finally:
         stop.set()
         t.join()
-    common.load_for_command([SAMPLE], LoadOptions(), OUT, recursive=False)  # nothing to load ahead
+    load_captures([SAMPLE], LoadOptions())  # nothing to do meanwhile
     assert calls == []
+
+
+def test_a_parquet_file_counts_as_its_uncompressed_size(tmp_path):
+    csv, pq = tmp_path / "a.csv", tmp_path / "a.parquet"
+    csv.write_bytes(b"x" * 1000)
+    pq.write_bytes(b"x" * 1000)
+    assert io._load_bytes([csv]) == 1000
+    assert io._load_bytes([pq]) == 1000 * io.PARQUET_EXPANSION
+    assert io._load_bytes([tmp_path / "missing.csv"]) > io.LOAD_ASIDE_MAX_BYTES
 
 
 def test_load_ahead_runs_the_steps_in_order_until_stopped_and_skips_failing_ones():
@@ -106,29 +113,32 @@ def test_load_ahead_runs_the_steps_in_order_until_stopped_and_skips_failing_ones
     assert ran == [1, "fails"]
 
 
-def test_the_pool_preload_and_the_command_share_one_list_of_steps():
-    assert _warm.STEPS == (*_warm.KERNELS, _warm.import_optimize)
+def test_the_pools_fork_server_preload_loads_numba_and_scipy_optimize():
+    """hystfit._pool_preload runs _warm.load_ahead(): a fresh process that imports it has numba set up
+    (a cached kernel loaded) and scipy.optimize imported."""
+    probe = ("import sys, hystfit._pool_preload, hystfit._jit as j; "
+             "print(j.numba_loaded(), 'scipy.optimize' in sys.modules, 'numba.core.typing' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", probe], check=True, capture_output=True, text=True, timeout=300)
+    assert out.stdout.split() == ["True", "True", "True"]
 
 
-def test_identify_loads_ahead_where_it_fits_and_starts_the_pool_server_where_a_pool_fits(monkeypatch):
-    from hystfit import parallel
-    from hystfit.cli.identify import _ahead
+def test_identify_and_compare_name_what_they_load_or_start_first():
+    from hystfit.compare import startup_steps as compare_steps
     from hystfit.factory import make_model, make_optimizer
+    from hystfit.identify import startup_steps
     from hystfit.registry import optimizers
 
-    started = []
-    monkeypatch.setattr(parallel, "start_pool_server", lambda: started.append(1))
     auto, pso = make_optimizer(optimizers.get("auto"), {}), make_optimizer(optimizers.get("pso"), {})
     pi, bw = make_model("pi", {}), make_model("bw", {})
-    one = [str(SAMPLE / "a20V_f10Hz.csv")]
-    # PI with auto: one exact linear solve per condition, here: its libraries and the polish's
-    assert _ahead(pi, auto, None, None, [SAMPLE], 1, True, False) == (auto.load_libraries, _warm.import_optimize)
-    assert _ahead(pi, pso, None, None, one, 1, False, False) == ()  # nothing a PSO fit is sure to load
-    assert started == []
-    # bw on 24 conditions: a pool of all cores, whose fork server starts now
+    here = (auto.load_libraries, _warm.import_optimize)
+    # PI with auto: one exact linear solve per condition, fitted here: its libraries and the polish's
+    assert startup_steps(pi, auto, jobs=None) == here
+    assert startup_steps(pi, pso, jobs=None, n_cells=1, polish=False) == ()  # nothing a PSO fit is sure to load
+    # bw on many conditions: a pool of all cores, whose fork server starts
     if parallel.default_jobs() > 1:
-        assert _ahead(bw, auto, None, None, [SAMPLE], 1, True, False) == ()
-        assert started == [1]
-    # one capture file: one cell, fitted here whatever the model
-    assert _ahead(bw, auto, None, None, one, 1, True, False) == (auto.load_libraries, _warm.import_optimize)
-    assert _ahead(bw, auto, 1, None, [SAMPLE], 1, True, False) != ()  # --jobs 1
+        assert startup_steps(bw, auto, jobs=None) == (parallel.start_pool_server,)
+    assert startup_steps(bw, auto, jobs=None, n_cells=1) == here  # one cell: fitted here
+    assert startup_steps(bw, auto, jobs=1) == here
+    assert startup_steps(bw, auto, jobs=2, executor=object()) == ()  # another executor: nothing here
+    assert compare_steps(jobs=None) == (parallel.start_pool_server,)
+    assert compare_steps(jobs=1) == () and compare_steps(jobs=2, executor=object()) == ()
