@@ -17,8 +17,8 @@ a fitting command meets them:
 Then the figure server's own import (:func:`hystfit.report.render._import_plotting`: matplotlib's
 figure and Agg canvas, hystfit's plots, the default font), after numpy, whole and ``lean`` (without
 the 3-D toolkit, as the server imports it), alternately. The difference (≈ 0.05 s) is within the
-wall-time noise of a shared machine; ``perf stat -e instructions:u`` around the two counts it
-steadily (2.54 G against 2.44 G instructions of a process that imports numpy first, 0.57 G).
+wall-time noise of a shared machine; the last column counts it steadily where ``perf stat`` can:
+the user-space instructions of the whole process (Python's start and numpy's import included).
 
 A first run warms numba's on-disk cache. The machine is shared: compare rows within one run.
 """
@@ -28,8 +28,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -102,16 +104,33 @@ print(json.dumps([time.perf_counter() - t, time.process_time() - c]))
 """
 
 
-def figure_imports(repeat: int = 5) -> dict[str, tuple[float, float]]:
-    """Best (wall s, CPU s) of the figure server's import, ``whole`` and ``lean``, fresh processes."""
+def figure_imports(repeat: int = 5) -> dict[str, tuple[float, float, float | None]]:
+    """Best (wall s, CPU s) of the figure server's import, ``whole`` and ``lean``, fresh processes,
+    and the median user-space instructions of the whole process (numpy's import and Python's start
+    included; None where ``perf stat`` cannot count)."""
+    from command_ab import perf_counts
+
+    count = perf_counts()
     env = {**command_env(), "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     runs: dict[str, list] = {"whole": [], "lean": []}
     for _ in range(repeat + 1):  # the first pair warms the bytecode cache
         for way in runs:
-            out = subprocess.run([sys.executable, "-c", FIGURE_PROBE, way], cwd=ROOT, env=env, check=True,
-                                 capture_output=True, text=True).stdout
-            runs[way].append(json.loads(out.strip().splitlines()[-1]))
-    return {way: (min(w for w, _ in r[1:]), min(c for _, c in r[1:])) for way, r in runs.items()}
+            with tempfile.TemporaryDirectory() as tmp:
+                cmd = [sys.executable, "-c", FIGURE_PROBE, way]
+                if count:
+                    cmd = ["perf", "stat", "-x,", "-e", "instructions:u", "-o", f"{tmp}/perf.csv", "--", *cmd]
+                out = subprocess.run(cmd, cwd=ROOT, env=env, check=True, capture_output=True, text=True).stdout
+                wall, cpu = json.loads(out.strip().splitlines()[-1])
+                n = None
+                if count:
+                    rows = [r.split(",") for r in Path(f"{tmp}/perf.csv").read_text().splitlines() if "instructions" in r]
+                    n = float(rows[0][0]) if rows and rows[0][0].isdigit() else None
+            runs[way].append((wall, cpu, n))
+    out: dict[str, tuple[float, float, float | None]] = {}
+    for way, r in runs.items():
+        ns = [n for _, _, n in r[1:] if n is not None]
+        out[way] = (min(w for w, _, _ in r[1:]), min(c for _, c, _ in r[1:]), statistics.median(ns) if ns else None)
+    return out
 
 
 def main() -> None:
@@ -122,9 +141,10 @@ def main() -> None:
     print("| step | wall (s) | CPU (s) |\n|---|---:|---:|")
     for row in measure(args.repeat):
         print(f"| {row['step']} | {row['wall_s']:.3f} | {row['cpu_s']:.3f} |")
-    print("\n| the figure server's import | wall (s) | CPU (s) |\n|---|---:|---:|")
-    for way, (wall, cpu) in figure_imports(args.repeat).items():
-        print(f"| {way} | {wall:.3f} | {cpu:.3f} |")
+    print("\n| the figure server's import | wall (s) | CPU (s) | instructions of the process (G, median) |")
+    print("|---|---:|---:|---:|")
+    for way, (wall, cpu, n) in figure_imports(args.repeat).items():
+        print(f"| {way} | {wall:.3f} | {cpu:.3f} | {'–' if n is None else f'{n / 1e9:.3f}'} |")
 
 
 if __name__ == "__main__":
