@@ -363,7 +363,7 @@ def png_bytes(rgba: np.ndarray, dpi: float) -> bytes:
                      chunk(b"IDAT", zlib.compress(rows, PNG_COMPRESS_LEVEL)), chunk(b"IEND", b"")])
 
 
-def _save(fig: Figure, path, dpi: int) -> Path:
+def _save(fig: Figure, path, dpi: int, draw: Callable | None = None) -> Path:
     """Render ``fig`` at ``dpi`` on the Agg canvas and write it to ``path`` as PNG, atomically.
 
     The figure is drawn on a :class:`~hystfit.report.canvas.Canvas` (texts stamped from a cache of
@@ -373,6 +373,7 @@ def _save(fig: Figure, path, dpi: int) -> Path:
     leaves nothing. ``path`` may also be a binary file object (e.g. :class:`io.BytesIO`): the PNG is
     written to it and nothing touches the disk. The figure is not cleared: a template
     (:func:`_template`) is reset on its next use, any other figure is dropped by its caller.
+    ``draw(renderer)``: draws the figure on the cleared canvas instead of ``Figure.draw``.
 
     Raises
     ------
@@ -384,7 +385,12 @@ def _save(fig: Figure, path, dpi: int) -> Path:
     if fig.dpi != dpi:
         fig.set_dpi(dpi)
     canvas = fig.canvas if isinstance(fig.canvas, Canvas) else Canvas(fig)
-    canvas.draw()
+    if draw is None:
+        canvas.draw()
+    else:
+        renderer = canvas.get_renderer()
+        renderer.clear()
+        draw(renderer)
     png = png_bytes(np.asarray(canvas.buffer_rgba()), dpi)
     if hasattr(path, "write"):  # a binary file object, as matplotlib's savefig takes
         path.write(png)
@@ -436,28 +442,33 @@ def _template(key: tuple, build: Callable[[], Figure]) -> Figure:
 
 def _reset(fig: Figure) -> None:
     """Remove what the previous use of a template drew: artists, legends, titles, scales, limits."""
-    from matplotlib.transforms import Bbox
-
     for ax in fig.axes:
-        for artist in [*ax.lines, *ax.patches, *ax.collections, *ax.texts, *ax.images]:
-            artist.remove()
-        if ax.legend_ is not None:
-            ax.legend_.remove()
-        ax.set_title("", y=1.0)
-        ax.set_xlabel("")
-        ax.set_ylabel("")
-        # a log axis back to linear, with linear's default locator and formatter (a linear axis
-        # keeps its own: every figure of a template sets the same locator parameters each time)
-        if ax.get_xscale() != "linear":
-            ax.set_xscale("linear")
-        if ax.get_yscale() != "linear":
-            ax.set_yscale("linear")
-        ax.dataLim.set_points(Bbox.null().get_points())
-        ax.ignore_existing_data_limits = True
-        ax.set_autoscale_on(True)
-        ax.set_prop_cycle(None)
+        _reset_axes(ax)
     for leg in list(fig.legends):
         leg.remove()
+
+
+def _reset_axes(ax) -> None:
+    """Return ``ax`` to its state before anything was drawn on it (see :func:`_reset`)."""
+    from matplotlib.transforms import Bbox
+
+    for artist in [*ax.lines, *ax.patches, *ax.collections, *ax.texts, *ax.images]:
+        artist.remove()
+    if ax.legend_ is not None:
+        ax.legend_.remove()
+    ax.set_title("", y=1.0)
+    ax.set_xlabel("")
+    ax.set_ylabel("")
+    # a log axis back to linear, with linear's default locator and formatter (a linear axis
+    # keeps its own: every figure of a template sets the same locator parameters each time)
+    if ax.get_xscale() != "linear":
+        ax.set_xscale("linear")
+    if ax.get_yscale() != "linear":
+        ax.set_yscale("linear")
+    ax.dataLim.set_points(Bbox.null().get_points())
+    ax.ignore_existing_data_limits = True
+    ax.set_autoscale_on(True)
+    ax.set_prop_cycle(None)
 
 
 def _with_axes(fig: Figure) -> Figure:
@@ -719,6 +730,11 @@ def overview_figure(path, panels: Sequence[dict], *, unit: str = "um", title: st
                     dpi: int = DPI) -> Path:
     """Grid of small loop plots, one per condition.
 
+    The panels are drawn by one axes moved from cell to cell (:func:`_overview_layout`): each is
+    drawn where a grid of its own axes would put it, with the same artists, in the same order, so
+    the pixels are those of a figure with one axes per panel, without creating and laying out that
+    many axes and their ticks (≈ two thirds of a first overview of 24 panels).
+
     Parameters
     ----------
     path : str or Path
@@ -740,37 +756,58 @@ def overview_figure(path, panels: Sequence[dict], *, unit: str = "um", title: st
         missing = [k for k in ("u", "y_meas") if k not in p]
         if missing:
             raise ValueError(f"panel {i} ({p.get('title', '')!r}) lacks {', '.join(missing)}")
-    fig = _overview_layout(len(panels), bool(title), dpi)
+    fig, cells = _overview_layout(len(panels), bool(title), dpi)
+    (ax,) = fig.axes
     cols = _grid_shape(len(panels))[1]
-    axes = fig.axes
-    for i, (ax, p) in enumerate(zip(axes, panels)):
-        caps = _captures({"u": p["u"], "y_meas": p["y_meas"], "y_model": p.get("y_model")})
-        _draw_loops(ax, caps, ("measured", "model"), lw_scale=0.8)
-        head = p.get("title", "")
-        sub = p.get("subtitle", "")
-        ax.set_title(f"{head}\n{sub}" if sub else head, fontsize=7.5, pad=3, y=1.0)
-        ax.locator_params(nbins=_OVERVIEW_TICK_BINS)
-        c = i % cols
-        last_in_column = i + cols >= len(panels)
-        if last_in_column:
-            ax.set_xlabel("Voltage (V)", fontsize=7)
-        if c == 0:
-            ax.set_ylabel(_output_label(unit), fontsize=7)
-    handles, lbls = axes[0].get_legend_handles_labels()
-    if handles:
-        fig.legend(handles, lbls, loc="lower center", bbox_to_anchor=(0.5, 0.0), ncols=len(handles), fontsize=8,
-                   frameon=False)
-    if title:
-        fig.suptitle(title, fontsize=10, y=1 - 0.12 / (fig.get_size_inches()[1]), va="top")
-    return _save(fig, path, dpi)
+    legend = None
+
+    def draw(renderer) -> None:
+        # as Figure.draw would draw a grid of axes: the background, each panel's axes in order,
+        # then the figure's own artists (suptitle, legend) by z-order
+        nonlocal legend
+        fig.patch.draw(renderer)
+        for i, (cell, p) in enumerate(zip(cells, panels)):
+            _reset_axes(ax)
+            ax.set_subplotspec(cell)
+            caps = _captures({"u": p["u"], "y_meas": p["y_meas"], "y_model": p.get("y_model")})
+            _draw_loops(ax, caps, ("measured", "model"), lw_scale=0.8)
+            head = p.get("title", "")
+            sub = p.get("subtitle", "")
+            ax.set_title(f"{head}\n{sub}" if sub else head, fontsize=7.5, pad=3, y=1.0)
+            ax.locator_params(nbins=_OVERVIEW_TICK_BINS)
+            if i + cols >= len(panels):  # the last panel of its column
+                ax.set_xlabel("Voltage (V)", fontsize=7)
+            if i % cols == 0:
+                ax.set_ylabel(_output_label(unit), fontsize=7)
+            if i == 0:
+                handles, lbls = ax.get_legend_handles_labels()
+                if handles:  # the legend's own artists copy the first panel's lines
+                    legend = fig.legend(handles, lbls, loc="lower center", bbox_to_anchor=(0.5, 0.0),
+                                        ncols=len(handles), fontsize=8, frameon=False)
+            ax.apply_aspect()
+            ax.draw(renderer)
+        if title:
+            fig.suptitle(title, fontsize=10, y=1 - 0.12 / (fig.get_size_inches()[1]), va="top")
+        for artist in sorted((a for a in (fig._suptitle, legend) if a is not None), key=lambda a: a.get_zorder()):
+            artist.draw(renderer)
+
+    try:
+        return _save(fig, path, dpi, draw=draw)
+    finally:
+        if legend is not None:
+            legend.remove()
+        if fig._suptitle is not None:
+            fig._suptitle.set_text("")
 
 
 #: tick intervals per overview axis: legible at this size, and each tick costs a text to lay out
 _OVERVIEW_TICK_BINS = 4
 
 
-def _overview_layout(n_panels: int, titled: bool, dpi: int) -> Figure:
-    """The grid of :func:`overview_figure` for ``n_panels`` (a template: laid out once per process)."""
+def _overview_layout(n_panels: int, titled: bool, dpi: int):
+    """The figure of :func:`overview_figure` for ``n_panels`` and the grid's cells, one per panel
+    (a template: laid out once per process). The figure holds one axes, which the overview moves
+    to each cell in turn."""
     rows, cols = _grid_shape(n_panels)
     margins = (0.6, 0.12, 0.72, 0.42 + (0.3 if titled else 0.0))
     width = margins[0] + margins[1] + cols * _PANEL_W + (cols - 1) * _PANEL_WGAP
@@ -778,27 +815,26 @@ def _overview_layout(n_panels: int, titled: bool, dpi: int) -> Figure:
 
     def build() -> Figure:
         f = _new_figure(width, height, margins, dpi=dpi, wspace=_PANEL_WGAP / _PANEL_W, hspace=_PANEL_HGAP / _PANEL_H)
-        axes = f.subplots(rows, cols, squeeze=False).ravel()
-        for ax in axes[:n_panels]:
-            ax.tick_params(labelsize=6.5, pad=1.5)
-            ax.grid(True, alpha=0.3)
-        for ax in axes[n_panels:]:
-            ax.set_axis_off()
+        grid = f.add_gridspec(rows, cols)
+        ax = f.add_subplot(grid[0])
+        ax.tick_params(labelsize=6.5, pad=1.5)
+        ax.grid(True, alpha=0.3)
+        f._overview_cells = [grid[i] for i in range(n_panels)]
         return f
 
-    return _template(("overview", n_panels, dpi, margins), build)
+    fig = _template(("overview", n_panels, dpi, margins), build)
+    return fig, fig._overview_cells
 
 
 def prepare_overview(n_panels: int, *, titled: bool = True, dpi: int = DPI) -> None:
     """Lay out the :func:`overview_figure` of ``n_panels`` ahead of its first drawing: its axes and
-    their ticks (≈ half the cost of a first overview of 24 panels), kept in this process's
-    template. A figure server calls it while the caller still fits (:func:`hystfit.report.render.prepare`),
-    so the process that draws the overview inherits the layout. The picture does not depend on it.
+    their ticks, kept in this process's template. A figure server calls it while the caller still
+    fits (:func:`hystfit.report.render.prepare`), so the process that draws the overview inherits
+    the layout. The picture does not depend on it.
     """
-    fig = _overview_layout(n_panels, titled, dpi)
-    for ax in fig.axes[:n_panels]:
-        for axis in (ax.xaxis, ax.yaxis):
-            axis.get_major_ticks(_OVERVIEW_TICK_BINS + 2)  # the most the locator gives, with the ends
+    fig, _ = _overview_layout(n_panels, titled, dpi)
+    for axis in (fig.axes[0].xaxis, fig.axes[0].yaxis):
+        axis.get_major_ticks(_OVERVIEW_TICK_BINS + 2)  # the most the locator gives, with the ends
 
 
 def parity_figure(path, y_meas, y_model, *, unit: str = "um", title: str = "", dpi: int = DPI) -> Path:

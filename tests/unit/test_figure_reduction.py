@@ -192,3 +192,56 @@ def test_a_prepared_overview_writes_the_same_bytes_as_a_fresh_one(tmp_path, rng)
     assert all(len(ax.xaxis.majorTicks) > 1 for ax in fig.axes[:7])  # the ticks exist before the first drawing
     assert plots.overview_figure(tmp_path / "prepared.png", panels, title="t").read_bytes() == fresh
     assert len(plots._templates.figures) == 1  # the prepared layout was the one used
+
+
+def _overview_as_a_grid_of_axes(path, panels, *, unit="um", title=""):
+    """The overview drawn the plain way: one axes per panel in one grid, drawn by ``Figure.draw``
+    (what :func:`plots.overview_figure`, which moves one axes from cell to cell, must reproduce)."""
+    rows, cols = plots._grid_shape(len(panels))
+    margins = (0.6, 0.12, 0.72, 0.42 + (0.3 if title else 0.0))
+    width = margins[0] + margins[1] + cols * plots._PANEL_W + (cols - 1) * plots._PANEL_WGAP
+    height = margins[2] + margins[3] + rows * plots._PANEL_H + (rows - 1) * plots._PANEL_HGAP
+    fig = plots._new_figure(width, height, margins, wspace=plots._PANEL_WGAP / plots._PANEL_W,
+                            hspace=plots._PANEL_HGAP / plots._PANEL_H)
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    for ax in axes[len(panels):]:
+        ax.set_axis_off()
+    for i, (ax, p) in enumerate(zip(axes, panels)):
+        ax.tick_params(labelsize=6.5, pad=1.5)
+        ax.grid(True, alpha=0.3)
+        caps = plots._captures({"u": p["u"], "y_meas": p["y_meas"], "y_model": p.get("y_model")})
+        plots._draw_loops(ax, caps, ("measured", "model"), lw_scale=0.8)
+        sub = p.get("subtitle", "")
+        ax.set_title(f"{p.get('title', '')}\n{sub}" if sub else p.get("title", ""), fontsize=7.5, pad=3, y=1.0)
+        ax.locator_params(nbins=plots._OVERVIEW_TICK_BINS)
+        if i + cols >= len(panels):
+            ax.set_xlabel("Voltage (V)", fontsize=7)
+        if i % cols == 0:
+            ax.set_ylabel(plots._output_label(unit), fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 0.0), ncols=len(handles), fontsize=8,
+                   frameon=False)
+    if title:
+        fig.suptitle(title, fontsize=10, y=1 - 0.12 / height, va="top")
+    return plots._save(fig, path, plots.DPI)
+
+
+@pytest.mark.parametrize("n", [1, 5, 7, 13])
+def test_the_overview_equals_a_grid_of_one_axes_per_panel(tmp_path, rng, n):
+    """One axes moved from cell to cell draws the same bytes as a grid with an axes per panel:
+    panels of other ranges (tick labels of other widths, an offset), several captures per panel,
+    without a model or a subtitle, empty cells, with and without a title, in µm and nm."""
+    t, u, y = _periodic(3_000, 3, rng, noise=0.01)
+    panels = []
+    for i in range(n):
+        uu, yy = u * (1 + 0.7 * i), y * (1 + 0.3 * i) + (100.0 if i == 3 else 0.0)
+        p = {"u": uu, "y_meas": yy, "y_model": yy + 0.01 * i, "title": f"c{i}", "subtitle": f"RMSE={0.01 * i:.3g}"}
+        if i == 1:
+            p = {**p, "u": [uu, uu[:1500]], "y_meas": [yy, yy[:1500] + 0.1], "y_model": [yy, yy[:1500]]}
+        if i == 2:
+            p = {k: v for k, v in p.items() if k not in ("y_model", "subtitle")}
+        panels.append(p)
+    for kw in ({"title": "all"}, {"unit": "nm", "title": ""}):
+        plain = _overview_as_a_grid_of_axes(tmp_path / "plain.png", panels, **kw).read_bytes()
+        assert plots.overview_figure(tmp_path / "moved.png", panels, **kw).read_bytes() == plain
