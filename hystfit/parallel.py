@@ -46,7 +46,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Optional, Sequence, TypeVar
 
-from ._process import alive
+from ._process import alive, fork_with_handlers
 from .errors import ConfigError, HystfitError
 
 J = TypeVar("J")
@@ -787,10 +787,9 @@ def _private_numba_init_lock() -> None:
 
 def _fork_child(fn: Callable[[int], Any], n: int, claim, conn, kernels: bool = True) -> None:
     """A child of :func:`fork_map`: claims items until none is left, then sends ``{index: result}``.
-    SIGTERM (the parent stopping it) ends it at once, whatever handler the parent had. ``kernels``:
+    SIGTERM (the parent stopping it) ends it at once, whatever handler the parent had (set by
+    :func:`_fork_one` before any signal reaches the child). ``kernels``:
     its items may run numba kernels (one numba thread; False: numba is left as it is, not imported)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _private_numba_init_lock()
     if kernels:
         _single_threaded()
@@ -816,7 +815,8 @@ def _fork_one(fn: Callable[[int], Any], n: int, claim, kernels: bool = True) -> 
         stream.flush()
     parent = os.getpid()
     try:
-        pid = os.fork()
+        # SIGTERM (the parent stopping it) ends the child at once, whatever handler the parent has
+        pid = fork_with_handlers({signal.SIGINT: signal.SIG_IGN, signal.SIGTERM: signal.SIG_DFL})
     except OSError:
         recv.close()
         send.close()

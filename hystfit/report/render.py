@@ -42,6 +42,8 @@ from multiprocessing.reduction import ForkingPickler
 from pathlib import Path
 from typing import Any, Sequence
 
+from .._process import fork_with_handlers
+
 __all__ = ["FigureJob", "FigureStream", "PendingFigures", "preload", "render_figures", "MIN_JOBS_PER_WORKER"]
 
 #: a worker is only started for at least this many figures (≈ 35–65 ms each, against ≈ 30 ms to fork one)
@@ -142,7 +144,9 @@ class _FigureServer:
         for stream in (sys.stdout, sys.stderr):  # nothing buffered here is written twice
             stream.flush()
         try:
-            self.pid = os.fork()
+            # the server ignores Ctrl-C and stops on SIGTERM, from the first instant (a close right
+            # after the fork must not run this process's handler in it)
+            self.pid = fork_with_handlers({signal.SIGINT: signal.SIG_IGN, signal.SIGTERM: _stop_serving})
         except OSError:
             self.conn.close()
             child.close()
@@ -151,8 +155,6 @@ class _FigureServer:
             code = 0
             try:
                 self.conn.close()
-                signal.signal(signal.SIGINT, signal.SIG_IGN)
-                signal.signal(signal.SIGTERM, _stop_serving)
                 _detach_output()
                 _serve(child)
             except BaseException:  # noqa: BLE001 - the parent falls back to drawing itself

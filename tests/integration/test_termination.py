@@ -133,6 +133,53 @@ def test_fork_map_children_end_at_sigterm_whatever_handler_the_parent_has():
     assert by_children and all(by_children)
 
 
+def test_a_child_stopped_right_after_its_fork_ends_at_once_and_prints_nothing(capfd):
+    """A SIGTERM sent at once to a child just forked reaches the child's own handler (SIG_DFL), not
+    the parent's (a raising handler, as the console script's). Before, the parent's handler ran in
+    the child during the interpreter's after-fork hooks: "Exception ignored ..." was printed, the
+    signal was lost, the child computed on and ``cancel`` waited for it (221 of 300 measured)."""
+
+    class Stop(BaseException):
+        pass
+
+    def raising(signum, frame):
+        raise Stop
+
+    saved = signal.signal(signal.SIGTERM, raising)
+    try:
+        waits = []
+        for _ in range(20):
+            call = parallel.fork_call(lambda: time.sleep(3.0), workers=2, kernels=False)
+            assert call is not None
+            t0 = time.monotonic()
+            call.cancel()
+            waits.append(time.monotonic() - t0)
+    finally:
+        signal.signal(signal.SIGTERM, saved)
+    assert max(waits) < 1.0, sorted(waits)[-5:]
+    assert "Exception ignored" not in capfd.readouterr().err
+
+
+def test_the_figure_server_stopped_right_after_its_fork_ends_at_once(capfd):
+    """The same for the figure server (before: it finished importing matplotlib, ≈ 0.9 s, before
+    it noticed; "Exception ignored ..." in 5 of 30 tries)."""
+    from hystfit.report import render
+
+    def raising(signum, frame):
+        raise KeyboardInterrupt
+
+    saved = signal.signal(signal.SIGTERM, raising)
+    try:
+        for _ in range(10):
+            server = render._FigureServer()
+            t0 = time.monotonic()
+            server.close(stop=True)
+            assert time.monotonic() - t0 < 0.5
+    finally:
+        signal.signal(signal.SIGTERM, saved)
+    assert "Exception ignored" not in capfd.readouterr().err
+
+
 def test_stop_line_and_exit_code():
     assert (stop_message(KeyboardInterrupt()), stop_code(KeyboardInterrupt())) == ("interrupted", 130)
     assert (stop_message(Terminated()), stop_code(Terminated())) == ("terminated (SIGTERM)", 143)
