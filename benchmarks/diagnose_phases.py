@@ -6,7 +6,11 @@ Run:  python benchmarks/diagnose_phases.py [DATA] [--model pi] [--mode timeline|
   process once, with every phase's start and end in seconds since the start: loading, the base fits, the
   base's resolution, each selection step, each resolution check, the recommended model's fit and
   the writing of the outputs (which waits for the figures). The first base fit includes numba's
-  first kernel load and the ``scipy.optimize`` import.
+  first kernel load and the ``scipy.optimize`` import. Beside each phase, the machine's busy cores
+  on average over it (``/proc/stat`` every 50 ms, read by a separate process: a thread in this
+  one would change what is measured, since the command forks its figure server and reads its
+  captures aside only while it runs no thread). On an otherwise idle 2-core machine, 2.0 means
+  both cores worked throughout; less is time a core waited for a serial part.
 - ``ahead``: the diagnosis in this process (no figures), alternately with and without the refit of
   a resolution check's next doubling computed ahead in a forked child (``diagnose._speculate``),
   ``--repeat`` times each: the seconds of the resolution checks and of the whole diagnosis.
@@ -54,7 +58,34 @@ def _timed(module: str, name: str, log: list, t0: float) -> None:
     setattr(mod, name, wrapper)
 
 
+#: a separate process that prints the machine's busy cores every 50 ms (for :func:`timeline`)
+_MONITOR = """
+import sys, time
+def stat():
+    with open('/proc/stat') as f:
+        v = [int(x) for x in f.readline().split()[1:]]
+    return sum(v), v[3] + v[4]
+prev = stat()
+while True:
+    time.sleep(0.05)
+    cur = stat()
+    total, busy = cur[0] - prev[0], (cur[0] - prev[0]) - (cur[1] - prev[1])
+    prev = cur
+    print(time.time(), {cores} * busy / total if total else 0.0, flush=True)
+"""
+
+
+def _busy_cores(samples: list[tuple[float, float]], a: float, b: float) -> str:
+    inside = [c for t, c in samples if a <= t <= b]
+    return f"{sum(inside) / len(inside):.2f}" if inside else "–"
+
+
 def timeline(data: str, model: str) -> None:
+    monitor = None
+    if Path("/proc/stat").exists():
+        out = tempfile.NamedTemporaryFile("w+", suffix=".busy", delete=False)
+        monitor = subprocess.Popen([sys.executable, "-c", _MONITOR.format(cores=os.cpu_count() or 1)], stdout=out)
+    wall0 = time.time()
     t0 = time.perf_counter()
     from hystfit.cli import main
 
@@ -69,10 +100,18 @@ def timeline(data: str, model: str) -> None:
             if exc.code:
                 raise
     end = time.perf_counter() - t0
+    samples: list[tuple[float, float]] = []
+    if monitor is not None:
+        monitor.terminate()
+        monitor.wait()
+        out.seek(0)
+        samples = [(float(t) - wall0, float(c)) for t, c in (ln.split() for ln in out if ln.strip())]
+        out.close()
+        os.unlink(out.name)
     print(f"`hystfit diagnose {data} --model {model}` in this process, {end:.2f} s\n")
-    print("| phase | from (s) | to (s) | seconds |\n|---|---:|---:|---:|")
+    print("| phase | from (s) | to (s) | seconds | busy cores |\n|---|---:|---:|---:|---:|")
     for name, a, b in sorted(log, key=lambda r: r[1]):
-        print(f"| {name} | {a:.2f} | {b:.2f} | {b - a:.2f} |")
+        print(f"| {name} | {a:.2f} | {b:.2f} | {b - a:.2f} | {_busy_cores(samples, a, b)} |")
 
 
 def _diagnose_once(caps, model, opt):
