@@ -29,6 +29,10 @@ def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
     installs ``handlers`` and then unblocks them (a signal sent meanwhile is delivered then, to its
     new handler); the parent unblocks them after the fork. Returns the child's pid in the parent
     and 0 in the child, as ``os.fork``; raises ``OSError`` as it does (the parent's mask restored).
+    A signal that reached the parent during the fork is handled when the parent unblocks it: if its
+    handler raises (Ctrl-C), the child is killed and reaped before the exception leaves here, so no
+    child is left that nobody will wait for; a child whose handlers raise before it has begun
+    exits at once.
     """
     if not hasattr(signal, "pthread_sigmask"):
         pid = os.fork()
@@ -39,11 +43,29 @@ def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, HELD_SIGNALS)
     try:
         pid = os.fork()
-        if pid == 0:
+    except BaseException:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        raise
+    if pid == 0:
+        try:
             for signum, handler in handlers.items():
                 signal.signal(signum, handler)
-    finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        except BaseException:  # stopped before it began (a handler that raises): never return into the caller's code
+            os._exit(1)
+        return 0
+    try:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+    except BaseException:
+        # a signal held during the fork is handled here, now, by this process's handler (Ctrl-C,
+        # the console script's SIGTERM): the command stops, and the child it will never hear of
+        # must not go on computing
+        try:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+        except OSError:
+            pass
+        raise
     return pid
 
 

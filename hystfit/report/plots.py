@@ -465,6 +465,10 @@ def _reset_axes(ax) -> None:
         ax.set_xscale("linear")
     if ax.get_yscale() != "linear":
         ax.set_yscale("linear")
+    # the view limits of a new axes: what autoscaling falls back to when a figure has no finite
+    # point (else it would keep the previous figure's, or the previous overview panel's, ranges)
+    ax.set_xlim(0.0, 1.0)
+    ax.set_ylim(0.0, 1.0)
     ax.dataLim.set_points(Bbox.null().get_points())
     ax.ignore_existing_data_limits = True
     ax.set_autoscale_on(True)

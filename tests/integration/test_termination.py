@@ -149,14 +149,14 @@ def test_a_child_stopped_right_after_its_fork_ends_at_once_and_prints_nothing(ca
     try:
         waits = []
         for _ in range(20):
-            call = parallel.fork_call(lambda: time.sleep(3.0), workers=2, kernels=False)
+            call = parallel.fork_call(lambda: time.sleep(5.0), workers=2, kernels=False)
             assert call is not None
             t0 = time.monotonic()
             call.cancel()
             waits.append(time.monotonic() - t0)
     finally:
         signal.signal(signal.SIGTERM, saved)
-    assert max(waits) < 1.0, sorted(waits)[-5:]
+    assert max(waits) < 2.5, sorted(waits)[-5:]  # a child that ran on: 5 s
     assert "Exception ignored" not in capfd.readouterr().err
 
 
@@ -174,10 +174,57 @@ def test_the_figure_server_stopped_right_after_its_fork_ends_at_once(capfd):
             server = render._FigureServer()
             t0 = time.monotonic()
             server.close(stop=True)
-            assert time.monotonic() - t0 < 0.5
+            assert time.monotonic() - t0 < 0.6  # one that imports matplotlib first: ≈ 0.9 s and more
     finally:
         signal.signal(signal.SIGTERM, saved)
     assert "Exception ignored" not in capfd.readouterr().err
+
+
+def test_fork_with_handlers_restores_the_parents_signal_mask(monkeypatch):
+    from hystfit import _process
+
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    pid = _process.fork_with_handlers({signal.SIGTERM: signal.SIG_DFL})
+    if pid == 0:  # the child: its mask is the parent's, SIGTERM at its default
+        ok = signal.pthread_sigmask(signal.SIG_BLOCK, set()) == before and \
+            signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+        os._exit(0 if ok else 1)
+    _, status = os.waitpid(pid, 0)
+    assert os.WEXITSTATUS(status) == 0
+    assert signal.pthread_sigmask(signal.SIG_BLOCK, set()) == before
+
+    def refused():
+        raise OSError("fork refused")
+
+    monkeypatch.setattr(os, "fork", refused)
+    with pytest.raises(OSError):
+        _process.fork_with_handlers({signal.SIGTERM: signal.SIG_DFL})
+    assert signal.pthread_sigmask(signal.SIG_BLOCK, set()) == before
+
+
+def test_a_signal_held_during_the_fork_stops_the_parent_and_leaves_no_child(monkeypatch):
+    """Ctrl-C arriving while the signals are held: raised in the parent when they are released,
+    after the fork, and the child (which ignores Ctrl-C) is killed and reaped, not left running."""
+    from hystfit import _process
+
+    real_fork, forked = os.fork, []
+
+    def fork_during_ctrl_c():
+        os.kill(os.getpid(), signal.SIGINT)  # held: delivered when the parent unblocks it
+        pid = real_fork()
+        if pid == 0:
+            time.sleep(30)
+            os._exit(0)
+        forked.append(pid)
+        return pid
+
+    monkeypatch.setattr(os, "fork", fork_during_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        _process.fork_with_handlers({signal.SIGINT: signal.SIG_IGN, signal.SIGTERM: signal.SIG_DFL})
+    (pid,) = forked
+    with pytest.raises(ChildProcessError):  # already reaped
+        os.waitpid(pid, os.WNOHANG)
+    assert not alive(pid)
 
 
 def test_stop_line_and_exit_code():

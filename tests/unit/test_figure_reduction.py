@@ -189,7 +189,8 @@ def test_a_prepared_overview_writes_the_same_bytes_as_a_fresh_one(tmp_path, rng)
     plots._templates.figures = {}
     plots.prepare_overview(7, titled=True)
     (fig,) = plots._templates.figures.values()
-    assert all(len(ax.xaxis.majorTicks) > 1 for ax in fig.axes[:7])  # the ticks exist before the first drawing
+    (ax,) = fig.axes  # one axes, drawn in each cell in turn
+    assert len(ax.xaxis.majorTicks) > 1 and len(ax.yaxis.majorTicks) > 1  # its ticks exist before the first drawing
     assert plots.overview_figure(tmp_path / "prepared.png", panels, title="t").read_bytes() == fresh
     assert len(plots._templates.figures) == 1  # the prepared layout was the one used
 
@@ -231,7 +232,8 @@ def _overview_as_a_grid_of_axes(path, panels, *, unit="um", title=""):
 def test_the_overview_equals_a_grid_of_one_axes_per_panel(tmp_path, rng, n):
     """One axes moved from cell to cell draws the same bytes as a grid with an axes per panel:
     panels of other ranges (tick labels of other widths, an offset), several captures per panel,
-    without a model or a subtitle, empty cells, with and without a title, in µm and nm."""
+    without a model or a subtitle, with nothing finite or nothing at all to draw, empty cells,
+    with and without a title, in µm and nm."""
     t, u, y = _periodic(3_000, 3, rng, noise=0.01)
     panels = []
     for i in range(n):
@@ -241,7 +243,23 @@ def test_the_overview_equals_a_grid_of_one_axes_per_panel(tmp_path, rng, n):
             p = {**p, "u": [uu, uu[:1500]], "y_meas": [yy, yy[:1500] + 0.1], "y_model": [yy, yy[:1500]]}
         if i == 2:
             p = {k: v for k, v in p.items() if k not in ("y_model", "subtitle")}
+        if i == 4:  # nothing finite to draw: the axes' own default ranges, not the previous panel's
+            p = {**p, "y_meas": np.full_like(yy, np.nan), "y_model": np.full_like(yy, np.nan)}
+        if i == 6:
+            p = {**p, "u": np.array([]), "y_meas": np.array([]), "y_model": np.array([])}
         panels.append(p)
     for kw in ({"title": "all"}, {"unit": "nm", "title": ""}):
         plain = _overview_as_a_grid_of_axes(tmp_path / "plain.png", panels, **kw).read_bytes()
         assert plots.overview_figure(tmp_path / "moved.png", panels, **kw).read_bytes() == plain
+
+
+def test_a_reused_template_draws_a_figure_without_data_as_a_fresh_one(tmp_path):
+    """Without any finite point a figure shows the axes' default ranges, not those of the figure the
+    template drew before (the view limits are reset with the data limits)."""
+    empty = np.array([])
+    plots._templates.figures = {}
+    fresh = plots.loop_figure(tmp_path / "fresh.png", empty, empty, title="x").read_bytes()
+    plots._templates.figures = {}
+    u = np.linspace(0.0, 100.0, 50)
+    plots.loop_figure(tmp_path / "data.png", u, u, title="x")
+    assert plots.loop_figure(tmp_path / "again.png", empty, empty, title="x").read_bytes() == fresh
