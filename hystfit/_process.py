@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 from typing import Callable, Mapping
 
 #: the signals a parent sends its forked children (SIGTERM: stop) or a terminal sends the whole
@@ -19,47 +20,68 @@ Handler = Callable | int
 
 def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
     """``os.fork()``, with ``handlers`` (signal → handler, as :func:`signal.signal` takes) installed
-    in the child before any of :data:`HELD_SIGNALS` can be delivered to it.
+    in the child before any of :data:`HELD_SIGNALS` can be handled in it.
 
     Without this, a signal sent right after the fork (a parent cancelling the child it has just
     started, a Ctrl-C) runs the *parent's* handler in the child: during the interpreter's own
     after-fork hooks the handler's exception is printed ("Exception ignored in ... _after_fork")
     and dropped, so the child, told to stop, computes on and its parent waits for it (measured: 221
-    of 300 children cancelled at once ran on). The signals are blocked across the fork; the child
-    installs ``handlers`` and then unblocks them (a signal sent meanwhile is delivered then, to its
-    new handler); the parent unblocks them after the fork. Returns the child's pid in the parent
-    and 0 in the child, as ``os.fork``; raises ``OSError`` as it does (the parent's mask restored).
-    A signal that reached the parent during the fork is handled when the parent unblocks it: if its
-    handler raises (Ctrl-C), the child is killed and reaped before the exception leaves here, so no
-    child is left that nobody will wait for; a child whose handlers raise before it has begun
-    exits at once.
+    of 300 children cancelled at once ran on).
+
+    Across the fork the signals are blocked (the child inherits the block: a signal sent to it is
+    kept pending until its own handlers are in place, then delivered to them) and, in this process,
+    their handlers only note them: a signal that reaches this process during the fork (through
+    another thread too, which the block does not cover) raises nothing between ``os.fork`` and the
+    moment the child's pid is known. Afterwards this process's handlers are put back and each noted
+    signal is handled by them; if one raises (Ctrl-C, the console script's SIGTERM), the child is
+    killed and reaped before the exception leaves here, so no child is left that nobody will wait
+    for. A child whose handlers raise before it has begun exits at once. Returns the child's pid in
+    the parent and 0 in the child, as ``os.fork``; raises ``OSError`` as it does (the handlers and
+    mask put back). Outside the main thread (where handlers cannot be set) only the block is used.
     """
-    if not hasattr(signal, "pthread_sigmask"):
-        pid = os.fork()
-        if pid == 0:
-            for signum, handler in handlers.items():
-                signal.signal(signum, handler)
-        return pid
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, HELD_SIGNALS)
+    main = threading.current_thread() is threading.main_thread()
+    noted: list[int] = []
+    saved: dict[int, Handler] = {}
+    if main:
+        for signum in HELD_SIGNALS:
+            current = signal.getsignal(signum)
+            if current is not None:  # None: a handler not set from Python, left alone
+                saved[signum] = current
+                signal.signal(signum, lambda n, frame: noted.append(n))
+    blocking = hasattr(signal, "pthread_sigmask")
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, HELD_SIGNALS) if blocking else None
+
+    def put_back() -> None:
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)
+        if blocking:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)  # a pending signal is handled here
+        for signum in noted:
+            handler = saved.get(signum)
+            if callable(handler):
+                handler(signum, None)
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), signum)
+
     try:
         pid = os.fork()
     except BaseException:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        put_back()
         raise
     if pid == 0:
         try:
-            for signum, handler in handlers.items():
+            for signum, handler in {**saved, **handlers}.items():
                 signal.signal(signum, handler)
-            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-        except BaseException:  # stopped before it began (a handler that raises): never return into the caller's code
+            if blocking:
+                signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        except BaseException:  # stopped before it began: never return into the caller's code
             os._exit(1)
         return 0
     try:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        put_back()
     except BaseException:
-        # a signal held during the fork is handled here, now, by this process's handler (Ctrl-C,
-        # the console script's SIGTERM): the command stops, and the child it will never hear of
-        # must not go on computing
+        # a signal of the fork's moment, handled now by this process's handler, stops the command:
+        # the child it will never hear of must not go on computing
         try:
             os.kill(pid, signal.SIGKILL)
             os.waitpid(pid, 0)
