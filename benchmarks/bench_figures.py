@@ -1,6 +1,6 @@
 """Figures: hystfit's per-pixel reduction and parallel rendering against the straightforward way.
 
-Run:  python benchmarks/bench_figures.py [--kinds | --compare]
+Run:  python benchmarks/bench_figures.py [--kinds [--instructions] | --compare]
 
 1. The Quickstart's figures (``identify sample_data``: 24 conditions, a loop, time series and
    convergence figure each, and the overview), drawn by hystfit (``render_figures``: a process per
@@ -10,7 +10,11 @@ Run:  python benchmarks/bench_figures.py [--kinds | --compare]
 2. The CPU seconds of each figure kind of the Quickstart, drawn one after another in one process
    (``--kinds``: after the server's warm-up, as a worker draws them; the least noisy number on a
    shared machine). ``--compare``: the same for the figures of ``compare sample_data --models all
-   --opts auto`` (fitted first, ≈ 20 s).
+   --opts auto`` (fitted first, ≈ 20 s). ``--kinds --instructions``: the user-space instructions
+   per figure of each kind instead (``perf stat`` where the machine has it): a fresh process draws
+   every figure of the kind after the warm-up once and, in another run, four times; the
+   difference over three passes, per figure. It repeats to about ±1 %, where CPU seconds move by
+   ±20 % on a shared machine: use it to tell whether a change does less work.
 3. One loop figure of a long periodic capture (10⁶ and 10⁷ samples, 20,000 cycles): time, points
    drawn, and the voltage span of what is drawn against the data's span (stride: aliasing).
 """
@@ -100,6 +104,66 @@ def _cpu_per_kind(jobs) -> dict[str, tuple[int, float]]:
     return out
 
 
+#: a fresh process that draws the jobs of one kind (pickled) ``passes`` times after the warm-up
+_DRAW_KIND = """
+import pickle, sys, tempfile
+from dataclasses import replace
+from pathlib import Path
+from hystfit.report import render
+render._import_plotting()
+render._warm_up()
+jobs = [j for j in pickle.load(open(sys.argv[1], "rb")) if j.function == sys.argv[2]]
+with tempfile.TemporaryDirectory() as tmp:
+    jobs = [replace(j, path=Path(tmp) / Path(j.path).name) for j in jobs]
+    for j in jobs[:2]:  # the first drawings of the kind (layouts, texts), left out of the count
+        render._render(j)
+    for _ in range(int(sys.argv[3])):
+        for j in jobs:
+            render._render(j)
+"""
+
+
+def _instructions(args: list[str]) -> float | None:
+    """User-space instructions of ``python -c _DRAW_KIND *args`` (None without ``perf stat``)."""
+    import shutil
+    import subprocess
+
+    if shutil.which("perf") is None:
+        return None
+    r = subprocess.run(["perf", "stat", "-x,", "-e", "instructions:u", sys.executable, "-c", _DRAW_KIND, *args],
+                       capture_output=True, text=True)
+    for line in r.stderr.splitlines():
+        value = line.split(",")[0]
+        if line.split(",")[2:3] == ["instructions:u"] and value.isdigit():
+            return float(value)
+    return None
+
+
+def figure_instructions(fit=None) -> dict[str, tuple[int, float]] | None:
+    """Per figure kind of the Quickstart: (figures, user-space instructions per figure), from a
+    fresh process drawing them 4 times against one drawing them once; None without ``perf stat``."""
+    import pickle
+
+    from hystfit.report import identify_report
+
+    res = fit if fit is not None else _quickstart_fit()
+    jobs: list = []
+    out: dict[str, tuple[int, float]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        figures = identify_report.ConditionFigures(Path(tmp), res.optimizer_name)
+        figures._stream = types.SimpleNamespace(add=jobs.extend, result=lambda: None, cancel=lambda: None)  # collect
+        figures.result(res)
+        dump = Path(tmp) / "jobs.pickle"
+        dump.write_bytes(pickle.dumps(jobs))
+        for kind in dict.fromkeys(j.function for j in jobs):
+            n = sum(j.function == kind for j in jobs)
+            once, four = (_instructions([str(dump), kind, str(k)]) for k in (1, 4))
+            if once is None or four is None:
+                return None
+            out[kind] = (n, (four - once) / (3 * n))
+    return out
+
+
 def compare_figure_kinds() -> dict[str, tuple[int, float]]:
     """CPU seconds per figure kind of ``compare sample_data --models all --opts auto`` (fitted first,
     ≈ 20 s), drawn serially here after the figure server's warm-up, as one worker draws them."""
@@ -158,6 +222,15 @@ def long_loop(n: int, cycles: int = 20_000) -> dict:
 
 
 def main() -> None:
+    if "--kinds" in sys.argv[1:] and "--instructions" in sys.argv[1:]:
+        counts = figure_instructions()
+        if counts is None:
+            print("perf stat cannot count instructions here (install linux-perf, or see perf_event_paranoid)")
+            return
+        print("| figure kind | figures | instructions per figure (M) |\n|---|---:|---:|")
+        for name, (n, per) in counts.items():
+            print(f"| {name} | {n} | {per / 1e6:.1f} |")
+        return
     if "--kinds" in sys.argv[1:] or "--compare" in sys.argv[1:]:
         kinds = compare_figure_kinds() if "--compare" in sys.argv[1:] else figure_kinds()
         print("| figure kind | figures | CPU s | ms per figure |\n|---|---:|---:|---:|")
