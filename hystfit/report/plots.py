@@ -480,6 +480,15 @@ def _with_axes(fig: Figure) -> Figure:
     return fig
 
 
+def _gridded(fig: Figure) -> Figure:
+    """``fig`` with its grid lines and tick density set once (a template keeps them; every figure of
+    it would set the same)."""
+    for ax in fig.axes:
+        ax.grid(True, alpha=0.3)
+        ax.locator_params(nbins=TICK_BINS)
+    return fig
+
+
 def _axes_pixels(ax) -> tuple[int, int]:
     """Width and height of ``ax`` in pixels (at the figure's dpi)."""
     fig = ax.get_figure()
@@ -542,15 +551,13 @@ def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str
     """
     caps = _captures({"u": u_V, "y_meas": y_meas, "y_model": y_model})
     margins = _margins(0.75, 0.15, 0.55, 0.12, title)
-    fig = _template(("loop", dpi, margins), lambda: _with_axes(_new_figure(6.4, 4.8, margins, dpi=dpi)))
+    fig = _template(("loop", dpi, margins), lambda: _gridded(_with_axes(_new_figure(6.4, 4.8, margins, dpi=dpi))))
     ax = fig.axes[0]
     _draw_loops(ax, caps, labels)
     ax.set_xlabel("Voltage (V)")
     ax.set_ylabel(_output_label(unit))
     if title:
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
-    ax.grid(True, alpha=0.3)
-    ax.locator_params(nbins=TICK_BINS)
     ax.legend(loc="upper left")
     return _save(fig, path, dpi)
 
@@ -586,7 +593,9 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
 
     def build() -> Figure:
         f = _new_figure(8.0, 5.6, margins, dpi=dpi, hspace=0.08)
-        f.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1.0]})
+        for a in f.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1.0]}):
+            a.grid(True, alpha=0.3)
+            a.locator_params(nbins=TICK_BINS)
         return f
 
     fig = _template(("timeseries", dpi, margins), build)
@@ -594,7 +603,6 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
     _plot_series(ax, t, ym, _MEAS_STYLE, "measured")
     _plot_series(ax, t, yp, _MODEL_STYLE, "model")
     ax.set_ylabel(_output_label(unit))
-    ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right")
     if title:
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
@@ -607,9 +615,6 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
     _plot_series(axr, t, resid, {"color": "tab:blue", "lw": 0.7}, "model − measured")
     axr.set_ylabel(f"Residual ({u})")
     axr.set_xlabel("Time (s)" if t_s is not None else "Sample")
-    axr.grid(True, alpha=0.3)
-    for a in (ax, axr):
-        a.locator_params(nbins=TICK_BINS)
     axr.legend(loc="upper right", fontsize="small")
     return _save(fig, path, dpi)
 
@@ -778,7 +783,6 @@ def overview_figure(path, panels: Sequence[dict], *, unit: str = "um", title: st
             head = p.get("title", "")
             sub = p.get("subtitle", "")
             ax.set_title(f"{head}\n{sub}" if sub else head, fontsize=7.5, pad=3, y=1.0)
-            ax.locator_params(nbins=_OVERVIEW_TICK_BINS)
             if i + cols >= len(panels):  # the last panel of its column
                 ax.set_xlabel("Voltage (V)", fontsize=7)
             if i % cols == 0:
@@ -823,6 +827,7 @@ def _overview_layout(n_panels: int, titled: bool, dpi: int):
         ax = f.add_subplot(grid[0])
         ax.tick_params(labelsize=6.5, pad=1.5)
         ax.grid(True, alpha=0.3)
+        ax.locator_params(nbins=_OVERVIEW_TICK_BINS)  # kept: the axes stays linear
         f._overview_cells = [grid[i] for i in range(n_panels)]
         return f
 
