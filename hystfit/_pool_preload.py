@@ -20,8 +20,6 @@ import os
 import sys
 import traceback
 
-import numpy as np
-
 from . import compare, diagnose, identify  # noqa: F401 - the cell functions and all they import
 
 

@@ -3,7 +3,7 @@ cached kernel, and ``scipy.optimize`` — done ahead, step by step.
 
 Two users: the local pools' fork server (:mod:`hystfit._pool_preload`), which loads it all before it
 forks any worker, and a command that fits in its own process
-(:func:`hystfit.cli.common.load_for_command`), which loads what its fit is sure to need while a
+(:func:`hystfit.io.load_captures` with ``ahead``), which loads what its fit is sure to need while a
 forked child reads the captures, and stops as soon as they are read (what is left loads at the
 first fit, as it would have anyway). Not numba for a command that may not need it: a PI fit of
 short captures runs without it (:func:`hystfit.models._kernels.play_matrix_from`). Loading ahead

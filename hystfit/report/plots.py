@@ -593,10 +593,8 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
 
     def build() -> Figure:
         f = _new_figure(8.0, 5.6, margins, dpi=dpi, hspace=0.08)
-        for a in f.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1.0]}):
-            a.grid(True, alpha=0.3)
-            a.locator_params(nbins=TICK_BINS)
-        return f
+        f.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1.0]})
+        return _gridded(f)
 
     fig = _template(("timeseries", dpi, margins), build)
     ax, axr = fig.axes
@@ -742,7 +740,8 @@ def overview_figure(path, panels: Sequence[dict], *, unit: str = "um", title: st
     The panels are drawn by one axes moved from cell to cell (:func:`_overview_layout`): each is
     drawn where a grid of its own axes would put it, with the same artists, in the same order, so
     the pixels are those of a figure with one axes per panel, without creating and laying out that
-    many axes and their ticks (≈ two thirds of a first overview of 24 panels).
+    many axes and their ticks (≈ 40 % of a first overview of 24 panels: ``python
+    benchmarks/bench_figures.py --kinds``, against the code before, in the CHANGELOG).
 
     Parameters
     ----------
