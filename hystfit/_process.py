@@ -1,7 +1,8 @@
 """Two questions about processes: whether one still exists (the pools' workers,
 :func:`hystfit.parallel._end_with`, and the staged output directories of killed commands,
 :func:`hystfit.io.staged_output_dir`), and how to fork a child whose own signal handlers are in
-place before any signal can reach it (:func:`fork_with_handlers`: the forked children of
+place before any signal can reach it and no registered lock is held by another thread
+(:func:`fork_with_handlers`, :func:`hold_across_forks`: the forked children of
 :mod:`hystfit.parallel` and the figure server of :mod:`hystfit.report.render`)."""
 
 from __future__ import annotations
@@ -16,6 +17,22 @@ from typing import Callable, Mapping
 HELD_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM})
 
 Handler = Callable | int
+
+#: locks held across every :func:`fork_with_handlers` (:func:`hold_across_forks`)
+_held_across_forks: list = []
+
+
+def hold_across_forks(lock) -> None:
+    """Hold ``lock`` (a ``threading.Lock``/``RLock``) across every fork of :func:`fork_with_handlers`.
+
+    A fork copies the locks other threads hold at that moment, held, into a child that has no such
+    threads: the child's first use of one waits forever. The command line's consoles register
+    theirs (:mod:`hystfit.cli.common`): a progress bar redraws itself from its own thread, writing to
+    stderr under its console's lock, while the command forks; holding that lock over the fork means
+    no stream is in the middle of a write when the child is made, so a child that writes (a
+    warning) cannot hang on the stream's lock (CPython does not reset it: python/cpython#84579)."""
+    if all(held is not lock for held in _held_across_forks):
+        _held_across_forks.append(lock)
 
 
 def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
@@ -38,6 +55,7 @@ def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
     for. A child whose handlers raise before it has begun exits at once. Returns the child's pid in
     the parent and 0 in the child, as ``os.fork``; raises ``OSError`` as it does (the handlers and
     mask put back). Outside the main thread (where handlers cannot be set) only the block is used.
+    The locks of :func:`hold_across_forks` are held across the fork and free in both processes after it.
     """
     main = threading.current_thread() is threading.main_thread()
     noted: list[int] = []
@@ -63,11 +81,19 @@ def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
             elif handler == signal.SIG_DFL:
                 os.kill(os.getpid(), signum)
 
+    held = []
     try:
+        for lock in _held_across_forks:  # in one order: no two forking threads wait on each other
+            lock.acquire()
+            held.append(lock)
         pid = os.fork()
     except BaseException:
+        for lock in reversed(held):
+            lock.release()
         put_back()
         raise
+    for lock in reversed(held):  # in the child too: its copies, held by its one thread, this one
+        lock.release()
     if pid == 0:
         try:
             for signum, handler in {**saved, **handlers}.items():

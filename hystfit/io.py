@@ -34,10 +34,10 @@ import re
 import secrets
 import shutil
 import tempfile
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Iterator, Sequence
+from typing import Callable, ContextManager, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -1157,7 +1157,8 @@ PARQUET_EXPANSION = 8
 
 
 def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = LoadOptions(),
-                  recursive: bool = False, *, ahead: Sequence = ()) -> list[Capture]:
+                  recursive: bool = False, *, ahead: Sequence = (),
+                  meanwhile: Callable[[], ContextManager] = nullcontext) -> list[Capture]:
     """Load every capture of :func:`expand_paths` ``(paths, recursive)`` with ``options``.
 
     ``ahead``: steps (callables, e.g. of :mod:`hystfit._warm`) that the caller would run next —
@@ -1167,6 +1168,10 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
     same captures as read here (the child's, pickled, with the same read-only arrays); the
     loader's error, if any, is raised here. Where the child cannot be forked, or this process runs
     threads, they are read here and the steps are left to the caller's code.
+
+    ``meanwhile()``: a context entered while the captures are read (e.g. a progress line), after
+    the child is forked: a thread it starts is not copied into the child (a fork copies the locks
+    other threads hold, such as a stream's, and with it the child could hang on its first write).
     """
     import threading
 
@@ -1176,17 +1181,19 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
         from .parallel import fork_call
 
         aside = fork_call(lambda: _read(files, options), kernels=False)
-    if aside is None:
-        got = _read(files, options)
-    else:
-        from ._warm import load_ahead
+    try:
+        with meanwhile():
+            if aside is None:
+                got = _read(files, options)
+            else:
+                from ._warm import load_ahead
 
-        try:
-            load_ahead(ahead, stop=aside.ready)
-        except BaseException:
+                load_ahead(ahead, stop=aside.ready)
+                got = aside.result()
+    except BaseException:
+        if aside is not None:  # the child stopped (nothing once its result is in)
             aside.cancel()
-            raise
-        got = aside.result()
+        raise
     if isinstance(got, Exception):
         raise got
     captures, read_only = got

@@ -46,6 +46,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Optional, Sequence, TypeVar
 
+from ._blas import BLAS_THREAD_VARS, user_chose_blas_threads  # noqa: F401 - BLAS_THREAD_VARS: its home
 from ._process import alive, fork_with_handlers
 from .errors import ConfigError, HystfitError
 
@@ -90,9 +91,6 @@ def single_threaded_children():
                 os.environ[k] = v
 
 
-#: the variables by which a user chooses the BLAS thread count (OpenMP's also sets OpenBLAS's)
-BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "OMP_NUM_THREADS")
-
 _blas_lock = threading.Lock()
 _blas_depth = 0
 _blas_limits = None  # threadpoolctl's limits while the outermost block runs
@@ -110,7 +108,7 @@ if hasattr(os, "register_at_fork"):
 def _enter_one_blas_thread() -> None:
     global _blas_depth, _blas_limits
     with _blas_lock:
-        if _blas_depth == 0 and not any(v in os.environ for v in BLAS_THREAD_VARS):
+        if _blas_depth == 0 and not user_chose_blas_threads():
             try:
                 import scipy.linalg  # noqa: F401 - scipy's own BLAS loaded now, so that it is limited too
                 from threadpoolctl import threadpool_limits
@@ -148,7 +146,8 @@ def one_blas_thread(fn: Callable[..., R]) -> Callable[..., R]:
     it forks, numpy's and scipy's BLAS run one thread (threadpoolctl; ``scipy.linalg`` is imported
     first, as every fit does anyway, so that scipy's own BLAS is loaded and limited too). The
     caller's counts are restored on return. A user who set one of :data:`BLAS_THREAD_VARS` has
-    chosen, and is left alone. Where the limit cannot be set (threadpoolctl missing or failing),
+    chosen, and is left alone (the command line's own defaults, set after numpy had loaded, are
+    not a choice: :mod:`hystfit._blas`). Where the limit cannot be set (threadpoolctl missing or failing),
     the call runs with the threads as they are: it only costs time.
     """
 

@@ -7,13 +7,13 @@ process pools; its linear algebra is small (Jacobians of a few columns, 3×3 nor
 where a multithreaded BLAS only adds synchronisation: measured on a 2-core machine with other
 work running, one 5000 × 12 SVD inside the least-squares polish took 3 ms with one OpenBLAS
 thread and 220 ms with two. So the command line sets ``OPENBLAS_NUM_THREADS``/``MKL_NUM_THREADS``
-/``VECLIB_MAXIMUM_THREADS`` to 1 unless the user set them (it must happen before numpy loads).
+/``VECLIB_MAXIMUM_THREADS`` to 1 unless the user set them (it must happen before numpy loads;
+where numpy was loaded first, the library's limit applies instead: :mod:`hystfit._blas`).
 """
 
-import os as _os
+from .._blas import set_cli_defaults as _set_cli_defaults
 
-for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS"):
-    _os.environ.setdefault(_var, "1")
+_set_cli_defaults()
 
 from .app import app, main
 

@@ -28,7 +28,12 @@ class _Console:
         if self._console is None:
             from rich.console import Console
 
+            from .._process import hold_across_forks
+
             self._console = Console(**self._options)
+            lock = getattr(self._console, "_lock", None)  # rich writes under it, from its refresh thread too
+            if lock is not None:
+                hold_across_forks(lock)
         return self._console
 
     def __getattr__(self, name: str):
@@ -493,11 +498,12 @@ def start_figures(output: FigureOutputArgs) -> None:
 def load_for_command(data, options, output: OutputArgs, *, recursive: bool, ahead=()):
     """The captures of a command (``options``: :meth:`CaptureArgs.load_options`): loaded with a
     progress line when slow, the loader's notes printed. ``ahead``: what the command loads or
-    starts while a forked child reads them (:func:`hystfit.io.load_captures`)."""
+    starts while a forked child reads them (:func:`hystfit.io.load_captures`; the progress line's
+    thread starts after that fork, which it would otherwise prevent)."""
     from ..io import load_captures
 
-    with phase(output.chatty, "loading the captures"):
-        captures = load_captures(data, options, recursive=recursive, ahead=ahead)
+    captures = load_captures(data, options, recursive=recursive, ahead=ahead,
+                             meanwhile=lambda: phase(output.chatty, "loading the captures"))
     if not output.quiet:
         print_capture_notes(captures)
     return captures

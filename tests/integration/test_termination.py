@@ -242,6 +242,59 @@ def test_a_signal_held_during_the_fork_stops_the_parent_and_leaves_no_child(monk
     assert not alive(pid)
 
 
+@pytest.mark.parametrize("kind", ["Lock", "RLock"])
+def test_a_lock_held_across_forks_is_free_in_the_child_whatever_another_thread_was_doing(monkeypatch, kind):
+    """A progress bar's thread writes under its console's lock while the command forks: with the
+    lock registered, the fork waits for the write to end, and the child's copy is free (without it,
+    the child's first write would wait forever on a lock no thread of it holds)."""
+    import threading
+
+    from hystfit import _process
+
+    lock = getattr(threading, kind)()
+    monkeypatch.setattr(_process, "_held_across_forks", [])
+    _process.hold_across_forks(lock)
+    _process.hold_across_forks(lock)  # once
+    assert _process._held_across_forks == [lock]
+    writing, done = threading.Event(), threading.Event()
+
+    def writer():  # holds the lock for a while, as a long write would
+        with lock:
+            writing.set()
+            time.sleep(0.3)
+        done.set()
+
+    threading.Thread(target=writer, daemon=True).start()
+    writing.wait()
+    pid = _process.fork_with_handlers({signal.SIGTERM: signal.SIG_DFL})
+    if pid == 0:
+        os._exit(0 if lock.acquire(timeout=2) else 1)
+    assert done.is_set()  # the fork waited for the writer
+    _, status = os.waitpid(pid, 0)
+    assert os.WEXITSTATUS(status) == 0
+    assert lock.acquire(timeout=2)  # free here too
+    lock.release()
+
+    def refused():
+        raise OSError("fork refused")
+
+    monkeypatch.setattr(os, "fork", refused)
+    with pytest.raises(OSError):
+        _process.fork_with_handlers({signal.SIGTERM: signal.SIG_DFL})
+    assert lock.acquire(timeout=2)  # released after a refused fork
+    lock.release()
+
+
+def test_the_command_lines_consoles_are_held_across_forks(monkeypatch):
+    from hystfit import _process
+    from hystfit.cli.common import _Console
+
+    monkeypatch.setattr(_process, "_held_across_forks", [])
+    console = _Console(stderr=True)
+    console.rich()
+    assert _process._held_across_forks == [console.rich()._lock]
+
+
 def test_stop_line_and_exit_code():
     assert (stop_message(KeyboardInterrupt()), stop_code(KeyboardInterrupt())) == ("interrupted", 130)
     assert (stop_message(Terminated()), stop_code(Terminated())) == ("terminated (SIGTERM)", 143)

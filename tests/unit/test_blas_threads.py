@@ -118,3 +118,52 @@ def test_a_limit_that_cannot_be_set_costs_only_time():
     got = json.loads(out.strip().splitlines()[-1])
     assert got["inside"] == 1 and got["after_failure"] == 0 and got["depth_at_end"] == 0
     assert got["limited_later"] in ([], [1])  # the next call is limited again (no BLAS seen: nothing to limit)
+
+
+LATE_CLI_PROBE = r"""
+import json, os
+import numpy as np  # loaded first: the command line's defaults come too late for its BLAS
+from threadpoolctl import threadpool_info
+import hystfit.cli  # noqa: F401 - sets OPENBLAS_NUM_THREADS=1, now without effect on numpy's BLAS
+from hystfit._blas import user_chose_blas_threads
+from hystfit.parallel import one_blas_thread
+
+def blas():
+    return sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+
+@one_blas_thread
+def call():
+    return blas()
+
+print(json.dumps({"var": os.environ.get("OPENBLAS_NUM_THREADS"), "chose": user_chose_blas_threads(),
+                  "before": blas(), "inside": call()}))
+"""
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="BLAS runs one thread on one core anyway")
+def test_the_command_lines_defaults_set_after_numpy_loaded_are_not_a_users_choice():
+    # a program that imported numpy before hystfit.cli (CliRunner in a test suite, a notebook):
+    # before the fix the limit took the command line's own variable for the user's choice and left
+    # numpy's BLAS at a thread per core (diagnose on sample_data ≈ 3× as long)
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_VARS}
+    out = subprocess.run([sys.executable, "-c", LATE_CLI_PROBE], env=env, check=True, capture_output=True, text=True,
+                         timeout=120).stdout
+    got = json.loads(out.strip().splitlines()[-1])
+    if not got["before"]:
+        pytest.skip("threadpoolctl sees no BLAS library in this build")
+    assert got["var"] == "1" and got["chose"] is False
+    assert max(got["before"]) > 1
+    assert got["inside"] == [1]
+
+
+def test_the_command_lines_defaults_set_before_numpy_loaded_are_kept(monkeypatch):
+    from hystfit import _blas
+
+    for var in BLAS_VARS:
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setattr(_blas, "_set_too_late", set())
+    monkeypatch.setattr(sys, "modules", {k: v for k, v in sys.modules.items() if k != "numpy"})
+    _blas.set_cli_defaults()
+    assert all(os.environ[v] == "1" for v in _blas.CLI_DEFAULTS)
+    assert _blas.user_chose_blas_threads()  # in time: numpy's BLAS reads them, nothing to limit
+    assert "OMP_NUM_THREADS" not in os.environ

@@ -3,6 +3,7 @@ and what identify and compare name as those steps (startup_steps)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -142,3 +143,93 @@ def test_identify_and_compare_name_what_they_load_or_start_first():
     assert startup_steps(bw, auto, jobs=2, executor=object()) == ()  # another executor: nothing here
     assert compare_steps(jobs=None) == (parallel.start_pool_server,)
     assert compare_steps(jobs=1) == () and compare_steps(jobs=2, executor=object()) == ()
+
+
+def _threads_since_now(monkeypatch) -> None:
+    """``threading.active_count`` as if this process ran only the threads started from now on (the
+    earlier tests' leftovers do not count)."""
+    before = set(threading.enumerate())
+    monkeypatch.setattr(threading, "active_count",
+                        lambda: 1 + sum(t.is_alive() and t not in before for t in threading.enumerate()))
+
+
+@pytest.mark.skipif(not CAN_FORK, reason="the captures are read here without fork")
+def test_meanwhile_is_entered_after_the_fork_so_its_thread_does_not_prevent_it(monkeypatch):
+    _threads_since_now(monkeypatch)
+    events = []
+    real = parallel.fork_call
+    monkeypatch.setattr(parallel, "fork_call", lambda fn, *a, **k: (events.append(("fork", threading.active_count())),
+                                                                    real(fn, *a, **k))[1])
+
+    @contextlib.contextmanager
+    def progress_line():  # a thread, as a progress line's timer or spinner has
+        stop = threading.Event()
+        t = threading.Thread(target=stop.wait, daemon=True)
+        t.start()
+        events.append("entered")
+        try:
+            yield
+        finally:
+            stop.set()
+            t.join()
+            events.append("left")
+
+    ran = []
+    got = load_captures([SAMPLE], LoadOptions(), ahead=(lambda: ran.append(1),), meanwhile=progress_line)
+    _same(got, load_captures([SAMPLE], LoadOptions()))
+    assert events[:3] == [("fork", 1), "entered", "left"]
+    assert ran in ([], [1])
+
+
+def test_meanwhile_is_left_and_the_child_stopped_when_the_reading_fails(tmp_path, monkeypatch):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,voltage_V,displacement_um\n0,1,2\n0.001,x,3\n")
+    _threads_since_now(monkeypatch)
+    states = []
+
+    @contextlib.contextmanager
+    def progress_line():
+        states.append("entered")
+        yield
+        states.append("left")
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    with pytest.raises(InputError):
+        load_captures([bad], LoadOptions(), ahead=(lambda: None,), meanwhile=progress_line)
+    assert states == ["entered", "left"]  # the loader's error is raised once the reading is over
+    states.clear()
+    calls = []
+    real = parallel.fork_call
+
+    def recording(fn, *a, **k):
+        got = real(fn, *a, **k)
+        if got is not None:
+            cancel = got.cancel
+            got.cancel = lambda: (calls.append("cancel"), cancel())[1]
+        return got
+
+    monkeypatch.setattr(parallel, "fork_call", recording)
+    with pytest.raises(KeyboardInterrupt):
+        load_captures([SAMPLE], LoadOptions(), ahead=(interrupted,), meanwhile=progress_line)
+    assert states == ["entered"]  # left by the interruption
+    if CAN_FORK:
+        assert calls == ["cancel"]  # the child reading aside is stopped, not waited for
+
+
+@pytest.mark.skipif(not CAN_FORK, reason="the captures are read here without fork")
+def test_a_chatty_command_reads_its_captures_aside_too(monkeypatch):
+    """The command's "loading the captures" line (a timer thread on a pipe, a spinner on a terminal)
+    used to be started before the fork, and its thread then kept the captures from being read aside
+    (the load-ahead of every command run without --quiet or --json)."""
+    from hystfit.cli.common import OutputArgs, load_for_command
+
+    _threads_since_now(monkeypatch)
+    forked = []
+    real = parallel.fork_call
+    monkeypatch.setattr(parallel, "fork_call", lambda fn, *a, **k: (lambda got: (forked.append(got is not None), got)[1])(
+        real(fn, *a, **k)))
+    got = load_for_command([str(SAMPLE)], LoadOptions(), OutputArgs(), recursive=False, ahead=(lambda: None,))
+    assert forked == [True]
+    _same(got, load_captures([SAMPLE], LoadOptions()))
