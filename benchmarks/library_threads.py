@@ -1,6 +1,6 @@
 """hystfit called from Python (the README's "Python API"): BLAS threads, time and numbers.
 
-Run:  python benchmarks/library_threads.py [--repeat 2] [--calls identify,diagnose,compare]
+Run:  python benchmarks/library_threads.py [--repeat 2] [--calls identify,diagnose,compare,cli]
 
 The command line sets ``OPENBLAS_NUM_THREADS`` (and its kin) to 1 before numpy loads. A program
 that imports hystfit as a library does not: numpy's BLAS has a thread per core, unless the
@@ -16,7 +16,10 @@ fresh process, three ways:
 Printed per call and way: the best wall time of the repeats, that run's CPU seconds (this process
 and its children), and whether the numbers equal those of ``as the CLI`` (a digest of the result).
 The calls, on sample_data with seed 0: ``identify`` (pi, auto, each condition), ``diagnose`` (pi,
-auto, global), ``compare`` (pi and bw × auto, each condition, no figures). The machine is shared:
+auto, global), ``compare`` (pi and bw × auto, each condition, no figures), and ``cli``: the command
+line's ``diagnose sample_data --model pi --no-plots`` called through ``hystfit.cli.main`` by a
+program that imported numpy first (a test suite's ``CliRunner``, a notebook), where the command
+line's own ``OPENBLAS_NUM_THREADS=1`` comes too late and the library's limit must apply. The machine is shared:
 compare rows within one run.
 """
 
@@ -51,6 +54,17 @@ elif call == "diagnose":
     from hystfit.diagnose import diagnose
     d = diagnose(captures, models.get("pi")(), optimizers.get("auto")(), seed=0)
     numbers = [repr(d.steps), d.explained_by, repr(d.resolution), repr(d.noise)]
+elif call == "cli":  # the command line called from a program that imported numpy first
+    import tempfile
+    from hystfit.cli import main
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            main(["diagnose", "sample_data", "--model", "pi", "--out", tmp + "/d", "--no-plots", "--quiet"])
+        except SystemExit as exc:  # typer ends the command so
+            assert not exc.code, exc.code
+        got = json.load(open(tmp + "/d/diagnosis.json"))
+    got.pop("runtime_s", None)
+    numbers = [json.dumps(got, sort_keys=True).replace(tmp, "")]
 else:
     from hystfit.compare import compare
     r = compare(captures, ["pi", "bw"], ["auto"], seed=0, jobs=1)
