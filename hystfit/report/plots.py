@@ -528,6 +528,84 @@ def _margins(left: float, right: float, bottom: float, top: float, title: str) -
     return left, right, bottom, top + (0.3 if title else 0.0)
 
 
+#: pixels kept free between the figure's left edge and a y-axis label
+_EDGE_PX = 5
+_text_widths: dict[tuple, float] = {}
+
+
+def _text_width(renderer, text) -> float:
+    """Pixel width of the matplotlib ``Text`` ``text`` as drawn on ``renderer`` (its own layout,
+    rotation included), kept per process by string and font (tick labels repeat)."""
+    key = (text.get_text(), hash(text.get_fontproperties()), text.get_rotation(), renderer.dpi)
+    width = _text_widths.get(key)
+    if width is None:
+        if len(_text_widths) >= 4096:
+            _text_widths.clear()
+        width = _text_widths[key] = float(text.get_window_extent(renderer).width)
+    return width
+
+
+def _tick_label_widths(axis, renderer) -> list[float]:
+    """Pixel widths of the tick labels ``axis`` will draw in its view (major and minor), as
+    ``Axis._update_ticks`` makes them: the locator's ticks, formatted all at once (measured on the
+    axis's first tick label, whose text the draw sets again)."""
+    lo, hi = sorted(axis.get_view_interval())
+    tol = 1e-9 * max(abs(lo), abs(hi), 1e-300)
+    widths = []
+    for ticker, ticks, first in ((axis.major, axis.get_majorticklocs(), axis.majorTicks),
+                                 (axis.minor, axis.get_minorticklocs(), axis.minorTicks)):
+        ticks = np.asarray(ticks, dtype=float)
+        if ticks.size == 0:
+            continue
+        scratch = first[0].label1
+        for t, label in zip(ticks, ticker.formatter.format_ticks(ticks)):
+            if label and lo - tol <= t <= hi + tol:
+                scratch.set_text(label)
+                widths.append(_text_width(renderer, scratch))
+    return widths
+
+
+def _fit_left_margin(fig: Figure, left_in: float) -> None:
+    """Widen the left margin of a fixed-layout figure beyond ``left_in`` (inches) where a y axis's
+    tick labels and label would not fit in it (long labels such as ``−0.025`` or ``250000``), and
+    back to ``left_in`` on a template's next figure when they fit: the axes' y labels are never cut
+    at the figure's edge. Measured before the draw, from the ticks and labels the draw will make
+    (no layout pass); the curves' reduction to pixels has been made for the wider axes, which only
+    keeps more detail than the narrower one shows."""
+    from .canvas import Canvas
+
+    canvas = fig.canvas if isinstance(fig.canvas, Canvas) else Canvas(fig)
+    renderer = canvas.get_renderer()
+    to_px = fig.dpi / 72.0
+    need = 0.0
+    for ax in fig.axes:
+        axis = ax.yaxis
+        if not ax.get_visible() or axis.get_label_position() != "left":
+            continue
+        widths = _tick_label_widths(axis, renderer) if axis.majorTicks[0].label1.get_visible() else []
+        tick = axis.majorTicks[0]
+        ticks_px = (max(widths) + (tick.get_tick_padding() + tick.get_pad()) * to_px) if widths else 0.0
+        label_px = _text_width(renderer, axis.label) + axis.labelpad * to_px if axis.label.get_text() else 0.0
+        need = max(need, ticks_px + label_px + _EDGE_PX)
+    _set_left(fig, left_in if need <= left_in * fig.dpi else need / fig.dpi)
+
+
+def _set_left(fig: Figure, left_in: float) -> None:
+    """The figure's left margin at ``left_in`` inches (the fraction computed as :func:`_new_figure` does)."""
+    left = left_in / fig.get_figwidth()
+    if fig.subplotpars.left != left:
+        fig.subplots_adjust(left=left)
+
+
+def _layout_template(key: tuple, build: Callable[[], Figure], left_in: float) -> Figure:
+    """:func:`_template` with its left margin back at ``left_in`` inches, where the previous figure
+    may have widened it (:func:`_fit_left_margin`): the curves are reduced to the pixels of the
+    same axes whatever was drawn before (the same bytes as a fresh figure)."""
+    fig = _template(key, build)
+    _set_left(fig, left_in)
+    return fig
+
+
 def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str = "",
                 labels: Sequence[str] = ("measured", "model"), dpi: int = DPI) -> Path:
     """Hysteresis loop: output against input voltage, measured and modelled.
@@ -551,7 +629,8 @@ def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str
     """
     caps = _captures({"u": u_V, "y_meas": y_meas, "y_model": y_model})
     margins = _margins(0.75, 0.15, 0.55, 0.12, title)
-    fig = _template(("loop", dpi, margins), lambda: _gridded(_with_axes(_new_figure(6.4, 4.8, margins, dpi=dpi))))
+    fig = _layout_template(("loop", dpi, margins), lambda: _gridded(_with_axes(_new_figure(6.4, 4.8, margins, dpi=dpi))),
+                           margins[0])
     ax = fig.axes[0]
     _draw_loops(ax, caps, labels)
     ax.set_xlabel("Voltage (V)")
@@ -559,6 +638,7 @@ def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str
     if title:
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
     ax.legend(loc="upper left")
+    _fit_left_margin(fig, margins[0])
     return _save(fig, path, dpi)
 
 
@@ -596,7 +676,7 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
         f.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1.0]})
         return _gridded(f)
 
-    fig = _template(("timeseries", dpi, margins), build)
+    fig = _layout_template(("timeseries", dpi, margins), build, margins[0])
     ax, axr = fig.axes
     _plot_series(ax, t, ym, _MEAS_STYLE, "measured")
     _plot_series(ax, t, yp, _MODEL_STYLE, "model")
@@ -614,6 +694,7 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
     axr.set_ylabel(f"Residual ({u})")
     axr.set_xlabel("Time (s)" if t_s is not None else "Sample")
     axr.legend(loc="upper right", fontsize="small")
+    _fit_left_margin(fig, margins[0])
     return _save(fig, path, dpi)
 
 
@@ -643,7 +724,8 @@ def convergence_figure(path, history_best, history_mean=None, *, title: str = ""
     :func:`has_convergence_history`).
     """
     margins = _margins(0.85, 0.15, 0.55, 0.12, title)
-    fig = _template(("convergence", dpi, margins), lambda: _with_axes(_new_figure(6.4, 4.2, margins, dpi=dpi)))
+    fig = _layout_template(("convergence", dpi, margins), lambda: _with_axes(_new_figure(6.4, 4.2, margins, dpi=dpi)),
+                           margins[0])
     ax = fig.axes[0]
     plotted: list[np.ndarray] = []
 
@@ -682,6 +764,7 @@ def convergence_figure(path, history_best, history_mean=None, *, title: str = ""
     ax.grid(True, which="both", alpha=0.3)
     if title:
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
+    _fit_left_margin(fig, margins[0])
     return _save(fig, path, dpi)
 
 
@@ -862,7 +945,8 @@ def parity_figure(path, y_meas, y_model, *, unit: str = "um", title: str = "", d
     caps = _captures({"y_meas": y_meas, "y_model": y_model})
     ym = np.concatenate([c[0] for c in caps])
     yp = _finite_or_nan(np.concatenate([c[1] for c in caps]))
-    fig = _new_figure(5.2, 5.0, _margins(0.8, 0.15, 0.55, 0.12, title), dpi=dpi)
+    margins = _margins(0.8, 0.15, 0.55, 0.12, title)
+    fig = _new_figure(5.2, 5.0, margins, dpi=dpi)
     ax = fig.add_subplot()
     both = np.concatenate([ym, yp[np.isfinite(yp)]])
     lo, hi = float(both.min()), float(both.max())
@@ -889,6 +973,7 @@ def parity_figure(path, y_meas, y_model, *, unit: str = "um", title: str = "", d
     ax.legend(loc="upper left", markerscale=4)
     if title:
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
+    _fit_left_margin(fig, margins[0])
     return _save(fig, path, dpi)
 
 
@@ -1056,7 +1141,8 @@ def loop_overlay_figure(path, u_V, y_meas, models: Mapping[str, np.ndarray], *, 
     """
     u = np.asarray(u_V, float).ravel()
     margins = _margins(0.75, 0.15, 0.55, 0.12, title)
-    fig = _template(("loop_overlay", dpi, margins), lambda: _with_axes(_new_figure(6.8, 5.0, margins, dpi=dpi)))
+    fig = _layout_template(("loop_overlay", dpi, margins), lambda: _with_axes(_new_figure(6.8, 5.0, margins, dpi=dpi)),
+                           margins[0])
     ax = fig.axes[0]
     _plot_xy(ax, u, np.asarray(y_meas, float).ravel(), _MEAS_STYLE, "measured")
     for i, (name, y) in enumerate(models.items()):
@@ -1067,6 +1153,7 @@ def loop_overlay_figure(path, u_V, y_meas, models: Mapping[str, np.ndarray], *, 
         ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
+    _fit_left_margin(fig, margins[0])
     return _save(fig, path, dpi)
 
 
