@@ -463,13 +463,11 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
     n = tab.num_rows
     if n == 0:
         return None
-    if tab.column(0).null_count:
-        import pyarrow.compute as pc
-
-        all_null = pc.is_null(tab.column(0))
-        for i in range(1, ncols):
-            all_null = pc.and_(all_null, pc.is_null(tab.column(i)))
-        if pc.any(all_null).as_py():
+    if tab.column(0).null_count and all(tab.column(i).null_count for i in range(1, ncols)):
+        all_null = np.ones(n, dtype=bool)
+        for i in range(ncols):
+            all_null &= ~_present(tab.column(i))
+        if all_null.any():
             return None  # a blank line or an empty row: the general reader skips, trims or reports it
     cols = [_float64_column(tab.column(i)) for i in range(ncols)]
     del tab
@@ -480,13 +478,28 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
 
 def _float64_column(column) -> np.ndarray:
     """A pyarrow float64 column as a numpy array, NaN for a missing cell — without pandas, which
-    pyarrow's own ``to_numpy`` imports (≈ 0.3 s)."""
+    pyarrow's own ``to_numpy`` imports (≈ 0.3 s), nor ``pyarrow.compute`` (≈ 0.5 s)."""
     arr = column.chunk(0) if column.num_chunks == 1 else column.combine_chunks()
+    values = np.frombuffer(arr.buffers()[1], dtype=np.float64, count=len(arr), offset=8 * arr.offset)
     if arr.null_count:
-        import pyarrow.compute as pc
+        values = values.copy()  # a missing cell's slot holds no defined value: NaN written there
+        values[~_present(arr)] = np.nan
+    return values
 
-        arr = pc.fill_null(arr, np.nan)
-    return np.frombuffer(arr.buffers()[1], dtype=np.float64, count=len(arr), offset=8 * arr.offset)
+
+def _present(column) -> np.ndarray:
+    """Where a pyarrow array or column has a value (not a missing cell): its validity bitmaps read
+    as numpy booleans (one bit per cell, least significant bit first, from the array's offset)."""
+    chunks = column.chunks if hasattr(column, "chunks") else [column]
+    parts = []
+    for arr in chunks:
+        bitmap = arr.buffers()[0]
+        if bitmap is None or not arr.null_count:
+            parts.append(np.ones(len(arr), dtype=bool))
+            continue
+        bits = np.unpackbits(np.frombuffer(bitmap, dtype=np.uint8), bitorder="little")
+        parts.append(bits[arr.offset: arr.offset + len(arr)].astype(bool))
+    return np.concatenate(parts) if len(parts) != 1 else parts[0]
 
 
 def _read_text(path: Path, label: str, no_header: bool) -> _Table:

@@ -42,6 +42,11 @@ CASES = {
     "decimal commas": lambda s: s.replace(",", ";").replace(".", ","),
     "padded cells": lambda s: s.replace(",", ", "),
     "no header": lambda s: s.split("\n", 1)[1],
+    # an index column without values, as a real rig's export has (shared/data smarthysteresis)
+    "empty first column": lambda s: "idx," + s.replace("\n", "\n,").rstrip(","),
+    "missing cells here and there": lambda s: "\n".join(
+        ln.replace(",", ",,", 1).replace(",,", ",", 1) if i % 97 else ln.rsplit(",", 1)[0] + ","
+        for i, ln in enumerate(s.split("\n"))),
 }
 
 
@@ -92,3 +97,31 @@ def test_float64_column_matches_pyarrow_to_numpy():
         got = hio._float64_column(col)
         want = col.to_numpy()
         assert got.dtype == np.float64 and got.tobytes() == want.tobytes()
+
+
+def test_present_matches_pyarrow_validity_on_slices_and_chunks():
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    rng = np.random.default_rng(5)
+    values = [None if m else float(v) for m, v in zip(rng.random(301) < 0.3, rng.normal(size=301))]
+    arr = pa.array(values, type=pa.float64())
+    cases = [arr, arr.slice(3), arr.slice(7, 200), pa.chunked_array([arr.slice(0, 17), arr.slice(17, 101), arr.slice(200)]),
+             pa.array([1.0, 2.0]), pa.chunked_array([pa.array([1.0]), pa.array([None], type=pa.float64())])]
+    for col in cases:
+        want = np.asarray(pc.is_valid(col).to_pylist(), dtype=bool)
+        np.testing.assert_array_equal(hio._present(col), want)
+
+
+def test_a_capture_with_missing_cells_is_read_without_pyarrow_compute(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "cap.csv"
+    path.write_text(CASES["empty first column"](_text()))
+    code = ("import sys\n"
+            "from hystfit.io import load_capture\n"
+            f"c = load_capture({str(path)!r})\n"
+            "print(c.n, 'pyarrow.compute' in sys.modules, 'pandas' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.split()
+    assert out == ["3000", "False", "False"]
