@@ -12,6 +12,8 @@ changes no number: the same modules, the same cached machine code.
 
 from __future__ import annotations
 
+import sys
+import threading
 from typing import Callable, Sequence
 
 
@@ -43,13 +45,47 @@ KERNELS: tuple[Callable[[], None], ...] = (_import_numba, _first_kernel)
 STEPS: tuple[Callable[[], None], ...] = (*KERNELS, import_optimize)
 
 
-def load_ahead(steps: Sequence[Callable[[], None]] = STEPS, stop: Callable[[], bool] = lambda: False) -> None:
+class Abandoned(BaseException):
+    """Raised out of :func:`load_ahead` when its ``abandon()`` said so (not an ``Exception``: the
+    step under way, and any ``except Exception`` in the code it imports, must not catch it)."""
+
+
+class _AbandonAtImport:
+    """A ``sys.meta_path`` finder that finds nothing: at each import the steps make in ``thread`` it
+    asks ``abandon()``, and raises :class:`Abandoned` when it answers True."""
+
+    def __init__(self, abandon: Callable[[], bool], thread: int) -> None:
+        self.abandon, self.thread = abandon, thread
+
+    def find_spec(self, name, path=None, target=None):
+        if threading.get_ident() == self.thread and self.abandon():
+            raise Abandoned(name)
+        return None
+
+
+def load_ahead(steps: Sequence[Callable[[], None]] = STEPS, stop: Callable[[], bool] = lambda: False,
+               abandon: Callable[[], bool] | None = None) -> None:
     """Run ``steps`` in order, asking ``stop()`` before each; a step that fails is left to the fit
-    that needs it (which then raises its own error)."""
-    for step in steps:
-        if stop():
-            return
-        try:
-            step()
-        except Exception:  # noqa: BLE001, S112 - only saves time
-            continue
+    that needs it (which then raises its own error).
+
+    ``abandon()``: asked at every module the steps import (it must be cheap); once it answers True
+    the step under way is abandoned at once and :class:`Abandoned` raised — for when what the steps
+    load will not be used (the captures read meanwhile were refused: the command ends with the
+    loader's error). A step is mostly imports of half a second or more, which ``stop()`` cannot cut
+    short: without this a refused capture waited for them (≈ 1 s)."""
+    finder = _AbandonAtImport(abandon, threading.get_ident()) if abandon is not None else None
+    if finder is not None:
+        sys.meta_path.insert(0, finder)
+    try:
+        for step in steps:
+            if stop():
+                return
+            if finder is not None and abandon():
+                raise Abandoned(getattr(step, "__name__", "step"))
+            try:
+                step()
+            except Exception:  # noqa: BLE001, S112 - only saves time
+                continue
+    finally:
+        if finder is not None:
+            sys.meta_path.remove(finder)

@@ -1167,6 +1167,9 @@ def _condition(table, chosen, opts, notes, u, dt) -> tuple[float, float, str]:
 #: size: it is compressed.
 LOAD_ASIDE_MAX_BYTES = 64 << 20
 PARQUET_EXPANSION = 8
+#: ... and smaller ones are read here too: hand-made files (the general reader's, with pandas), read
+#: at once, where a mistake is reported sooner here than by a child sharing the cores with the steps
+LOAD_ASIDE_MIN_BYTES = FAST_READ_BYTES
 
 
 def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = LoadOptions(),
@@ -1175,11 +1178,12 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
     """Load every capture of :func:`expand_paths` ``(paths, recursive)`` with ``options``.
 
     ``ahead``: steps (callables, e.g. of :mod:`hystfit._warm`) that the caller would run next —
-    loading what its first fit needs, starting a pool. Then a forked child reads the captures (up
-    to :data:`LOAD_ASIDE_MAX_BYTES`) while this process runs the steps, until the captures are
+    loading what its first fit needs, starting a pool. Then a forked child reads the captures (from
+    :data:`LOAD_ASIDE_MIN_BYTES` to :data:`LOAD_ASIDE_MAX_BYTES`) while this process runs the steps, until the captures are
     read (:func:`hystfit._warm.load_ahead`): the two overlap instead of following each other. The
     same captures as read here (the child's, pickled, with the same read-only arrays); the
-    loader's error, if any, is raised here. Where the child cannot be forked, or this process runs
+    loader's error, if any, is raised here, as soon as the child reports it (the steps are
+    abandoned at their next import). Where the child cannot be forked, or this process runs
     threads, they are read here and the steps are left to the caller's code.
 
     ``meanwhile()``: a context entered while the captures are read (e.g. a progress line), after
@@ -1190,7 +1194,7 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
 
     files = expand_paths(paths, recursive)
     aside = None
-    if ahead and threading.active_count() == 1 and _load_bytes(files) <= LOAD_ASIDE_MAX_BYTES:
+    if ahead and threading.active_count() == 1 and LOAD_ASIDE_MIN_BYTES <= _load_bytes(files) <= LOAD_ASIDE_MAX_BYTES:
         from .parallel import fork_call
 
         aside = fork_call(lambda: _read(files, options), kernels=False)
@@ -1199,10 +1203,7 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
             if aside is None:
                 got = _read(files, options)
             else:
-                from ._warm import load_ahead
-
-                load_ahead(ahead, stop=aside.ready)
-                got = aside.result()
+                got = _read_aside(aside, ahead)
     except BaseException:
         if aside is not None:  # the child stopped (nothing once its result is in)
             aside.cancel()
@@ -1214,6 +1215,26 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
         for name in names:
             getattr(c, name).flags.writeable = False
     return captures
+
+
+def _read_aside(aside, ahead: Sequence):
+    """What the child ``aside`` read, while this process runs the steps ``ahead`` until it has: they
+    are abandoned at their next import as soon as the child reports the loader's error (the command
+    ends with it; the steps' imports would only delay it)."""
+    from ._warm import Abandoned, load_ahead
+
+    early: list = []
+
+    def refused() -> bool:
+        if not early and aside.ready():
+            early.append(aside.result())
+        return bool(early) and isinstance(early[0], Exception)
+
+    try:
+        load_ahead(ahead, stop=aside.ready, abandon=refused)
+    except Abandoned:
+        pass
+    return early[0] if early else aside.result()
 
 
 def _read(files: Sequence[Path], options: LoadOptions):

@@ -42,6 +42,7 @@ def _counting_forks(monkeypatch) -> list:
 
     monkeypatch.setattr(parallel, "fork_call", counting)
     monkeypatch.setattr(threading, "active_count", lambda: 1)  # whatever threads earlier tests left
+    monkeypatch.setattr(io, "LOAD_ASIDE_MIN_BYTES", 0)  # the tests' small files are read aside too
     return forked
 
 
@@ -148,6 +149,7 @@ def test_identify_and_compare_name_what_they_load_or_start_first():
 def _threads_since_now(monkeypatch) -> None:
     """``threading.active_count`` as if this process ran only the threads started from now on (the
     earlier tests' leftovers do not count)."""
+    monkeypatch.setattr(io, "LOAD_ASIDE_MIN_BYTES", 0)
     before = set(threading.enumerate())
     monkeypatch.setattr(threading, "active_count",
                         lambda: 1 + sum(t.is_alive() and t not in before for t in threading.enumerate()))
@@ -233,3 +235,79 @@ def test_a_chatty_command_reads_its_captures_aside_too(monkeypatch):
     got = load_for_command([str(SAMPLE)], LoadOptions(), OutputArgs(), recursive=False, ahead=(lambda: None,))
     assert forked == [True]
     _same(got, load_captures([SAMPLE], LoadOptions()))
+
+
+def test_tiny_files_are_read_here(tmp_path, monkeypatch):
+    """Hand-made files under LOAD_ASIDE_MIN_BYTES (the general reader's): read at once here, where
+    a mistake is reported sooner than by a child sharing the cores with the steps."""
+    calls = []
+    monkeypatch.setattr(parallel, "fork_call", lambda *a, **k: calls.append(1))
+    monkeypatch.setattr(threading, "active_count", lambda: 1)
+    tiny = tmp_path / "tiny.csv"
+    tiny.write_text("time_s,voltage_V,displacement_um\n" + "".join(f"{i * 1e-3},{i % 7},{i % 5}\n" for i in range(40)))
+    assert tiny.stat().st_size < io.LOAD_ASIDE_MIN_BYTES
+    ran = []
+    load_captures([tiny], LoadOptions(), ahead=(lambda: ran.append(1),))
+    assert calls == [] and ran == []  # read here; the steps are left to the caller's code
+
+
+def test_load_ahead_abandons_the_step_under_way_at_its_next_import(tmp_path, monkeypatch):
+    import importlib
+
+    for i in range(5):
+        (tmp_path / f"_hystfit_probe_mod_{i}.py").write_text("X = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    imported, asked_elsewhere = [], []
+
+    def step():
+        for i in range(5):
+            importlib.import_module(f"_hystfit_probe_mod_{i}")
+            imported.append(i)
+
+    def abandon():
+        if threading.current_thread() is not threading.main_thread():
+            asked_elsewhere.append(1)
+        return len(imported) >= 2
+
+    meta_before = list(sys.meta_path)
+    with pytest.raises(_warm.Abandoned):
+        _warm.load_ahead((step, lambda: imported.append("next step")), abandon=abandon)
+    assert imported == [0, 1]  # the third import raised: the step and the ones after it abandoned
+    assert sys.meta_path == meta_before and asked_elsewhere == []
+    for i in range(5):
+        sys.modules.pop(f"_hystfit_probe_mod_{i}", None)
+    _warm.load_ahead((step,), abandon=lambda: False)  # never abandoned: every import made
+    assert imported[2:] == [0, 1, 2, 3, 4]
+    for i in range(5):
+        sys.modules.pop(f"_hystfit_probe_mod_{i}", None)
+
+
+@pytest.mark.skipif(not CAN_FORK, reason="the captures are read here without fork")
+def test_a_refused_capture_read_aside_abandons_the_steps_and_is_reported_at_once(tmp_path, monkeypatch):
+    import importlib
+
+    _counting_forks(monkeypatch)
+    bad = tmp_path / "bad.csv"
+    bad.write_text(CASES_BAD_LARGE)
+    n = 500
+    for i in range(n):
+        (tmp_path / f"_hystfit_slow_mod_{i}.py").write_text("import time\ntime.sleep(0.01)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    imported = []
+
+    def slow_step():  # ≈ 5 s of imports, as loading numba and scipy.optimize is
+        for i in range(n):
+            importlib.import_module(f"_hystfit_slow_mod_{i}")
+            imported.append(i)
+
+    try:
+        with pytest.raises(InputError, match="not a number"):
+            load_captures([bad], LoadOptions(), ahead=(slow_step,))
+        assert len(imported) < n  # abandoned when the child reported the error, not finished
+    finally:
+        for i in range(n):
+            sys.modules.pop(f"_hystfit_slow_mod_{i}", None)
+
+
+CASES_BAD_LARGE = "time_s,voltage_V,displacement_um\n" + "".join(
+    f"{i * 1e-4:.4f},{i % 97 * 0.1:.3f},{i % 89 * 0.01:.3f}\n" for i in range(3000)).replace("\n0.0100,", "\n0.0100x,", 1)
