@@ -84,13 +84,12 @@ from dataclasses import dataclass, field
 from typing import Callable, ClassVar, Sequence
 
 import numpy as np
-import pandas as pd
 from ._jit import njit
 
 from .capture import UniformSamples
 from .conditions import LookupTable, detect_condition
 from .errors import ConfigError, InputError
-from .io import TARGET_NAMES, load_table
+from .io import TARGET_NAMES, Columns, load_table
 from .parallel import one_blas_thread
 from .results import Cell, ParamsFile
 
@@ -892,10 +891,11 @@ class InversionResult:
     def limited(self) -> bool:
         return bool(self.clip_spans or self.slew_spans)
 
-    def to_frame(self) -> pd.DataFrame:
-        """``time_s, voltage_V, predicted_displacement_<unit>``: the file for the amplifier."""
-        return pd.DataFrame({"time_s": self.target.t_s, "voltage_V": self.voltage_V,
-                             f"predicted_displacement_{self.unit}": self.predicted})
+    def to_table(self) -> Columns:
+        """``time_s, voltage_V, predicted_displacement_<unit>``: the file for the amplifier
+        (:func:`hystfit.io.write_table` writes it; ``.to_pandas()`` gives a DataFrame)."""
+        return Columns({"time_s": self.target.t_s, "voltage_V": self.voltage_V,
+                        f"predicted_displacement_{self.unit}": self.predicted})
 
     def cells_used(self) -> list[tuple[str, float]]:
         """(label, weight) of every cell used, weights averaged over segments by length."""

@@ -16,7 +16,7 @@ import typer
 from ..errors import ConfigError, OutputError
 from .app import command
 from .common import (Condition, Method, OutputArgs, OutputUnit, TimeCol, new_table, parse_condition, print_json,
-                     progress_bar, stderr, stdout, writing)
+                     progress_bar, start_figures, stderr, stdout, writing)
 
 TargetArg = Annotated[Optional[Path], typer.Argument(
     help="Target file (CSV/TXT/Parquet): time and desired displacement (target, reference, displacement_um, y, ...). "
@@ -150,6 +150,7 @@ def invert(
     plots/tracking_detail.png for a long target). Clipping to the voltage limits and slew-rate
     limiting are reported with their time spans. Method and options: docs/invert.md.
     """
+    start_figures(output)  # the figure server (forked at the start) draws them: matplotlib loads meanwhile
     from ..invert import invert_target
     from ..io import check_writable_file, staged_output_dir, write_table
     from ..report.invert_report import write_invert_report
@@ -185,7 +186,7 @@ def invert(
         with writing(rdir, output):
             summary = write_invert_report(res, stage, make_plots=output.plots, command=cmd, output_file=str(out))
     try:
-        write_table(out, res.to_frame())
+        write_table(out, res.to_table())
     except BaseException:
         if not existed:
             shutil.rmtree(rdir, ignore_errors=True)

@@ -10,7 +10,7 @@ import typer
 from ..errors import ConfigError
 from .app import command
 from .common import (Condition, OutDir, OutputArgs, OutputUnit, Seed, TimeCol, new_table, parse_condition, parse_key_values,
-                     phase, print_json, progress_bar, stderr, stdout, writing)
+                     phase, print_json, progress_bar, start_figures, stderr, stdout, writing)
 
 # --noise is in µm (as in 'hystfit synth'); the loop runs in the parameter file's unit.
 UM_PER_UNIT_INV = {"nm": 1e3, "um": 1.0, "mm": 1e-3, "m": 1e-6}
@@ -63,6 +63,7 @@ def track(
     Writes OUT/<controller>.csv (time, reference, displacement, measured, voltage, command, error),
     OUT/summary.json, OUT/report.md and OUT/plots/. Method and options: docs/invert.md.
     """
+    start_figures(output)  # the figure server (forked at the start) draws them: matplotlib loads meanwhile
     from ..io import staged_output_dir
     from ..report.track_report import write_track_outputs
     from ..results import load_params

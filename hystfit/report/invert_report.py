@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from ..invert import InversionResult, Span, condition_text
 from ..io import atomic_write_text
@@ -100,6 +99,8 @@ def tracking_figure(path, t_s, target, output, voltage_V, *, unit: str = "um", t
     vmin, vmax : voltage limits drawn as dashed lines.
     spans : limited spans, shaded on the voltage panel.
     """
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(8.5, 7.0), layout="constrained")
     axes = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": [2.0, 1.2, 1.2]})
     _draw_tracking(axes, np.asarray(t_s, float), np.asarray(target, float), np.asarray(output, float),
@@ -141,6 +142,8 @@ def tracking_detail_figure(path, t_s, target, output, voltage_V, windows: Sequen
                            vmin: float | None = None, vmax: float | None = None, spans: Sequence[Span] = ()) -> Path:
     """The panels of :func:`tracking_figure` at full resolution, one column per window (see :func:`detail_windows`)."""
     t, r, y, v = (np.asarray(a, float) for a in (t_s, target, output, voltage_V))
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(4.6 * len(windows) + 1.0, 7.0), layout="constrained")
     grid = fig.subplots(3, len(windows), squeeze=False, sharex="col",
                         gridspec_kw={"height_ratios": [2.0, 1.2, 1.2]})
@@ -157,6 +160,8 @@ def tracking_detail_figure(path, t_s, target, output, voltage_V, windows: Sequen
 def error_comparison_figure(path, t_s, errors: dict, *, unit: str = "um", title: str = "") -> Path:
     """Tracking errors of several controllers on one axis (min/max decimated)."""
     t = np.asarray(t_s, float)
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(8.5, 3.8), layout="constrained")
     ax = fig.subplots()
     for i, (lab, e) in enumerate(errors.items()):
@@ -287,6 +292,22 @@ def invert_markdown(res: InversionResult, figures: Sequence[str], command: str |
     return "\n".join(L)
 
 
+def figure_job(function: str, path: Path, *args, **kwargs):
+    """A :class:`~hystfit.report.render.FigureJob` of one of this module's figure functions."""
+    from .render import FigureJob
+
+    return FigureJob(f"{__name__}:{function}", Path(path), args, kwargs)
+
+
+def draw_figures(jobs) -> list[Path]:
+    """Draw ``jobs`` (:func:`figure_job`): by the figure server the command line forked at its start, which
+    imported matplotlib meanwhile (≈ 0.9 s this process does not spend), else here
+    (:func:`hystfit.report.render.render_figures`)."""
+    from .render import render_figures
+
+    return render_figures(jobs)
+
+
 def write_invert_report(res: InversionResult, report_dir: Path, *, make_plots: bool = True,
                         command: str | None = None, output_file: str | None = None) -> dict:
     """Write ``report.md``, ``report.json`` and ``plots/tracking.png`` into ``report_dir``; return the summary."""
@@ -296,13 +317,15 @@ def write_invert_report(res: InversionResult, report_dir: Path, *, make_plots: b
         kw = dict(unit=res.unit, title=f"{res.model_name} feedforward – {res.target.description}",
                   vmin=res.limits["vmin_V"], vmax=res.limits["vmax_V"], spans=list(res.clip_spans) + list(res.slew_spans))
         tg = res.target
-        tracking_figure(report_dir / "plots" / "tracking.png", tg.t_s, tg.y, res.predicted, res.voltage_V, **kw)
+        jobs = [figure_job("tracking_figure", report_dir / "plots" / "tracking.png", tg.t_s, tg.y, res.predicted,
+                     res.voltage_V, **kw)]
         figures.append("plots/tracking.png")
         windows = detail_windows(tg)
         if windows:
-            tracking_detail_figure(report_dir / "plots" / "tracking_detail.png", tg.t_s, tg.y, res.predicted,
-                                   res.voltage_V, windows, **kw)
+            jobs.append(figure_job("tracking_detail_figure", report_dir / "plots" / "tracking_detail.png", tg.t_s, tg.y,
+                             res.predicted, res.voltage_V, windows, **kw))
             figures.append("plots/tracking_detail.png")
+        draw_figures(jobs)
     summary = invert_summary(res)
     summary["command"] = command
     summary["output_file"] = output_file

@@ -6,9 +6,8 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import pandas as pd
 
-from ..io import atomic_write_text, write_table
+from ..io import Columns, atomic_write_text, write_table
 from ..predict import Prediction
 from ..results import ParamsFile, dumps, json_safe
 from . import plots
@@ -37,7 +36,7 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
         if c.y is not None:
             cols[f"measured_displacement_{u}"] = c.y
             cols[f"residual_{u}"] = p.y_model - c.y
-        write_table(out_dir / f"{stem}_prediction.{fmt}", pd.DataFrame(cols))
+        write_table(out_dir / f"{stem}_prediction.{fmt}", Columns(cols))
         entry = {"capture": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
                  "cells": [list(x) for x in p.cells], "metrics": p.metrics, f"offset_{u}": p.offset,
                  "notes": list(c.notes) + list(p.notes), "prediction_file": f"{stem}_prediction.{fmt}"}

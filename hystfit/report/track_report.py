@@ -4,14 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pandas as pd
-
 from ..invert import condition_text
-from ..io import atomic_write_text, write_table
+from ..io import Columns, atomic_write_text, write_table
 from ..results import dumps, json_safe, schema_fields
 from ..track import TrackResult
-from .invert_report import (detail_windows, error_comparison_figure, invert_summary, span_dicts, span_table,
-                            tracking_detail_figure, tracking_figure)
+from .invert_report import detail_windows, draw_figures, figure_job, invert_summary, span_dicts, span_table
 from .plots import display_unit
 from .tables import fmt, notes_and_figures
 
@@ -118,25 +115,29 @@ def write_track_outputs(res: TrackResult, out_dir: Path, *, make_plots: bool = T
     tg = res.target
     figures: list[str] = []
     windows = detail_windows(tg) if make_plots else []
+    jobs = []
     for run in res.runs:
         stem = _file_stem(run.controller)
-        write_table(out_dir / f"{stem}.{fmt_ext}", pd.DataFrame({
+        write_table(out_dir / f"{stem}.{fmt_ext}", Columns({
             "time_s": tg.t_s, f"reference_{u}": tg.y, f"displacement_{u}": run.output,
             f"measured_{u}": run.measured, "voltage_V": run.voltage_V, "command_V": run.command_V,
             f"error_{u}": run.error}))
         if make_plots:
             kw = dict(unit=u, title=f"{run.controller} – {tg.description}", output_label="plant output",
                       vmin=res.limits["vmin_V"], vmax=res.limits["vmax_V"], spans=run.limit_spans)
-            tracking_figure(out_dir / "plots" / f"{stem}.png", tg.t_s, tg.y, run.output, run.voltage_V, **kw)
+            jobs.append(figure_job("tracking_figure", out_dir / "plots" / f"{stem}.png", tg.t_s, tg.y, run.output,
+                             run.voltage_V, **kw))
             figures.append(f"plots/{stem}.png")
             if windows:
-                tracking_detail_figure(out_dir / "plots" / f"{stem}_detail.png", tg.t_s, tg.y, run.output,
-                                       run.voltage_V, windows, **kw)
+                jobs.append(figure_job("tracking_detail_figure", out_dir / "plots" / f"{stem}_detail.png", tg.t_s, tg.y,
+                                 run.output, run.voltage_V, windows, **kw))
                 figures.append(f"plots/{stem}_detail.png")
     if make_plots and len(res.runs) > 1:
-        error_comparison_figure(out_dir / "plots" / "errors.png", tg.t_s, {r.controller: r.error for r in res.runs},
-                                unit=u, title=f"tracking error – {tg.description}")
+        jobs.insert(0, figure_job("error_comparison_figure", out_dir / "plots" / "errors.png", tg.t_s,
+                            {r.controller: r.error for r in res.runs}, unit=u, title=f"tracking error – {tg.description}"))
         figures.insert(0, "plots/errors.png")
+    if jobs:
+        draw_figures(jobs)
     summary = track_summary(res)
     summary["command"] = command
     atomic_write_text(out_dir / "summary.json", dumps(json_safe(summary)))

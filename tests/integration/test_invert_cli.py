@@ -283,3 +283,21 @@ def test_track_bad_input_exit_2_one_line_nothing_written(tables, tmp_path, args,
     r = run("track", tables["pi"], "--sine", "10,10,1", "--offset", "2", *args, "--out", out)
     assert_error(r, needle, out)
     assert not any(p.name.startswith(".tr.tmp") for p in tmp_path.iterdir())
+
+
+def test_invert_and_track_load_neither_pandas_nor_matplotlib_in_the_commands_process(tables, tmp_path):
+    """The voltages and runs are written without pandas, and the figures are drawn by the figure
+    server the console script forks at its start (matplotlib loads there meanwhile)."""
+    probe = ("import atexit, sys\n"
+             "atexit.register(lambda: print('LOADED', 'pandas' in sys.modules, 'matplotlib' in sys.modules))\n"
+             "from hystfit.cli import main\n"
+             "main()\n")
+    for args, figure in ((["invert", tables["pi"], "--sine", "10,10,3", "--offset", "2", "--out", tmp_path / "v.csv"],
+                          tmp_path / "v_report" / "plots" / "tracking.png"),
+                         (["track", tables["pi"], "--sine", "10,10,2", "--offset", "2", "--controller", "ff,pid",
+                           "--out", tmp_path / "tr"], tmp_path / "tr" / "plots" / "errors.png")):
+        proc = subprocess.run([sys.executable, "-c", probe, *map(str, args)], capture_output=True, text=True,
+                              timeout=300, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr
+        assert "LOADED False False" in proc.stdout.splitlines(), (args[0], proc.stdout[-300:])
+        assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

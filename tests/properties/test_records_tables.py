@@ -1,13 +1,15 @@
-"""Report tables written without pandas (:class:`hystfit.io.Records`) are the text pandas writes."""
+"""Report tables written without pandas (:class:`hystfit.io.Records`, :class:`hystfit.io.Columns`) are the
+text pandas writes."""
 
 import math
 
 import numpy as np
 import pandas as pd
+import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from hystfit.io import Records, write_table
+from hystfit.io import Columns, Records, write_table
 from hystfit.report.tables import markdown_table
 
 KEYS = ["condition", "rmse_um", "evaluations", "flag", "note"]
@@ -57,3 +59,33 @@ def test_a_report_table_keeps_counts_integer_and_floats_exact(tmp_path):
     write_table(tmp_path / "r.parquet", Records(tuple(rows)))
     back = pd.read_parquet(tmp_path / "r.parquet")
     assert list(back.columns) == ["condition", "rmse_um", "evaluations", "stderr"] and back["evaluations"].tolist() == [60000, 1]
+
+
+column_values = st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**6, 10**6).map(float)),
+                         min_size=0, max_size=40)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(1, 4).flatmap(lambda k: st.tuples(st.lists(st.text(alphabet='ab ,;"\t_µ', min_size=1, max_size=5),
+                                                              min_size=k, max_size=k, unique=True),
+                                                     st.lists(column_values, min_size=k, max_size=k))),
+       st.sampled_from([",", "\t"]))
+def test_columns_csv_is_the_text_pandas_writes(named, sep):
+    names, values = named
+    n = min(len(v) for v in values)
+    cols = {name: np.asarray(v[:n], dtype=float) for name, v in zip(names, values)}
+    want = pd.DataFrame(cols).to_csv(index=False, sep=sep, lineterminator="\n")
+    assert Columns(cols).to_csv(sep) == want
+
+
+def test_columns_write_csv_tsv_and_parquet(tmp_path):
+    t = np.arange(5) * 1e-4
+    cols = Columns({"time_s": t, "voltage_V": np.array([0.0, -0.0, np.nan, 1e-5, 3.25])})
+    for name in ("a.csv", "a.tsv", "a.parquet"):
+        write_table(tmp_path / name, cols)
+    back = pd.read_parquet(tmp_path / "a.parquet")
+    assert list(back.columns) == ["time_s", "voltage_V"] and back["time_s"].tolist() == t.tolist()
+    assert (tmp_path / "a.csv").read_text() == pd.DataFrame(dict(cols)).to_csv(index=False, lineterminator="\n")
+    assert (tmp_path / "a.tsv").read_text().splitlines()[0] == "time_s\tvoltage_V"
+    with pytest.raises(ValueError, match="differ in length"):
+        Columns({"a": [1.0, 2.0], "b": [1.0]})

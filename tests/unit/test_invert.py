@@ -125,8 +125,9 @@ def test_round_trip_pi_is_exact_and_memory_consistent():
     assert rest_output(pf.cells[0], res.initial_voltage_V, DT) == pytest.approx(2.0, abs=1e-9)
     assert res.voltage_V[0] == pytest.approx(res.initial_voltage_V, abs=1e-9)
     assert not res.clip_spans and not res.slew_spans and res.metrics_unlimited is None
-    frame = res.to_frame()
-    assert list(frame.columns) == ["time_s", "voltage_V", "predicted_displacement_um"]
+    written = res.to_table()
+    assert list(written) == ["time_s", "voltage_V", "predicted_displacement_um"]
+    assert list(written.to_pandas().columns) == list(written)
 
 
 def test_round_trip_bw_numerical_inverse():
