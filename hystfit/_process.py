@@ -58,16 +58,32 @@ def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
     The locks of :func:`hold_across_forks` are held across the fork and free in both processes after it.
     """
     main = threading.current_thread() is threading.main_thread()
+    held = []  # first, before the signals are held: a wait for a stuck writer can be interrupted
+    try:
+        for lock in list(_held_across_forks):  # in one order: no two forking threads wait on each other
+            lock.acquire()
+            held.append(lock)
+    except BaseException:
+        for lock in reversed(held):
+            lock.release()
+        raise
     noted: list[int] = []
     saved: dict[int, Handler] = {}
-    if main:
-        for signum in HELD_SIGNALS:
-            current = signal.getsignal(signum)
-            if current is not None:  # None: a handler not set from Python, left alone
-                saved[signum] = current
-                signal.signal(signum, lambda n, frame: noted.append(n))
     blocking = hasattr(signal, "pthread_sigmask")
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, HELD_SIGNALS) if blocking else None
+    try:
+        if main:
+            for signum in HELD_SIGNALS:
+                current = signal.getsignal(signum)
+                if current is not None:  # None: a handler not set from Python, left alone
+                    saved[signum] = current
+                    signal.signal(signum, lambda n, frame: noted.append(n))
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, HELD_SIGNALS) if blocking else None
+    except BaseException:  # a signal before the stand-ins were all in place: nothing forked yet
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)
+        for lock in reversed(held):
+            lock.release()
+        raise
 
     def put_back() -> None:
         for signum, handler in saved.items():
@@ -81,11 +97,7 @@ def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
             elif handler == signal.SIG_DFL:
                 os.kill(os.getpid(), signum)
 
-    held = []
     try:
-        for lock in _held_across_forks:  # in one order: no two forking threads wait on each other
-            lock.acquire()
-            held.append(lock)
         pid = os.fork()
     except BaseException:
         for lock in reversed(held):

@@ -68,11 +68,14 @@ def load_ahead(steps: Sequence[Callable[[], None]] = STEPS, stop: Callable[[], b
     """Run ``steps`` in order, asking ``stop()`` before each; a step that fails is left to the fit
     that needs it (which then raises its own error).
 
-    ``abandon()``: asked at every module the steps import (it must be cheap); once it answers True
-    the step under way is abandoned at once and :class:`Abandoned` raised — for when what the steps
-    load will not be used (the captures read meanwhile were refused: the command ends with the
-    loader's error). A step is mostly imports of half a second or more, which ``stop()`` cannot cut
-    short: without this a refused capture waited for them (≈ 1 s)."""
+    ``abandon()``: asked at every module the steps import (it must be cheap, and must not import
+    nor compute); once it answers True the step under way is abandoned at once and
+    :class:`Abandoned` raised — for when what the steps load will not be used and the process ends
+    right after (the captures read meanwhile were refused: the console script ends with the
+    loader's error). A module whose import is cut short is half-loaded (its package gone from
+    ``sys.modules``, some of its submodules left): the process must not fit afterwards. A step is
+    mostly imports of half a second or more, which ``stop()`` cannot cut short: without this a
+    refused capture waited for them (≈ 1 s)."""
     finder = _AbandonAtImport(abandon, threading.get_ident()) if abandon is not None else None
     if finder is not None:
         sys.meta_path.insert(0, finder)
@@ -87,5 +90,5 @@ def load_ahead(steps: Sequence[Callable[[], None]] = STEPS, stop: Callable[[], b
             except Exception:  # noqa: BLE001, S112 - only saves time
                 continue
     finally:
-        if finder is not None:
+        if finder is not None and finder in sys.meta_path:  # a step may have rebound sys.meta_path
             sys.meta_path.remove(finder)

@@ -1174,7 +1174,7 @@ LOAD_ASIDE_MIN_BYTES = FAST_READ_BYTES
 
 def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = LoadOptions(),
                   recursive: bool = False, *, ahead: Sequence = (),
-                  meanwhile: Callable[[], ContextManager] = nullcontext) -> list[Capture]:
+                  meanwhile: Callable[[], ContextManager] = nullcontext, abandon_on_error: bool = False) -> list[Capture]:
     """Load every capture of :func:`expand_paths` ``(paths, recursive)`` with ``options``.
 
     ``ahead``: steps (callables, e.g. of :mod:`hystfit._warm`) that the caller would run next —
@@ -1182,8 +1182,8 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
     :data:`LOAD_ASIDE_MIN_BYTES` to :data:`LOAD_ASIDE_MAX_BYTES`) while this process runs the steps, until the captures are
     read (:func:`hystfit._warm.load_ahead`): the two overlap instead of following each other. The
     same captures as read here (the child's, pickled, with the same read-only arrays); the
-    loader's error, if any, is raised here, as soon as the child reports it (the steps are
-    abandoned at their next import). Where the child cannot be forked, or this process runs
+    loader's error, if any, is raised here; with ``abandon_on_error`` (only where the process ends
+    with the command: the steps' imports are abandoned half-done) as soon as the child reports it. Where the child cannot be forked, or this process runs
     threads, they are read here and the steps are left to the caller's code.
 
     ``meanwhile()``: a context entered while the captures are read (e.g. a progress line), after
@@ -1203,7 +1203,7 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
             if aside is None:
                 got = _read(files, options)
             else:
-                got = _read_aside(aside, ahead)
+                got = _read_aside(aside, ahead, abandon_on_error)
     except BaseException:
         if aside is not None:  # the child stopped (nothing once its result is in)
             aside.cancel()
@@ -1217,24 +1217,25 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
     return captures
 
 
-def _read_aside(aside, ahead: Sequence):
-    """What the child ``aside`` read, while this process runs the steps ``ahead`` until it has: they
-    are abandoned at their next import as soon as the child reports the loader's error (the command
-    ends with it; the steps' imports would only delay it)."""
+def _read_aside(aside, ahead: Sequence, abandon: bool):
+    """What the child ``aside`` read, while this process runs the steps ``ahead`` until it has.
+
+    ``abandon``: the process ends when the command does (the console script), so the steps may be
+    abandoned in the middle of an import as soon as the child reports the loader's error (the
+    command ends with it; finishing the imports would only delay it). Elsewhere (a program calling
+    hystfit, a test suite's ``CliRunner``) an import cut short would leave half-loaded modules for
+    the process's next fit: the steps then stop only between one another."""
     from ._warm import Abandoned, load_ahead
 
-    early: list = []
-
     def refused() -> bool:
-        if not early and aside.ready():
-            early.append(aside.result())
-        return bool(early) and isinstance(early[0], Exception)
+        sent, value = aside.sent()  # never computed here: this runs inside the steps' imports
+        return sent and isinstance(value, Exception)
 
     try:
-        load_ahead(ahead, stop=aside.ready, abandon=refused)
+        load_ahead(ahead, stop=aside.ready, abandon=refused if abandon else None)
     except Abandoned:
         pass
-    return early[0] if early else aside.result()
+    return aside.result()
 
 
 def _read(files: Sequence[Path], options: LoadOptions):

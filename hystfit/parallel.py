@@ -838,27 +838,49 @@ class ForkedCall:
     """``fn()`` computed in a forked child while this process goes on (:func:`fork_call`):
     :meth:`result` waits for it — computing it here when the child could not return it, so an
     exception is raised here as in a plain call —, :meth:`cancel` stops the child when its result
-    is not needed after all. Use one or the other, once."""
+    is not needed after all. Use one or the other, once (:meth:`sent` may look before)."""
+
+    _NOTHING = object()
 
     def __init__(self, fn: Callable[[], R], pid: int, conn) -> None:
         self.fn, self.pid, self.conn = fn, pid, conn
+        self._message: Any = ForkedCall._NOTHING
+
+    def _receive(self) -> Any:
+        """The child's message, read once: ``{0: value}``, the text of a result that did not pickle,
+        or ``{}`` (it died)."""
+        if self._message is ForkedCall._NOTHING:
+            try:
+                got = self.conn.recv()
+            except (EOFError, OSError):  # the child died
+                got = {}
+            except BaseException:  # Ctrl-C or SIGTERM while waiting: stop the child, do not wait for its work
+                self._end(stop=True)
+                raise
+            self._message = got
+            self._end(stop=False)
+        return self._message
 
     def result(self) -> R:
-        try:
-            got = self.conn.recv()
-        except (EOFError, OSError):  # the child died
-            got = {}
-        except BaseException:  # Ctrl-C or SIGTERM while waiting: stop the child, do not wait for its work
-            self._end(stop=True)
-            raise
-        self._end(stop=False)
+        got = self._receive()
         if isinstance(got, str):  # the same numbers, computed twice: a bug to see, not to hide
             warnings.warn(f"fork_call: the child's result could not be sent back ({got}); it is computed again "
                           f"in this process", RuntimeWarning, stacklevel=2)
         return got[0] if isinstance(got, dict) and 0 in got else self.fn()
 
+    def sent(self) -> tuple[bool, Any]:
+        """``(True, value)`` once the child has sent its result; ``(False, None)`` while it has not,
+        or when it sent none (it died, its result did not pickle: :meth:`result` computes it then).
+        Never waits, never computes here: safe anywhere, e.g. inside an import."""
+        if self._message is ForkedCall._NOTHING and not self.ready():
+            return False, None
+        got = self._receive()
+        return (True, got[0]) if isinstance(got, dict) and 0 in got else (False, None)
+
     def ready(self) -> bool:
         """The child has sent its result (or died): :meth:`result` will not wait."""
+        if self._message is not ForkedCall._NOTHING:
+            return True
         try:
             return self.pid is None or self.conn.poll()
         except (EOFError, OSError):

@@ -206,8 +206,22 @@ def main(argv: list[str] | None = None) -> None:
         _main(argv)
 
 
+#: True while the console script runs a command (:func:`main` without ``argv``): the process ends
+#: when the command does, so work done only to save time may be dropped half-done on an error
+#: (:func:`hystfit.cli.common.load_for_command`); never in a program that calls :func:`main` or
+#: ``app`` (a test suite's ``CliRunner``), whose process goes on
+PROCESS_ENDS_WITH_COMMAND = False
+
+
+def process_ends_with_command() -> bool:
+    """:data:`PROCESS_ENDS_WITH_COMMAND`, read at call time."""
+    return PROCESS_ENDS_WITH_COMMAND
+
+
 def _main(argv: list[str] | None) -> None:
+    global PROCESS_ENDS_WITH_COMMAND
     words = sys.argv[1:] if argv is None else list(argv)
+    PROCESS_ENDS_WITH_COMMAND = argv is None
     early = bool(words) and words[0] in FIGURE_COMMANDS and not {"--no-plots", "--help", "-h"} & set(words)
     if early:
         from ..report.render import preload_early

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,8 +12,13 @@ from typing import Annotated, Iterator, Optional
 
 import typer
 
+from .._process import hold_across_forks
 from ..errors import ConfigError
 from .app import OptionGroup
+
+
+_console_lock = threading.Lock()
+hold_across_forks(_console_lock)
 
 
 class _Console:
@@ -24,11 +30,16 @@ class _Console:
         self._console = None
 
     def rich(self):
-        """The rich ``Console`` itself."""
+        """The rich ``Console`` itself (one, made under a lock: a progress line's timer thread may
+        ask for it at the same moment as the command)."""
+        if self._console is None:
+            with _console_lock:
+                return self._made()
+        return self._console
+
+    def _made(self):
         if self._console is None:
             from rich.console import Console
-
-            from .._process import hold_across_forks
 
             self._console = Console(**self._options)
             lock = getattr(self._console, "_lock", None)  # rich writes under it, from its refresh thread too
@@ -501,9 +512,11 @@ def load_for_command(data, options, output: OutputArgs, *, recursive: bool, ahea
     starts while a forked child reads them (:func:`hystfit.io.load_captures`; the progress line's
     thread starts after that fork, which it would otherwise prevent)."""
     from ..io import load_captures
+    from .app import process_ends_with_command
 
     captures = load_captures(data, options, recursive=recursive, ahead=ahead,
-                             meanwhile=lambda: phase(output.chatty, "loading the captures"))
+                             meanwhile=lambda: phase(output.chatty, "loading the captures"),
+                             abandon_on_error=process_ends_with_command())
     if not output.quiet:
         print_capture_notes(captures)
     return captures

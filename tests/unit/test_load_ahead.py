@@ -302,11 +302,82 @@ def test_a_refused_capture_read_aside_abandons_the_steps_and_is_reported_at_once
 
     try:
         with pytest.raises(InputError, match="not a number"):
-            load_captures([bad], LoadOptions(), ahead=(slow_step,))
+            load_captures([bad], LoadOptions(), ahead=(slow_step,), abandon_on_error=True)
         assert len(imported) < n  # abandoned when the child reported the error, not finished
     finally:
         for i in range(n):
             sys.modules.pop(f"_hystfit_slow_mod_{i}", None)
+
+
+@pytest.mark.skipif(not CAN_FORK, reason="the captures are read here without fork")
+def test_without_abandon_a_step_under_way_is_finished(tmp_path, monkeypatch):
+    """A program that goes on after the error (a library caller, CliRunner): an import cut short
+    would leave half-loaded modules for its next fit, so the step under way is finished."""
+    import importlib
+
+    _counting_forks(monkeypatch)
+    bad = tmp_path / "bad.csv"
+    bad.write_text(CASES_BAD_LARGE)
+    n = 30
+    for i in range(n):
+        (tmp_path / f"_hystfit_done_mod_{i}.py").write_text("import time\ntime.sleep(0.02)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    imported = []
+
+    def step():
+        for i in range(n):
+            importlib.import_module(f"_hystfit_done_mod_{i}")
+            imported.append(i)
+
+    try:
+        with pytest.raises(InputError, match="not a number"):
+            load_captures([bad], LoadOptions(), ahead=(step, lambda: imported.append("next")))
+        assert imported[:n] == list(range(n))  # the step under way finished
+    finally:
+        for i in range(n):
+            sys.modules.pop(f"_hystfit_done_mod_{i}", None)
+
+
+@pytest.mark.skipif(not CAN_FORK, reason="the captures are read here without fork")
+def test_a_child_that_sends_nothing_is_read_again_here_once_outside_the_imports(tmp_path, monkeypatch):
+    """The child died (or its loader raised something other than a HystfitError): nothing is sent,
+    the captures are read here — once, after the steps, never inside one of their imports (where a
+    read that imports would ask the child again and again: the review found it spinning)."""
+    import importlib
+    import signal as _signal
+
+    _counting_forks(monkeypatch)
+    (tmp_path / "_hystfit_one_mod.py").write_text("X = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    reads = []
+    real = io._read
+    monkeypatch.setattr(io, "_read", lambda *a, **k: (reads.append(os.getpid()), real(*a, **k))[1])
+    real_fork_call = parallel.fork_call
+
+    here = os.getpid()
+
+    def dies_in_the_child():  # and does nothing when the parent computes the call itself
+        if os.getpid() != here:
+            os.kill(os.getpid(), _signal.SIGKILL)
+
+    def killed(fn, *a, **k):
+        call = real_fork_call(lambda: (dies_in_the_child(), fn())[1], *a, **k)
+        return call
+
+    monkeypatch.setattr(parallel, "fork_call", killed)
+
+    def step():
+        import time as _t
+
+        _t.sleep(0.3)  # the child is dead by now
+        importlib.import_module("_hystfit_one_mod")
+
+    try:
+        got = load_captures([SAMPLE], LoadOptions(), ahead=(step,), abandon_on_error=True)
+        _same(got, load_captures([SAMPLE], LoadOptions()))
+        assert reads.count(os.getpid()) == 2  # this test's own plain read, and one here for the dead child
+    finally:
+        sys.modules.pop("_hystfit_one_mod", None)
 
 
 CASES_BAD_LARGE = "time_s,voltage_V,displacement_um\n" + "".join(
