@@ -37,7 +37,7 @@ import tempfile
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, ContextManager, Iterator, Mapping, Sequence
+from typing import Callable, ContextManager, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -1274,8 +1274,9 @@ def _umask() -> int:
 _UMASK = _umask()
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and ``os.replace``.
+def atomic_write_bytes(path: str | os.PathLike, data: "bytes | Iterable[bytes]") -> None:
+    """Write ``data`` (bytes, or pieces of them written one after the other: a large table need not
+    be held whole in memory) to ``path`` via a temporary file in the same directory and ``os.replace``.
 
     Readers see the old file or the complete new one, never a partial file. Parent directories
     are created. Raises :class:`OutputError` when the location cannot be written.
@@ -1286,7 +1287,11 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         p.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            if isinstance(data, (bytes, bytearray, memoryview)):
+                fh.write(data)
+            else:
+                for piece in data:
+                    fh.write(piece)
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_UMASK)
@@ -1408,13 +1413,25 @@ class Columns(dict):
         if len(sizes) > 1:
             raise ValueError(f"Columns: the columns differ in length ({sorted(sizes)})")
 
-    def to_csv(self, sep: str = ",") -> str:
-        empty = '""' if len(self) == 1 else ""  # a row of one empty cell is quoted, not a blank line (csv, pandas)
-        cells = [[(empty if text == "nan" else text) for text in map(repr, col.tolist())] if np.isnan(col).any()
-                 else list(map(repr, col.tolist())) for col in self.values()]
+    #: rows formatted at a time by :meth:`csv_pieces` (a few MB of text)
+    ROWS_PER_PIECE = 1 << 16
+
+    def csv_pieces(self, sep: str = ","):
+        """The CSV text of :meth:`to_csv` in pieces: the header, then :data:`ROWS_PER_PIECE` rows at a
+        time (a 10⁶-row table is never held whole as text)."""
         buf = _stdio.StringIO()
         csv.writer(buf, delimiter=sep, lineterminator="\n", quoting=csv.QUOTE_MINIMAL).writerow(list(self))
-        return buf.getvalue() + "".join(line + "\n" for line in map(sep.join, zip(*cells)))
+        yield buf.getvalue()
+        empty = '""' if len(self) == 1 else ""  # a row of one empty cell is quoted, not a blank line (csv, pandas)
+        n = len(next(iter(self.values()))) if self else 0
+        for start in range(0, n, self.ROWS_PER_PIECE):
+            part = [col[start: start + self.ROWS_PER_PIECE] for col in self.values()]
+            cells = [[(empty if text == "nan" else text) for text in map(repr, c.tolist())] if np.isnan(c).any()
+                     else list(map(repr, c.tolist())) for c in part]
+            yield "".join(line + "\n" for line in map(sep.join, zip(*cells)))
+
+    def to_csv(self, sep: str = ",") -> str:
+        return "".join(self.csv_pieces(sep))
 
     def to_pandas(self) -> "pandas.DataFrame":
         import pandas as pd
@@ -1445,7 +1462,9 @@ def write_table(path: str | os.PathLike, table: "Records | Columns | pandas.Data
         atomic_write_bytes(p, buf.getvalue())
         return
     sep = "\t" if p.suffix.lower() == ".tsv" else ","
-    if isinstance(table, (Records, Columns)):
+    if isinstance(table, Columns):
+        atomic_write_bytes(p, (piece.encode("utf-8") for piece in table.csv_pieces(sep)))
+    elif isinstance(table, Records):
         atomic_write_text(p, table.to_csv(sep))
     else:
         atomic_write_text(p, table.to_csv(index=False, sep=sep, lineterminator="\n"))

@@ -89,3 +89,16 @@ def test_columns_write_csv_tsv_and_parquet(tmp_path):
     assert (tmp_path / "a.tsv").read_text().splitlines()[0] == "time_s\tvoltage_V"
     with pytest.raises(ValueError, match="differ in length"):
         Columns({"a": [1.0, 2.0], "b": [1.0]})
+
+
+def test_columns_are_written_in_pieces_as_one_text(tmp_path, monkeypatch):
+    monkeypatch.setattr(Columns, "ROWS_PER_PIECE", 7)
+    rng = np.random.default_rng(2)
+    v = rng.normal(size=50)
+    v[[0, 6, 7, 49]] = np.nan
+    cols = Columns({"time_s": np.arange(50) * 1e-4, "y_um": v})
+    pieces = list(cols.csv_pieces())
+    assert len(pieces) == 1 + 8  # the header, then 50 rows 7 at a time
+    write_table(tmp_path / "a.csv", cols)
+    assert (tmp_path / "a.csv").read_text() == "".join(pieces) == pd.DataFrame(dict(cols)).to_csv(
+        index=False, lineterminator="\n")
