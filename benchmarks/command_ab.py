@@ -3,12 +3,13 @@
 Run:  git worktree add --detach /tmp/old REV
       python benchmarks/command_ab.py --other /tmp/old [--repeat 4] -- compare sample_data --models all --opts auto
 
-Each run is a fresh process (``python -c "from hystfit.cli import main; main()" ARGS --out TMP --quiet``)
+Each run is a fresh process (``python -c "from hystfit.cli import main; main()" ARGS --out TMP --quiet``;
+with ``--as-typed`` without ``--quiet``, its output to pipes, as a user's script runs it)
 with the tree's directory first on ``PYTHONPATH`` and the bytecode cache on (as an installed hystfit
 has it); it runs from a temporary directory, so that neither tree's checkout shadows the other
 through the current directory, and relative data paths are taken from this tree. The first run of
 each tree is a warm-up (numba compiles a tree's kernels once: its cache is keyed by the source
-path) and is not counted. Printed: every run's wall time and CPU seconds (of every process the
+path) and is not counted; which tree runs first in a pair alternates. Printed: every run's wall time and CPU seconds (of every process the
 command started, its pools' fork server and figure server included: they are adopted and reaped
 here), the best and median wall time and the median CPU time of each tree. Both trees are measured
 at the same moments of a shared machine, so their ratio is what to read; the CPU time moves less
@@ -70,19 +71,22 @@ def perf_counts() -> bool:
     return out.returncode == 0 and any(line.split(",")[0].isdigit() for line in out.stderr.splitlines())
 
 
-def run(tree: Path, args: list[str], instructions: bool = False) -> tuple[float, float, int | None]:
+def run(tree: Path, args: list[str], instructions: bool = False, as_typed: bool = False) -> tuple[float, float, int | None]:
     """Wall time, CPU seconds (every process of the command: :func:`bench_end_to_end.adopt_orphans`)
-    and, with ``instructions``, the user-space instructions of them all (``perf stat``)."""
+    and, with ``instructions``, the user-space instructions of them all (``perf stat``).
+    ``as_typed``: without ``--quiet``, its progress lines and tables printed to pipes, as a user's
+    script runs it (``--quiet`` skips the progress line, and with it what that line changes)."""
     env = {**e2e.command_env(), "PYTHONPATH": str(tree)}
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-c", "from hystfit.cli import main; main()", *args, "--out", str(Path(tmp) / "out"),
-               "--quiet"]
+               *(() if as_typed else ("--quiet",))]
         counts = Path(tmp) / "perf.csv"
         if instructions:
             cmd = ["perf", "stat", "-x,", "-e", "instructions:u", "-o", str(counts), "--",
                    sys.executable, "-c", ADOPT_AND_WAIT, *cmd]
         cpu0, t0 = _children_cpu_s(), time.perf_counter()
-        subprocess.run(cmd, cwd=tmp, env=env, check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(cmd, cwd=tmp, env=env, check=True, stdout=subprocess.PIPE if as_typed else subprocess.DEVNULL,
+                       stderr=subprocess.PIPE if as_typed else None)
         wall = time.perf_counter() - t0
         n = None
         if instructions:
@@ -96,6 +100,8 @@ def main() -> None:
     ap.add_argument("--other", type=Path, required=True, help="the other tree (its directory holds hystfit/)")
     ap.add_argument("--repeat", type=int, default=4)
     ap.add_argument("--no-instructions", action="store_true", help="do not count instructions with perf stat")
+    ap.add_argument("--as-typed", action="store_true",
+                    help="run without --quiet, output to pipes (as a user's script; default: --quiet)")
     ap.add_argument("args", nargs=argparse.REMAINDER, help="-- then the command and its arguments")
     ns = ap.parse_args()
     count = not ns.no_instructions and perf_counts()
@@ -105,12 +111,15 @@ def main() -> None:
     trees = {"this tree": ROOT, "other": ns.other.resolve()}
     e2e.adopt_orphans()
     for tree in trees.values():
-        run(tree, args)  # warm-up: bytecode and numba caches
+        run(tree, args, as_typed=ns.as_typed)  # warm-up: bytecode and numba caches
     walls: dict[str, list[tuple[float, float, int | None]]] = {name: [] for name in trees}
-    for _ in range(ns.repeat):
-        for name, tree in trees.items():
-            walls[name].append(run(tree, args, count))
-    print(f"`hystfit {' '.join(args)}`, {ns.repeat} runs each, alternately\n")
+    for i in range(ns.repeat):
+        # which tree runs first alternates (AB BA AB …): a drift of the machine, or a cache the first
+        # run of a pair warms, does not favour one tree
+        for name in (list(trees) if i % 2 == 0 else list(trees)[::-1]):
+            walls[name].append(run(trees[name], args, count, as_typed=ns.as_typed))
+    how = "as typed (no --quiet, output to pipes)" if ns.as_typed else "with --quiet"
+    print(f"`hystfit {' '.join(args)}`, {how}, {ns.repeat} runs each, alternately (the first of each pair alternates)\n")
     print("| tree | best wall (s) | median wall (s) | median CPU (s) | median instructions (G) | every run: wall / CPU (s) |")
     print("|---|---:|---:|---:|---:|---|")
     for name, tree in trees.items():
