@@ -187,7 +187,7 @@ def _root(version: bool = typer.Option(False, "--version", is_eager=True, callba
 
 
 #: commands that draw figures unless told ``--no-plots``: their figure server starts before parsing
-FIGURE_COMMANDS = ("identify", "compare", "diagnose", "invert", "track")
+FIGURE_COMMANDS = ("identify", "compare", "diagnose", "invert", "track", "simulate")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -8,8 +8,8 @@ from typing import Annotated
 import typer
 
 from .app import command
-from .common import (CaptureArgs, DataArg, Method, OutputArgs, new_table, phase, print_json, stderr, stdout,
-                     writing)
+from .common import (CaptureArgs, DataArg, Method, OutputArgs, new_table, phase, print_json, start_figures, stderr,
+                     stdout, writing)
 
 
 @command()
@@ -30,6 +30,7 @@ def simulate(
     Writes per capture OUT/<name>_prediction.csv (time_s, voltage_V, predicted, measured, residual),
     OUT/<name>_metrics.json where the capture has a measured output, plots, and OUT/report.md.
     """
+    start_figures(output)  # the figure server (forked at the start) draws them: matplotlib loads meanwhile
     from ..errors import ConfigError
     from ..io import load_captures, staged_output_dir
     from ..report.simulate_report import write_simulate_outputs

@@ -10,7 +10,7 @@ import numpy as np
 from ..io import Columns, atomic_write_text, write_table
 from ..predict import Prediction
 from ..results import ParamsFile, dumps, json_safe
-from . import plots
+from .render import FigureJob, render_figures
 from .tables import distinct_names, frame, markdown_table, metric_columns, metric_legend
 
 
@@ -27,6 +27,7 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
     u = pf.unit
     seen: dict[str, int] = {}
     summary = []
+    jobs: list[FigureJob] = []
     if make_plots:
         (out_dir / "plots").mkdir(exist_ok=True)
     for p in preds:
@@ -43,11 +44,14 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
         if p.metrics is not None:
             atomic_write_text(out_dir / f"{stem}_metrics.json", dumps(json_safe(entry)))
             if make_plots:
-                plots.loop_figure(out_dir / "plots" / f"loop_{stem}.png", c.u, c.y, p.y_model, unit=u,
-                                  title=f"{pf.model_name} prediction – {c.name}")
-                plots.timeseries_figure(out_dir / "plots" / f"timeseries_{stem}.png", c.t, c.y, p.y_model, unit=u,
-                                        title=f"{pf.model_name} prediction – {c.name}")
+                title = f"{pf.model_name} prediction – {c.name}"
+                jobs += [FigureJob("loop_figure", out_dir / "plots" / f"loop_{stem}.png", (c.u, c.y, p.y_model),
+                                   {"unit": u, "title": title}),
+                         FigureJob("timeseries_figure", out_dir / "plots" / f"timeseries_{stem}.png",
+                                   (c.t, c.y, p.y_model), {"unit": u, "title": title})]
         summary.append(json_safe(entry))
+    if jobs:  # by the figure server the command line forked at its start (matplotlib loaded there), else here
+        render_figures(jobs)
     rows = []
     names = distinct_names([s["capture"] for s in summary])
     for s, name in zip(summary, names):

@@ -285,8 +285,8 @@ def test_track_bad_input_exit_2_one_line_nothing_written(tables, tmp_path, args,
     assert not any(p.name.startswith(".tr.tmp") for p in tmp_path.iterdir())
 
 
-def test_invert_and_track_load_neither_pandas_nor_matplotlib_in_the_commands_process(tables, tmp_path):
-    """The voltages and runs are written without pandas, and the figures are drawn by the figure
+def test_invert_track_and_simulate_load_neither_pandas_nor_matplotlib_in_the_commands_process(tables, tmp_path):
+    """The voltages, runs and predictions are written without pandas, and the figures are drawn by the figure
     server the console script forks at its start (matplotlib loads there meanwhile)."""
     probe = ("import atexit, sys\n"
              "atexit.register(lambda: print('LOADED', 'pandas' in sys.modules, 'matplotlib' in sys.modules))\n"
@@ -295,7 +295,9 @@ def test_invert_and_track_load_neither_pandas_nor_matplotlib_in_the_commands_pro
     for args, figure in ((["invert", tables["pi"], "--sine", "10,10,3", "--offset", "2", "--out", tmp_path / "v.csv"],
                           tmp_path / "v_report" / "plots" / "tracking.png"),
                          (["track", tables["pi"], "--sine", "10,10,2", "--offset", "2", "--controller", "ff,pid",
-                           "--out", tmp_path / "tr"], tmp_path / "tr" / "plots" / "errors.png")):
+                           "--out", tmp_path / "tr"], tmp_path / "tr" / "plots" / "errors.png"),
+                         (["simulate", tables["pi"], SAMPLE / "a20V_f10Hz.csv", "--out", tmp_path / "sim"],
+                          tmp_path / "sim" / "plots" / "loop_a20V_f10Hz.png")):
         proc = subprocess.run([sys.executable, "-c", probe, *map(str, args)], capture_output=True, text=True,
                               timeout=300, cwd=tmp_path)
         assert proc.returncode == 0, proc.stderr

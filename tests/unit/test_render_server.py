@@ -144,7 +144,8 @@ def test_a_server_started_before_parsing_is_claimed_by_the_command_not_forked_ag
     (["invert", "params.json", "traj.csv"], True),  # its tracking figures (invert_report.draw_figures)
     (["invert", "params.json", "traj.csv", "--no-plots"], False),
     (["track", "params.json", "--sine", "8,10"], True),
-    (["simulate", "params.json", "data.csv"], False),
+    (["simulate", "params.json", "data.csv"], True),
+    (["simulate", "params.json", "data.csv", "--no-plots"], False),
     ([], False),
 ])
 def test_the_console_script_starts_the_figure_server_only_for_commands_that_draw(monkeypatch, words, early):
