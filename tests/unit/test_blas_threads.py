@@ -43,10 +43,12 @@ print(json.dumps({"before": before, "first": first, "nested": nested, "after_nes
 BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "OMP_NUM_THREADS")
 
 
-def _probe(**env_vars) -> dict:
+def _probe(code: str = PROBE, **env_vars) -> dict:
+    """The JSON last printed by ``code`` run in a fresh process without BLAS thread variables
+    (but ``env_vars``)."""
     env = {k: v for k, v in os.environ.items() if k not in BLAS_VARS}
     env.update(env_vars)
-    out = subprocess.run([sys.executable, "-c", PROBE], env=env, check=True, capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-c", code], env=env, check=True, capture_output=True, text=True,
                          timeout=120).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -112,10 +114,7 @@ print(json.dumps({"inside": inside, "after_failure": after_failure, "limited_lat
 
 
 def test_a_limit_that_cannot_be_set_costs_only_time():
-    env = {k: v for k, v in os.environ.items() if k not in BLAS_VARS}
-    out = subprocess.run([sys.executable, "-c", FAILING_PROBE], env=env, check=True, capture_output=True, text=True,
-                         timeout=120).stdout
-    got = json.loads(out.strip().splitlines()[-1])
+    got = _probe(FAILING_PROBE)
     assert got["inside"] == 1 and got["after_failure"] == 0 and got["depth_at_end"] == 0
     assert got["limited_later"] in ([], [1])  # the next call is limited again (no BLAS seen: nothing to limit)
 
@@ -145,10 +144,7 @@ def test_the_command_lines_defaults_set_after_numpy_loaded_are_not_a_users_choic
     # a program that imported numpy before hystfit.cli (CliRunner in a test suite, a notebook):
     # before the fix the limit took the command line's own variable for the user's choice and left
     # numpy's BLAS at a thread per core (diagnose on sample_data ≈ 3× as long)
-    env = {k: v for k, v in os.environ.items() if k not in BLAS_VARS}
-    out = subprocess.run([sys.executable, "-c", LATE_CLI_PROBE], env=env, check=True, capture_output=True, text=True,
-                         timeout=120).stdout
-    got = json.loads(out.strip().splitlines()[-1])
+    got = _probe(LATE_CLI_PROBE)
     if not got["before"]:
         pytest.skip("threadpoolctl sees no BLAS library in this build")
     assert got["var"] == "1" and got["chose"] is False

@@ -282,60 +282,53 @@ def test_load_ahead_abandons_the_step_under_way_at_its_next_import(tmp_path, mon
         sys.modules.pop(f"_hystfit_probe_mod_{i}", None)
 
 
-@pytest.mark.skipif(not CAN_FORK, reason="the captures are read here without fork")
-def test_a_refused_capture_read_aside_abandons_the_steps_and_is_reported_at_once(tmp_path, monkeypatch):
+@contextlib.contextmanager
+def _importing_step(tmp_path, monkeypatch, prefix: str, n: int, seconds: float):
+    """(a step importing ``n`` fresh modules that each sleep ``seconds``, the indices it imported);
+    the modules are forgotten afterwards."""
     import importlib
 
-    _counting_forks(monkeypatch)
-    bad = tmp_path / "bad.csv"
-    bad.write_text(CASES_BAD_LARGE)
-    n = 500
     for i in range(n):
-        (tmp_path / f"_hystfit_slow_mod_{i}.py").write_text("import time\ntime.sleep(0.01)\n")
+        (tmp_path / f"{prefix}_{i}.py").write_text(f"import time\ntime.sleep({seconds})\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    imported = []
+    imported: list = []
 
-    def slow_step():  # ≈ 5 s of imports, as loading numba and scipy.optimize is
+    def step():
         for i in range(n):
-            importlib.import_module(f"_hystfit_slow_mod_{i}")
+            importlib.import_module(f"{prefix}_{i}")
             imported.append(i)
 
     try:
+        yield step, imported
+    finally:
+        for i in range(n):
+            sys.modules.pop(f"{prefix}_{i}", None)
+
+
+@pytest.mark.skipif(not CAN_FORK, reason="the captures are read here without fork")
+def test_a_refused_capture_read_aside_abandons_the_steps_and_is_reported_at_once(tmp_path, monkeypatch):
+    _counting_forks(monkeypatch)
+    bad = tmp_path / "bad.csv"
+    bad.write_text(CASES_BAD_LARGE)
+    n = 500  # ≈ 5 s of imports, as loading numba and scipy.optimize is
+    with _importing_step(tmp_path, monkeypatch, "_hystfit_slow_mod", n, 0.01) as (slow_step, imported):
         with pytest.raises(InputError, match="not a number"):
             load_captures([bad], LoadOptions(), ahead=(slow_step,), abandon_on_error=True)
         assert len(imported) < n  # abandoned when the child reported the error, not finished
-    finally:
-        for i in range(n):
-            sys.modules.pop(f"_hystfit_slow_mod_{i}", None)
 
 
 @pytest.mark.skipif(not CAN_FORK, reason="the captures are read here without fork")
 def test_without_abandon_a_step_under_way_is_finished(tmp_path, monkeypatch):
     """A program that goes on after the error (a library caller, CliRunner): an import cut short
     would leave half-loaded modules for its next fit, so the step under way is finished."""
-    import importlib
-
     _counting_forks(monkeypatch)
     bad = tmp_path / "bad.csv"
     bad.write_text(CASES_BAD_LARGE)
     n = 30
-    for i in range(n):
-        (tmp_path / f"_hystfit_done_mod_{i}.py").write_text("import time\ntime.sleep(0.02)\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    imported = []
-
-    def step():
-        for i in range(n):
-            importlib.import_module(f"_hystfit_done_mod_{i}")
-            imported.append(i)
-
-    try:
+    with _importing_step(tmp_path, monkeypatch, "_hystfit_done_mod", n, 0.02) as (step, imported):
         with pytest.raises(InputError, match="not a number"):
             load_captures([bad], LoadOptions(), ahead=(step, lambda: imported.append("next")))
         assert imported[:n] == list(range(n))  # the step under way finished
-    finally:
-        for i in range(n):
-            sys.modules.pop(f"_hystfit_done_mod_{i}", None)
 
 
 @pytest.mark.skipif(not CAN_FORK, reason="the captures are read here without fork")
