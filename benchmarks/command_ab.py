@@ -71,14 +71,15 @@ def perf_counts() -> bool:
     return out.returncode == 0 and any(line.split(",")[0].isdigit() for line in out.stderr.splitlines())
 
 
-def run(tree: Path, args: list[str], instructions: bool = False, as_typed: bool = False) -> tuple[float, float, int | None]:
+def run(tree: Path, args: list[str], instructions: bool = False, as_typed: bool = False,
+        out_name: str = "out") -> tuple[float, float, int | None]:
     """Wall time, CPU seconds (every process of the command: :func:`bench_end_to_end.adopt_orphans`)
     and, with ``instructions``, the user-space instructions of them all (``perf stat``).
     ``as_typed``: without ``--quiet``, its progress lines and tables printed to pipes, as a user's
     script runs it (``--quiet`` skips the progress line, and with it what that line changes)."""
     env = {**e2e.command_env(), "PYTHONPATH": str(tree)}
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-c", "from hystfit.cli import main; main()", *args, "--out", str(Path(tmp) / "out"),
+        cmd = [sys.executable, "-c", "from hystfit.cli import main; main()", *args, "--out", str(Path(tmp) / out_name),
                *(() if as_typed else ("--quiet",))]
         counts = Path(tmp) / "perf.csv"
         if instructions:
@@ -100,6 +101,8 @@ def main() -> None:
     ap.add_argument("--other", type=Path, required=True, help="the other tree (its directory holds hystfit/)")
     ap.add_argument("--repeat", type=int, default=4)
     ap.add_argument("--no-instructions", action="store_true", help="do not count instructions with perf stat")
+    ap.add_argument("--out-name", default="out",
+                    help="name of the --out path in the run's temporary directory (a file for invert: v.csv)")
     ap.add_argument("--as-typed", action="store_true",
                     help="run without --quiet, output to pipes (as a user's script; default: --quiet)")
     ap.add_argument("args", nargs=argparse.REMAINDER, help="-- then the command and its arguments")
@@ -111,13 +114,13 @@ def main() -> None:
     trees = {"this tree": ROOT, "other": ns.other.resolve()}
     e2e.adopt_orphans()
     for tree in trees.values():
-        run(tree, args, as_typed=ns.as_typed)  # warm-up: bytecode and numba caches
+        run(tree, args, as_typed=ns.as_typed, out_name=ns.out_name)  # warm-up: bytecode and numba caches
     walls: dict[str, list[tuple[float, float, int | None]]] = {name: [] for name in trees}
     for i in range(ns.repeat):
         # which tree runs first alternates (AB BA AB …): a drift of the machine, or a cache the first
         # run of a pair warms, does not favour one tree
         for name in (list(trees) if i % 2 == 0 else list(trees)[::-1]):
-            walls[name].append(run(trees[name], args, count, as_typed=ns.as_typed))
+            walls[name].append(run(trees[name], args, count, as_typed=ns.as_typed, out_name=ns.out_name))
     how = "as typed (no --quiet, output to pipes)" if ns.as_typed else "with --quiet"
     print(f"`hystfit {' '.join(args)}`, {how}, {ns.repeat} runs each, alternately (the first of each pair alternates)\n")
     print("| tree | best wall (s) | median wall (s) | median CPU (s) | median instructions (G) | every run: wall / CPU (s) |")
