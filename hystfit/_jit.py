@@ -39,7 +39,7 @@ from pathlib import Path
 from types import CodeType, ModuleType
 from typing import Any, Callable
 
-__all__ = ["njit", "prange", "fma", "cache_dir", "Kernel", "numba_loaded"]
+__all__ = ["njit", "prange", "fma", "cache_dir", "Kernel", "numba_loaded", "readonly"]
 
 _lock = threading.RLock()
 _numba: ModuleType | None = None
@@ -94,6 +94,27 @@ def _make_fma(numba: ModuleType):
         return f64(a, b, c), codegen
 
     return fma_f64
+
+
+def readonly(x: Any, dtype: Any = None):
+    """``x`` as the one array type a kernel is compiled for: C-contiguous, of ``dtype`` (default
+    float64) and read-only — a read-only *view*, no copy, where ``x`` already is contiguous.
+
+    Why every array a kernel only reads passes through here: numba types a read-only array apart
+    from a writable one and compiles the kernel again for each combination, although the machine
+    code is the same. A capture read from CSV holds read-only arrays; one made by the virtual
+    actuator, a fit mask or arithmetic holds writable ones; a wrapper's stand-in for "no data"
+    (``np.empty(0)``) is writable. Without one form, the first run after installing compiled the
+    Bouc–Wen kernel twice in one ``identify`` (≈ 45–60 s each on the project's machine), and gPI
+    with dynamics twice in ``compare``. Arrays a kernel writes are never passed through here.
+    """
+    import numpy as np
+
+    a = np.ascontiguousarray(x, dtype=np.float64 if dtype is None else dtype)
+    if a.flags.writeable:
+        a = a.view()
+        a.flags.writeable = False
+    return a
 
 
 def numba_loaded() -> bool:

@@ -28,9 +28,10 @@ def _first_kernel() -> None:
     # set up at the first cached kernel a process calls: ≈ 0.7 s (benchmarks/bench_startup.py)
     import numpy as np
 
+    from ._jit import readonly
     from .models._kernels import _play_recurrence
 
-    _play_recurrence(np.zeros(2), np.zeros(1), np.zeros(1))
+    _play_recurrence(readonly(np.zeros(2)), readonly(np.zeros(1)), readonly(np.zeros(1)))  # the form fits pass
 
 
 def import_optimize() -> None:

@@ -32,3 +32,30 @@ PEAK_RSS_CODE = (
 def peak_rss_code():
     """:data:`PEAK_RSS_CODE` (``python -c CODE ARGS...``)."""
     return PEAK_RSS_CODE
+
+
+def _twins() -> list[str]:
+    """hystfit's compiled kernels that numba compiled for two argument lists differing only in
+    arrays' read-only flags (the same machine code twice: :func:`hystfit._jit.readonly`)."""
+    import re
+    import sys
+
+    def plain(sig) -> str:
+        return re.sub(r"'([CFA])', (True|False)", r"'\1'", repr(sig))
+
+    found = []
+    for module in list(sys.modules.values()):
+        if not getattr(module, "__name__", "").startswith("hystfit"):
+            continue
+        for name, value in list(vars(module).items()):
+            sigs = getattr(value, "signatures", None) if type(value).__name__ == "CPUDispatcher" else None
+            if sigs and len({plain(s) for s in sigs}) < len(sigs):
+                found.append(f"{value.py_func.__module__}.{value.py_func.__qualname__}: "
+                             + " | ".join(repr(s) for s in sigs))
+    return sorted(set(found))
+
+
+@pytest.fixture
+def readonly_twins():
+    """A function listing the kernels compiled twice for read-only and writable arrays (see ``_twins``)."""
+    return _twins

@@ -8,7 +8,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .._jit import njit
+from .._jit import njit, readonly
 from .._lazy import lazy_module
 from ..effects import EffectParam, fmt_list
 from ..params import DataScale, Param
@@ -263,7 +263,7 @@ class Creep(Block):
         x = np.asarray(x, dtype=np.float64)
         cols = x[:, None] if x.ndim == 1 else (x.T if axis == 1 else x)
         p = np.array([math.exp(-dt / tau) for tau in self.taus])
-        bank = lowpass_bank(np.ascontiguousarray(cols), p)
+        bank = lowpass_bank(readonly(cols), p)
         return [b[:, 0] if x.ndim == 1 else (b.T if axis == 1 else b) for b in bank]
 
     def regressors(self, yhat, view, phi):
@@ -288,12 +288,12 @@ class Creep(Block):
         k = len(self.taus)
         th = self.population(theta, k, x.shape[0])
         p = np.array([math.exp(-dt / tau) for tau in self.taus])
-        return creep_rows(np.ascontiguousarray(x), p, np.ascontiguousarray(th, dtype=np.float64))
+        return creep_rows(readonly(x), p, readonly(th))
 
     def invert(self, theta, y, dt):
         c = np.asarray(np.ravel(theta), dtype=np.float64)
         p = np.exp(-dt / np.asarray(self.taus))
-        return _creep_inverse(np.ascontiguousarray(y, dtype=np.float64), p, c)
+        return _creep_inverse(readonly(y), p, readonly(c))
 
     def step_init(self, theta, x0, dt):
         return np.full(len(self.taus), float(x0))

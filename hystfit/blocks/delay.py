@@ -8,7 +8,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .._jit import njit
+from .._jit import njit, readonly
 from ..effects import EffectParam, periodic_fmax
 from ..params import DataScale, Param
 from ..registry import blocks
@@ -38,7 +38,7 @@ def _delay_rows(x, n, f):
 def shift_rows(x: np.ndarray, n: int, f: float = 0.0) -> np.ndarray:
     """x delayed along axis 0 by n + f samples, f in [0, 1) (:func:`_delay_rows`); any shape."""
     x = np.asarray(x, dtype=np.float64)
-    cols = np.ascontiguousarray(x.reshape(x.shape[0], math.prod(x.shape[1:])))
+    cols = readonly(x.reshape(x.shape[0], math.prod(x.shape[1:])))
     return _delay_rows(cols, int(n), float(f)).reshape(x.shape)
 
 

@@ -9,7 +9,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .._jit import njit
+from .._jit import njit, readonly
 from ..effects import EffectParam, periodic_fmax
 from ..errors import ConfigError
 from ..params import DataScale, Param
@@ -130,7 +130,7 @@ def second_order_at_rest(x: np.ndarray, fn_Hz: float, zeta: float, dt: float) ->
         raise ConfigError(f"dynamics: f_n = {fn_Hz:g} Hz must lie below the Nyquist frequency {0.5 / dt:g} Hz "
                           f"and ζ = {zeta:g} must be ≥ 0")
     x = np.asarray(x, dtype=np.float64)
-    xc = np.ascontiguousarray(x[:, None] if x.ndim == 1 else x)
+    xc = readonly(x[:, None] if x.ndim == 1 else x)
     out = biquad_shared(xc, *_stage_coefficients(float(fn_Hz), float(zeta), float(dt)))
     return out[:, 0] if x.ndim == 1 else out
 
@@ -286,7 +286,7 @@ class Dynamics(Block):
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         th = self.population(theta, 2, x.shape[0])
         coef = bilinear_biquad(th[:, 0], th[:, 1], dt)
-        return biquad_columns(np.ascontiguousarray(x.T), *coef).T
+        return biquad_columns(readonly(x.T), *coef).T
 
     def invert(self, theta, y, dt):
         t = np.ravel(theta)

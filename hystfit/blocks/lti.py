@@ -17,7 +17,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .._jit import njit
+from .._jit import njit, readonly
 from .._lazy import lazy_module
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
@@ -188,8 +188,8 @@ class LinearSS:
         x = np.asarray(x, dtype=np.float64)
         if self.order == 0:
             return x.copy()
-        X = np.ascontiguousarray(x[:, None] if x.ndim == 1 else x)
-        Y = ss_columns(np.ascontiguousarray(self.A), self.B.astype(np.float64), self.C.astype(np.float64),
+        X = readonly(x[:, None] if x.ndim == 1 else x)
+        Y = ss_columns(readonly(self.A), readonly(self.B), readonly(self.C),
                        float(self.D), self.dc_gain(), X)
         return Y[:, 0] if x.ndim == 1 else Y
 

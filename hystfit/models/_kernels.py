@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .._jit import fma, njit, numba_loaded, prange
+from .._jit import fma, njit, numba_loaded, prange, readonly
 
 
 #: below this many operator outputs (N · n) per call, play operators are computed with numpy (a few
@@ -51,9 +51,7 @@ def play_matrix_from(u, r, state0):
     that only needs a few play operators (a PI fit of a short capture) never pays numba's start-up.
     """
     global _numpy_play_done
-    u = np.ascontiguousarray(u, dtype=np.float64)
-    r = np.ascontiguousarray(r, dtype=np.float64)
-    state0 = np.ascontiguousarray(state0, dtype=np.float64)
+    u, r, state0 = readonly(u), readonly(r), readonly(state0)
     size = u.shape[0] * r.shape[0]
     if (not numba_loaded() and size <= NUMPY_PLAY_MAX and _numpy_play_done + size <= NUMPY_PLAY_BUDGET
             and np.isfinite(u).all()):
@@ -473,8 +471,10 @@ def _bw_run(u, y, kv, alpha, beta, gamma, y0, mode, out):
     return out
 
 
-def _f64(x):
-    return np.ascontiguousarray(x, dtype=np.float64)
+_f64 = readonly  # the Bouc–Wen wrappers' inputs: one compiled form whatever the caller passes
+
+#: the Bouc–Wen kernels' stand-in for "no array" (read-only, as every input)
+_NONE = readonly(np.empty(0))
 
 
 def bouc_wen_population(u, alpha, beta, gamma):
@@ -499,15 +499,15 @@ def bouc_wen_population(u, alpha, beta, gamma):
     u = _f64(u)
     alpha, beta, gamma = _f64(alpha), _f64(beta), _f64(gamma)
     out = np.empty((u.shape[0], alpha.shape[0]))
-    zero = np.zeros(alpha.shape[0])
-    return _bw_run(u, np.empty(0), zero, alpha, beta, gamma, zero, _BW_STATES, out)
+    zero = readonly(np.zeros(alpha.shape[0]))
+    return _bw_run(u, _NONE, zero, alpha, beta, gamma, zero, _BW_STATES, out)
 
 
 def bouc_wen_output(u, kv, alpha, beta, gamma, y0):
     """Bouc–Wen output Kv·u + h + y0 of a population → (N, P) (the caller transposes)."""
     u = _f64(u)
     out = np.empty((u.shape[0], _f64(alpha).shape[0]))
-    return _bw_run(u, np.empty(0), _f64(kv), _f64(alpha), _f64(beta), _f64(gamma), _f64(y0), _BW_STATES, out)
+    return _bw_run(u, _NONE, _f64(kv), _f64(alpha), _f64(beta), _f64(gamma), _f64(y0), _BW_STATES, out)
 
 
 #: kept for callers of the former name: same as :func:`bouc_wen_population`
@@ -527,8 +527,7 @@ def bouc_wen_moments(u, y, beta, gamma):
     u, y = _f64(u), _f64(y)
     beta, gamma = _f64(beta), _f64(gamma)
     out = np.empty((beta.shape[0], 4))
-    z = np.empty(0)
-    return _bw_run(u, y, z, np.ones(beta.shape[0]), beta, gamma, z, _BW_MOMENTS, out)
+    return _bw_run(u, y, _NONE, _f64(np.ones(beta.shape[0])), beta, gamma, _NONE, _BW_MOMENTS, out)
 
 
 @njit(cache=True)

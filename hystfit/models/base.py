@@ -20,6 +20,7 @@ from typing import Any, Callable, ClassVar
 
 import numpy as np
 
+from .._jit import readonly
 from ..errors import ConfigError
 from ..params import DataScale, Param, structure_kwargs, structure_of
 from .inverse import invert_by_stepping
@@ -91,7 +92,7 @@ class Model(ABC):
         Models override this to precompute what does not depend on θ (e.g. PI play-operator
         outputs for fixed thresholds), so an optimizer's thousands of calls share the work.
         """
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         return lambda theta: self.simulate(theta, u, dt)
 
     def sse_evaluator(self, u: np.ndarray, dt: float, y: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
@@ -222,7 +223,7 @@ def linear_sse_evaluator(model: Model, u: np.ndarray, dt: float, y: np.ndarray):
     if sep is None or len(sep.nonlinear) != 0:
         return None
     d = len(sep.linear)
-    B = sep.basis_factory(np.ascontiguousarray(u, dtype=np.float64), dt)(np.empty((1, 0)))
+    B = sep.basis_factory(readonly(u), dt)(np.empty((1, 0)))
     C = None
     if isinstance(B, tuple):
         B, C = B

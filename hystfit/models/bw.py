@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from .._jit import njit
+from .._jit import njit, readonly
 
 from ..params import DataScale, Param
 from ..registry import models
@@ -252,7 +252,7 @@ class BoucWen(Model):
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         theta = self.check_theta(theta, self.d)
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         kv, a, b, g, y0, n = self._physical(theta)
         if n is None:
             return bouc_wen_output(u, kv, a, b, g, y0).T  # (P, N) view of the kernel's (N, P); exact for n = 1
@@ -264,8 +264,8 @@ class BoucWen(Model):
         the (P, N) outputs are never stored. With a free exponent: None (simulate)."""
         if self.free_exponent:
             return None
-        u = np.ascontiguousarray(u, dtype=np.float64)
-        y = np.ascontiguousarray(y, dtype=np.float64)
+        u = readonly(u)
+        y = readonly(y)
 
         def sse(theta):
             theta = self.check_theta(theta, self.d)
@@ -285,8 +285,8 @@ class BoucWen(Model):
             return None  # with a free n, α no longer scales h: no exact split
 
         def gram_factory(u, dt, y):
-            u = np.ascontiguousarray(u, dtype=np.float64)
-            y = np.ascontiguousarray(y, dtype=np.float64)
+            u = readonly(u)
+            y = readonly(y)
             su, suu, suy, sy, yy, n = u.sum(), u @ u, u @ y, y.sum(), float(y @ y), float(u.shape[0])
 
             def gram(theta_nl):
@@ -308,7 +308,7 @@ class BoucWen(Model):
             return gram
 
         def factory(u, dt):
-            u = np.ascontiguousarray(u, dtype=np.float64)
+            u = readonly(u)
 
             def basis(theta_nl):
                 P = theta_nl.shape[0]

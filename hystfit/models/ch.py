@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from .._jit import njit
+from .._jit import njit, readonly
 
 from ..errors import ConfigError
 from ..params import DataScale, Param
@@ -296,7 +296,7 @@ class ColemanHodgdon(Model):
         which this variable projection avoids.
         """
         vm, vM = self._range()
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         s = ch_branches(u, 1.0)
         with np.errstate(all="ignore"):
             a = s * float(A5)
@@ -316,7 +316,7 @@ class ColemanHodgdon(Model):
                 return -s_[None, :] * phi, -(A2 * np.exp(-A3 * (vM - vm)))
 
         def factory(u, dt):
-            u = np.ascontiguousarray(u, dtype=np.float64)
+            u = readonly(u)
             s_ = ch_branches(u, 1.0)
 
             def basis(theta_nl):
@@ -333,8 +333,8 @@ class ColemanHodgdon(Model):
 
         def gram_factory(u, dt, y):
             """Normal equations of (A1, A4, A6) for the target y − κu from the sums of −s·φ (no basis)."""
-            u = np.ascontiguousarray(u, dtype=np.float64)
-            y = np.ascontiguousarray(y, dtype=np.float64)
+            u = readonly(u)
+            y = readonly(y)
             s_ = ch_branches(u, 1.0)
             n, su, sy = float(u.shape[0]), float(u.sum()), float(y.sum())
             uu, uy, yy = float(u @ u), float(u @ y), float(y @ y)
@@ -364,12 +364,12 @@ class ColemanHodgdon(Model):
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         theta = self.check_theta(theta, 6)
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         return self.simulator(u, dt)(theta)
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
         vm, vM = self._range()
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         s = ch_branches(u, 1.0)  # depends on u only: computed once per capture
 
         def sim(theta: np.ndarray) -> np.ndarray:
@@ -400,8 +400,8 @@ class ColemanHodgdon(Model):
     def branch_value(self, theta: np.ndarray, u: np.ndarray, branch: float) -> np.ndarray:
         """Output of one branch (+1 ascending, −1 descending) at inputs ``u``."""
         vm, vM = self._range()
-        u = np.ascontiguousarray(np.atleast_1d(np.asarray(u, float)))
-        s = np.full(u.shape[0], float(branch))
+        u = readonly(np.atleast_1d(np.asarray(u, float)))
+        s = np.full(u.shape[0], float(branch))  # writable, as ch_branches gives it
         return ch_population(u, s, *self._columns(np.asarray(theta, float).reshape(1, 6)), vm, vM)[:, 0]
 
     def invert(self, theta: np.ndarray, y_target: np.ndarray, dt: float,
@@ -414,7 +414,7 @@ class ColemanHodgdon(Model):
         """
         vm, vM = self._range()
         th = np.asarray(theta, float).reshape(1, 6)
-        y = np.ascontiguousarray(np.asarray(y_target, float))
+        y = readonly(y_target)
         if y.size == 0:
             return np.empty(0)
         lo, hi = u_range if u_range is not None else (vm - (vM - vm), vM + (vM - vm))
@@ -423,6 +423,6 @@ class ColemanHodgdon(Model):
         orient = 1.0 if not rise[1] < rise[0] else -1.0
         # branch = orientation · sgn(Δy): ascending where the target moves the way the ascending
         # branch does; Δy = 0 keeps the branch; the first sample is ascending, as in simulate()
-        s = ch_branches(np.ascontiguousarray(orient * y), 1.0)
+        s = ch_branches(readonly(orient * y), 1.0)
         return ch_inverse(y, s, K, A4, A5, A6, vm, vM, float(lo), float(hi),
                           float(min(max(0.0, lo), hi)), 2048)

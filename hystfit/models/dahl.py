@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from .._jit import njit
+from .._jit import njit, readonly
 
 from ..params import DataScale, Param
 from ..registry import models
@@ -217,8 +217,8 @@ class Dahl(Model):
 
     def _gram(self, u: np.ndarray, dt: float, y: np.ndarray):
         """theta_nl (P, 3) = (σ, Fc, a) → normal equations (G, c, tᵀt) of (k, d0) for the target t = y − h."""
-        u = np.ascontiguousarray(u, dtype=np.float64)
-        y = np.ascontiguousarray(y, dtype=np.float64)
+        u = readonly(u)
+        y = readonly(y)
         n, su, sy = float(u.shape[0]), float(u.sum()), float(y.sum())
         uu, uy, yy = float(u @ u), float(u @ y), float(y @ y)
 
@@ -240,7 +240,7 @@ class Dahl(Model):
         return gram
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
-        return self._simulate(theta, np.ascontiguousarray(u, dtype=np.float64), 1)
+        return self._simulate(theta, readonly(u), 1)
 
     def _simulate(self, theta: np.ndarray, u: np.ndarray, group: int) -> np.ndarray:
         """Outputs (P, N); consecutive groups of ``group`` rows of θ share σ, Fc and a, so the

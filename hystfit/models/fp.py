@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from .._jit import njit, prange
+from .._jit import njit, prange, readonly
 from .._lazy import lazy_module
 from ..errors import ConfigError
 from ..params import DataScale, Param
@@ -225,8 +225,8 @@ def soe_run(x: np.ndarray, y: np.ndarray | None, a: np.ndarray, b: np.ndarray, L
     """Run the SOE recursion (:func:`_soe_block`) for orders a (P,) and b = (τ/dt)^a (P,): the
     response v (N, P) or its moments (P, 7). Threaded over candidates from two candidates on
     (each candidate is O(N·K) work on a long capture)."""
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    y = np.ascontiguousarray(y if y is not None else np.empty(0), dtype=np.float64)
+    x = readonly(x)
+    y = readonly(y if y is not None else np.empty(0))
     a = np.ascontiguousarray(a, dtype=np.float64)
     b = np.ascontiguousarray(b, dtype=np.float64)
     s, rho = soe_nodes(L)
@@ -365,7 +365,7 @@ class FractionalZener(OptionalOffset, Model):
             response = self._response(u, dt)
             if response is None:
                 return exact.basis_factory(u, dt)
-            u = np.ascontiguousarray(u, dtype=np.float64)
+            u = readonly(u)
             x = u - u[0]
 
             def basis(theta_nl):
@@ -392,7 +392,7 @@ class FractionalZener(OptionalOffset, Model):
         """θ_nl (P, 2) = (τ, a) → v = L⁻¹[u − u_0] (P, N): by the SOE recursion (:meth:`soe_route`)
         or the FFT evaluation (windows longer than :data:`RECURRENCE_MAX_TERMS`, one transform per
         candidate); None for the direct recurrence."""
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         N = u.shape[0]
         x = np.ascontiguousarray(u - u[0]) if N else u
         L = min(self.memory_samples(dt), max(N - 1, 0))
@@ -424,8 +424,8 @@ class FractionalZener(OptionalOffset, Model):
         """theta_nl (P, 2) = (τ, a) → normal equations (G (P, l, l), c (P, l), yᵀy) of the linear
         parameters (E0, E∞[, y0]) from the moments of v and d = x − v (basis [v + u_0, d, 1]): those
         of the SOE kernel, or with ``response`` (:meth:`_response`) summed from v."""
-        u = np.ascontiguousarray(u, dtype=np.float64)
-        y = np.ascontiguousarray(y, dtype=np.float64)
+        u = readonly(u)
+        y = readonly(y)
         u0 = float(u[0])
         x = u - u0
         L = min(self.memory_samples(dt), u.shape[0] - 1)
@@ -489,7 +489,7 @@ class FractionalZener(OptionalOffset, Model):
         """θ (P, d) → outputs (P, N), optionally ``group``: consecutive groups of that many rows share
         τ and a (what :func:`separable_by_simulation` simulates; the FFT route then transforms the
         GL spectrum once per group — the same numbers)."""
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         N = u.shape[0]
         d = self.n_params
         dt = float(dt)

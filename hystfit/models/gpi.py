@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from .._jit import njit, prange
+from .._jit import njit, prange, readonly
 
 from ..errors import ConfigError
 from ..params import DataScale, Param
@@ -205,7 +205,7 @@ FUSED_MIN_SAMPLES = 20_000
 def input_levels(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(levels (U,), index (N,)) with u = levels[index] when u has few distinct values
     (≤ :data:`LEVELS_MAX_FRACTION` of N), else (u, empty): the envelope tables' input."""
-    u = np.ascontiguousarray(u, dtype=np.float64)
+    u = readonly(u)
     levels, index = np.unique(u, return_inverse=True)
     if levels.shape[0] > LEVELS_MAX_FRACTION * u.shape[0]:
         return u, np.empty(0, dtype=np.int64)
@@ -257,10 +257,11 @@ def gpi_population(u, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, levels=None
     -------
     (N, P) array z (envelope units, V), the caller transposes; or (P, 3) moments.
     """
-    u = np.ascontiguousarray(u, dtype=np.float64)
+    u = readonly(u)
     lv, index = levels if levels is not None else (u, np.empty(0, dtype=np.int64))
+    lv, index = readonly(lv), readonly(index, np.int64)  # one compiled form (see readonly)
     P = a1.shape[0]
-    yk = np.ascontiguousarray(y if y is not None else np.empty(0), dtype=np.float64)
+    yk = readonly(y if y is not None else np.empty(0))
     out = np.empty((u.shape[0], P)) if y is None else np.empty((P, 3))
     args = (u, lv, index, yk, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, int(n), out, int(period))
     nb = thread_blocks(P, 2, 4) if u.shape[0] * P >= PARALLEL_MIN_WORK else 0
@@ -434,10 +435,10 @@ class GPI(Model):
         return (z * theta[:, 8][None, :] + theta[:, 11][None, :]).T
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
-        return self._output(theta, np.ascontiguousarray(u, dtype=np.float64))
+        return self._output(theta, readonly(u))
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         levels = input_levels(u)  # once per capture, shared by every call
         period = input_period(levels)
         return lambda theta: self._output(theta, u, levels, period)
@@ -460,7 +461,7 @@ class GPI(Model):
         def moments(u, dt, y):
             if not fused(len(u), dt):
                 return None  # short captures: moments from z (numpy), as they always were
-            u = np.ascontiguousarray(u, dtype=np.float64)
+            u = readonly(u)
             levels = input_levels(u)
 
             def sums(theta_nl):

@@ -6,6 +6,7 @@ from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
+from .._jit import readonly
 from .._lazy import lazy_module
 from ..blocks.base import captures_at_one_rate
 from ..blocks.lti import (LinearPartFields, LinearSS, Lti, _as_list, _fundamental, _zoh_second_order,  # noqa: F401
@@ -198,7 +199,7 @@ class Hammerstein(Model, LinearPartFields, PlayOperators):
 
         y = Φ θ exactly (the linear part is fixed and has unit static gain).
         """
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         F = self.linear_at(dt).filter(play_matrix(u, self.pi.r))
         return np.hstack([F, np.ones((u.shape[0], 1))])
 

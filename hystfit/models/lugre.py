@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from .._jit import njit
+from .._jit import njit, readonly
 
 from ..params import DataScale, Param
 from ..registry import models
@@ -235,8 +235,8 @@ class LuGre(OptionalOffset, Model):
     def _gram(self, u: np.ndarray, dt: float, y: np.ndarray):
         """theta_nl (P, 4) = (σ0, Fc, Fs, vs) → normal equations (G, c, tᵀt) of (k, σ1, σ2[, y0]) for the
         target t = y − σ0·z, from the sums of :func:`lugre_moments` and of the data."""
-        u = np.ascontiguousarray(u, dtype=np.float64)
-        y = np.ascontiguousarray(y, dtype=np.float64)
+        u = readonly(u)
+        y = readonly(y)
         dt = float(dt)
         v = np.zeros_like(u)
         v[1:] = (u[1:] - u[:-1]) / dt  # u̇, as the kernel computes it (0 at the first sample)
@@ -270,7 +270,7 @@ class LuGre(OptionalOffset, Model):
         return gram
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
-        return self._simulate(theta, np.ascontiguousarray(u, dtype=np.float64), dt, 1)
+        return self._simulate(theta, readonly(u), dt, 1)
 
     def _simulate(self, theta: np.ndarray, u: np.ndarray, dt: float, group: int) -> np.ndarray:
         """Outputs (P, N); consecutive groups of ``group`` rows of θ share σ0, Fc, Fs and vs."""

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from .._jit import njit
+from .._jit import njit, readonly
 
 from ..errors import ConfigError
 from ..params import DataScale, Param
@@ -262,7 +262,7 @@ class NT(OptionalOffset, Model):
         lin = (0, 1, 2, 4) if self.offset else (0, 1, 2)
 
         def factory(u, dt):
-            u = np.ascontiguousarray(u, dtype=np.float64)
+            u = readonly(u)
             v = backward_rate(u, dt)
 
             def basis(theta_nl):
@@ -284,7 +284,7 @@ class NT(OptionalOffset, Model):
         return self.simulator(u, dt)(theta)
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         v = np.ascontiguousarray(backward_rate(u, dt))
         d = self.n_params
 

@@ -7,6 +7,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._jit import readonly
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import models
@@ -124,7 +125,7 @@ class PI(Model, PlayOperators):
 
         y = Φ θ exactly, so θ follows from (non-negative) least squares.
         """
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         return np.hstack([play_matrix(u, self.r), np.ones((u.shape[0], 1))])
 
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
@@ -132,7 +133,7 @@ class PI(Model, PlayOperators):
         return theta @ self.design_matrix(u, dt).T
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         F = play_matrix(u, self.r)
         phi_t = np.empty((self.n_operators + 1, u.shape[0]))  # (n+1, N), computed once, no extra copy
         phi_t[:-1] = F.T

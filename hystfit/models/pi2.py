@@ -8,7 +8,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._jit import njit, prange
+from .._jit import njit, prange, readonly
 from .._lazy import lazy_module
 from ..blocks.base import captures_at_one_rate
 from ..blocks.dynamics import Dynamics, bilinear_biquad, biquad_columns, fn_search_range, invert_second_order
@@ -178,9 +178,10 @@ def gpi2_run(u, y, gpi_theta, fn_Hz, zeta, dt: float, n: int, mode: int, levels=
     its :func:`~hystfit.models.gpi.input_period` (the gPI output is then copied a period on once the
     operator states repeat: the same numbers). Threaded over
     candidate blocks from :data:`~hystfit.models._kernels.PARALLEL_MIN_POP` candidates on."""
-    u = np.ascontiguousarray(u, dtype=np.float64)
+    u = readonly(u)
     lv, index = levels if levels is not None else (u, np.empty(0, dtype=np.int64))
-    y = np.ascontiguousarray(y if y is not None else np.empty(0), dtype=np.float64)
+    lv, index = readonly(lv), readonly(index, np.int64)  # one compiled form (see readonly)
+    y = readonly(y if y is not None else np.empty(0))
     t = np.ascontiguousarray(gpi_theta, dtype=np.float64)
     P = t.shape[0]
     cols = [np.ascontiguousarray(t[:, i]) for i in range(12)]
@@ -236,8 +237,8 @@ def fit_stage_with_classical_pi(us, ys, dt: float, n_operators: int = 20,
     1242 Hz and ζ 0.155 (10 operators without the cubic terms: 1513 Hz, ζ 0.195). The joint
     route (``identification=joint``) has no such bias but searches two more parameters.
     """
-    us = [np.ascontiguousarray(u, dtype=np.float64) for u in us]
-    ys = [np.ascontiguousarray(y, dtype=np.float64) for y in ys]
+    us = [readonly(u) for u in us]
+    ys = [readonly(y) for y in ys]
     u_all = np.concatenate(us)
     lo_u, hi_u = float(u_all.min()), float(u_all.max())
     if not hi_u > lo_u:
@@ -245,7 +246,8 @@ def fit_stage_with_classical_pi(us, ys, dt: float, n_operators: int = 20,
     r = np.arange(n_operators) * (hi_u - lo_u) / n_operators
     c, h = 0.5 * (hi_u + lo_u), 0.5 * (hi_u - lo_u)
     # plays, plus static cubic terms for the envelopes' curvature (both enter linearly)
-    plays = [np.hstack([play_matrix(u, r), ((u - c) / h)[:, None] ** 2, ((u - c) / h)[:, None] ** 3]) for u in us]
+    plays = [readonly(np.hstack([play_matrix(u, r), ((u - c) / h)[:, None] ** 2, ((u - c) / h)[:, None] ** 3]))
+             for u in us]
     n_cols = n_operators + 2
     if fn_bounds_Hz is None:
         rate = max(float(np.max(np.abs(np.diff(u)))) / dt for u in us if u.size > 1)
@@ -426,16 +428,16 @@ class PI2(Model):
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         """gPI output (:func:`~hystfit.models.gpi.gpi_population`), stage (:func:`biquad_columns`), offset: (P, N)."""
         theta = self.check_theta(theta, self.d)
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         fn, z = self._stage(theta)
         zg = self.gpi._z(theta[:, :12], u)  # (N, P) unit-density gPI output
         with np.errstate(all="ignore"):
             coef = bilinear_biquad(fn, z, dt)
-        zf = biquad_columns(np.ascontiguousarray(zg), *coef)
+        zf = biquad_columns(readonly(zg), *coef)
         return (zf * theta[:, 8][None, :] + theta[:, 11][None, :]).T
 
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         levels = input_levels(u)  # once per capture, shared by every call
         period = input_period(levels)
 
@@ -448,8 +450,8 @@ class PI2(Model):
 
     def sse_evaluator(self, u: np.ndarray, dt: float, y: np.ndarray):
         """Σ(ŷ − y)² per candidate from the fused kernel (:func:`gpi2_run`, SSE mode)."""
-        u = np.ascontiguousarray(u, dtype=np.float64)
-        y = np.ascontiguousarray(y, dtype=np.float64)
+        u = readonly(u)
+        y = readonly(y)
         levels = input_levels(u)
         period = input_period(levels)
 

@@ -19,6 +19,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .._jit import readonly
+
 
 #: basis_factory(u, dt) → basis(theta_nl (P, m)) → B (P, N, L)  (for m = 0, P may be 1)
 BasisFactory = Callable[[np.ndarray, float], Callable[[np.ndarray], np.ndarray]]
@@ -81,7 +83,7 @@ def separable_by_simulation(model, linear: Sequence[int], d: int, grouped: Group
     def simulator(u, dt):
         if grouped is None:
             return model.simulator(u, dt)
-        sim_g = grouped(np.ascontiguousarray(u, dtype=np.float64), dt)
+        sim_g = grouped(readonly(u), dt)
         return lambda th: sim_g(th, L + 1)
 
     def simulate_unit(sim, theta_nl):
@@ -146,7 +148,7 @@ def scaled_response(linear: tuple[int, int], nonlinear: tuple[int, ...], respons
     """
 
     def factory(u, dt):
-        u = np.ascontiguousarray(u, dtype=np.float64)
+        u = readonly(u)
         z_of = response(u, dt)
 
         def basis(theta_nl):
@@ -159,8 +161,8 @@ def scaled_response(linear: tuple[int, int], nonlinear: tuple[int, ...], respons
         return basis
 
     def gram_factory(u, dt, y):
-        u = np.ascontiguousarray(u, dtype=np.float64)
-        y = np.ascontiguousarray(y, dtype=np.float64)
+        u = readonly(u)
+        y = readonly(y)
         n, sy, yy = float(u.shape[0]), float(y.sum()), float(y @ y)
         moments_of = moments(u, dt, y) if moments is not None else None
         if moments_of is None:

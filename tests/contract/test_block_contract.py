@@ -129,6 +129,32 @@ def test_stepping_reproduces_the_population_form(name, rng):
     np.testing.assert_allclose(out, ref, rtol=1e-10, atol=1e-10)
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+@pytest.mark.parametrize("name", BLOCKS)
+def test_kernels_are_compiled_once_for_read_only_and_writable_data(name, rng, readonly_twins):
+    """The block's kernels take read-only arrays (a capture read from CSV) and writable ones (a
+    model's output) without a second compilation: the population form, the diagnose (effect)
+    form and the inverse, with each kind of data."""
+    x = _signal(1500)
+    b = _adapted(name, x)
+    th = _theta(b, x, rng)
+    m = b.searched_bounds()[0].size
+    X = np.vstack([x, 1.1 * x])
+    TH = np.vstack([th, th])
+    for xx, XX, tt in ((x, X, TH), (_read_only(x), _read_only(X), _read_only(TH))):
+        b.apply_population(XX, tt, DT)
+        view = CaptureView(np.arange(x.size) * DT, DT, xx, np.ones(x.size, bool))
+        if not b.nuisance:
+            b.apply(xx, view, th[:m], th[m:], np.empty(0))
+        b.invert(th, xx, DT)
+    assert readonly_twins() == []
+
+
 def _plant_with(**effects) -> synth.Plant:
     return synth.Plant.default().with_effects(synth.Effects(**effects))
 

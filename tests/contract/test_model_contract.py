@@ -261,3 +261,36 @@ def test_refined_doubles_the_declared_resolution(name):
     assert type(fine) is cls
     assert getattr(fine, cls.resolution_option) == 2 * getattr(model, cls.resolution_option)
     assert fine.refined() is not None  # 20 → 40 is still below the cap
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_kernels_are_compiled_once_for_read_only_and_writable_data(name, readonly_twins):
+    """A capture read from CSV holds read-only arrays, one from the virtual actuator writable ones:
+    the model's kernels take both without a second compilation (the Bouc–Wen kernel took ≈ 45 s a
+    time in the first run after installing). Simulation (serial and threaded), the fused sum of
+    squares and the separable basis and normal equations, with each kind of data."""
+    model, params, u, _ = prepared(name)
+    rng = np.random.default_rng(5)
+    y_meas = 0.3 * u + 0.05 * rng.standard_normal(u.size)
+    lo, hi = np.array([p.lower for p in params]), np.array([p.upper for p in params])
+    theta = lo + rng.random((80, len(params))) * (hi - lo)  # ≥ 64: the threaded kernels too
+    sep = model.separable()
+    nl = np.asarray(sep.nonlinear, dtype=int) if sep is not None else None
+    with np.errstate(all="ignore"):
+        for uu, yy in ((u, y_meas), (_read_only(u), _read_only(y_meas))):
+            for th in (theta[:3], theta):
+                model.simulate(th, uu, DT)
+                fn = model.sse_evaluator(uu, DT, yy)
+                if fn is not None:
+                    fn(th)
+                if sep is not None:
+                    sep.basis_factory(uu, DT)(th[:, nl])
+                    if sep.gram_factory is not None:
+                        sep.gram_factory(uu, DT, yy)(th[:, nl])
+    assert readonly_twins() == []
