@@ -34,28 +34,39 @@ def peak_rss_code():
     return PEAK_RSS_CODE
 
 
-def _twins() -> list[str]:
-    """hystfit's compiled kernels that numba compiled for two argument lists differing only in
-    arrays' read-only flags (the same machine code twice: :func:`hystfit._jit.readonly`)."""
-    import re
-    import sys
 
-    def plain(sig) -> str:
-        return re.sub(r"'([CFA])', (True|False)", r"'\1'", repr(sig))
+#: appended to code run in a fresh process by :func:`kernel_twins`: prints one ``TWIN`` line per
+#: hystfit kernel that numba compiled for two argument lists differing only in arrays' read-only
+#: flags (the same machine code twice: :func:`hystfit._jit.readonly`)
+TWINS_CODE = """
+import re as _re, sys as _sys
 
-    found = []
-    for module in list(sys.modules.values()):
-        if not getattr(module, "__name__", "").startswith("hystfit"):
-            continue
-        for name, value in list(vars(module).items()):
-            sigs = getattr(value, "signatures", None) if type(value).__name__ == "CPUDispatcher" else None
-            if sigs and len({plain(s) for s in sigs}) < len(sigs):
-                found.append(f"{value.py_func.__module__}.{value.py_func.__qualname__}: "
-                             + " | ".join(repr(s) for s in sigs))
-    return sorted(set(found))
+def _plain(sig):
+    return _re.sub(r"'([CFA])', (True|False)", r"'\\1'", repr(sig))
+
+_found = set()
+for _module in list(_sys.modules.values()):
+    if not getattr(_module, "__name__", "").startswith("hystfit"):
+        continue
+    for _value in list(vars(_module).values()):
+        _sigs = getattr(_value, "signatures", None) if type(_value).__name__ == "CPUDispatcher" else None
+        if _sigs and len({_plain(s) for s in _sigs}) < len(_sigs):
+            _found.add(f"{_value.py_func.__module__}.{_value.py_func.__qualname__}: " + " | ".join(map(repr, _sigs)))
+for _line in sorted(_found):
+    print("TWIN", _line)
+"""
 
 
 @pytest.fixture
-def readonly_twins():
-    """A function listing the kernels compiled twice for read-only and writable arrays (see ``_twins``)."""
-    return _twins
+def kernel_twins():
+    """``run(code)``: runs ``code`` in a fresh process (so that no other test's calls count), then
+    returns the kernels it made numba compile twice for read-only and writable arrays."""
+    import subprocess
+    import sys
+
+    def run(code: str) -> list[str]:
+        r = subprocess.run([sys.executable, "-c", code + TWINS_CODE], capture_output=True, text=True, timeout=900)
+        assert r.returncode == 0, r.stderr[-3000:]
+        return [line[len("TWIN "):] for line in r.stdout.splitlines() if line.startswith("TWIN ")]
+
+    return run
