@@ -1340,6 +1340,76 @@ def _rmse(preds, views, which: str) -> float:
     return math.sqrt(s / n) if n else float("nan")
 
 
+def _insertion(chain: Sequence[EffectFit], effect: Effect) -> int:
+    """Where ``effect`` joins ``chain``: before the first link a signal meets after it in the plant's
+    order (:data:`SIGNAL_ORDER`, the order of the recommended model) when its operator is the
+    identity (a static map or added regressors: asymmetry, creep), else at the end. Where the order
+    matters it is the plant's: a bow after a resonant stage bends the ringing, one before it the
+    hysteresis output. Effects with an operator (dynamics, delay) are linear and time-invariant,
+    as are the links after them, so appending them is the same model."""
+    if type(effect).operator is not Effect.operator or effect.name not in SIGNAL_ORDER:
+        return len(chain)
+    rank = SIGNAL_ORDER.index(effect.name)
+    for i, link in enumerate(chain):
+        if link.effect.name in SIGNAL_ORDER and SIGNAL_ORDER.index(link.effect.name) > rank:
+            return i
+    return len(chain)
+
+
+def _chain_signals(state: _State, captures, views, pos: int, lengths: Sequence[int]) -> tuple[list, tuple]:
+    """The predictions of ``state`` over the first ``lengths`` samples of every capture and, per
+    capture, the signal that enters link ``pos`` of its chain with each later link and its input."""
+    preds, signals = [], []
+    for i, (x, v) in enumerate(zip(_base_predictions(state, captures, lengths), views)):
+        vv = v if x.shape[0] == v.n else v.head(x.shape[0])
+        for link in state.chain[:pos]:
+            x = link.apply(x, vv, i)
+        at, later = x, []
+        for link in state.chain[pos:]:
+            later.append((link, x))
+            x = link.apply(x, vv, i)
+        preds.append(x)
+        signals.append((at, tuple(later)))
+    return preds, tuple(signals)
+
+
+@dataclass(frozen=True, eq=False)
+class _Inserted(Effect):
+    """``effect`` (its operator the identity) fitted before the last links of a chain: the output is
+    L[E(x)], x the signal where ``effect`` acts and L the later links, so the regressors are those of
+    ``effect`` at x pushed through the tangents of L (exact for links linear in their input: creep,
+    dynamics, delay, drift). ``signals``: per capture, x and the later links with their inputs
+    (:func:`_chain_signals`). The coefficients fitted are ``effect``'s."""
+
+    effect: Effect = None
+    signals: tuple = field(default=(), repr=False)
+
+    def searched_bounds(self):
+        return self.effect.searched_bounds()
+
+    def search_grid(self):
+        return self.effect.search_grid()
+
+    def layout(self):
+        return self.effect.layout()
+
+    def coefficient_bounds(self):
+        return self.effect.coefficient_bounds()
+
+    def regressors(self, yhat, view, phi):
+        n = yhat.shape[0]
+        x, later = self.signals[view.index]
+        Rs, Rl = self.effect.regressors(x[:n], view, phi)
+        R = np.hstack([Rs, Rl])
+        for link, x_in in later:
+            if R.shape[1]:
+                R = link.tangent(R, x_in[:n], view, view.index)
+        return R[:, :Rs.shape[1]], R[:, Rs.shape[1]:]
+
+    def describe(self, phi, shared, local, views, sources=None):
+        return self.effect.describe(phi, shared, local, views, sources)
+
+
 def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, iterations: int,
              phi0: np.ndarray | None = None, grid_scores: np.ndarray | None = None) -> tuple[_State, EffectFit]:
     """Fit ``effect`` on top of ``state`` jointly with the base and the earlier effects.
@@ -1349,6 +1419,7 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
     re-simulation at α·δ for α ∈ {1, ½, 0} with the new coefficients re-solved on the true
     output; the best true fit-sample SSE wins (α = 0 is the effect on the fixed base, so the
     result is never worse than that). A second iteration re-linearizes at the new point.
+    ``effect`` joins the chain where a signal meets it in the plant (:func:`_insertion`).
     ``lin_cache``: (predictions, linearization) of ``state``, optionally with their
     :func:`hystfit.effects.prepare_design` third (made once for every effect fitted on them).
     ``grid_scores``: the scores of the effect's search grid on that design, when already computed.
@@ -1359,10 +1430,15 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
     best_state, best_fit, best_sse = None, None, math.inf
     cur = state
     phi_start = phi0
+    pos = _insertion(state.chain, effect)
+    inserted = pos < len(state.chain)
     for it in range(iterations):
         if it > 0:
             xs, lin = _linearize(cur, captures, views)
-        fit = effect.fit(xs, views, lin, phi0=phi_start, local_search=(it > 0 or phi0 is not None),
+        fitted = effect
+        if inserted:
+            fitted = _Inserted(effect, _chain_signals(cur, captures, views, pos, [x.shape[0] for x in xs])[1])
+        fit = fitted.fit(xs, views, lin, phi0=phi_start, local_search=(it > 0 or phi0 is not None),
                          design=design if it == 0 else None, grid_scores=grid_scores if it == 0 else None)
         improved = False
         exact = False
@@ -1370,8 +1446,12 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
             cand = _step(cur, fit.delta, alpha, C)
             heads = [v.head(max(v.fit_end, 1)) for v in views]
             lengths = [h.n for h in heads]
-            preds = _predictions(cand, captures, views, lengths)
-            sh, lo, _, sse = solve_coefficients(effect, fit.phi, preds, heads, None, bounded=True)
+            if inserted:
+                preds, signals = _chain_signals(cand, captures, views, pos, lengths)
+                fitted = _Inserted(effect, signals)
+            else:
+                preds = _predictions(cand, captures, views, lengths)
+            sh, lo, _, sse = solve_coefficients(fitted, fit.phi, preds, heads, None, bounded=True)
             f2 = EffectFit(effect, fit.phi, sh, lo, np.empty(0), sse, fit.evaluations)
             if sse < best_sse:
                 best_sse = sse
@@ -1386,7 +1466,7 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
         cur = best_state
         phi_start = best_fit.phi
     new = best_state.copy()
-    new.chain.append(best_fit)
+    new.chain.insert(pos, best_fit)
     return new, best_fit
 
 
