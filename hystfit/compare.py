@@ -307,7 +307,8 @@ def _check_bounds(captures, model_names, model_options: dict, bounds: dict) -> N
     """Bound names are checked before any fit, as identify does: a typo is exit 2, not failed cells."""
     if not all(c.y is not None for c in captures):
         return
-    scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
+    scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures],
+                                  [c.frequency_Hz for c in captures])
     for m in model_names:
         if bounds[m]:
             model = make_model(m, model_options[m]).prepare(captures).adapt(scale)

@@ -162,7 +162,8 @@ def _problem(captures: Sequence[Capture], model: Model,
         if c.y is None:
             raise InputError(f"{c.source}: no measured output column; identification needs one (see --output-col)")
     unit = _output_unit(captures)
-    scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures])
+    scale = DataScale.from_arrays([c.u for c in captures], [c.y for c in captures], [c.dt for c in captures],
+                                  [c.frequency_Hz for c in captures])
     model = model.adapt(scale)  # shared structure is prepared once by the caller (prepare_shared)
     params = apply_bound_overrides(model.params(scale), bounds or {})
     return _Problem(tuple(captures), model, scale, params, np.array([p.lower for p in params]),

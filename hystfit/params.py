@@ -8,6 +8,7 @@ Bounds may scale with the data: a model builds its table from a :class:`DataScal
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, replace
 from typing import Any, Mapping, Sequence
 
@@ -66,6 +67,13 @@ class DataScale:
     sign: float = 1.0
     #: duration of the longest capture (s); None in files written before it was recorded
     duration_s: float | None = None
+    #: the peak input rate (V/s) of the captures driven by a smooth periodic input (a sine, a raised
+    #: cosine, a rising-amplitude sine, a triangle at their stated or detected frequency f: a peak
+    #: rate of at most :data:`SMOOTH_DRIVE_RATE` × π·f·range); a capture whose input jumps (steps,
+    #: PRBS) does not count. 0 when no capture is driven so; None in files written before it was
+    #: recorded (:attr:`rate_max` then stands in, as it did). See
+    #: :func:`hystfit.blocks.base.frequency_of_excitation`.
+    drive_rate_max: float | None = None
 
     @property
     def u_range(self) -> float:
@@ -85,7 +93,11 @@ class DataScale:
         return self.y_range / self.u_range
 
     @classmethod
-    def from_arrays(cls, us: Sequence[np.ndarray], ys: Sequence[np.ndarray], dts: Sequence[float]) -> "DataScale":
+    def from_arrays(cls, us: Sequence[np.ndarray], ys: Sequence[np.ndarray], dts: Sequence[float],
+                    frequencies_Hz: Sequence[float] | None = None) -> "DataScale":
+        """The scales of captures given by their inputs ``us`` (V), outputs ``ys`` and sample periods
+        ``dts`` (s); ``frequencies_Hz``, the captures' drive frequencies (NaN where none), sets
+        :attr:`drive_rate_max` (left None without them)."""
         u_all = np.concatenate([np.asarray(u, float) for u in us])
         y_all = np.concatenate([np.asarray(y, float) for y in ys])
         rate = max(float(np.max(np.abs(np.diff(u)))) / dt if len(u) > 1 else 0.0 for u, dt in zip(us, dts))
@@ -95,8 +107,30 @@ class DataScale:
             if u.size and u.size == y.size:
                 cov += float(np.dot(u - u.mean(), y - y.mean()))
         duration = max(len(u) * dt for u, dt in zip(us, dts))
+        drive = None if frequencies_Hz is None else smooth_drive_rate(us, dts, frequencies_Hz)
         return cls(float(u_all.min()), float(u_all.max()), float(y_all.min()), float(y_all.max()),
-                   float(min(dts)), max(rate, 1e-12), -1.0 if cov < 0 else 1.0, float(duration))
+                   float(min(dts)), max(rate, 1e-12), -1.0 if cov < 0 else 1.0, float(duration), drive)
+
+
+#: a capture counts as smoothly driven at its frequency f while its peak input rate is at most this
+#: many times that of a sine over its input range at f (π·f·range; a triangle has 2/π of it, a
+#: rising-amplitude sine about 1); a step or a PRBS edge exceeds it by orders of magnitude
+SMOOTH_DRIVE_RATE = 3.0
+
+
+def smooth_drive_rate(us: Sequence[np.ndarray], dts: Sequence[float], frequencies_Hz: Sequence[float]) -> float:
+    """The peak input rate (V/s) among the captures whose input is a smooth periodic drive at their
+    frequency in ``frequencies_Hz`` (:data:`SMOOTH_DRIVE_RATE`); 0.0 when there is none."""
+    best = 0.0
+    for u, dt, f in zip(us, dts, frequencies_Hz):
+        u = np.asarray(u, float)
+        if f is None or not (np.isfinite(f) and f > 0) or u.size < 2:
+            continue
+        span = float(np.nanmax(u) - np.nanmin(u))
+        rate = float(np.nanmax(np.abs(np.diff(u)))) / dt
+        if span > 0 and rate <= SMOOTH_DRIVE_RATE * math.pi * float(f) * span:
+            best = max(best, rate)
+    return best
 
 
 #: A value within this fraction of its search width from a bound is "at the bound": the search

@@ -124,11 +124,17 @@ class Block(Effect):
 
 
 def frequency_of_excitation(scale: DataScale) -> float:
-    """The frequency (Hz) of a sine with the captures' input range and peak rate: rate/(π·range).
+    """The frequency (Hz) of a sine with the captures' input range and the peak rate of their
+    smooth periodic drives (:attr:`DataScale.drive_rate_max`): rate/(π·range) — for a periodic
+    drive its fundamental, for a rising-amplitude sine the drive frequency. NaN when no capture
+    is driven so (broadband or step captures only). The stage blocks' search ranges start from it.
 
-    For a periodic drive that is its fundamental; for a rising-amplitude sine, the drive frequency.
+    A step or a PRBS edge does not count: its rate made this thousands of Hz, and a stage's
+    resonance then fell below the search range (where the data scale predates the field, its peak
+    rate over all captures still stands in, as it did).
     """
-    return float(scale.rate_max / (np.pi * scale.u_range))
+    rate = scale.rate_max if scale.drive_rate_max is None else scale.drive_rate_max
+    return float(rate / (np.pi * scale.u_range)) if rate > 0 else float("nan")
 
 
 def captures_at_one_rate(captures, who: str, advice: str = "") -> list:

@@ -164,6 +164,16 @@ def invert_second_order(y: np.ndarray, fn_Hz: float, zeta: float, dt: float) -> 
     return y + c
 
 
+def fn_search_range_of(scale: DataScale) -> tuple[float, float]:
+    """:func:`fn_search_range` for identification data: from twice the smooth drives' frequency
+    (:func:`~hystfit.blocks.base.frequency_of_excitation`), or with none of them (broadband, steps)
+    from 10 / the longest capture's duration — the range ``diagnose`` searches (:meth:`Dynamics.configure`)."""
+    f = frequency_of_excitation(scale)
+    if not np.isfinite(f) and scale.duration_s:
+        f = 10.0 / scale.duration_s
+    return fn_search_range(scale.dt, f)
+
+
 def fn_search_range(dt: float, f_exc_Hz: float) -> tuple[float, float]:
     """Bounds of f_n (Hz): 2× the excitation frequency (a resonance inside the excitation band
     would be obvious in the loops) … 0.45·f_s (below Nyquist); at least a factor 4 wide."""
@@ -228,7 +238,7 @@ class Dynamics(Block):
         return replace(self, fn_min_Hz=lo, fn_max_Hz=hi)
 
     def adapt(self, scale: DataScale) -> "Dynamics":
-        lo, hi = fn_search_range(scale.dt, frequency_of_excitation(scale))
+        lo, hi = fn_search_range_of(scale)
         return replace(self, fn_min_Hz=lo if self.fn_min_Hz is None else self.fn_min_Hz,
                        fn_max_Hz=hi if self.fn_max_Hz is None else self.fn_max_Hz)
 

@@ -11,7 +11,8 @@ import numpy as np
 from .._jit import njit, prange, readonly
 from .._lazy import lazy_module
 from ..blocks.base import captures_at_one_rate
-from ..blocks.dynamics import Dynamics, bilinear_biquad, biquad_columns, fn_search_range, invert_second_order
+from ..blocks.dynamics import (Dynamics, bilinear_biquad, biquad_columns, fn_search_range, fn_search_range_of,
+                               invert_second_order)
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
 from ..registry import models
@@ -395,7 +396,9 @@ class PI2(Model):
         if self.joint or self.fn_Hz is not None:
             return self
         caps = captures_at_one_rate(captures, "pi2", ", or use --model-option identification=joint")
-        fn, z, _ = fit_stage_with_classical_pi([c.u for c in caps], [c.y for c in caps], caps[0].dt)
+        us, ys = [c.u for c in caps], [c.y for c in caps]
+        scale = DataScale.from_arrays(us, ys, [c.dt for c in caps], [c.frequency_Hz for c in caps])
+        fn, z, _ = fit_stage_with_classical_pi(us, ys, caps[0].dt, fn_bounds_Hz=fn_search_range_of(scale))
         return replace(self, fn_Hz=float(fn), zeta=float(z))
 
     def structure_summary(self) -> str:
@@ -409,7 +412,7 @@ class PI2(Model):
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         ps = self.gpi.params(scale)
         if self.joint:
-            lo, hi = fn_search_range(scale.dt, scale.rate_max / (math.pi * scale.u_range))
+            lo, hi = fn_search_range_of(scale)
             ps += (Param("fn_Hz", "Hz", lo, hi, math.sqrt(lo * hi), "natural frequency f_n of the linear subsystem"),
                    Param("zeta", "1", 0.01, 2.0, 0.2, "damping ratio ζ of the linear subsystem"))
         return ps
