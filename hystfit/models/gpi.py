@@ -122,15 +122,6 @@ def same_state(s, s_prev):
     return True
 
 
-@njit(cache=True, inline="always")
-def copy_states(dst, src):
-    """dst[:, :] = src, element by element: the slice assignment brings numba's shape check with
-    its formatted error message, whose string machinery took ≈ 8 s of a first compilation."""
-    for j in range(src.shape[0]):
-        for i in range(src.shape[1]):
-            dst[j, i] = src[j, i]
-
-
 @njit(cache=True)
 def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1, period):
     """z of :func:`gpi_population` for the candidates p0:p1: into out (N, P), or — when ``y`` is
@@ -159,7 +150,7 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
                     for i in range(m):
                         out[kk, p0 + i] = out[kk - period, p0 + i]
                 break
-            copy_states(s_prev, s)
+            s_prev[:, :] = s
         gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
         gpi_play(r, q, s, gl, gr, acc)
         if moments:

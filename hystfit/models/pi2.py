@@ -21,7 +21,7 @@ from .base import Model
 from .composite import Composite
 from .pi import PI
 from .separable import scaled_response
-from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, copy_states, gpi_envelope_tables, gpi_envelopes_at, gpi_operators, gpi_play,
+from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_tables, gpi_envelopes_at, gpi_operators, gpi_play,
                   input_levels, input_period, same_state)
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
@@ -87,7 +87,7 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
     for k in range(N):
         if repeats and not copying and k > 0 and k % period == 0:
             copying = k >= 2 * period and same_state(s, s_prev)
-            copy_states(s_prev, s)
+            s_prev[:, :] = s
         if copying:
             for i in range(m):
                 z[i] = z_period[k % period, i]
