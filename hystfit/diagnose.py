@@ -40,7 +40,7 @@ import numpy as np
 from .capture import Capture
 from .cells import cell_key
 from .conditions import condition_label, detect_condition, group_by_condition
-from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Linearization, Placebo, make_effect,
+from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, make_effect,
                       prepare_design, scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
@@ -1373,43 +1373,6 @@ def _chain_signals(state: _State, captures, views, pos: int, lengths: Sequence[i
     return preds, tuple(signals)
 
 
-@dataclass(frozen=True, eq=False)
-class _Inserted(Effect):
-    """``effect`` (its operator the identity) fitted before the last links of a chain: the output is
-    L[E(x)], x the signal where ``effect`` acts and L the later links, so the regressors are those of
-    ``effect`` at x pushed through the tangents of L (exact for links linear in their input: creep,
-    dynamics, delay, drift). ``signals``: per capture, x and the later links with their inputs
-    (:func:`_chain_signals`). The coefficients fitted are ``effect``'s."""
-
-    effect: Effect = None
-    signals: tuple = field(default=(), repr=False)
-
-    def searched_bounds(self):
-        return self.effect.searched_bounds()
-
-    def search_grid(self):
-        return self.effect.search_grid()
-
-    def layout(self):
-        return self.effect.layout()
-
-    def coefficient_bounds(self):
-        return self.effect.coefficient_bounds()
-
-    def regressors(self, yhat, view, phi):
-        n = yhat.shape[0]
-        x, later = self.signals[view.index]
-        Rs, Rl = self.effect.regressors(x[:n], view, phi)
-        R = np.hstack([Rs, Rl])
-        for link, x_in in later:
-            if R.shape[1]:
-                R = link.tangent(R, x_in[:n], view, view.index)
-        return R[:, :Rs.shape[1]], R[:, Rs.shape[1]:]
-
-    def describe(self, phi, shared, local, views, sources=None):
-        return self.effect.describe(phi, shared, local, views, sources)
-
-
 def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, iterations: int,
              phi0: np.ndarray | None = None, grid_scores: np.ndarray | None = None) -> tuple[_State, EffectFit]:
     """Fit ``effect`` on top of ``state`` jointly with the base and the earlier effects.
@@ -1437,7 +1400,7 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
             xs, lin = _linearize(cur, captures, views)
         fitted = effect
         if inserted:
-            fitted = _Inserted(effect, _chain_signals(cur, captures, views, pos, [x.shape[0] for x in xs])[1])
+            fitted = Inserted(effect, _chain_signals(cur, captures, views, pos, [x.shape[0] for x in xs])[1])
         fit = fitted.fit(xs, views, lin, phi0=phi_start, local_search=(it > 0 or phi0 is not None),
                          design=design if it == 0 else None, grid_scores=grid_scores if it == 0 else None)
         improved = False
@@ -1448,7 +1411,7 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
             lengths = [h.n for h in heads]
             if inserted:
                 preds, signals = _chain_signals(cand, captures, views, pos, lengths)
-                fitted = _Inserted(effect, signals)
+                fitted = Inserted(effect, signals)
             else:
                 preds = _predictions(cand, captures, views, lengths)
             sh, lo, _, sse = solve_coefficients(fitted, fit.phi, preds, heads, None, bounded=True)

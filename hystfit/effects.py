@@ -779,6 +779,44 @@ def fmt_list(x) -> list[float]:
 # ----------------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True, eq=False)
+class Inserted(Effect):
+    """``effect`` (its operator the identity) fitted before the last links of a chain: the output is
+    L[E(x)], x the signal where ``effect`` acts and L the later links, so the regressors are those of
+    ``effect`` at x pushed through the tangents of L (exact for links linear in their input: creep,
+    dynamics, delay, drift). ``signals``: per capture, x and the later links with their inputs
+    (:func:`hystfit.diagnose._chain_signals`). The coefficients fitted are ``effect``'s; ``diagnose``
+    fits an effect this way where it joins a chain before links already named."""
+
+    effect: Effect = None
+    signals: tuple = field(default=(), repr=False)
+
+    def searched_bounds(self):
+        return self.effect.searched_bounds()
+
+    def search_grid(self):
+        return self.effect.search_grid()
+
+    def layout(self):
+        return self.effect.layout()
+
+    def coefficient_bounds(self):
+        return self.effect.coefficient_bounds()
+
+    def regressors(self, yhat, view, phi):
+        n = yhat.shape[0]
+        x, later = self.signals[view.index]
+        Rs, Rl = self.effect.regressors(x[:n], view, phi)
+        R = np.hstack([Rs, Rl])
+        for link, x_in in later:
+            if R.shape[1]:
+                R = link.tangent(R, x_in[:n], view, view.index)
+        return R[:, :Rs.shape[1]], R[:, Rs.shape[1]:]
+
+    def describe(self, phi, shared, local, views, sources=None):
+        return self.effect.describe(phi, shared, local, views, sources)
+
+
 @dataclass(frozen=True)
 class Placebo(Effect):
     r"""A random augmentation of a given size: the yardstick an effect must beat.

@@ -167,7 +167,8 @@ def invert_second_order(y: np.ndarray, fn_Hz: float, zeta: float, dt: float) -> 
 def fn_search_range_of(scale: DataScale) -> tuple[float, float]:
     """:func:`fn_search_range` for identification data: from twice the smooth drives' frequency
     (:func:`~hystfit.blocks.base.frequency_of_excitation`), or with none of them (broadband, steps)
-    from 10 / the longest capture's duration — the range ``diagnose`` searches (:meth:`Dynamics.configure`)."""
+    from 10 / the longest capture's duration, as ``diagnose`` does without periodic captures
+    (:meth:`Dynamics.configure`)."""
     f = frequency_of_excitation(scale)
     if not np.isfinite(f) and scale.duration_s:
         f = 10.0 / scale.duration_s

@@ -471,8 +471,6 @@ def _bw_run(u, y, kv, alpha, beta, gamma, y0, mode, out):
     return out
 
 
-_f64 = readonly  # the Bouc–Wen wrappers' inputs: one compiled form whatever the caller passes
-
 #: the Bouc–Wen kernels' stand-in for "no array" (read-only, as every input)
 _NONE = readonly(np.empty(0))
 
@@ -496,8 +494,8 @@ def bouc_wen_population(u, alpha, beta, gamma):
     -------
     (N, P) array of h (output units); the caller transposes.
     """
-    u = _f64(u)
-    alpha, beta, gamma = _f64(alpha), _f64(beta), _f64(gamma)
+    u = readonly(u)
+    alpha, beta, gamma = readonly(alpha), readonly(beta), readonly(gamma)
     out = np.empty((u.shape[0], alpha.shape[0]))
     zero = readonly(np.zeros(alpha.shape[0]))
     return _bw_run(u, _NONE, zero, alpha, beta, gamma, zero, _BW_STATES, out)
@@ -505,9 +503,9 @@ def bouc_wen_population(u, alpha, beta, gamma):
 
 def bouc_wen_output(u, kv, alpha, beta, gamma, y0):
     """Bouc–Wen output Kv·u + h + y0 of a population → (N, P) (the caller transposes)."""
-    u = _f64(u)
-    out = np.empty((u.shape[0], _f64(alpha).shape[0]))
-    return _bw_run(u, _NONE, _f64(kv), _f64(alpha), _f64(beta), _f64(gamma), _f64(y0), _BW_STATES, out)
+    u = readonly(u)
+    out = np.empty((u.shape[0], readonly(alpha).shape[0]))
+    return _bw_run(u, _NONE, readonly(kv), readonly(alpha), readonly(beta), readonly(gamma), readonly(y0), _BW_STATES, out)
 
 
 #: kept for callers of the former name: same as :func:`bouc_wen_population`
@@ -517,17 +515,17 @@ bouc_wen_h = bouc_wen_population
 def bouc_wen_sse(u, y, kv, alpha, beta, gamma, y0):
     """Σ_k (Kv·u_k + h_k + y0 − y_k)² per candidate (P,), h from :func:`bouc_wen_population`,
     computed in the time loop without storing the (N, P) outputs."""
-    u, y = _f64(u), _f64(y)
-    out = np.empty((_f64(alpha).shape[0], 1))
-    return _bw_run(u, y, _f64(kv), _f64(alpha), _f64(beta), _f64(gamma), _f64(y0), _BW_SSE, out)[:, 0]
+    u, y = readonly(u), readonly(y)
+    out = np.empty((readonly(alpha).shape[0], 1))
+    return _bw_run(u, y, readonly(kv), readonly(alpha), readonly(beta), readonly(gamma), readonly(y0), _BW_SSE, out)[:, 0]
 
 
 def bouc_wen_moments(u, y, beta, gamma):
     """Per candidate (P, 4): Σg², Σg·u, Σg, Σg·y of the unit-gain state g (α = 1), without storing g."""
-    u, y = _f64(u), _f64(y)
-    beta, gamma = _f64(beta), _f64(gamma)
+    u, y = readonly(u), readonly(y)
+    beta, gamma = readonly(beta), readonly(gamma)
     out = np.empty((beta.shape[0], 4))
-    return _bw_run(u, y, _NONE, _f64(np.ones(beta.shape[0])), beta, gamma, _NONE, _BW_MOMENTS, out)
+    return _bw_run(u, y, _NONE, readonly(np.ones(beta.shape[0])), beta, gamma, _NONE, _BW_MOMENTS, out)
 
 
 @njit(cache=True)

@@ -11,7 +11,7 @@ import numpy as np
 from .._jit import njit, prange, readonly
 from .._lazy import lazy_module
 from ..blocks.base import captures_at_one_rate
-from ..blocks.dynamics import (Dynamics, bilinear_biquad, biquad_columns, fn_search_range, fn_search_range_of,
+from ..blocks.dynamics import (Dynamics, bilinear_biquad, biquad_columns, fn_search_range_of,
                                invert_second_order)
 from ..errors import ConfigError, InputError
 from ..params import DataScale, Param
@@ -250,9 +250,8 @@ def fit_stage_with_classical_pi(us, ys, dt: float, n_operators: int = 20,
     plays = [readonly(np.hstack([play_matrix(u, r), ((u - c) / h)[:, None] ** 2, ((u - c) / h)[:, None] ** 3]))
              for u in us]
     n_cols = n_operators + 2
-    if fn_bounds_Hz is None:
-        rate = max(float(np.max(np.abs(np.diff(u)))) / dt for u in us if u.size > 1)
-        fn_bounds_Hz = fn_search_range(dt, rate / (math.pi * (hi_u - lo_u)))
+    if fn_bounds_Hz is None:  # no drive frequencies given: the captures' peak rate stands in
+        fn_bounds_Hz = fn_search_range_of(DataScale.from_arrays(us, ys, [dt] * len(us)))
     lo_f, hi_f = fn_bounds_Hz
     N_total = sum(u.size for u in us)
     yc = [y - y.mean() for y in ys]  # one free offset per capture: solved by centring each capture

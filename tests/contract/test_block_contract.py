@@ -16,6 +16,7 @@ from hystfit import synth
 from hystfit.effects import CaptureView
 from hystfit.params import DataScale
 from hystfit.registry import blocks
+from test_model_contract import _read_only  # noqa: E402 - one helper for both contracts (this folder is on sys.path)
 
 DT = 1e-4
 BLOCKS = blocks.names()
@@ -129,12 +130,6 @@ def test_stepping_reproduces_the_population_form(name, rng):
         out.append(float(yk[0]))
         state = st[0]
     np.testing.assert_allclose(out, ref, rtol=1e-10, atol=1e-10)
-
-
-def _read_only(a: np.ndarray) -> np.ndarray:
-    v = a.view()
-    v.flags.writeable = False
-    return v
 
 
 def exercise_kernels(name: str) -> None:
