@@ -3,9 +3,11 @@
 Loading turns a file into a validated :class:`~hystfit.capture.Capture`:
 
 1. optional sidecar ``<file>.hystfit.json`` supplies default :class:`LoadOptions`;
-2. the table is read (delimiter sniffed, ``#`` comment lines skipped, header auto-detected);
+2. the table is read (delimiter sniffed, ``#`` comment lines and a preamble before the header
+   skipped (:func:`_preamble`), header auto-detected);
 3. the time / input / output columns are chosen by option (name or 0-based index) or by name
-   (aliases, case-insensitive, optional unit suffix such as ``_mV``, `` [um]``, ``(s)``);
+   (aliases, case-insensitive, optional unit suffix such as ``_mV``, `` [um]``, ``(s)``), then
+   by the unit in brackets of a name no alias matches (``Spannung [V]``: :func:`_unit_column`);
 4. cells are checked (numbers, finite), units converted (time → s, input → V; the output
    keeps its unit: nm, um, mm or m);
 5. time must strictly increase and be uniform (jitter ≤ 0.1 % of the step);
@@ -342,6 +344,8 @@ class _Table:
     header_auto: bool = False
     #: the delimiter is not a comma, so "1,5" may be a decimal comma (European locale exports)
     comma_decimal_ok: bool = False
+    #: what the reader did that the user should know (a preamble skipped), for the capture's notes
+    notes: tuple[str, ...] = ()
 
     @property
     def ncols(self) -> int:
@@ -399,6 +403,54 @@ def _is_number_or_empty(cell: str) -> bool:
     return True
 
 
+#: most lines a preamble may have, and the lines of the table after it that decide its shape
+PREAMBLE_MAX_LINES = 100
+_PREAMBLE_TABLE_LINES = 20
+
+
+def _preamble(lines: list[str]) -> int:
+    """How many leading lines of a text capture are a preamble (0 for none): the block of text a
+    DAQ program, an oscilloscope or a LabVIEW measurement file writes before its table (operator,
+    date, ``Record Length,10000,Points``, ``***End_of_Header***``).
+
+    ``lines``: the file's first lines, blank and ``#`` comment lines removed. The table's shape is
+    that of its last line, a data row: a number of cells, every one a number (a decimal comma too
+    where the delimiter is not a comma) or empty. Its header is the last line before it with as
+    many cells, none of them a number; everything before the header is the preamble, when it holds
+    no data row and is at most :data:`PREAMBLE_MAX_LINES` lines. So a bad row among the data (a
+    text cell, a ragged or an all-text row) is never taken for a preamble: it is read as part of
+    the table, whose reader names it by its line in the file — after the header (still a table),
+    or with data rows before it (no preamble). A table without a header after a preamble is not
+    recognized (0).
+    """
+    head = lines[: PREAMBLE_MAX_LINES + 1 + _PREAMBLE_TABLE_LINES]
+    if len(head) < 3:
+        return 0
+    delim = _sniff(head[-_PREAMBLE_TABLE_LINES:])
+
+    def cells(line: str) -> list[str]:
+        return [c.strip().strip('"') for c in (line.split(delim) if delim is not None else line.split())]
+
+    def number(cell: str) -> bool:
+        return bool(cell) and _is_number_or_empty(cell.replace(",", ".") if delim not in (None, ",") else cell)
+
+    rows = [cells(ln) for ln in head]
+    width = len(rows[-1])
+
+    def data_row(c: list[str]) -> bool:
+        return len(c) == width and all(not x or number(x) for x in c) and any(c)
+
+    def header_row(c: list[str]) -> bool:
+        return len(c) == width and any(c) and not any(number(x) for x in c)
+
+    if width < 2 or not data_row(rows[-1]):
+        return 0
+    h = max((i for i, c in enumerate(rows[:-1]) if header_row(c)), default=0)
+    if h == 0 or h > PREAMBLE_MAX_LINES or any(data_row(c) for c in rows[:h]):
+        return 0
+    return h
+
+
 #: text captures at least this large are first read by pyarrow's multi-threaded CSV parser, straight
 #: to float64 (:func:`_read_text_fast`); smaller ones, and any file it declines, by the general reader.
 #: A typical capture (5,000 rows, ≈ 120 kB) is read in ≈ 8 ms less, and a command whose captures
@@ -437,6 +489,10 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
     lines = [ln.rstrip("\r") for ln in lines]
     if len(lines) < 2 or any(not ln.strip() for ln in lines):
         return None
+    skip = 0 if no_header else _preamble(lines)
+    if skip and skip + 3 > len(lines):
+        return None  # a long preamble: the general reader reads enough lines to find the table
+    lines = lines[skip:]
     delim = _sniff(lines[:50])
     if delim is None:
         return None
@@ -444,6 +500,8 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
     first = next(csv.reader([lines[0]], delimiter=delim))
     ncols = len(first)
     header = not no_header and not all(_is_number_or_empty(c) for c in first)
+    if skip and not header:
+        return None
     if ncols < 2:
         return None
     try:
@@ -453,7 +511,8 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
         names = [f"c{i}" for i in range(ncols)]
         # blank lines are kept as rows of missing cells (declined below), so row numbers stay line
         # numbers; a comment line fails as a ragged row or as a cell that is not a number
-        tab = pcsv.read_csv(path, read_options=pcsv.ReadOptions(column_names=names, skip_rows=1 if header else 0,
+        tab = pcsv.read_csv(path, read_options=pcsv.ReadOptions(column_names=names,
+                                                                 skip_rows=skip + (1 if header else 0),
                                                                  block_size=1 << 24),
                             parse_options=pcsv.ParseOptions(delimiter=delim, ignore_empty_lines=False),
                             convert_options=pcsv.ConvertOptions(column_types={n: pa.float64() for n in names},
@@ -471,9 +530,10 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
             return None  # a blank line or an empty row: the general reader skips, trims or reports it
     cols = [_float64_column(tab.column(i)) for i in range(ncols)]
     del tab
-    rows = np.arange(1, n + 1, dtype=np.int64) + (1 if header else 0)
+    rows = np.arange(1, n + 1, dtype=np.int64) + skip + (1 if header else 0)
     return _Table(label, [c.strip() for c in first] if header else None, cols, rows,
-                  header_auto=not no_header and not header, comma_decimal_ok=delim != ",")
+                  header_auto=not no_header and not header, comma_decimal_ok=delim != ",",
+                  notes=(_preamble_note(1, skip, skip + 1),) if skip else ())
 
 
 def _float64_column(column) -> np.ndarray:
@@ -520,6 +580,11 @@ def _read_text(path: Path, label: str, no_header: bool) -> _Table:
     if not numbered:
         raise InputError(f"{label}: the file has only comments or blank lines, no data; pass a capture with data rows")
     lines = [ln for _, ln in numbered]
+    notes: tuple[str, ...] = ()
+    skip = 0 if no_header else _preamble(lines)
+    if skip:
+        notes = (_preamble_note(numbered[0][0], numbered[skip - 1][0], numbered[skip][0]),)
+        numbered, lines = numbered[skip:], lines[skip:]
     delim = _sniff(lines[:50])
     text = "\n".join(ln.strip() if delim is None else ln for ln in lines)
     try:
@@ -545,7 +610,13 @@ def _read_text(path: Path, label: str, no_header: bool) -> _Table:
     if n_keep < len(empty):
         df, rows = df.iloc[:n_keep], rows[:n_keep]
     cols = [df[c].reset_index(drop=True) for c in df.columns]
-    return _Table(label, names, cols, rows, header_auto, comma_decimal_ok=delim != ",")
+    return _Table(label, names, cols, rows, header_auto, comma_decimal_ok=delim != ",", notes=notes)
+
+
+def _preamble_note(first: int, last: int, header: int) -> str:
+    """The note of a skipped preamble (file lines, 1-based)."""
+    return (f"skipped the preamble before the table (lines {first}–{last}); the header is line {header}"
+            if last > first else f"skipped the preamble before the table (line {first}); the header is line {header}")
 
 
 def _parser_error(label: str, exc: Exception, numbered: list[tuple[int, str]]) -> InputError:
@@ -669,6 +740,23 @@ def _auto_column(table: _Table, role: str, taken: set[int]) -> list[int]:
             if i not in taken and _is_candidate(n, role) and not table.is_empty(i)]
 
 
+def _unit_column(table: _Table, role: str, taken: set[int]) -> list[int]:
+    """Indices of non-empty, not-yet-taken columns whose name gives a unit of ``role`` in brackets
+    (``Spannung [V]``, ``Ch1 (mV)``, ``Weg [µm]``, ``Zeit [s]``) but reads as no role's alias: the
+    columns a name in another language, or a channel name, leaves to their unit."""
+    if table.names is None:
+        return []
+    out = []
+    for i, n in enumerate(table.names):
+        m = _BRACKET_RE.match(str(n).strip())
+        if i in taken or m is None or m.group(2).strip().lower() not in _UNITS[role] or table.is_empty(i):
+            continue
+        if any(_is_candidate(n, other) for other in _ALIASES):
+            continue  # an alias of some role (amplitude [V], frequency [Hz] …): its name decides
+        out.append(i)
+    return out
+
+
 def _headerless_error(table: _Table, role: str, roles: Sequence[str] = ("time", "input", "output")) -> InputError:
     if table.header_auto:
         why, alt = "the first row is all numbers, so the file is read as having no header row", "add a header row"
@@ -681,11 +769,14 @@ def _headerless_error(table: _Table, role: str, roles: Sequence[str] = ("time", 
 
 
 def _select_roles(table: _Table, roles: Sequence[str], specs: Mapping[str, str | int | None],
-                  optional: Sequence[str] = (), fallback: Mapping[str, str] | None = None) -> dict[str, int | None]:
+                  optional: Sequence[str] = (), fallback: Mapping[str, str] | None = None,
+                  notes: list[str] | None = None) -> dict[str, int | None]:
     """Column index per role: explicit specs first (a name or 0-based index), then by name (alias
     and unit) in the order of ``roles``; each column serves one role. ``optional`` roles may be
     absent (None); ``fallback`` lets a role accept another role's names when none of its own is
-    found. Every failure is one line naming the file, the column and the fix."""
+    found. A role none of whose names is found takes the one column whose name gives its unit in
+    brackets (:func:`_unit_column`; said in ``notes``), once every role has had its names. Every
+    failure is one line naming the file, the column and the fix."""
     chosen: dict[str, int | None] = {}
     for role in roles:
         if specs.get(role) is not None:
@@ -696,19 +787,29 @@ def _select_roles(table: _Table, roles: Sequence[str], specs: Mapping[str, str |
             raise InputError(f"{table.label}: {table.col_label(i)} is selected both as {seen[i]} "
                              f"({_FLAGS[seen[i]]}) and as {role} ({_FLAGS[role]}); select different columns")
         seen[i] = role
+    for by_unit in (False, True):
+        for role in roles:
+            if role in chosen:
+                continue
+            if by_unit:
+                found = _unit_column(table, role, set(seen))
+            else:
+                found = _auto_column(table, role, set(seen))
+                if not found and role in (fallback or {}):
+                    found = _auto_column(table, fallback[role], set(seen))
+            if len(found) > 1:
+                cands = ", ".join(repr(table.names[i]) for i in found)
+                how = " (by the unit in their names)" if by_unit else ""
+                raise InputError(f"{table.label}: several {_WHAT[role]} columns{how}: {cands}; pass {_FLAGS[role]} "
+                                 f"with the one to use")
+            if found:
+                chosen[role] = found[0]
+                seen[found[0]] = role
+                if by_unit and notes is not None:
+                    notes.append(f"{_WHAT[role]} is {table.col_label(found[0])}, by the unit in its name "
+                                 f"(pass {_FLAGS[role]} to choose another)")
     for role in roles:
         if role in chosen:
-            continue
-        found = _auto_column(table, role, set(seen))
-        if not found and role in (fallback or {}):
-            found = _auto_column(table, fallback[role], set(seen))
-        if len(found) > 1:
-            cands = ", ".join(repr(table.names[i]) for i in found)
-            raise InputError(f"{table.label}: several {_WHAT[role]} columns: {cands}; pass {_FLAGS[role]} "
-                             f"with the one to use")
-        if found:
-            chosen[role] = found[0]
-            seen[found[0]] = role
             continue
         chosen[role] = None
         if role in optional:
@@ -719,11 +820,12 @@ def _select_roles(table: _Table, roles: Sequence[str], specs: Mapping[str, str |
     return chosen
 
 
-def _select_columns(table: _Table, opts: LoadOptions) -> dict[str, int | None]:
+def _select_columns(table: _Table, opts: LoadOptions, notes: list[str] | None = None) -> dict[str, int | None]:
     """Column index per role of a capture (time/input/output/amplitude/frequency); None when absent."""
     optional = [r for r, absent in (("time", opts.fs is not None), ("output", not opts.require_output)) if absent]
     chosen = _select_roles(table, ("input", "output", "time"),
-                           {"time": opts.time_col, "input": opts.input_col, "output": opts.output_col}, optional)
+                           {"time": opts.time_col, "input": opts.input_col, "output": opts.output_col}, optional,
+                           notes=notes)
     taken = {i for i in chosen.values() if i is not None}
     for role in ("amplitude", "frequency"):
         found = _auto_column(table, role, taken)
@@ -1043,7 +1145,8 @@ def load_capture(path: str | os.PathLike, options: LoadOptions = LoadOptions()) 
     label = str(path)
     opts, notes = _apply_sidecar(p, options)
     table = _read_table(p, label, opts.no_header)
-    chosen = _select_columns(table, opts)
+    notes.extend(table.notes)
+    chosen = _select_columns(table, opts, notes)
     arrays = {r: (chosen[r], _numeric(table, chosen[r])) for r in ("time", "input", "output") if chosen[r] is not None}
     keep, arrays = _nonfinite(table, arrays, opts.drop_nonfinite, notes)
     rows = table.rows if keep is None else table.rows[keep]

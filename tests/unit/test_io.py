@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import hystfit.io as hio
 from hystfit.errors import InputError, OutputError
 from hystfit.io import (
     LoadOptions,
@@ -718,3 +719,81 @@ def test_load_table_is_the_one_reader_for_captures_and_targets(tmp_path):
     assert tt.index["target"] == 2
     with pytest.raises(InputError, match="no target"):
         load_table(p, ("time", "target"))
+
+
+# ------------------------------------------------------------------ preambles and columns named by their unit
+def _table_lines(t, u, y, header=("time_s", "voltage_V", "displacement_um"), sep=","):
+    return [sep.join(header)] + [sep.join(f"{v:.9g}" for v in row) for row in zip(t, u, y)]
+
+
+@pytest.mark.parametrize("preamble, sep", [
+    (["LabVIEW Measurement", "Writer_Version\t2", "Date\t2026/11/27", "***End_of_Header***"], "\t"),
+    (["Model,DSO-X 1234", "Record Length,5000,Points", "Sample Interval,0.001,s"], ","),
+    (["Messung: Aktor 3;;", "Operator;bench;"], ";"),
+])
+def test_a_preamble_before_the_table_is_skipped_with_a_note(tmp_path, preamble, sep):
+    """DAQ programs, oscilloscopes and LabVIEW write a block of text before the table: it is
+    skipped, the capture is the same as without it, and the file's own line numbers stay in errors."""
+    t, u, y = sine()
+    plain = tmp_path / "plain.csv"
+    plain.write_text("\n".join(_table_lines(t, u, y, sep=sep)) + "\n")
+    path = tmp_path / "pre.txt"
+    path.write_text("\n".join(preamble + _table_lines(t, u, y, sep=sep)) + "\n")
+    cap, ref = load_capture(path), load_capture(plain)
+    np.testing.assert_array_equal(cap.u, ref.u)
+    np.testing.assert_array_equal(cap.y, ref.y)
+    n = len(preamble)
+    assert any(f"skipped the preamble before the table (lines 1–{n}); the header is line {n + 1}" in note
+               for note in cap.notes), cap.notes
+    lines = path.read_text().splitlines()
+    lines[n + 3] = lines[n + 3].replace(sep, sep + "x", 1)  # a text cell in the third data row
+    path.write_text("\n".join(lines) + "\n")
+    assert f"row {n + 4}" in error_of(path)
+
+
+@pytest.mark.parametrize("case", ["text cell in the first row", "text row inside", "ragged row inside",
+                                  "numbers before a second header"])
+def test_a_bad_row_is_never_taken_for_a_preamble(tmp_path, case):
+    """The rule that finds a preamble leaves a table with a bad row to the reader's own error."""
+    t, u, y = sine()
+    lines = _table_lines(t, u, y)
+    if case == "text cell in the first row":
+        lines[1] = "0,abc,3"
+    elif case == "text row inside":
+        lines[10] = "a,b,c"
+    elif case == "ragged row inside":
+        lines[10] = lines[10] + ",1"
+    else:
+        lines = lines[:6] + ["time_s,voltage_V,displacement_um"] + lines[6:]
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join(lines) + "\n")
+    msg = error_of(path)
+    assert "preamble" not in msg
+    assert not hio._preamble(lines)
+
+
+def test_columns_named_in_another_language_are_found_by_their_unit(tmp_path):
+    t, u, y = sine()
+    path = write_csv(tmp_path / "de.csv", ("Zeit [ms]", "Spannung [V]", "Weg [nm]"), [t * 1e3, u, y])
+    cap = load_capture(path)
+    np.testing.assert_allclose(cap.u, u)
+    assert cap.y_unit == "nm" and cap.dt == pytest.approx(1 / FS)
+    said = " | ".join(cap.notes)
+    assert "column 'Spannung [V]', by the unit in its name" in said and "--input-col" in said
+
+
+def test_a_name_wins_over_a_unit_and_two_columns_of_one_unit_are_an_error(tmp_path):
+    t, u, y = sine()
+    # the alias names the input; 'Monitor [V]' (another voltage) is left alone, no note about it
+    path = write_csv(tmp_path / "a.csv", ("time_s", "Monitor [V]", "voltage_V", "displacement_um"), [t, 2 * u, u, y])
+    cap = load_capture(path)
+    np.testing.assert_allclose(cap.u, u)
+    assert not any("by the unit" in n for n in cap.notes)
+    # no alias: two voltage channels are ambiguous, and the message names both
+    path = write_csv(tmp_path / "b.csv", ("time_s", "Ch1 [V]", "Ch2 [V]", "displacement_um"), [t, u, 2 * u, y])
+    msg = error_of(path)
+    assert "'Ch1 [V]', 'Ch2 [V]'" in msg and "--input-col" in msg
+    # an amplitude column in volts is an amplitude, not the drive
+    path = write_csv(tmp_path / "c.csv", ("time_s", "Amplitude [V]", "Ch1 [V]", "displacement_um"),
+                     [t, np.full_like(t, 2 * A), u, y])
+    np.testing.assert_allclose(load_capture(path).u, u)

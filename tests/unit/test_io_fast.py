@@ -42,6 +42,11 @@ CASES = {
     "decimal commas": lambda s: s.replace(",", ";").replace(".", ","),
     "padded cells": lambda s: s.replace(",", ", "),
     "no header": lambda s: s.split("\n", 1)[1],
+    # an oscilloscope's and a LabVIEW file's preamble before the table's header
+    "preamble": lambda s: "Model,DSO-X 1234\nRecord Length,3000,Points\nSample Interval,0.0001,s\n" + s,
+    "tab preamble": lambda s: "LabVIEW Measurement\nDate\t2026/11/27\n***End_of_Header***\n" + s.replace(",", "\t"),
+    "preamble with a comment": lambda s: "Model,DSO-X 1234\n# exported\nRecord Length,3000,Points\n" + s,
+    "preamble, no header": lambda s: "Model,DSO-X 1234\nRecord Length,3000,Points\n" + s.split("\n", 1)[1],
     # an index column without values, as a real rig's export has (shared/data smarthysteresis)
     "empty first column": lambda s: "idx," + s.replace("\n", "\n,").rstrip(","),
     "missing cells here and there": lambda s: "\n".join(
