@@ -775,7 +775,8 @@ def _select_roles(table: _Table, roles: Sequence[str], specs: Mapping[str, str |
     and unit) in the order of ``roles``; each column serves one role. ``optional`` roles may be
     absent (None); ``fallback`` lets a role accept another role's names when none of its own is
     found. A role none of whose names is found takes the one column whose name gives its unit in
-    brackets (:func:`_unit_column`; said in ``notes``), once every role has had its names. Every
+    brackets (:func:`_unit_column`; said in ``notes``), once every role has had its names (not an
+    ``optional`` role: a file that loaded without it loads as before). Every
     failure is one line naming the file, the column and the fix."""
     chosen: dict[str, int | None] = {}
     for role in roles:
@@ -789,8 +790,8 @@ def _select_roles(table: _Table, roles: Sequence[str], specs: Mapping[str, str |
         seen[i] = role
     for by_unit in (False, True):
         for role in roles:
-            if role in chosen:
-                continue
+            if role in chosen or (by_unit and role in optional):
+                continue  # an optional role (--fs given: no time column needed) is found by its names only
             if by_unit:
                 found = _unit_column(table, role, set(seen))
             else:
