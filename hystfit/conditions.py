@@ -48,6 +48,27 @@ def tidy(x: float, sig: int = 2) -> float:
     return float(f"{x:.{int(sig)}g}")
 
 
+#: Third-order difference with unit gain for white noise: (−1, 3, −3, 1)/√20.
+_D3 = np.array([-1.0, 3.0, -3.0, 1.0]) / math.sqrt(20.0)
+
+
+def white_noise_sigma(x: np.ndarray) -> float:
+    """The standard deviation of the white, sample-to-sample noise in ``x``: 1.4826·MAD of its
+    third-order difference (−1, 3, −3, 1)/√20 (0.0 below 8 samples).
+
+    The difference keeps white noise at unit gain and removes anything smooth (polynomials up to
+    degree two vanish: a drive, a loop's error, creep or drift sampled finely); the median ignores
+    the few samples where ``x`` has a kink or a step. The one home of this estimate: the input's
+    noise (:func:`hystfit.io.idle_samples`, the crossing counts here) and the sensor's noise floor
+    of ``diagnose`` (:func:`hystfit.diagnose.estimate_noise`).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.size < 8:
+        return 0.0
+    d = np.convolve(x, _D3, mode="valid")
+    return 1.4826 * float(np.median(np.abs(d - np.median(d))))
+
+
 def _fundamental_Hz(u: np.ndarray, dt: float) -> float:
     """Frequency (Hz) of the largest non-DC spectral peak of ``u`` sampled every ``dt`` s.
 
@@ -140,8 +161,7 @@ def _crossings(x: np.ndarray) -> int:
     k = np.arange(x.size, dtype=np.float64)
     slope, icept = np.polyfit(k, x, 1)
     e = x - (slope * k + icept)
-    d3 = np.diff(e, 3)
-    half = 3.0 * 1.4826 * float(np.median(np.abs(d3 - np.median(d3)))) / math.sqrt(20.0) if d3.size else 0.0
+    half = 3.0 * white_noise_sigma(e)
     side = np.where(e > half, 1, np.where(e < -half, -1, 0))
     side = side[side != 0]
     return int(np.count_nonzero(side[1:] != side[:-1]))

@@ -39,7 +39,7 @@ import numpy as np
 
 from .capture import Capture
 from .cells import cell_key
-from .conditions import condition_label, detect_condition, group_by_condition
+from .conditions import condition_label, detect_condition, group_by_condition, white_noise_sigma
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, make_effect,
                       prepare_design, scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
@@ -735,10 +735,6 @@ def _fit_segments(c: Capture, fit: np.ndarray) -> list[Capture]:
 #: ``noise.refined`` the floor was refined with the final model's residual).
 NOISE_METHOD_CODE = "mad_third_difference"
 
-#: Third-order difference with unit gain for white noise: (−1, 3, −3, 1)/√20.
-_D3 = np.array([-1.0, 3.0, -3.0, 1.0]) / math.sqrt(20.0)
-
-
 def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
                    periodic: Sequence[bool]) -> dict:
     """Sensor noise floor estimated from the data (output unit), never from the model fit quality.
@@ -773,8 +769,7 @@ def estimate_noise(captures: Sequence[Capture], residuals: Sequence[np.ndarray],
         if r.size < 8:
             per.append(float("nan"))
             continue
-        d = np.convolve(r, _D3, mode="valid")
-        per.append(1.4826 * float(np.median(np.abs(d - np.median(d)))))
+        per.append(white_noise_sigma(r))
     finite = [v for v in per if math.isfinite(v)]
     sigma = float(np.median(finite)) if finite else 0.0
     rep = []

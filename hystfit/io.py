@@ -45,7 +45,7 @@ import numpy as np
 
 from ._process import alive
 from .capture import Capture
-from .conditions import count_cycles, detect_condition, nonstationary_notes
+from .conditions import count_cycles, detect_condition, nonstationary_notes, white_noise_sigma
 from .errors import InputError, OutputError
 
 CAPTURE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".parquet", ".pq")
@@ -1009,14 +1009,27 @@ def _check_time(table: _Table, col: int, t: np.ndarray, rows: np.ndarray) -> flo
     return float((t[-1] - t[0]) / (t.size - 1))
 
 
+#: samples at the start of a capture whose noise and median are the idle level's when the input is noisy
+IDLE_LEVEL_SAMPLES = 64
+#: a noisy input leaves its idle level when it is this many noise standard deviations away from it
+IDLE_NOISE_BAND = 6.0
+
+
 def idle_samples(u: np.ndarray) -> int:
     """Number of leading samples of an idle (constant) input to drop before the excitation.
 
-    The excitation starts at the first sample with ``|u − u[0]| > tol``, ``tol = max(1e-9 V,
-    1e-3·(max u − min u))``. The kept part starts one sample before the input first leaves the
-    idle level: at the last sample before that point equal to ``u[0]`` (to 1e-12 relative) when
-    there is such a sample after ``u[0]``; otherwise (a noisy idle level, or a slow start such as a
-    raised cosine) at the start of the monotone ramp into the first moving sample.
+    The excitation starts at the first sample with ``|u − level| > tol``, ``tol = max(1e-9 V,
+    1e-3·(max u − min u), 6σ)``. σ is the noise of the first :data:`IDLE_LEVEL_SAMPLES` samples
+    (1.4826·MAD of their first differences / √2: a measured amplifier output, not a commanded
+    value, is noisy) when they all lie within 6σ of their median, which is then the level, and
+    their third differences give the same σ within a factor 2
+    (:func:`hystfit.conditions.white_noise_sigma`: white noise does, a coarsely sampled drive not);
+    otherwise (a noise-free input, one that moves at once, a step among them) σ = 0 and the level
+    is ``u[0]``, as for every input before. The
+    kept part starts one sample before the input first leaves the idle level: for a noisy input at
+    the last sample within σ of the level; otherwise at the last sample before that point equal to
+    ``u[0]`` (to 1e-12 relative) when there is such a sample after ``u[0]``, or (a slow start such
+    as a raised cosine) at the start of the monotone ramp into the first moving sample.
 
     Parameters
     ----------
@@ -1028,12 +1041,24 @@ def idle_samples(u: np.ndarray) -> int:
         Samples to drop (0 when the input moves from the start or never moves).
     """
     u = np.asarray(u, dtype=np.float64)
-    dev = np.abs(u - u[0])
-    tol = max(1e-9, 1e-3 * float(u.max() - u.min()))
+    head = u[:IDLE_LEVEL_SAMPLES]
+    level = float(np.median(head))
+    # the noise of a flat start: 1.4826·MAD of its first differences / √2 (0 for an exact level); white
+    # noise gives the same from the third differences, a drive (its curvature) far less
+    step = np.diff(head)
+    sigma = 1.4826 * float(np.median(np.abs(step - np.median(step)))) / math.sqrt(2.0) if step.size else 0.0
+    if (head.size < IDLE_LEVEL_SAMPLES or float(np.max(np.abs(head - level))) > IDLE_NOISE_BAND * sigma
+            or not 0.5 * sigma <= white_noise_sigma(head) <= 2.0 * sigma):
+        sigma, level = 0.0, u[0]  # no flat noisy start (noise-free, or moving at once): the level is u[0]
+    dev = np.abs(u - level)
+    tol = max(1e-9, 1e-3 * float(u.max() - u.min()), IDLE_NOISE_BAND * sigma)
     moving = np.flatnonzero(dev > tol)
     if moving.size == 0:
         return 0
     i = int(moving[0])
+    if sigma > 0.0:  # a noisy level: the last sample within one σ of it
+        near = np.flatnonzero(dev[:i] <= sigma)
+        return int(near[-1]) if near.size else 0
     eps = 1e-12 * max(1.0, float(np.abs(u).max()))
     exact = np.flatnonzero(dev[:i] <= eps)
     j = int(exact[-1])

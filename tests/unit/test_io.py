@@ -797,3 +797,28 @@ def test_a_name_wins_over_a_unit_and_two_columns_of_one_unit_are_an_error(tmp_pa
     path = write_csv(tmp_path / "c.csv", ("time_s", "Amplitude [V]", "Ch1 [V]", "displacement_um"),
                      [t, np.full_like(t, 2 * A), u, y])
     np.testing.assert_allclose(load_capture(path).u, u)
+
+
+def test_a_noisy_idle_input_is_trimmed_and_its_drive_detected(tmp_path):
+    """A measured amplifier output is noisy: 0.5 s at 10 V with 50 mV of noise, then a rising
+    raised cosine at 10 Hz. Before, the noise left the idle segment in (it never stays within the
+    0.1 % band), the spectrum's peak was the step to the drive (0.57 Hz) and the capture was
+    rejected as too short; now the idle part is trimmed within a few noise-widths of the rise."""
+    fs, f = 10_000.0, 10.0
+    rng = np.random.default_rng(7)
+    t_exc = np.arange(int(fs)) / fs
+    u = np.r_[np.full(5000, 10.0), 10.0 + 20.0 * np.minimum(1.0, t_exc / 0.8) * (1 - np.cos(2 * np.pi * f * t_exc))]
+    un = u + rng.normal(0.0, 0.05, u.size)
+    t = np.arange(u.size) / fs
+    cap = load_capture(write_csv(tmp_path / "noisy.csv", ("time_s", "voltage_V", "displacement_um"),
+                                 [t, un, 0.1 * u]))
+    assert abs(cap.frequency_Hz - 10.0) <= 0.2  # before: 0.57 Hz, the step to the drive
+    assert 5000 <= round(cap.trimmed_s * fs) <= 5200  # the rise leaves 6σ = 0.3 V after ≈ 170 samples
+    k = idle_samples(un)
+    assert np.all(np.abs(un[:k] - 10.0) < 6 * 0.05)
+    # noise-free, and noisy but moving at once: as before (the level is u[0], the band 0.1 %)
+    assert idle_samples(u) == 5000  # the raised cosine starts at the idle level: its first sample is u[0]
+    moving = 20.0 * np.sin(2 * np.pi * f * t_exc) + rng.normal(0.0, 0.05, t_exc.size)
+    assert idle_samples(moving) == 0
+    # a step among the first samples is not noise
+    assert idle_samples(np.r_[np.zeros(6), 1.0, np.zeros(60), 1.0, np.zeros(9)]) == 5
