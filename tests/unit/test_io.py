@@ -822,3 +822,40 @@ def test_a_noisy_idle_input_is_trimmed_and_its_drive_detected(tmp_path):
     assert idle_samples(moving) == 0
     # a step among the first samples is not noise
     assert idle_samples(np.r_[np.zeros(6), 1.0, np.zeros(60), 1.0, np.zeros(9)]) == 5
+
+
+def test_float32_time_stamps_are_uniform_within_their_resolution(tmp_path):
+    """A DAQ that logs single precision: at 20 s its stamps are 1.9 µs apart (2 % of a 10 kHz step).
+    Before, such a capture was rejected as non-uniform at its third row."""
+    fs = 10_000.0
+    t = np.arange(int(20 * fs)) / fs
+    u = 30 * (1 - np.cos(2 * np.pi * 2 * t))
+    path = tmp_path / "f32.csv"
+    path.write_text("time_s,voltage_V,displacement_um\n" + "".join(
+        f"{float(a)!r},{b:.9g},{0.2 * b:.9g}\n" for a, b in zip(t.astype(np.float32), u)))
+    cap = load_capture(path)
+    assert cap.dt == pytest.approx(1 / fs, rel=1e-6)
+    # a real gap is still one, float32 or not
+    keep = np.r_[0:1000, 1001:t.size]
+    path.write_text("time_s,voltage_V,displacement_um\n" + "".join(
+        f"{float(a)!r},{b:.9g},{0.2 * b:.9g}\n" for a, b in zip(t.astype(np.float32)[keep], u[keep])))
+    assert "not uniform" in error_of(path)
+
+
+def test_time_rounded_coarser_than_the_sampling_says_so_and_fs_takes_over(tmp_path):
+    fs = 10_000.0
+    t = np.arange(int(2 * fs)) / fs
+    u = 30 * (1 - np.cos(2 * np.pi * 5 * t))
+    path = tmp_path / "ms.csv"
+    path.write_text("time_s,voltage_V,displacement_um\n" + "".join(
+        f"{a:.3f},{b:.9g},{0.2 * b:.9g}\n" for a, b in zip(t, u)))
+    msg = error_of(path)
+    assert "rounded to 0.001 s, coarser than the sampling" in msg and "--fs" in msg
+    cap = load_capture(path, LoadOptions(fs=fs))
+    assert cap.dt == pytest.approx(1 / fs)
+    assert any("the time column is not used, the sample rate is --fs 10000 Hz" in n for n in cap.notes)
+    # shuffled rows stay the error they were
+    rows = path.read_text().splitlines()
+    rows[5], rows[6] = rows[6], rows[5]
+    path.write_text("\n".join(rows) + "\n")
+    assert "sort the rows" in error_of(path)
