@@ -403,6 +403,25 @@ def _is_number_or_empty(cell: str) -> bool:
     return True
 
 
+def _unit_row(cells: Sequence[str]) -> bool:
+    """Whether a row under the names is their units (``s, V, um`` or ``[s], [V], [µm]``): every
+    non-empty cell a unit some role knows, in brackets or not, and at least one."""
+    known = {u for units in _UNITS.values() for u in units}
+    texts = [c.strip().strip('"').strip() for c in cells]
+    texts = [t[1:-1].strip() if len(t) > 1 and t[0] in "[({" and t[-1] in "])}" else t for t in texts]
+    return any(texts) and all(not t or t.lower() in known for t in texts)
+
+
+def _with_units(names: Sequence[str], units: Sequence[str]) -> list[str]:
+    """Names and a unit row merged as ``name [unit]`` (a name without a unit stays as it is)."""
+    out = []
+    for n, u in zip(names, units):
+        u = u.strip().strip('"').strip()
+        u = u[1:-1].strip() if len(u) > 1 and u[0] in "[({" and u[-1] in "])}" else u
+        out.append(f"{n.strip()} [{u}]" if u else n.strip())
+    return out
+
+
 #: most lines a preamble may have, and the lines of the table after it that decide its shape
 PREAMBLE_MAX_LINES = 100
 _PREAMBLE_TABLE_LINES = 20
@@ -416,7 +435,9 @@ def _preamble(lines: list[str]) -> int:
     ``lines``: the file's first lines, blank and ``#`` comment lines removed. The table's shape is
     that of its last line, a data row: a number of cells, every one a number (a decimal comma too
     where the delimiter is not a comma) or empty. Its header is the last line before it with as
-    many cells, none of them a number; everything before the header is the preamble, when it holds
+    many cells, none of them a number (with the line before it when the header holds only units: the
+    names, then their units, ``Time;Voltage`` over ``s;V``); everything before the header is the
+    preamble, when it holds
     no data row and is at most :data:`PREAMBLE_MAX_LINES` lines. So a bad row among the data (a
     text cell, a ragged or an all-text row) is never taken for a preamble: it is read as part of
     the table, whose reader names it by its line in the file — after the header (still a table),
@@ -446,6 +467,8 @@ def _preamble(lines: list[str]) -> int:
     if width < 2 or not data_row(rows[-1]):
         return 0
     h = max((i for i, c in enumerate(rows[:-1]) if header_row(c)), default=0)
+    if h >= 1 and _unit_row(rows[h]) and header_row(rows[h - 1]) and not _unit_row(rows[h - 1]):
+        h -= 1  # names, then their units: the header is two lines
     if h == 0 or h > PREAMBLE_MAX_LINES or any(data_row(c) for c in rows[:h]):
         return 0
     return h
@@ -600,6 +623,10 @@ def _read_text(path: Path, label: str, no_header: bool) -> _Table:
     if not no_header and not header_auto:
         names = [c.strip() for c in first]
         df, rows = df.iloc[1:], rows[1:]
+        if len(df) > 1 and _unit_row([str(c) for c in df.iloc[0]]):  # the names, then their units
+            names = _with_units(names, [str(c) for c in df.iloc[0]])
+            notes = notes + (f"line {rows[0]} holds the columns' units: read as {', '.join(map(repr, names))}",)
+            df, rows = df.iloc[1:], rows[1:]
         if df.empty:
             raise InputError(f"{label}: the file has a header row but no data rows; pass a capture with data")
     # rows with every cell empty at the end of the file (a trailing ",,," line) are not data

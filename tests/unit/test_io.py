@@ -859,3 +859,19 @@ def test_time_rounded_coarser_than_the_sampling_says_so_and_fs_takes_over(tmp_pa
     rows[5], rows[6] = rows[6], rows[5]
     path.write_text("\n".join(rows) + "\n")
     assert "sort the rows" in error_of(path)
+
+
+@pytest.mark.parametrize("preamble", ["", "DIAdem export\nchannel group;main\n"])
+def test_names_over_units_make_one_header(tmp_path, preamble):
+    """Exports that write the names, then the units on the next line (DIAdem, LabVIEW, spreadsheets)."""
+    t, u, y = sine()
+    path = tmp_path / "two.csv"
+    body = "".join(f"{a * 1e3:.9g};{b:.9g};{c * 1e3:.9g}\n" for a, b, c in zip(t, u, y))
+    path.write_text(preamble + "Time;Spannung;Weg\n[ms];[V];[nm]\n" + body)
+    cap = load_capture(path)
+    np.testing.assert_allclose(cap.u, u)
+    assert cap.y_unit == "nm" and cap.dt == pytest.approx(1 / FS)
+    assert any("holds the columns' units: read as 'Time [ms]', 'Spannung [V]', 'Weg [nm]'" in n for n in cap.notes)
+    # a row of text that is not units stays the error it was
+    path.write_text(preamble + "Time;Spannung;Weg\nfoo;bar;baz\n" + body)
+    assert "foo" in error_of(path) or "bar" in error_of(path)

@@ -47,6 +47,9 @@ CASES = {
     "tab preamble": lambda s: "LabVIEW Measurement\nDate\t2026/11/27\n***End_of_Header***\n" + s.replace(",", "\t"),
     "preamble with a comment": lambda s: "Model,DSO-X 1234\n# exported\nRecord Length,3000,Points\n" + s,
     "preamble, no header": lambda s: "Model,DSO-X 1234\nRecord Length,3000,Points\n" + s.split("\n", 1)[1],
+    # the names, then their units (DIAdem, LabVIEW and spreadsheet exports)
+    "unit row": lambda s: "Time,Voltage,Position\ns,V,um\n" + s.split("\n", 1)[1],
+    "preamble and unit row": lambda s: "Model,X\nTime,Voltage,Position\n[s],[V],[um]\n" + s.split("\n", 1)[1],
     # an index column without values, as a real rig's export has (shared/data smarthysteresis)
     "empty first column": lambda s: "idx," + s.replace("\n", "\n,").rstrip(","),
     "missing cells here and there": lambda s: "\n".join(
