@@ -97,7 +97,7 @@ def _play_recurrence(u, r, state0):
     return out
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bw_segment(h, dv, a, c):
     """Exact solution of dh/dv = a − c·h over an interval dv ≥ 0 (c may be 0 or negative)."""
     x = c * dv
@@ -107,7 +107,7 @@ def _bw_segment(h, dv, a, c):
     return h * e + a * (1.0 - e) / c
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bw_advance(h, du, a, beta, gamma):
     """Advance the Bouc–Wen state h (n = 1) exactly over one straight input segment du."""
     if du == 0.0:
@@ -146,9 +146,21 @@ _BW_SERIES11_MAX = 0.35
 # use no fastmath flags: a compiler that fuses or reorders by itself does so differently in each
 # context a helper is compiled in (alone, or inlined into each caller), and the last bits then
 # depended on which compiled copy a process ran (see :class:`hystfit._jit._Fma`).
+#
+# Compile time (a first run after installing compiles them; the test suite on a clean checkout
+# too). numba's IR-level inlining (``inline="always"``) deep-copies the callee's IR at every call
+# site, block by block and each block with the whole variable scope, a cost that grows faster
+# than the callee's size: with the whole time loop inlined into the block kernel once per mode,
+# compiling that kernel took ≈ 45 s, and the serial and threaded callers each compiled their own
+# (``_bw_serial`` passed p0 as a literal 0, another argument type).
+# Now: the scalar helpers (no arrays) are plain kernels, which LLVM inlines into the loops that
+# call them (the same IEEE operations, so the same bits); only the helpers that take arrays are
+# inlined by numba; the time loop is one kernel compiled once per ``mode`` (a constant at each
+# call: numba types it as a literal and makes one specialisation per value, whose mode tests
+# LLVM folds); and the serial variant is :func:`_bw_block` itself, called from Python.
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bw_phi11(x):
     """φ(x) = (1 − e^{−x})/x for |x| ≤ 0.35 by its series to x¹¹ (error < 6e-16)."""
     mx = -x
@@ -165,7 +177,7 @@ def _bw_phi11(x):
     return fma(mx, r, 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bw_coefs7(dv):
     """q_j = dv^{j+1}/(j+1)!, j = 0..7: ψ(c) = dv·φ(c·dv) = Σ_j (−c)^j·q_j."""
     q0 = dv
@@ -179,7 +191,7 @@ def _bw_coefs7(dv):
     return (q0, q1, q2, q3, q4, q5, q6, q7)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bw_coefs11(q, dv):
     """q_j = dv^{j+1}/(j+1)!, j = 0..11, from those to j = 7 (``q``)."""
     q8 = q[7] * dv * (1.0 / 9)
@@ -189,32 +201,46 @@ def _bw_coefs11(q, dv):
     return (q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7], q8, q9, q10, q11)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bw_neg(x):
     """Sign bit of x (set for −0.0): compiles to a bit test, not a floating-point comparison."""
     return math.copysign(1.0, x) < 0.0
 
 
-@njit(cache=True, inline="always")
-def _bw_next(kind, h, mcp, mcn, sa, q, psi):
+@njit(cache=True)
+def _bw_next7(h, mcp, mcn, sa, q):
     """Exact Bouc–Wen update of one state h over one input segment, branch-free.
 
     With s = sgn(Δu), v = |Δu|, the equation along the segment is dh/dv = s·a − c·h with
     c = β + s·γ·sgn(h) (n = 1), solved exactly: h₁ = h + (s·a − c·h)·ψ, ψ = v·φ(c·v) =
     (1 − e^{−cv})/c. −c is ``mcp`` = −(β + sγ) for h ≥ +0 and ``mcn`` = −(β − sγ) for h ≤ −0
     (by the sign bit, as the exact redo reads the sign of a zero state); ``sa`` = s·a.
-    ψ by its series Σ_j (−c)^j·q_j to degree ``kind`` (7 or 11; q from :func:`_bw_coefs7`,
-    :func:`_bw_coefs11`), or ``psi`` (kind 0: computed beforehand). Valid while the sign bit of
-    h does not change; the caller redoes the other candidates.
+    ψ by its series Σ_j (−c)^j·q_j to degree 7 (q from :func:`_bw_coefs7`; :func:`_bw_next11`:
+    degree 11, :func:`_bw_next0`: ψ computed beforehand). Valid while the sign bit of h does
+    not change; the caller redoes the other candidates.
     """
     mc = mcn if _bw_neg(h) else mcp
-    if kind == 0:
-        f = psi
-    else:  # Horner, one fused multiply–add per degree (degrees 11…8 only for kind 11)
-        f = q[7] if kind == 7 else fma(mc, fma(mc, fma(mc, fma(mc, q[11], q[10]), q[9]), q[8]), q[7])
-        for j in (6, 5, 4, 3, 2, 1, 0):
-            f = fma(mc, f, q[j])
+    f = q[7]
+    for j in (6, 5, 4, 3, 2, 1, 0):  # Horner, one fused multiply–add per degree
+        f = fma(mc, f, q[j])
     return fma(fma(mc, h, sa), f, h)
+
+
+@njit(cache=True)
+def _bw_next11(h, mcp, mcn, sa, q):
+    """:func:`_bw_next7` with the series of ψ to degree 11 (q from :func:`_bw_coefs11`)."""
+    mc = mcn if _bw_neg(h) else mcp
+    f = fma(mc, fma(mc, fma(mc, fma(mc, q[11], q[10]), q[9]), q[8]), q[7])
+    for j in (6, 5, 4, 3, 2, 1, 0):
+        f = fma(mc, f, q[j])
+    return fma(fma(mc, h, sa), f, h)
+
+
+@njit(cache=True)
+def _bw_next0(h, mcp, mcn, sa, psi):
+    """:func:`_bw_next7` with ψ = ``psi`` computed beforehand (:func:`_bw_psi_halved`)."""
+    mc = mcn if _bw_neg(h) else mcp
+    return fma(fma(mc, h, sa), psi, h)
 
 
 #: what a Bouc–Wen block kernel produces
@@ -252,7 +278,7 @@ def _bw_regimes(alpha, beta, gamma, p0, p1):
     return a, be, ga, sa, mcp, mcn, cabs_max
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bw_series_kind(xmax, dv):
     """Series of ψ for a sample whose largest argument is ``xmax`` = max|c|·Δv: 7, 11 or 0 (halving)."""
     kind = 7 if xmax <= _BW_SERIES_MAX else (11 if xmax <= _BW_SERIES11_MAX else 0)
@@ -261,7 +287,7 @@ def _bw_series_kind(xmax, dv):
     return kind
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bw_psi_halved(F, X, H, c, mcp, mcn, j, dv, xmax):
     """ψ = Δv·φ(c·Δv) per candidate into ``F`` for a large argument: c·Δv is halved ``nsq`` times
     to ≤ 0.35, φ by :func:`_bw_phi11`, then φ(2x) = φ(x)·(1 + e^{−x})/2 with e^{−x} = 1 − x·φ(x)
@@ -300,31 +326,37 @@ def _bw_take(mode, i, kvi, hn, offi, bad, uk, yk, acc, out, k, p0):
         acc[1][i] = fma(hm, uk, acc[1][i])
         acc[2][i] += hm
         acc[3][i] = fma(hm, yk, acc[3][i])
-    else:
-        out[k, p0 + i] = fma(kvi, uk, hn) + offi
+    else:  # an unsigned column index: no test for a negative one in the candidate loop
+        out[k, np.uint64(p0) + np.uint64(i)] = fma(kvi, uk, hn) + offi
 
 
 @njit(cache=True, inline="always")
 def _bw_candidate(mode, kind, i, H, c, sa, mcp, mcn, j, q, F, uk, yk, k_v, off, acc, out, k, p0):
-    """Advance candidate i by one sample (:func:`_bw_next`, series ``kind``) from row c of ``H``
-    into row 1 − c and add its contribution (:func:`_bw_take`); True when its state changed its
+    """Advance candidate i by one sample (:func:`_bw_next7`, :func:`_bw_next11` or
+    :func:`_bw_next0` by the series ``kind``, a constant at each call) from row c of ``H`` into row 1 − c and add its contribution (:func:`_bw_take`); True when its state changed its
     sign bit (then it is left out of the sums and redone)."""
     hi = H[c, i]
-    hn = _bw_next(kind, hi, mcp[j, i], mcn[j, i], sa[j, i], q, F[i])
+    if kind == 7:
+        hn = _bw_next7(hi, mcp[j, i], mcn[j, i], sa[j, i], q)
+    elif kind == 11:
+        hn = _bw_next11(hi, mcp[j, i], mcn[j, i], sa[j, i], q)
+    else:
+        hn = _bw_next0(hi, mcp[j, i], mcn[j, i], sa[j, i], F[i])
     H[1 - c, i] = hn
     bad = _bw_neg(hi) != _bw_neg(hn)
     _bw_take(mode, i, k_v[i], hn, off[i], bad, uk, yk, acc, out, k, p0)
     return bad
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bw_time_loop(mode, u, y, H, X, F, a, be, ga, sa, mcp, mcn, cabs_max, k_v, off, acc, out, p0):
-    """The time loop of :func:`_bw_block`, inlined once per ``mode`` (a constant there, so every
-    candidate loop is specialised). Arrays are handed to helpers only outside the time loop and
-    inside the candidate loops (where numba prunes the reference counting); the one exception,
-    :func:`_bw_psi_halved`, runs only for large input steps."""
+    """The time loop of :func:`_bw_block`, compiled once per ``mode``: the callers pass it as a
+    constant, which numba types as a literal (one specialisation per value, in which the mode
+    tests are constants), so every candidate loop is specialised. Arrays are handed to helpers
+    only outside the time loop and inside the candidate loops (where numba prunes the reference
+    counting); the one exception, :func:`_bw_psi_halved`, runs only for large input steps."""
     m = F.shape[0]
-    c = 0
+    c = np.int64(0)  # not a literal 0: helpers are compiled for one type of row index
     has_y = mode != _BW_STATES
     for k in range(u.shape[0]):
         uk = u[k]
@@ -374,7 +406,7 @@ def _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, p0, p1):
       parameters that enter linearly, see :meth:`hystfit.models.bw.BoucWen.separable`).
 
     Per sample (:func:`_bw_time_loop`), every candidate's state is advanced exactly by
-    :func:`_bw_next` and its contribution to the output is added in the same loop
+    :func:`_bw_next7` (or its degree-11 and halved-ψ variants) and its contribution to the output is added in the same loop
     (:func:`_bw_candidate`; contiguous arrays, branch-free: the loops vectorize across
     candidates). ψ comes from one series chosen for the whole block by the largest argument
     max|c|·|Δu|: degree 7 up to 0.1, degree 11 up to 0.35; beyond, :func:`_bw_psi_halved`. A
@@ -431,8 +463,10 @@ def candidate_block(b, n_blocks, P):
     return p0, min(P, p0 + size)
 
 
-@njit(cache=True)
 def _bw_serial(u, y, kv, alpha, beta, gamma, y0, mode, out):
+    """:func:`_bw_block` over the whole population, in this thread. Not a kernel of its own: a
+    compiled caller would optimise and generate the machine code of the whole Bouc–Wen kernel
+    once more (numba links a kernel's callees into it), ≈ 3 s of a first run."""
     _bw_block(u, y, kv, alpha, beta, gamma, y0, mode, out, 0, alpha.shape[0])
 
 

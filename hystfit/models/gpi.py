@@ -123,6 +123,16 @@ def same_state(s, s_prev):
 
 
 @njit(cache=True)
+def copy_state(dst, src):
+    """dst[:, :] = src, element by element: numpy's slice assignment makes numba compile its error
+    message for mismatched shapes (the shapes as text: numba's string machinery, ≈ 8 s of CPU in
+    a first run after installing, more than the rest of the gPI kernel)."""
+    for j in range(src.shape[0]):
+        for i in range(src.shape[1]):
+            dst[j, i] = src[j, i]
+
+
+@njit(cache=True)
 def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, p1, period):
     """z of :func:`gpi_population` for the candidates p0:p1: into out (N, P), or — when ``y`` is
     non-empty — its moments Σz², Σz, Σz·y into out[p, 0:3] (no (N, P) array). With ``index`` (N,)
@@ -150,7 +160,7 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
                     for i in range(m):
                         out[kk, p0 + i] = out[kk - period, p0 + i]
                 break
-            s_prev[:, :] = s
+            copy_state(s_prev, s)
         gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
         gpi_play(r, q, s, gl, gr, acc)
         if moments:
@@ -166,9 +176,10 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
         store_sums(out, p0, (sums[0], sums[1], sums[2]), 3)
 
 
-@njit(cache=True)
 def _gpi_serial(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, period, block):
-    """:func:`_gpi_block` over consecutive blocks of ``block`` candidates (bounds the tables)."""
+    """:func:`_gpi_block` over consecutive blocks of ``block`` candidates (bounds the tables), in
+    this thread. Not a kernel of its own: a compiled caller would optimise and generate the machine
+    code of the whole gPI kernel once more (numba links a kernel's callees into it)."""
     P = a1.shape[0]
     for p0 in range(0, P, block):
         _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, n, out, p0, min(P, p0 + block),

@@ -22,7 +22,7 @@ from .composite import Composite
 from .pi import PI
 from .separable import scaled_response
 from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_tables, gpi_envelopes_at, gpi_operators, gpi_play,
-                  input_levels, input_period, same_state)
+                  copy_state, input_levels, input_period, same_state)
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
 
@@ -87,7 +87,7 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
     for k in range(N):
         if repeats and not copying and k > 0 and k % period == 0:
             copying = k >= 2 * period and same_state(s, s_prev)
-            s_prev[:, :] = s
+            copy_state(s_prev, s)
         if copying:
             for i in range(m):
                 z[i] = z_period[k % period, i]
@@ -137,10 +137,10 @@ def _gpi2_parallel(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alp
                         n, mode, out, p0, p1, period)
 
 
-@njit(cache=True)
 def _gpi2_serial(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
                  mode, out, period, block):
-    """:func:`_gpi2_block` over consecutive blocks of ``block`` candidates (bounds the envelope tables)."""
+    """:func:`_gpi2_block` over consecutive blocks of ``block`` candidates (bounds the envelope
+    tables), in this thread; not a kernel of its own (see :func:`~hystfit.models.gpi._gpi_serial`)."""
     P = a1.shape[0]
     for p0 in range(0, P, block):
         _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, rho, y0, f0, f1, f2, g1, g2, n,
