@@ -1965,7 +1965,7 @@ def _design(caps: Sequence[Capture], settings: "DiagnoseSettings", per_condition
         masks = interior_masks(caps, periodic, settings.fit_fraction)
     else:
         masks = fit_masks(caps, periodic, settings.fit_fraction)
-    views = [CaptureView(c.t, c.dt, c.y, m, float(c.frequency_Hz), p, i)
+    views = [CaptureView(c.t, c.dt, c.y, m, float(c.frequency_Hz), p, i, c.u)
              for i, (c, m, p) in enumerate(zip(caps, masks, periodic))]
     group_idx, labels, conds, group_of = _groups(caps, per_condition)
     return _Design(tuple(periodic), tuple(swept), split, tuple(views), tuple(group_idx), tuple(labels),

@@ -78,6 +78,8 @@ class CaptureView:
     frequency_Hz : excitation frequency of the capture (Hz), the loader's condition value.
     periodic : whether the input repeats with period 1/frequency_Hz.
     index : position of the capture in the data set (per-capture coefficients use it).
+    u : (N,) the input (V), or None where the caller did not give it (an effect whose structure
+        needs it then falls back, see :meth:`hystfit.blocks.asymmetry.Asymmetry.configure`).
     """
 
     t: np.ndarray
@@ -87,6 +89,7 @@ class CaptureView:
     frequency_Hz: float = float("nan")
     periodic: bool = False
     index: int = 0
+    u: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -100,7 +103,7 @@ class CaptureView:
 
     def head(self, n: int) -> "CaptureView":
         """The first ``n`` samples (same sample period and flags)."""
-        return replace(self, t=self.t[:n], y=self.y[:n], fit=self.fit[:n])
+        return replace(self, t=self.t[:n], y=self.y[:n], fit=self.fit[:n], u=None if self.u is None else self.u[:n])
 
 
 @dataclass(frozen=True)

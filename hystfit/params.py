@@ -74,6 +74,12 @@ class DataScale:
     #: recorded (:attr:`rate_max` then stands in, as it did). See
     #: :func:`hystfit.blocks.base.frequency_of_excitation`.
     drive_rate_max: float | None = None
+    #: the span of the output that follows the hysteresis (:func:`output_span`): :attr:`y_min`…
+    #: :attr:`y_max` without the overshoot and ringing of a stage after a step or a PRBS edge. None
+    #: in files written before it was recorded (:attr:`y_min`/:attr:`y_max` then stand in, as they
+    #: did). The asymmetry block's middle and half-range come from it.
+    y_span_min: float | None = None
+    y_span_max: float | None = None
 
     @property
     def u_range(self) -> float:
@@ -82,6 +88,13 @@ class DataScale:
     @property
     def y_range(self) -> float:
         return max(self.y_max - self.y_min, 1e-12)
+
+    @property
+    def y_span(self) -> tuple[float, float]:
+        """(:attr:`y_span_min`, :attr:`y_span_max`); the output's range where they were not recorded."""
+        if self.y_span_min is None or self.y_span_max is None:
+            return self.y_min, self.y_max
+        return self.y_span_min, self.y_span_max
 
     @property
     def u_abs_max(self) -> float:
@@ -108,8 +121,9 @@ class DataScale:
                 cov += float(np.dot(u - u.mean(), y - y.mean()))
         duration = max(len(u) * dt for u, dt in zip(us, dts))
         drive = None if frequencies_Hz is None else smooth_drive_rate(us, dts, frequencies_Hz)
+        lo, hi = output_span(us, ys, dts, frequencies_Hz)
         return cls(float(u_all.min()), float(u_all.max()), float(y_all.min()), float(y_all.max()),
-                   float(min(dts)), max(rate, 1e-12), -1.0 if cov < 0 else 1.0, float(duration), drive)
+                   float(min(dts)), max(rate, 1e-12), -1.0 if cov < 0 else 1.0, float(duration), drive, lo, hi)
 
 
 #: a capture counts as smoothly driven at its frequency f while its peak input rate is at most this
@@ -118,19 +132,85 @@ class DataScale:
 SMOOTH_DRIVE_RATE = 3.0
 
 
+def _smooth_drive(u: np.ndarray, dt: float, frequency_Hz: float | None) -> float | None:
+    """The peak input rate (V/s) of ``u`` when it is a smooth periodic drive at ``frequency_Hz``
+    (:data:`SMOOTH_DRIVE_RATE`), else None."""
+    u = np.asarray(u, float)
+    f = frequency_Hz
+    if f is None or not (np.isfinite(f) and f > 0) or u.size < 2:
+        return None
+    span = float(np.nanmax(u) - np.nanmin(u))
+    rate = float(np.nanmax(np.abs(np.diff(u)))) / dt
+    return rate if span > 0 and rate <= SMOOTH_DRIVE_RATE * math.pi * float(f) * span else None
+
+
 def smooth_drive_rate(us: Sequence[np.ndarray], dts: Sequence[float], frequencies_Hz: Sequence[float]) -> float:
     """The peak input rate (V/s) among the captures whose input is a smooth periodic drive at their
     frequency in ``frequencies_Hz`` (:data:`SMOOTH_DRIVE_RATE`); 0.0 when there is none."""
-    best = 0.0
-    for u, dt, f in zip(us, dts, frequencies_Hz):
-        u = np.asarray(u, float)
-        if f is None or not (np.isfinite(f) and f > 0) or u.size < 2:
+    rates = [_smooth_drive(u, dt, f) for u, dt, f in zip(us, dts, frequencies_Hz)]
+    return max([r for r in rates if r is not None], default=0.0)
+
+
+#: the samples within this fraction of the input range from the input's lowest or highest value
+#: are "at an extreme" (:func:`output_span`); on a sine that is 9 % of each period
+EXTREME_INPUT_BAND = 0.02
+
+
+def output_span(us: Sequence[np.ndarray], ys: Sequence[np.ndarray], dts: Sequence[float],
+                frequencies_Hz: Sequence[float] | None = None,
+                masks: Sequence[np.ndarray] | None = None) -> tuple[float, float]:
+    """The span (lowest, highest) of the output that follows the hysteresis: the output's range
+    over the captures driven smoothly (a sine, a raised cosine, a triangle, a rising-amplitude sine
+    at its frequency in ``frequencies_Hz``; :data:`SMOOTH_DRIVE_RATE`), widened to the output's
+    levels where the input is at its extremes — per capture, the median of the output over its
+    samples within :data:`EXTREME_INPUT_BAND` of the input range from the lowest or the highest
+    input of all the captures. ``masks``: per capture, the samples to use (default: all); whether a
+    capture is driven smoothly is judged on all of its input.
+
+    Why: a stage after the hysteresis overshoots after a step and rings on a PRBS; the output's
+    own range then holds excursions the hysteresis — the signal a block after it sees — never
+    makes (the blind campaign, seed 9090 at strength 2 with its 600 Hz stage: the 0…60 V PRBS
+    spans −24.7…48.6 µm, the raised cosines 0.19…21.2 µm). A smooth drive excites no ringing, so
+    its output's range is the hysteresis's span, the start from rest included; the levels at the
+    input's extremes add what only the steps or the PRBS reach (a hysteresis output is at its
+    extreme where its input is: a play operator at the input's maximum sits at u_max − r whatever
+    came before; at the minimum it depends on whether the input has been up before, so a capture
+    that starts from rest is lower there once), taken as the median over the time the input dwells
+    there — the settled level, whatever the stage rings. Without a smooth capture (steps, PRBS, a capture that jumps onto its
+    drive, no drive frequency known) the levels alone give the span.
+    """
+    us = [np.asarray(u, float) for u in us]
+    ys = [np.asarray(y, float) for y in ys]
+    freqs = [None] * len(us) if frequencies_Hz is None else list(frequencies_Hz)
+    masks = [None] * len(us) if masks is None else list(masks)
+    lows, highs, parts = [], [], []
+    for u, y, dt, f, m in zip(us, ys, dts, freqs, masks):
+        if u.size != y.size:
             continue
-        span = float(np.nanmax(u) - np.nanmin(u))
-        rate = float(np.nanmax(np.abs(np.diff(u)))) / dt
-        if span > 0 and rate <= SMOOTH_DRIVE_RATE * math.pi * float(f) * span:
-            best = max(best, rate)
-    return best
+        smooth = _smooth_drive(u, dt, f) is not None
+        if m is not None:
+            u, y = u[m], y[m]
+        ok = np.isfinite(u) & np.isfinite(y)
+        u, y = u[ok], y[ok]
+        if not u.size:
+            continue
+        parts.append((u, y))
+        if smooth:
+            lows.append(float(y.min()))
+            highs.append(float(y.max()))
+    if not parts:
+        y_all = np.concatenate(ys)
+        return float(np.nanmin(y_all)), float(np.nanmax(y_all))
+    u_lo = min(float(u.min()) for u, _ in parts)
+    u_hi = max(float(u.max()) for u, _ in parts)
+    band = EXTREME_INPUT_BAND * (u_hi - u_lo)
+    for u, y in parts:
+        for at in (u <= u_lo + band, u >= u_hi - band):
+            if at.any():
+                level = float(np.median(y[at]))
+                lows.append(level)
+                highs.append(level)
+    return min(lows), max(highs)
 
 
 #: A value within this fraction of its search width from a bound is "at the bound": the search

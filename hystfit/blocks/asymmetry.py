@@ -8,7 +8,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..effects import EffectParam
-from ..params import DataScale, Param
+from ..params import DataScale, Param, output_span
 from ..registry import blocks
 from .base import Block
 
@@ -31,10 +31,10 @@ class Asymmetry(Block):
 
     .. math:: y = x + a_2\,(q^2 - 1) + a_3\,(q^3 - q),\qquad q = (x - m)/h
 
-    m and h the middle and half-range of the measured output (structure, set from the data), so
-    a₂ and a₃ are in output units and both terms vanish at the stroke ends q = ±1: the map bends
-    the curve between fixed end points. −a₂ is the bow at mid-stroke (a₂ < 0: the middle bulges
-    up, saturation), a₃ a skew (stiffening at one end).
+    m and h the middle and half-range of the span the block's input covers (structure, set from the
+    data: :func:`hystfit.params.output_span`), so a₂ and a₃ are in output units and both terms
+    vanish at the stroke ends q = ±1: the map bends the curve between fixed end points. −a₂ is the
+    bow at mid-stroke (a₂ < 0: the middle bulges up, saturation), a₃ a skew (stiffening at one end).
 
     Why this form: the classical PI model's loops are point-symmetric (ascending and descending
     branches are the same curve rotated by 180°). A static map after the hysteresis — the form
@@ -51,7 +51,14 @@ class Asymmetry(Block):
     Structure
     ---------
     center, half_range : m and h (output unit); by default (None) the middle and half of the
-        identification data's output range.
+        identification data's output span (:attr:`hystfit.params.DataScale.y_span`; diagnose: of
+        the fit part, by the same rule): the output range of the smoothly driven captures, widened
+        to the output's settled levels where the input is at its extremes. Not the output's range:
+        a stage after the hysteresis overshoots after a step and rings on a PRBS, and h taken from
+        those excursions spread the bow over inputs the block never sees and made the coefficient
+        box (∝ h, while the coefficients needed grow ∝ h²) bind — seed 9090 at strength 2: h
+        36.6 µm instead of 10.5 µm, a₂ at its bound −10.99 µm. A params.json's stored m, h are
+        kept (files written before this rule load with the numbers they were fitted with).
 
     Inverse: monotone static inverse, per sample (Newton steps safeguarded by bisection on the
     bracket of the output range).
@@ -80,14 +87,24 @@ class Asymmetry(Block):
         return 1.0 if self.half_range is None else float(self.half_range)
 
     # ------------------------------------------------------------------ structure
+    def spanning(self, lo: float, hi: float) -> "Asymmetry":
+        """The block with m, h spanning the levels ``lo``…``hi`` where they are not set (the
+        structure given — an option, or a params.json's — wins)."""
+        return replace(self, center=0.5 * (lo + hi) if self.center is None else self.center,
+                       half_range=max(0.5 * (hi - lo), 1e-12) if self.half_range is None else self.half_range)
+
     def configure(self, views, yhats):
+        """m, h from the fit part of the captures, by the rule :meth:`adapt` applies to the
+        identification data (:func:`hystfit.params.output_span`); views without their input (callers
+        that build them so) give the range of the fit part's output."""
+        if all(v.u is not None for v in views):
+            return self.spanning(*output_span([v.u for v in views], [v.y for v in views], [v.dt for v in views],
+                                              [v.frequency_Hz for v in views], [v.fit for v in views]))
         ys = np.concatenate([v.y[v.fit] for v in views])
-        lo, hi = float(ys.min()), float(ys.max())
-        return replace(self, center=0.5 * (lo + hi), half_range=max(0.5 * (hi - lo), 1e-12))
+        return self.spanning(float(ys.min()), float(ys.max()))
 
     def adapt(self, scale: DataScale) -> "Asymmetry":
-        return replace(self, center=0.5 * (scale.y_min + scale.y_max) if self.center is None else self.center,
-                       half_range=0.5 * scale.y_range if self.half_range is None else self.half_range)
+        return self.spanning(*scale.y_span)
 
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         b = MAX_COEF * self.h
@@ -98,8 +115,8 @@ class Asymmetry(Block):
     def param_table(self):
         return (EffectParam("a2", "out", "linear", "quadratic bow: −a2 is the bow at mid-stroke"),
                 EffectParam("a3", "out", "linear", "cubic skew"),
-                EffectParam("center", "out", "fixed", "middle of the measured output range"),
-                EffectParam("half_range", "out", "fixed", "half the measured output range"))
+                EffectParam("center", "out", "fixed", "middle of the output's span (hysteresis, without ringing)"),
+                EffectParam("half_range", "out", "fixed", "half the output's span (hysteresis, without ringing)"))
 
     def layout(self):
         return 2, 0
