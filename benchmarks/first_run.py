@@ -4,12 +4,13 @@ Run:  python benchmarks/first_run.py [--tree PATH] -- identify sample_data/a20V_
       python benchmarks/first_run.py -- compare sample_data/a20V_f10Hz.csv sample_data/a40V_f40Hz.csv \\
           --models all --opts auto --no-plots --jobs 1
 
-The command runs once in a fresh process (``PYTHONPATH`` = ``--tree``, default this checkout) with
-an empty numba cache directory, as on a machine where hystfit was just installed or upgraded (numba
-keys its cache on the source files, so every upgrade is a first run). Printed: the command's wall
-time, the seconds numba spent compiling each of hystfit's kernels (a kernel compiled inside another
-is counted in the outer one only) and how many times each was compiled — more than once means
-several argument types, e.g. read-only and writable arrays (:func:`hystfit._jit.readonly`).
+The command runs once in a fresh process in ``--tree`` (default this checkout: its hystfit runs, and
+relative paths are read there) with an empty numba cache directory, as on a machine where hystfit was
+just installed or upgraded (numba keys its cache on the source files, so every upgrade is a first run).
+Printed: the command's wall time, the seconds numba spent compiling each of hystfit's kernels (a
+kernel compiled inside another is counted in the outer one only) and how many times each was
+compiled — more than once means several argument types, e.g. read-only and writable arrays
+(:func:`hystfit._jit.readonly`).
 
 Only this process's compilations are seen: a command that spreads its cells over worker processes
 compiles there, so give it ``--jobs 1``. ``--out`` is added (a temporary folder) for the commands
@@ -72,7 +73,8 @@ def main() -> None:
         extra = ["--out", str(Path(tmp) / "out")] if command[0] in ("identify", "compare", "diagnose") else []
         env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tmp) / "numba"), "PYTHONPATH": str(args.tree.resolve())}
         env.pop("PYTHONDONTWRITEBYTECODE", None)
-        r = subprocess.run([sys.executable, "-c", CHILD, *command, *extra, "--quiet"], cwd=ROOT, env=env,
+        # in the tree: ``python -c`` puts its working directory first on sys.path, ahead of PYTHONPATH
+        r = subprocess.run([sys.executable, "-c", CHILD, *command, *extra, "--quiet"], cwd=args.tree.resolve(), env=env,
                            capture_output=True, text=True)
     line = [ln for ln in r.stderr.splitlines() if ln.startswith("FIRST_RUN ")]
     if not line:

@@ -153,11 +153,16 @@ _BW_SERIES11_MAX = 0.35
 # than the callee's size: with the whole time loop inlined into the block kernel once per mode,
 # compiling that kernel took ≈ 45 s, and the serial and threaded callers each compiled their own
 # (``_bw_serial`` passed p0 as a literal 0, another argument type).
-# Now: the scalar helpers (no arrays) are plain kernels, which LLVM inlines into the loops that
-# call them (the same IEEE operations, so the same bits); only the helpers that take arrays are
-# inlined by numba; the time loop is one kernel compiled once per ``mode`` (a constant at each
-# call: numba types it as a literal and makes one specialisation per value, whose mode tests
-# LLVM folds); and the serial variant is :func:`_bw_block` itself, called from Python.
+# Now: the time loop is one kernel compiled once per ``mode`` (a constant at each call: numba
+# types it as a literal and makes one specialisation per value, whose mode tests LLVM folds);
+# the helpers called once per sample or less are plain kernels, which LLVM inlines or calls (the
+# same IEEE operations, so the same bits); numba inlines only the helpers of the candidate loops
+# (``_bw_candidate``, ``_bw_take``, ``_bw_next*``, ``_bw_neg``); and the serial variant is
+# :func:`_bw_block` itself, called from Python. The candidate loops' helpers stay numba-inlined
+# because a process runs a kernel as compiled alone when it compiled it, and the copy optimised
+# again inside its caller when it loaded the caller from the cache: with ``_bw_next*`` and
+# ``_bw_neg`` left to LLVM, the time loop compiled alone did not vectorize (what remains of
+# numba's calling convention), and a first run's Bouc–Wen evaluations took 2.5–3× as long.
 
 
 @njit(cache=True)
@@ -201,13 +206,13 @@ def _bw_coefs11(q, dv):
     return (q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7], q8, q9, q10, q11)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bw_neg(x):
     """Sign bit of x (set for −0.0): compiles to a bit test, not a floating-point comparison."""
     return math.copysign(1.0, x) < 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bw_next7(h, mcp, mcn, sa, q):
     """Exact Bouc–Wen update of one state h over one input segment, branch-free.
 
@@ -226,7 +231,7 @@ def _bw_next7(h, mcp, mcn, sa, q):
     return fma(fma(mc, h, sa), f, h)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bw_next11(h, mcp, mcn, sa, q):
     """:func:`_bw_next7` with the series of ψ to degree 11 (q from :func:`_bw_coefs11`)."""
     mc = mcn if _bw_neg(h) else mcp
@@ -236,7 +241,7 @@ def _bw_next11(h, mcp, mcn, sa, q):
     return fma(fma(mc, h, sa), f, h)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bw_next0(h, mcp, mcn, sa, psi):
     """:func:`_bw_next7` with ψ = ``psi`` computed beforehand (:func:`_bw_psi_halved`)."""
     mc = mcn if _bw_neg(h) else mcp
