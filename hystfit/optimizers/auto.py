@@ -219,13 +219,7 @@ class Auto(IteratedSearch):
             raw_obj = Obj(prefix, series)
             th_p = theta[:start]
             yhats = raw_obj.predict(th_p)
-            views = []
-            for c, (s, yh) in enumerate(zip(series, yhats)):
-                y = s.y
-                R = base_model.nuisance_basis(s.y.shape[0], s.dt)
-                if R is not None:  # take the current per-capture nuisance estimate off the target
-                    y = y - R @ np.linalg.lstsq(R, y - yh, rcond=None)[0]
-                views.append(_view(s, y, c))
+            views = _views(series, yhats, base_model)
             J = raw_obj.jacobian(th_p, upper=upper[:start])
             nfev += start + 1
             # the step moves every parameter before the block but those of the blocks left at the identity
@@ -263,6 +257,19 @@ def _view(s: Series, y: np.ndarray, index: int) -> CaptureView:
     """Capture ``index`` as the blocks' fit sees it: the target ``y``, fitted after the warm-up."""
     n = s.y.shape[0]
     return CaptureView(t=np.arange(n) * s.dt, dt=s.dt, y=y, fit=np.arange(n) >= s.skip, index=index)
+
+
+def _views(series, preds, base_model) -> list[CaptureView]:
+    """Every capture as a block's fit sees it (:func:`_view`): the target with the current
+    per-capture nuisance estimate (the base model's ``nuisance_basis`` fitted to y − ``preds``) taken off."""
+    views = []
+    for c, (s, p) in enumerate(zip(series, preds)):
+        y = s.y
+        R = base_model.nuisance_basis(s.y.shape[0], s.dt)
+        if R is not None:
+            y = y - R @ np.linalg.lstsq(R, y - p, rcond=None)[0]
+        views.append(_view(s, y, c))
+    return views
 
 
 def _per_capture(J: np.ndarray, series) -> tuple[np.ndarray, ...]:
@@ -317,13 +324,7 @@ def _fit_in_place(objective, base_model, base, blocks, sizes, k: int, s0: int, s
         at.append(x_k)
         later.append(tuple(links))
         preds.append(x)
-    views = []
-    for c, (s, p) in enumerate(zip(series, preds)):
-        y = s.y
-        R = base_model.nuisance_basis(s.y.shape[0], s.dt)
-        if R is not None:  # take the current per-capture nuisance estimate off the target
-            y = y - R @ np.linalg.lstsq(R, y - p, rcond=None)[0]
-        views.append(_view(s, y, c))
+    views = _views(series, preds, base_model)
     # a Gauss–Newton step of every other parameter with it (the base fitted without the stage
     # made a compromise the block's coefficients alone would only follow)
     keep = np.r_[0:s0, s1:theta.size]
