@@ -161,8 +161,9 @@ _BW_SERIES11_MAX = 0.35
 # :func:`_bw_block` itself, called from Python. The candidate loops' helpers stay numba-inlined
 # because a process runs a kernel as compiled alone when it compiled it, and the copy optimised
 # again inside its caller when it loaded the caller from the cache: with ``_bw_next*`` and
-# ``_bw_neg`` left to LLVM, the time loop compiled alone did not vectorize (what remains of
-# numba's calling convention), and a first run's Bouc–Wen evaluations took 2.5–3× as long.
+# ``_bw_neg`` left to LLVM, the time loop compiled alone did not vectorize (measured; the likely
+# cause: what LLVM leaves of numba's calling convention after one optimisation), and a first
+# run's Bouc–Wen evaluations took 2.5–3× as long.
 
 
 @njit(cache=True)
