@@ -228,18 +228,9 @@ class Auto(IteratedSearch):
             jacs = _per_capture(J[:, free], series)
             cols = tuple(np.arange(free.size) for _ in series)
             lin = Linearization(tuple(jacs), cols, lower[free] - th_p[free], upper[free] - th_p[free])
-            candidates = []
-            for use_lin in (True, False):
-                try:
-                    fit = b.fit(yhats, views, lin if use_lin else None)
-                except (np.linalg.LinAlgError, ValueError):
-                    continue
-                nfev += fit.evaluations
-                cand = theta[:end].copy()
-                if use_lin and fit.delta.size:
-                    cand[free] = th_p[free] + fit.delta
-                cand[start:end] = np.concatenate([fit.phi, fit.shared])
-                candidates.append(np.clip(cand, lower[:end], upper[:end]))
+            candidates, n = _block_candidates(b, yhats, views, lin, theta[:end], free, start, end,
+                                              lower[:end], upper[:end])
+            nfev += n
             if not candidates:
                 start = end
                 continue
@@ -257,6 +248,26 @@ def _view(s: Series, y: np.ndarray, index: int) -> CaptureView:
     """Capture ``index`` as the blocks' fit sees it: the target ``y``, fitted after the warm-up."""
     n = s.y.shape[0]
     return CaptureView(t=np.arange(n) * s.dt, dt=s.dt, y=y, fit=np.arange(n) >= s.skip, index=index)
+
+
+def _block_candidates(effect, preds, views, lin, theta, moved, a: int, b: int, lower, upper) -> tuple[list, int]:
+    """The block's fit (``effect``: its coefficients θ[a:b]) with the Gauss–Newton step ``lin`` of the
+    parameters ``moved`` and without it, each as a full vector (``theta`` with the block's
+    coefficients and, with the step, θ[moved] + δ; clipped to the box); and the evaluations spent.
+    A fit that fails (singular, invalid) gives no candidate."""
+    candidates, nfev = [], 0
+    for use_lin in (True, False):
+        try:
+            fit = effect.fit(preds, views, lin if use_lin else None)
+        except (np.linalg.LinAlgError, ValueError):
+            continue
+        nfev += fit.evaluations
+        cand = theta.copy()
+        if use_lin and fit.delta.size:
+            cand[moved] = theta[moved] + fit.delta
+        cand[a:b] = np.concatenate([fit.phi, fit.shared])
+        candidates.append(np.clip(cand, lower, upper))
+    return candidates, nfev
 
 
 def _views(series, preds, base_model) -> list[CaptureView]:
@@ -334,18 +345,8 @@ def _fit_in_place(objective, base_model, base, blocks, sizes, k: int, s0: int, s
     lin = Linearization(jacs, tuple(np.arange(keep.size) for _ in series),
                         lower[keep] - theta[keep], upper[keep] - theta[keep])
     fitted = Inserted(blocks[k], tuple(zip(at, later)))
-    candidates = []
-    for use_lin in (True, False):
-        try:
-            fit = fitted.fit(preds, views, lin if use_lin else None)
-        except (np.linalg.LinAlgError, ValueError):
-            continue
-        nfev += fit.evaluations
-        cand = theta.copy()
-        if use_lin and fit.delta.size:
-            cand[keep] = theta[keep] + fit.delta
-        cand[s0:s1] = np.concatenate([fit.phi, fit.shared])
-        candidates.append(np.clip(cand, lower, upper))
+    candidates, n = _block_candidates(fitted, preds, views, lin, theta, keep, s0, s1, lower, upper)
+    nfev += n
     if not candidates:
         return theta, nfev
     scores = objective(np.vstack([theta] + candidates))
