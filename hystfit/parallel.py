@@ -393,7 +393,7 @@ class LocalExecutor(Executor):
     def _release(self) -> None:
         kept, self._kept = self._kept, None
         if kept is not None:
-            kept[0].shutdown(wait=True)
+            _shut_down(kept[0])
 
     def run(self, fn, shared, items):
         if self.workers == 1 or len(items) <= 1:
@@ -483,7 +483,7 @@ class LocalExecutor(Executor):
             if self._held:
                 self._kept = (ex, shared, n)
             else:
-                ex.shutdown(wait=True)
+                _shut_down(ex)
 
     def close(self) -> None:
         self._release()
@@ -569,8 +569,16 @@ def _stop_now(ex) -> None:
     ``shutdown(cancel_futures=True)`` alone waits for the jobs already running, which is a whole
     fit each (30-45 s for ``compare``), so the workers are terminated first. ``_processes`` is the
     executor's own table of workers (no public accessor).
+
+    The pool's manager thread is then joined (``_executor_manager_thread``, private too): it closes
+    the pipe that wakes it up, and Python's exit handler of ``concurrent.futures``
+    (``_python_exit``, 3.11) writes to that pipe without a lock. Left running, it raced the exit of
+    an interrupted command: now and then ``OSError: [Errno 9] Bad file descriptor`` and a traceback
+    after the command's own error line. Its workers terminated, the thread ends within
+    milliseconds; the timeout only bounds a pathological case.
     """
     procs = list((getattr(ex, "_processes", None) or {}).values())
+    manager = getattr(ex, "_executor_manager_thread", None)
     for p in procs:
         try:
             p.terminate()
@@ -579,6 +587,19 @@ def _stop_now(ex) -> None:
     ex.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         p.join(timeout=1.0)
+    if manager is not None and manager is not threading.current_thread():
+        manager.join(timeout=5.0)
+
+
+def _shut_down(ex) -> None:
+    """The end of a pool whose jobs are done: ``shutdown(wait=True)``, or :func:`_stop_now` if that
+    wait is interrupted (Ctrl-C just as the last job ends), so that no manager thread is left
+    closing its pipe while the command exits."""
+    try:
+        ex.shutdown(wait=True)
+    except BaseException:
+        _stop_now(ex)
+        raise
 
 
 @contextmanager

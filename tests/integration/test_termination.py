@@ -363,3 +363,28 @@ def test_a_pool_stopped_at_once_leaves_no_semaphore_for_the_resource_tracker_to_
     r = subprocess.run([sys.executable, str(script), "6"], capture_output=True, text=True, timeout=120)
     assert r.stderr.strip().splitlines()[0] == "interrupted", r.stderr
     assert "leaked" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_a_pool_stopped_at_once_has_no_manager_thread_left_for_pythons_exit_to_race(monkeypatch):
+    # concurrent.futures' exit handler writes to the wake-up pipe of every pool's manager thread
+    # without a lock; a manager thread still closing that pipe when an interrupted command exited
+    # printed "OSError: [Errno 9] Bad file descriptor" and a traceback (now and then, in the test
+    # above): _stop_now joins it. The manager's last step is slowed down here, as on a loaded machine.
+    from concurrent.futures import ProcessPoolExecutor, process
+
+    closing = process._ExecutorManagerThread.join_executor_internals
+
+    def slow_closing(self):
+        time.sleep(1.5)
+        closing(self)
+
+    monkeypatch.setattr(process._ExecutorManagerThread, "join_executor_internals", slow_closing)
+    ex = ProcessPoolExecutor(2, mp_context=parallel.pool_context())
+    futures = [ex.submit(time.sleep, 30.0) for _ in range(4)]
+    while sum(f.running() for f in futures) < 2:
+        time.sleep(0.01)
+    manager = ex._executor_manager_thread
+    t0 = time.monotonic()
+    parallel._stop_now(ex)
+    assert not manager.is_alive()
+    assert time.monotonic() - t0 < 10.0
