@@ -596,14 +596,23 @@ def is_swept(u: np.ndarray, dt: float, frequency_Hz: float, ratio: float = 1.3) 
     return max(a, b) > ratio * max(min(a, b), 1e-12)
 
 
-def heldout_captures(captures: Sequence[Capture]) -> list[bool]:
-    """The captures a ``"capture"`` split holds out: those whose drive frequency lies strictly
-    between the lowest and the highest (relative margin 1 %); all False when there is none."""
-    f = np.array([c.frequency_Hz for c in captures], float)
+def heldout_captures(captures: Sequence[Capture], tonal: Sequence[bool] | None = None) -> list[bool]:
+    """The captures a ``"capture"`` split holds out: among the ``tonal`` ones (default: all), those
+    whose drive frequency lies strictly between the lowest and the highest tonal one (relative
+    margin 1 %); all False when there is none.
+
+    ``tonal`` marks the captures driven at one frequency (periodic, or a sine whose amplitude
+    changes: :func:`is_periodic`, :func:`is_swept`). A broadband capture's "frequency" (a PRBS, a
+    step pattern, a multisine: its strongest spectral line, :func:`hystfit.conditions.detect_condition`)
+    says nothing about where it lies between the sines: counted, a step pattern at 0.3 Hz and a PRBS
+    at 600 Hz made every sine interior, and every sine was held out (the model was fitted on the
+    broadband captures alone and judged on sines only)."""
+    tonal = [True] * len(captures) if tonal is None else list(tonal)
+    f = np.array([c.frequency_Hz for c, t in zip(captures, tonal) if t], float)
     if not np.all(np.isfinite(f)) or f.size < 3:
         return [False] * len(captures)
     lo, hi = float(f.min()), float(f.max())
-    return [bool(lo * 1.01 < x < hi / 1.01) for x in f]
+    return [bool(t and lo * 1.01 < c.frequency_Hz < hi / 1.01) for c, t in zip(captures, tonal)]
 
 
 @dataclass(frozen=True)
@@ -620,9 +629,10 @@ class SplitChoice:
 
 
 def split_choice(captures: Sequence[Capture], swept: Sequence[bool], settings: "DiagnoseSettings",
-                 per_condition: bool) -> SplitChoice:
-    """The hold-out of a diagnosis (see :attr:`DiagnoseSettings.split`)."""
-    held = heldout_captures(captures)
+                 per_condition: bool, tonal: Sequence[bool] | None = None) -> SplitChoice:
+    """The hold-out of a diagnosis (see :attr:`DiagnoseSettings.split`); ``tonal`` as in
+    :func:`heldout_captures` (the captures a ``"capture"`` split interpolates between)."""
+    held = heldout_captures(captures, tonal)
     possible = (not per_condition) and any(held) and not all(held)
     none = (False,) * len(captures)
     if settings.split == "temporal":
@@ -632,7 +642,8 @@ def split_choice(captures: Sequence[Capture], swept: Sequence[bool], settings: "
     if settings.split == "capture":
         if not possible:
             raise ConfigError("diagnose: split 'capture' needs, in global mode, captures at three or more drive "
-                              "frequencies (the interior ones are held out); use split 'temporal' or 'auto'")
+                              "frequencies (sines, triangles or rising sines; PRBS and step captures have none): the "
+                              "interior ones are held out; use split 'temporal' or 'auto'")
         return SplitChoice("capture", tuple(held), "requested")
     if not any(swept):
         return SplitChoice("temporal", none, "stationary")
@@ -643,9 +654,9 @@ def split_choice(captures: Sequence[Capture], swept: Sequence[bool], settings: "
 
 
 def choose_split(captures: Sequence[Capture], swept: Sequence[bool], settings: "DiagnoseSettings",
-                 per_condition: bool) -> tuple[str, list[bool], str]:
+                 per_condition: bool, tonal: Sequence[bool] | None = None) -> tuple[str, list[bool], str]:
     """(kind, held-out flags per capture, reason code) of the hold-out: :func:`split_choice` as a tuple."""
-    s = split_choice(captures, swept, settings, per_condition)
+    s = split_choice(captures, swept, settings, per_condition, tonal)
     return s.kind, list(s.held_out), s.reason
 
 
@@ -1567,6 +1578,9 @@ def _split_info(split: SplitChoice, caps, views, swept, settings) -> dict:
     out = {"kind": split.kind}
     if split.kind == "capture":
         out["heldout_captures"] = [c.source for c, h in zip(caps, split.held_out) if h]
+        # broadband captures (no one drive frequency) are split in time (:func:`_design`)
+        out["split_in_time_captures"] = [c.source for c, v in zip(caps, views) if 0 < int(v.fit.sum()) < c.n]
+        out["fit_fraction"] = settings.fit_fraction
     else:
         out["fit_fraction"] = settings.fit_fraction
     out["per_capture"] = per_cap
@@ -1958,9 +1972,13 @@ def _design(caps: Sequence[Capture], settings: "DiagnoseSettings", per_condition
     """Periodicity, sweeps, the split and the fit masks of the captures, and the parameter groups."""
     periodic = [is_periodic(c.u, c.dt, c.frequency_Hz) for c in caps]
     swept = [is_swept(c.u, c.dt, c.frequency_Hz) for c in caps]
-    split = split_choice(caps, swept, settings, per_condition)
+    tonal = [p or s for p, s in zip(periodic, swept)]
+    split = split_choice(caps, swept, settings, per_condition, tonal)
     if split.kind == "capture":
-        masks = [np.full(c.n, not h) for c, h in zip(caps, split.held_out)]
+        # the tonal captures are fitted or held out whole; a broadband one (PRBS, steps) is split in
+        # time as in the temporal scheme: its first part fitted, the rest held out
+        temporal = fit_masks(caps, periodic, settings.fit_fraction)
+        masks = [np.full(c.n, not h) if t else m for c, h, t, m in zip(caps, split.held_out, tonal, temporal)]
     elif split.kind == "cycles":
         masks = interior_masks(caps, periodic, settings.fit_fraction)
     else:

@@ -905,7 +905,8 @@ def split_document(d: Diagnosis) -> dict:
     and ``description`` worded."""
     kind = d.split["kind"]
     out = _insert(d.split, "why", split_why_text(d), "kind")
-    return _insert(out, "description", split_description(kind, d.settings.fit_fraction),
+    return _insert(out, "description", split_description(kind, d.settings.fit_fraction,
+                                                         d.split.get("split_in_time_captures", ())),
                    "heldout_captures" if kind == "capture" else "fit_fraction")
 
 

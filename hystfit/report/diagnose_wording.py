@@ -82,17 +82,24 @@ def split_why(reason: str, swept_sources: Sequence[str] = ()) -> str:
     return {"requested": "requested", "stationary": "every capture is stationary"}[reason]
 
 
-def split_description(kind: str, fit_fraction: float) -> str:
-    """What was fitted and what was held out (``split.description``)."""
+def split_description(kind: str, fit_fraction: float, in_time: Sequence[str] = ()) -> str:
+    """What was fitted and what was held out (``split.description``); ``in_time``: the broadband
+    captures a ``"capture"`` split divides in time."""
     if kind == "cycles":
         return ("every fit (base, base + effect, placebo) uses the cycles before and after the middle "
                 f"{100 * (1 - fit_fraction):.0f} % of each capture's cycles; those middle cycles are held out and only "
                 "they score 'heldout_*' (an interpolation in time and, for a rising-amplitude sine, in amplitude; the "
                 "model is simulated from the start, so its state everywhere is its own)")
     if kind == "capture":
-        return ("every fit (base, base + effect, placebo) uses the captures at the lowest and highest drive "
-                "frequencies; the captures at the frequencies in between are held out whole and only they score "
-                "'heldout_*' (an interpolation in frequency, at every amplitude)")
+        text = ("every fit (base, base + effect, placebo) uses the captures at the lowest and highest drive "
+                "frequencies; the captures at the frequencies in between are held out whole and "
+                + ("" if in_time else "only they ") + "score 'heldout_*' (an interpolation in frequency, at every "
+                "amplitude)")
+        if in_time:
+            text += ("; " + ", ".join(in_time) + (" has" if len(in_time) == 1 else " have") + " no one drive "
+                     f"frequency (broadband) and {'is' if len(in_time) == 1 else 'are'} split in time: the first "
+                     f"{100 * fit_fraction:.0f} % fitted, the rest held out and scored too")
+        return text
     return ("every fit (base, base + effect, placebo) uses the first part of each capture: whole cycles "
             f"(round({fit_fraction:g} × cycles)) of periodic captures, the first {100 * fit_fraction:.0f} % of the "
             "samples of the others; the remaining samples of every capture are held out and only they score "

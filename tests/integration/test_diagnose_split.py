@@ -56,6 +56,56 @@ def test_auto_split_holds_out_interior_frequencies_only_when_the_drive_changes()
         DiagnoseSettings(split="random")
 
 
+def _broadband(eff: synth.Effects, seed=0) -> list[Capture]:
+    """A PRBS and a step pattern of the virtual actuator: the broadband captures a rig records beside its
+    sines (their "frequency" is their strongest spectral line: ≈ 0.3 Hz for the steps)."""
+    plant = synth.Plant.default().with_effects(eff)
+    out = []
+    for i, (name, (t, u)) in enumerate((("prbs.csv", synth.prbs(60.0, 10_000, 1.5, 2500.0, seed=5)),
+                                        ("steps.csv", synth.step_pattern(60.0, 4.0, 10_000)))):
+        f = float(synth_frequency(u))
+        out.append(Capture(source=name, t=t, u=u, y=synth.simulate_plant(plant, t, u, seed=seed + 7 + i), dt=DT,
+                           amplitude_V=float(np.ptp(u)), frequency_Hz=f))
+    return out
+
+
+def synth_frequency(u) -> float:
+    from hystfit.conditions import detect_condition
+
+    return detect_condition(u, DT)[1]
+
+
+def test_broadband_captures_neither_bound_nor_join_the_frequency_interpolation():
+    """Rising sines at 20/40/100 Hz with a PRBS (its strongest line ≈ 10²–10³ Hz) and steps (≈ 0.3 Hz):
+    counted among the frequencies, they made every sine interior and every sine was held out (the
+    model fitted on the broadband captures alone). Only the 40 Hz sine is held out whole; the
+    broadband captures are split in time."""
+    from hystfit.diagnose import _design, heldout_captures
+
+    caps = _rising(synth.Effects(noise=True), cycles=8) + _broadband(synth.Effects(noise=True))
+    f = [c.frequency_Hz for c in caps]
+    assert min(f) < 20.0 and max(f) > 100.0  # the broadband lines do lie outside the sines'
+    assert heldout_captures(caps) == [True, True, True, False, False]  # every sine, when all are counted
+    d = _design(caps, DiagnoseSettings(), per_condition=False)
+    assert d.split.kind == "capture" and d.split.held_out == (False, True, False, False, False)
+    fitted = [float(v.fit.mean()) for v in d.views]
+    assert fitted[:3] == [1.0, 0.0, 1.0]
+    assert all(0.5 < x < 0.7 for x in fitted[3:])  # the first 60 % of each broadband capture
+    assert all(v.fit[: int(v.fit.sum())].all() for v in d.views[3:])  # ... its first part
+
+
+@pytest.mark.slow
+def test_creep_is_named_on_rising_sines_recorded_with_prbs_and_steps():
+    caps = _rising(synth.Effects(creep=True, noise=True, noise_sigma_um=0.01)) + \
+        _broadband(synth.Effects(creep=True, noise=True, noise_sigma_um=0.01))
+    d = diagnose(caps, make_model("pi", {"thresholds_V": list(synth.DEFAULT_THRESHOLDS_V)}),
+                 make_optimizer(optimizers.get("auto")), settings=DiagnoseSettings(max_effects=1))
+    doc = diagnosis_document(d)["split"]
+    assert doc["heldout_captures"] == ["rs_40Hz.csv"] and doc["split_in_time_captures"] == ["prbs.csv", "steps.csv"]
+    assert "split in time" in doc["description"]
+    assert d.explained_by == ("creep",)
+
+
 @pytest.mark.slow
 def test_rising_sines_with_a_delay_name_it_from_an_interpolating_hold_out():
     caps = _rising(synth.Effects(delay=True, delay_s=4e-4, noise=True, noise_sigma_um=0.01))
