@@ -441,12 +441,20 @@ def _preamble(lines: list[str]) -> int:
     no data row and is at most :data:`PREAMBLE_MAX_LINES` lines. So a bad row among the data (a
     text cell, a ragged or an all-text row) is never taken for a preamble: it is read as part of
     the table, whose reader names it by its line in the file — after the header (still a table),
-    or with data rows before it (no preamble). A table without a header after a preamble is not
-    recognized (0).
+    or with data rows before it (no preamble).
+
+    A table without a header after a preamble (a logger that writes its settings, then bare rows of
+    numbers) is recognized too when every preamble line holds a text cell: ``header`` is then False
+    and the columns are chosen by index (``--time-col`` …), as in any headerless file.
+
+    Returns
+    -------
+    (lines, header)
+        The preamble's length (0: none) and whether the table after it starts with a header.
     """
     head = lines[: PREAMBLE_MAX_LINES + 1 + _PREAMBLE_TABLE_LINES]
     if len(head) < 3:
-        return 0
+        return 0, True
     delim = _sniff(head[-_PREAMBLE_TABLE_LINES:])
 
     def cells(line: str) -> list[str]:
@@ -465,13 +473,21 @@ def _preamble(lines: list[str]) -> int:
         return len(c) == width and any(c) and not any(number(x) for x in c)
 
     if width < 2 or not data_row(rows[-1]):
-        return 0
+        return 0, True
     h = max((i for i, c in enumerate(rows[:-1]) if header_row(c)), default=0)
+    if h == 0 and header_row(rows[0]):
+        return 0, True  # the header is the first line: no preamble
+    if h == 0:  # no header: the table is the data rows after the last line that is not one
+        k = max((i for i, c in enumerate(rows[:-1]) if not data_row(c)), default=-1) + 1
+        # every preamble line starts with text (a key, a title): a bad data row (a number, then a
+        # text cell; a ragged row of numbers) is not one, and stays the table's, named by its error
+        text = all(c[0] and not number(c[0]) for c in rows[:k])
+        return (k, False) if 0 < k <= PREAMBLE_MAX_LINES and text else (0, True)
     if h >= 1 and _unit_row(rows[h]) and header_row(rows[h - 1]) and not _unit_row(rows[h - 1]):
         h -= 1  # names, then their units: the header is two lines
-    if h == 0 or h > PREAMBLE_MAX_LINES or any(data_row(c) for c in rows[:h]):
-        return 0
-    return h
+    if h > PREAMBLE_MAX_LINES or any(data_row(c) for c in rows[:h]):
+        return 0, True
+    return h, True
 
 
 #: text captures at least this large are first read by pyarrow's multi-threaded CSV parser, straight
@@ -512,7 +528,9 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
     lines = [ln.rstrip("\r") for ln in lines]
     if len(lines) < 2 or any(not ln.strip() for ln in lines):
         return None
-    skip = 0 if no_header else _preamble(lines)
+    skip, headed = _preamble(lines)
+    if no_header and headed:
+        skip = 0  # --no-header: a header row found after a preamble is read as the user says (an error)
     if skip and skip + 3 > len(lines):
         return None  # a long preamble: the general reader reads enough lines to find the table
     lines = lines[skip:]
@@ -523,7 +541,7 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
     first = next(csv.reader([lines[0]], delimiter=delim))
     ncols = len(first)
     header = not no_header and not all(_is_number_or_empty(c) for c in first)
-    if skip and not header:
+    if skip and header != headed:
         return None
     if ncols < 2:
         return None
@@ -556,7 +574,7 @@ def _read_text_fast(path: Path, label: str, no_header: bool) -> _Table | None:
     rows = np.arange(1, n + 1, dtype=np.int64) + skip + (1 if header else 0)
     return _Table(label, [c.strip() for c in first] if header else None, cols, rows,
                   header_auto=not no_header and not header, comma_decimal_ok=delim != ",",
-                  notes=(_preamble_note(1, skip, skip + 1),) if skip else ())
+                  notes=(_preamble_note(1, skip, skip + 1, header),) if skip else ())
 
 
 def _float64_column(column) -> np.ndarray:
@@ -604,9 +622,11 @@ def _read_text(path: Path, label: str, no_header: bool) -> _Table:
         raise InputError(f"{label}: the file has only comments or blank lines, no data; pass a capture with data rows")
     lines = [ln for _, ln in numbered]
     notes: tuple[str, ...] = ()
-    skip = 0 if no_header else _preamble(lines)
+    skip, headed = _preamble(lines)
+    if no_header and headed:
+        skip = 0  # --no-header: a header row found after a preamble is read as the user says (an error)
     if skip:
-        notes = (_preamble_note(numbered[0][0], numbered[skip - 1][0], numbered[skip][0]),)
+        notes = (_preamble_note(numbered[0][0], numbered[skip - 1][0], numbered[skip][0], headed),)
         numbered, lines = numbered[skip:], lines[skip:]
     delim = _sniff(lines[:50])
     text = "\n".join(ln.strip() if delim is None else ln for ln in lines)
@@ -640,10 +660,13 @@ def _read_text(path: Path, label: str, no_header: bool) -> _Table:
     return _Table(label, names, cols, rows, header_auto, comma_decimal_ok=delim != ",", notes=notes)
 
 
-def _preamble_note(first: int, last: int, header: int) -> str:
-    """The note of a skipped preamble (file lines, 1-based)."""
-    return (f"skipped the preamble before the table (lines {first}–{last}); the header is line {header}"
-            if last > first else f"skipped the preamble before the table (line {first}); the header is line {header}")
+def _preamble_note(first: int, last: int, header: int, headed: bool = True) -> str:
+    """The note of a skipped preamble (file lines, 1-based); ``header``: the table's first line,
+    its header unless ``headed`` is False."""
+    lines = f"lines {first}–{last}" if last > first else f"line {first}"
+    table = (f"the header is line {header}" if headed else
+             f"the table starts at line {header}, without a header row (columns by index)")
+    return f"skipped the preamble before the table ({lines}); {table}"
 
 
 def _parser_error(label: str, exc: Exception, numbered: list[tuple[int, str]]) -> InputError:
@@ -786,7 +809,9 @@ def _unit_column(table: _Table, role: str, taken: set[int]) -> list[int]:
 
 def _headerless_error(table: _Table, role: str, roles: Sequence[str] = ("time", "input", "output")) -> InputError:
     if table.header_auto:
-        why, alt = "the first row is all numbers, so the file is read as having no header row", "add a header row"
+        first = int(table.rows[0]) if len(table.rows) else 1
+        where = "the first row" if first == 1 else f"line {first}, the table's first row,"
+        why, alt = f"{where} is all numbers, so the file is read as having no header row", "add a header row"
     else:
         why, alt = "the file has no header row (--no-header)", "add a header row and drop --no-header"
     flags = [_FLAGS[r] for r in ("time", "input", "output", "target") if r in roles]

@@ -769,7 +769,42 @@ def test_a_bad_row_is_never_taken_for_a_preamble(tmp_path, case):
     path.write_text("\n".join(lines) + "\n")
     msg = error_of(path)
     assert "preamble" not in msg
-    assert not hio._preamble(lines)
+    assert hio._preamble(lines) == (0, True)
+
+
+@pytest.mark.parametrize("cycles", [0.6, 5.0])  # a small file (general reader), a large one (pyarrow's)
+def test_a_table_without_a_header_after_a_preamble_is_read_by_column_index(tmp_path, cycles):
+    """A logger that writes its settings, then bare rows of numbers: the preamble is skipped, and
+    the columns are chosen by index as in any headerless file (with or without --no-header); not
+    given, the error names the table's first line."""
+    t, u, y = sine(cycles=cycles)
+    rows = [",".join(f"{v:.9g}" for v in row) for row in zip(t, u, y)]
+    plain = tmp_path / "plain.csv"
+    plain.write_text("\n".join(rows) + "\n")
+    path = tmp_path / "logger.csv"
+    path.write_text("\n".join(["Logger,PZT bench 2", "Sample rate,10000,Hz", "Channels,3"] + rows) + "\n")
+    assert (path.stat().st_size >= hio.FAST_READ_BYTES) == (cycles > 1)
+    by_index = LoadOptions(time_col=0, input_col=1, output_col=2, output_unit="um", min_cycles=0.5)
+    ref = load_capture(plain, by_index)
+    for opts in (by_index, LoadOptions(time_col=0, input_col=1, output_col=2, output_unit="um", min_cycles=0.5,
+                                       no_header=True)):
+        cap = load_capture(path, opts)
+        np.testing.assert_array_equal(cap.u, ref.u)
+        np.testing.assert_array_equal(cap.y, ref.y)
+        assert any("skipped the preamble before the table (lines 1–3); the table starts at line 4, without a "
+                   "header row" in n for n in cap.notes), cap.notes
+    msg = error_of(path)
+    assert "line 4, the table's first row, is all numbers" in msg and "--input-col" in msg
+
+
+def test_a_bad_first_data_row_after_the_header_is_no_preamble_of_a_headerless_table():
+    """The headerless-preamble rule asks every preamble line to start with text: a header followed
+    by a bad row, or a ragged row of numbers before the table, stays the table's."""
+    data = ["0,1,2", "1,2,3", "2,3,4", "3,4,5"]
+    assert hio._preamble(["time_s,voltage_V,displacement_um", "0,abc,3"] + data) == (0, True)
+    assert hio._preamble(["5,6", "note,7,8"] + data) == (0, True)
+    assert hio._preamble(["Logger,x", "Rate,10000,Hz"] + data) == (2, False)
+    assert hio._preamble(["Logger,x", "Rate,10000,Hz", "time,u,y"] + data) == (2, True)
 
 
 def test_columns_named_in_another_language_are_found_by_their_unit(tmp_path):
