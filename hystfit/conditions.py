@@ -167,6 +167,28 @@ def _crossings(x: np.ndarray) -> int:
     return int(np.count_nonzero(side[1:] != side[:-1]))
 
 
+def is_step_and_hold(u: np.ndarray) -> bool:
+    """Whether ``u`` holds levels and jumps between them (a step test, a staircase): at most 1 % of
+    its samples jump (a change above six times the noise, :func:`white_noise_sigma` ×√2 for a
+    difference, and above 2 % of the input range), at least one does, and between the jumps it stays
+    within 5 % of its range (plus ten noise σ). Such an input is not one operating condition by
+    design and its levels differ between any two parts of it: it gets no non-stationarity warning.
+    A PRBS jumps at a fraction of its clock's ticks (≈ 12 % of the samples at 2.5 kHz sampled at
+    10 kHz), a slow sine does not jump: neither is one."""
+    u = np.asarray(u, dtype=np.float64)
+    if u.size < 30:
+        return False
+    rng = float(u.max() - u.min())
+    if not rng > 0:
+        return False
+    sigma = white_noise_sigma(u)
+    jumps = np.flatnonzero(np.abs(np.diff(u)) > max(6.0 * np.sqrt(2.0) * sigma, 0.02 * rng)) + 1
+    if jumps.size == 0 or jumps.size > 0.01 * (u.size - 1):
+        return False
+    held = 0.05 * rng + 10.0 * sigma
+    return all(float(np.ptp(seg)) <= held for seg in np.split(u, jumps) if seg.size)
+
+
 def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str]:
     """Warnings for a capture whose amplitude or frequency changes along it (rising sines, sweeps).
 
@@ -174,7 +196,8 @@ def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str
     peak-to-peak and its rate of crossings through its own mean (:func:`_crossings`) are compared
     between the first and the last third of the capture; a ratio above :data:`STATIONARY_RATIO` means the capture mixes conditions.
     Stationary broadband inputs (PRBS) have the same range and crossing rate in every third and
-    are not flagged.
+    are not flagged, and neither is a step-and-hold input (:func:`is_step_and_hold`), whose levels
+    differ between its thirds by design.
 
     Returns
     -------
@@ -183,7 +206,7 @@ def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str
     """
     u = np.asarray(u, dtype=np.float64)
     n = u.size
-    if n < 30:
+    if n < 30 or is_step_and_hold(u):
         return []
     thirds = (u[: n // 3], u[n - n // 3:])
     out = []

@@ -340,7 +340,8 @@ def test_a_rising_amplitude_sine_is_not_called_a_frequency_change(tmp_path):
 def test_stationary_captures_are_not_warned():
     from hystfit.io import load_capture
 
-    for name in ("a20V_f10Hz.csv", "a60V_f80Hz.csv", "broadband/prbs_60V.csv", "real/hysteresis_v_150_1hz.csv"):
+    for name in ("a20V_f10Hz.csv", "a60V_f80Hz.csv", "broadband/prbs_60V.csv", "broadband/steps_60V.csv",
+                 "real/hysteresis_v_150_1hz.csv"):
         assert not any(n.startswith("warning:") for n in load_capture(SAMPLE / name).notes), name
 
 

@@ -205,3 +205,23 @@ def test_lookup_table_select_is_the_one_rule_for_simulate_invert_and_track():
     assert table.select((100.0, 35.0), "nearest")[0] == [((60.0, 40.0), 1.0)]
     with _pytest.raises(ConfigError, match="choose interpolate or nearest"):
         table.select((40.0, 35.0), "cubic")
+
+
+def test_step_and_hold_inputs_are_told_from_prbs_and_slow_drives():
+    """A step test holds levels that differ between any two parts of it by design: it is not warned
+    as a capture whose amplitude changes (sample_data's steps_60V.csv was). A PRBS jumps too often,
+    slow sines and triangles never jump."""
+    from hystfit import synth
+    from hystfit.conditions import is_step_and_hold, nonstationary_notes
+
+    r = np.random.default_rng(0)
+    _, steps = synth.step_pattern(60.0)
+    for u in (steps, steps + 0.01 * r.standard_normal(steps.size), np.repeat(np.arange(10.0), 1000)):
+        assert is_step_and_hold(u)
+    assert nonstationary_notes(steps, 1e-4, (60.0, 0.32)) == []
+    assert nonstationary_notes(steps[::-1][: steps.size // 2], 1e-4, (60.0, 0.32)) == []
+    others = [synth.prbs(60.0)[1], synth.rising_sine(60.0, 20.0, 50, 10_000)[1],
+              synth.raised_cosine(60.0, 0.1, 3, 10_000)[1], synth.triangle(60.0, 0.5, 3, 10_000)[1]]
+    _, slow = synth.raised_cosine(60.0, 1.0, 5, 10_000)
+    others += [slow, slow + 0.01 * r.standard_normal(slow.size)]
+    assert not any(is_step_and_hold(u) for u in others)
