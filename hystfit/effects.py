@@ -940,8 +940,12 @@ class Placebo(Effect):
         """Advance ``rng`` exactly as :meth:`build` would, without building (its random numbers
         only): a later build from a copy of ``rng`` taken before draws the same placebo."""
         shapes = [_as_cols(np.asarray(L)).shape for L in library]
-        for n, q in shapes:
-            rng.random((n // 2 + 1, q))  # the phases of phase_surrogate
+        draws = sum((n // 2 + 1) * q for n, q in shapes)  # the phases of phase_surrogate
+        if type(rng.bit_generator) is np.random.PCG64 and not rng.bit_generator.state["has_uint32"]:
+            rng.bit_generator.advance(draws)  # a PCG64 double is one 64-bit draw: the same state, nothing made
+        else:
+            for n, q in shapes:
+                rng.random((n // 2 + 1, q))
         rng.standard_normal((shapes[0][1], n_shared + n_local))
 
     def layout(self):
