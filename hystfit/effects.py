@@ -150,13 +150,8 @@ class Linearization:
     def n(self) -> int:
         return int(self.lower.shape[0])
 
-    def reduced(self, views: Sequence["CaptureView"], rtol: float = REDUCED_RTOL) -> "Linearization":
-        """The same linear model in the directions of δ the fit samples determine: δ = V z, with V
-        the eigenvectors of the Jacobi-scaled Gram matrix Σ_c J_cᵀJ_c (fit samples) whose eigenvalues
-        exceed ``rtol`` × the largest, unscaled. Every column operator of an effect is linear, so
-        T_φ[J V] = T_φ[J] V: an *unbounded* least-squares fit in z reaches the SSE of the full one up
-        to the dropped near-null directions (a fine PI base: 81 columns, 47 directions at 1e-8).
-        The bounds become ±inf; for scoring candidates φ only, never for the final bounded solve."""
+    def directions(self, views: Sequence["CaptureView"], rtol: float = REDUCED_RTOL) -> np.ndarray:
+        """V (n, k): the directions of δ the fit samples determine (see :meth:`reduced`)."""
         M = np.zeros((self.n, self.n))
         for J, cols, v in zip(self.jac, self.cols, views):
             Jf = J[: v.fit_end][v.fit[: v.fit_end]]
@@ -165,7 +160,18 @@ class Linearization:
         d[d == 0] = 1.0
         w, U = np.linalg.eigh(M / np.outer(d, d))
         keep = w > rtol * max(float(w[-1]), 1e-300)
-        V = U[:, keep] / d[:, None]
+        return U[:, keep] / d[:, None]
+
+    def reduced(self, views: Sequence["CaptureView"], rtol: float = REDUCED_RTOL,
+                directions: np.ndarray | None = None) -> "Linearization":
+        """The same linear model in the directions of δ the fit samples determine: δ = V z, with V
+        the eigenvectors of the Jacobi-scaled Gram matrix Σ_c J_cᵀJ_c (fit samples) whose eigenvalues
+        exceed ``rtol`` × the largest, unscaled (:meth:`directions`; ``directions``: V when already
+        known). Every column operator of an effect is linear, so
+        T_φ[J V] = T_φ[J] V: an *unbounded* least-squares fit in z reaches the SSE of the full one up
+        to the dropped near-null directions (a fine PI base: 81 columns, 47 directions at 1e-8).
+        The bounds become ±inf; for scoring candidates φ only, never for the final bounded solve."""
+        V = self.directions(views, rtol) if directions is None else directions
         k = V.shape[1]
         jac = tuple(np.ascontiguousarray(J @ V[cols]) for J, cols in zip(self.jac, self.cols))
         return Linearization(jac, tuple(np.arange(k) for _ in self.cols), np.full(k, -np.inf), np.full(k, np.inf))
@@ -506,7 +512,11 @@ def _scaled_solve(G: np.ndarray, b: np.ndarray, lo: np.ndarray | None = None, hi
 class _Design:
     """What every candidate φ of one fit shares: per capture the fit-part view, the stacked
     columns X = [ŷ | J] (C order: the operators run down time with the columns innermost, as the
-    stage kernel and the delay's row slices want), y·y, and the column indices of the base step."""
+    stage kernel and the delay's row slices want), y·y, and the column indices of the base step.
+
+    ``compact`` (a :func:`scoring_design`'s): per capture None, or (Z, W) with fewer columns Z
+    (N, r) than X's w and X = Z·W (:func:`_compact_columns`): an operator without knots then acts
+    on Z, and the Gram products are W's transforms of Z's (:func:`_in_basis`)."""
 
     views: tuple
     X: tuple
@@ -520,6 +530,7 @@ class _Design:
     knots: dict = field(default_factory=dict)  # Gram products of the knot operators (:func:`_knot_gram`)
     plain: dict = field(default_factory=dict)  # capture → (X, XᵀX, Xᵀy) on its fit samples (:func:`_plain_gram`)
     derived: dict = field(default_factory=dict)  # designs made from this one (:func:`scoring_design`)
+    compact: tuple = ()  # per capture None or (Z, W) with X = Z·W (empty: None for every capture)
 
 
 def _plain_gram(design: _Design, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -611,17 +622,65 @@ def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
 
 
 def scoring_design(design: _Design) -> _Design:
-    """The design on which searched parameters φ are scored: ``design`` itself, or for a base with
-    more than :data:`REDUCE_ABOVE` step parameters the same data in the directions the fit samples
-    determine (:meth:`Linearization.reduced`), made once per design (every searched effect of a
-    selection step shares it)."""
+    """The design on which searched parameters φ are scored, made once per design (every searched
+    effect of a selection step shares it): ``design``'s normal equations, for a base with more than
+    :data:`REDUCE_ABOVE` step parameters in the directions the fit samples determine
+    (:meth:`Linearization.reduced`), with the compacted columns of each capture where they cost
+    less (:func:`_compact_columns`, used by the operators without knots: the stage's filter).
+
+    The compacted columns give the same scores up to rounding (a few 1e-11 relative on sample_data's
+    fine PI base): the stage's search compares scores only (grid minimum, Nelder–Mead), and the
+    final solve of :meth:`Effect.fit` uses ``design``. A delay's knots and every other path use
+    the columns as they were (its bounded Brent polish interpolates the scores themselves)."""
     lin = design.lin
-    if lin is None or lin.n <= REDUCE_ABOVE:
+    if lin is None:
         return design
     if "scoring" not in design.derived:
-        design.derived["scoring"] = prepare_design([X[:, 0] for X in design.X], design.views,
-                                                   lin.reduced(design.views))
+        V = lin.directions(design.views) if lin.n > REDUCE_ABOVE else None
+        red = lin if V is None else lin.reduced(design.views, directions=V)
+        Xs = design.X if V is None else tuple(np.ascontiguousarray(np.hstack([X[:, :1], J[: X.shape[0]]]))
+                                             for X, J in zip(design.X, red.jac))
+        compact = [_compact_columns(X[:, 0], lin.jac[c][: X.shape[0]], None if V is None else V[lin.cols[c]], X)
+                   for c, X in enumerate(Xs)]
+        compact = tuple(compact) if any(z is not None for z in compact) else ()
+        design.derived["scoring"] = design if V is None and not compact else _Design(
+            design.views, Xs, design.yy, tuple(np.asarray(c, int) for c in red.cols), red,
+            fitted=design.fitted, index=design.index, knots=design.knots if V is None else {},
+            plain=design.plain if V is None else {}, compact=compact)
     return design.derived["scoring"]
+
+
+def _compact_columns(yhat: np.ndarray, J: np.ndarray, V: np.ndarray | None, X: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(Z, W) with Z·W = X = [ŷ | J·V] (V None: the identity) up to rounding, Z = [ŷ | the columns of
+    J that are not zero on these samples] — a base parameter this capture does not reach (a PI
+    operator whose threshold lies above its input's amplitude) leaves an exact zero column — or
+    None when that does not save work.
+
+    Every operator is linear in the columns, T_φ[Z·W] = T_φ[Z]·W, so T_φ[X]ᵀT_φ[X] = Wᵀ(T_φ[Z]ᵀT_φ[Z])W:
+    per φ, N·r² + 2r·w² products instead of N·w² (w columns of X, r of Z). A capture of the
+    smallest amplitude on sample_data's fine PI base: r = 32 where w = 69."""
+    N, w = X.shape
+    active = np.flatnonzero(np.any(J != 0.0, axis=0))
+    r = 1 + active.size
+    if N * r * r + 2 * r * w * w >= N * w * w:
+        return None
+    Z = np.empty((N, r))
+    Z[:, 0] = yhat
+    Z[:, 1:] = J[:, active]
+    W = np.zeros((r, w))
+    W[0, 0] = 1.0
+    if V is None:
+        W[np.arange(1, r), 1 + active] = 1.0
+    else:
+        W[1:, 1:] = V[active]
+    return Z, W
+
+
+def _in_basis(P: np.ndarray, v: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(AᵀA, Aᵀy) of A = Z·W from (P, v), those of Z, exactly symmetric as a Gram product is."""
+    G = W.T @ (P @ W)
+    return 0.5 * (G + G.T), W.T @ v
 
 
 def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
@@ -684,9 +743,12 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
         vv, X, yy = design.views[c], design.X[c], design.yy[c]
         mesh, ix, sel_mesh, sel = indices[c]
         knots = None if ks + kl else effect.operator_knots(phi, vv)
+        Z, W = X, None  # the operator's columns: X = Z·W (W None: Z = X)
+        if design.compact and design.compact[c] is not None and knots is None and not ks + kl:
+            Z, W = design.compact[c]
         T = None
         if knots is None and not (plain and ks + kl):
-            T = effect.operator(X, vv, phi)
+            T = effect.operator(Z, vv, phi)
             if mask is not None:
                 T = T[mask]
         if ks + kl:
@@ -701,6 +763,8 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
             t0y, t0t0 = Ay[k], P[k, k]
         else:
             P, Ty = (T.T @ T, T.T @ y) if knots is None else _knot_gram(effect, design, c, knots)
+            if W is not None:
+                P, Ty = _in_basis(P, Ty, W)
             Gc = P[1:, 1:]
             bc = Ty[1:] - P[1:, 0]
             t0y, t0t0 = Ty[0], P[0, 0]
@@ -876,8 +940,12 @@ class Placebo(Effect):
         """Advance ``rng`` exactly as :meth:`build` would, without building (its random numbers
         only): a later build from a copy of ``rng`` taken before draws the same placebo."""
         shapes = [_as_cols(np.asarray(L)).shape for L in library]
-        for n, q in shapes:
-            rng.random((n // 2 + 1, q))  # the phases of phase_surrogate
+        draws = sum((n // 2 + 1) * q for n, q in shapes)  # the phases of phase_surrogate
+        if type(rng.bit_generator) is np.random.PCG64 and not rng.bit_generator.state["has_uint32"]:
+            rng.bit_generator.advance(draws)  # a PCG64 double is one 64-bit draw: the same state, nothing made
+        else:
+            for n, q in shapes:
+                rng.random((n // 2 + 1, q))
         rng.standard_normal((shapes[0][1], n_shared + n_local))
 
     def layout(self):

@@ -103,3 +103,32 @@ def test_placebos_share_the_design_block():
 class _DirectPlacebo(Placebo):
     def operator(self, x, view, phi):
         return x
+
+
+@pytest.mark.parametrize("n_base", [8, 30])  # a design scored as it is, and one in its reduced directions
+def test_compacted_columns_give_the_direct_scores(n_base):
+    """A stage's scores on :func:`hystfit.effects.scoring_design` — whose captures' columns are compacted
+    where base parameters leave them zero (a PI operator above a capture's amplitude) — equal, up to
+    rounding, those of the same design without the compaction."""
+    from hystfit.blocks.dynamics import Dynamics
+    from hystfit.effects import _Design, scoring_design
+
+    rng = np.random.default_rng(7)
+    views, yhats, lin = _problem(rng, k=n_base)
+    jac = []
+    for c, J in enumerate(lin.jac):
+        J = J.copy()
+        J[:, n_base // 2 + c:] = 0.0  # parameters this capture does not reach
+        jac.append(J)
+    lin = Linearization(tuple(jac), lin.cols, lin.lower, lin.upper)
+    design = prepare_design(yhats, views, lin)
+    scoring = scoring_design(design)
+    assert scoring.compact and any(z is not None for z in scoring.compact)
+    plain = _Design(scoring.views, scoring.X, scoring.yy, scoring.cols, scoring.lin, fitted=scoring.fitted,
+                    index=scoring.index)
+    dyn = Dynamics().configure(views, yhats)
+    for phi in dyn.search_grid()[::9]:
+        got = solve_coefficients(dyn, phi, design=scoring, bounded=False)
+        want = solve_coefficients(dyn, phi, design=plain, bounded=False)
+        _same(got, want)
+        assert dyn.score(phi, scoring) == pytest.approx(dyn.score(phi, plain), rel=1e-9)
