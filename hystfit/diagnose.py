@@ -39,7 +39,7 @@ import numpy as np
 
 from .capture import Capture
 from .cells import cell_key
-from .conditions import condition_label, detect_condition, group_by_condition, white_noise_sigma
+from .conditions import condition_label, detect_condition, group_by_condition, is_step_and_hold, white_noise_sigma
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, make_effect,
                       prepare_design, scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
@@ -1972,7 +1972,9 @@ def _design(caps: Sequence[Capture], settings: "DiagnoseSettings", per_condition
     """Periodicity, sweeps, the split and the fit masks of the captures, and the parameter groups."""
     periodic = [is_periodic(c.u, c.dt, c.frequency_Hz) for c in caps]
     swept = [is_swept(c.u, c.dt, c.frequency_Hz) for c in caps]
-    tonal = [p or s for p, s in zip(periodic, swept)]
+    # driven at one frequency: periodic, or a sine whose amplitude changes — never a step pattern,
+    # whose "cycles" at its strongest spectral line can look swept on a long capture
+    tonal = [(p or s) and not is_step_and_hold(c.u) for c, p, s in zip(caps, periodic, swept)]
     split = split_choice(caps, swept, settings, per_condition, tonal)
     if split.kind == "capture":
         # the tonal captures are fitted or held out whole; a broadband one (PRBS, steps) is split in
