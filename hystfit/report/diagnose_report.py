@@ -83,24 +83,32 @@ def _fig_conditions(path: Path, data: WhereFigureData) -> Path:
         ax.set_xlabel("Excitation frequency (Hz)")
         ax.set_ylabel(f"RMSE ({_u(unit)})")
         ax.set_title(title, fontsize=10)
-        ax.grid(True, which="both", alpha=0.3)
+        ax.grid(True, alpha=0.3)
         ax.legend(fontsize="small")
     fig.suptitle("Where: gap per condition (squares: non-periodic captures)")
     return _save(fig, path, plots.DPI)
 
 
-def _plain_log_ticks(ax, x_ticks: Sequence[float]) -> None:
-    """Log axes labelled with plain numbers: x ticks at the measured values (10, 20, … Hz, not 2×10¹), y as %g."""
-    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter
+def _plain_log_ticks(ax, x_ticks: Sequence[float], y_subs: Sequence[float] = (1.0, 2.0, 5.0)) -> None:
+    """Log axes labelled with plain numbers: x ticks at ``x_ticks`` (the measured values: 10, 20, …
+    Hz, not 2×10¹), y at ``y_subs`` × 10ᵏ, both as %g; no minor ticks.
+
+    A log axis' minor ticks (eight a decade, each a tick object with its line, grid line and
+    labels, set up at every draw) were 40 % of the instructions of a where-figure (893 → 536 M for
+    the conditions figure, 1178 → 697 M for the bands figure): the labelled ticks at 1, 2 and 5 and
+    their grid lines carry the scale."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullLocator
 
     plain = FuncFormatter(lambda v, _: f"{v:g}")
     if 0 < len(x_ticks) <= 12:
         ax.xaxis.set_major_locator(FixedLocator(list(x_ticks)))
-        ax.xaxis.set_major_formatter(plain)
-        ax.xaxis.set_minor_formatter(NullFormatter())
-    ax.yaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    else:
+        ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(plain)
+    ax.yaxis.set_major_locator(LogLocator(base=10.0, subs=tuple(y_subs)))
     ax.yaxis.set_major_formatter(plain)
-    ax.yaxis.set_minor_formatter(NullFormatter())
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_minor_locator(NullLocator())
 
 
 def _fig_branch_position(path: Path, data: WhereFigureData) -> Path:
@@ -251,6 +259,7 @@ def _fig_bands(path: Path, data: WhereFigureData) -> Path:
         for edge in (0.5, 5.5, 50.5):
             ax2.axvline(edge, color="0.4", ls=":", lw=1)
         ax2.legend(fontsize="x-small", loc="lower left")
+        _plain_log_ticks(ax2, (), y_subs=(1.0,))
     else:
         ax2.text(0.5, 0.5, "no periodic capture", ha="center", va="center", transform=ax2.transAxes)
     ax2.set_xlabel("Frequency / drive frequency (harmonic order; dotted: band edges)")
@@ -258,7 +267,7 @@ def _fig_bands(path: Path, data: WhereFigureData) -> Path:
     ax2.set_title(f"Spectrum of the error, {len(spectra)} periodic capture{'s' if len(spectra) != 1 else ''}",
                   fontsize=10)
     for ax in (ax1, ax2):
-        ax.grid(True, which="both", alpha=0.3)
+        ax.grid(True, alpha=0.3)
     return _save(fig, path, plots.DPI)
 
 
