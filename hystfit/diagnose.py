@@ -41,7 +41,9 @@ from .capture import Capture
 from .cells import cell_key
 from .conditions import condition_label, detect_condition, group_by_condition, is_step_and_hold, white_noise_sigma
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, make_effect,
-                      prepare_design, scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
+                      coarse_design, prepare_design, ranked_on_rows, scoring_design, signature_share,
+                      solve_coefficients, surrogate_spectrum)
+from .effects import COARSE_KEEP_MIN, COARSE_KEEP_SHARE
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
 from .identify import adapted_model, condition_groups, fit_captures, identify, prepare_shared
@@ -1759,13 +1761,41 @@ def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[f
 def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
     """Per effect with searched parameters, the :meth:`~hystfit.effects.Effect.score` of every
     candidate of its search grid on ``scoring`` (a :func:`scoring_design`): each grid split over
-    :data:`SELECTION_WORKERS` processes (the same numbers on any number), the largest grids first."""
+    :data:`SELECTION_WORKERS` processes (the same numbers on any number), the largest grids first.
+
+    A stage's grid on many fit samples (:func:`~hystfit.effects.ranked_on_rows`) is ranked on a
+    subsample of rows first (:func:`~hystfit.effects.coarse_design`); only its best points
+    (:data:`~hystfit.effects.COARSE_KEEP_SHARE`, at least :data:`~hystfit.effects.COARSE_KEEP_MIN`)
+    are scored on every row, the others are NaN (not scored): the search starts from the best
+    of the scored ones, which is the best of the whole grid unless the subsample ranked it out."""
     searched = sorted((e for e in effects if e.searched_bounds()[0].size), key=lambda e: -e.searched_bounds()[0].size)
-    chunks = [(e, rows) for e in searched for rows in np.array_split(np.arange(len(e.search_grid())), fork_workers(
-        SELECTION_WORKERS)) if rows.size]
-    out = fork_map(lambda i: np.array([chunks[i][0].score(c, scoring) for c in chunks[i][0].search_grid()[chunks[i][1]]]),
-                   len(chunks), SELECTION_WORKERS)
-    return {e.name: np.concatenate([r for (c, _), r in zip(chunks, out) if c is e]) for e in searched}
+    if not searched:
+        return {}
+    coarse = {e.name for e in searched if ranked_on_rows(e, scoring)}
+    grids = {e.name: np.asarray(e.search_grid(), float) for e in searched}
+
+    def scored(points: dict[str, np.ndarray], design_of) -> dict[str, np.ndarray]:
+        chunks = [(e, part) for e in searched if e.name in points
+                  for part in np.array_split(np.arange(len(points[e.name])), fork_workers(SELECTION_WORKERS)) if part.size]
+        out = fork_map(lambda i: np.array([chunks[i][0].score(c, design_of(chunks[i][0]))
+                                           for c in points[chunks[i][0].name][chunks[i][1]]]),
+                       len(chunks), SELECTION_WORKERS)
+        return {name: np.concatenate([r for (e, _), r in zip(chunks, out) if e.name == name]) for name in points}
+
+    first = scored(grids, lambda e: coarse_design(scoring) if e.name in coarse else scoring)
+    if not coarse:
+        return first
+    best = {}
+    for name in coarse:
+        ranking = np.argsort(first[name], kind="stable")
+        k = max(COARSE_KEEP_MIN, int(math.ceil(COARSE_KEEP_SHARE * ranking.size)))
+        best[name] = np.sort(ranking[:k])
+    exact = scored({name: grids[name][idx] for name, idx in best.items()}, lambda e: scoring)
+    for name, idx in best.items():
+        g = np.full(grids[name].shape[0], np.nan)
+        g[idx] = exact[name]
+        first[name] = g
+    return first
 
 
 def _run_candidates(ctx: _StepContext, remaining: Sequence[Effect], step: int, caps, views,

@@ -127,6 +127,15 @@ class EffectParam:
 REDUCE_ABOVE = 24
 #: Relative eigenvalue below which a direction of the scaled Gram matrix counts as undetermined.
 REDUCED_RTOL = 1e-8
+#: A stage's search grid (an effect whose every φ filters the design's columns: no knots, no
+#: regressors) is first ranked on every COARSE_STRIDE-th fit sample (:func:`coarse_design`) when
+#: the fit samples number at least COARSE_MIN_ROWS; the best COARSE_KEEP_SHARE of the ranking (at
+#: least COARSE_KEEP_MIN points) are then scored on every sample, and the search starts from the
+#: best of those (:func:`ranked_on_rows`).
+COARSE_STRIDE = 4
+COARSE_MIN_ROWS = 8000
+COARSE_KEEP_SHARE = 0.05
+COARSE_KEEP_MIN = 4
 
 
 @dataclass(frozen=True)
@@ -393,8 +402,13 @@ class Effect(ABC):
         design = prepare_design(yhats, views, lin) if design is None else design
         scoring = scoring_design(design) if m > 0 else design
         seen: dict[bytes, float] = {}  # φ → score: the grid, the polish and its final comparison revisit points
+        grid = None
         if grid_scores is not None and phi0 is None:
-            seen.update((c.tobytes(), float(v)) for c, v in zip(np.asarray(self.search_grid(), float), grid_scores))
+            # NaN: a grid point not scored (ranked out on a subsample of rows: :func:`ranked_on_rows`);
+            # the search starts from the best of those scored
+            g = np.asarray(grid_scores, float)
+            grid = np.asarray(self.search_grid(), float)[~np.isnan(g)]
+            seen.update((c.tobytes(), float(v)) for c, v in zip(grid, g[~np.isnan(g)]))
 
         def score(phi: np.ndarray) -> float:
             key = np.asarray(phi, float).tobytes()
@@ -406,6 +420,8 @@ class Effect(ABC):
             best = np.empty(0)
         else:
             cands = self.search_grid() if not (local_search and phi0 is not None) else _local_grid(phi0, lo, hi)
+            if grid is not None:
+                cands = grid
             if phi0 is not None:
                 cands = np.vstack([cands, np.clip(np.asarray(phi0, float), lo, hi)[None, :]])
             scores = np.array([score(c) for c in cands])
@@ -648,6 +664,40 @@ def scoring_design(design: _Design) -> _Design:
             fitted=design.fitted, index=design.index, knots=design.knots if V is None else {},
             plain=design.plain if V is None else {}, compact=compact)
     return design.derived["scoring"]
+
+
+def ranked_on_rows(effect: Effect, design: _Design) -> bool:
+    """Whether ``effect``'s search grid is ranked on a subsample of rows first (see
+    :data:`COARSE_STRIDE`): its every φ filters the columns of ``design`` (no knots, no regressors:
+    a stage, whose filter runs over every sample but whose Gram product — the cost, w² per row —
+    then needs only the rows scored), and the fit samples are many."""
+    if effect.searched_bounds()[0].size == 0 or sum(effect.layout()) or not design.fitted:
+        return False
+    rows = sum(design.X[c].shape[0] if mask is None else int(mask.sum()) for c, mask, _ in design.fitted)
+    if rows < COARSE_MIN_ROWS:
+        return False
+    c = design.fitted[0][0]
+    return effect.operator_knots(np.asarray(effect.search_grid()[0], float), design.views[c]) is None
+
+
+def coarse_design(design: _Design) -> _Design:
+    """``design`` on every :data:`COARSE_STRIDE`-th fit sample of each capture (its columns, views and
+    compacted columns shared; the operators still run over every sample): scores about
+    1/COARSE_STRIDE of the full ones, to rank a search grid (:func:`ranked_on_rows`). Made once per
+    design."""
+    if "coarse" not in design.derived:
+        fitted, yy = [], list(design.yy)
+        for c, mask, y in design.fitted:
+            n = design.X[c].shape[0]
+            rows = np.arange(n) if mask is None else np.flatnonzero(mask)
+            keep = np.zeros(n, bool)
+            keep[rows[::COARSE_STRIDE]] = True
+            yk = np.ascontiguousarray(y[::COARSE_STRIDE])
+            fitted.append((c, keep, yk))
+            yy[c] = float(yk @ yk)
+        design.derived["coarse"] = _Design(design.views, design.X, tuple(yy), design.cols, design.lin,
+                                           fitted=tuple(fitted), index=design.index, compact=design.compact)
+    return design.derived["coarse"]
 
 
 def _compact_columns(yhat: np.ndarray, J: np.ndarray, V: np.ndarray | None, X: np.ndarray

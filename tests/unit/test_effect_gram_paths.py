@@ -132,3 +132,43 @@ def test_compacted_columns_give_the_direct_scores(n_base):
         want = solve_coefficients(dyn, phi, design=plain, bounded=False)
         _same(got, want)
         assert dyn.score(phi, scoring) == pytest.approx(dyn.score(phi, plain), rel=1e-9)
+
+
+def test_a_stage_grid_ranked_on_a_subsample_of_rows_scores_its_best_points_exactly(monkeypatch):
+    """A stage's search grid on many fit samples is ranked on every 4th row (coarse_design); only the
+    best points of that ranking are scored on every row (the rest NaN), with the exact scores, and
+    the fit starts from the best scored point: here, as in most cases, the best of the whole grid,
+    so the fitted φ is the one of the exact grid. A delay (knots) and creep (regressors) are not
+    ranked this way."""
+    import hystfit.effects as eff
+    from hystfit.blocks.dynamics import Dynamics
+    from hystfit.diagnose import _grid_scores
+    from hystfit.effects import coarse_design, ranked_on_rows, scoring_design
+
+    rng = np.random.default_rng(3)
+    views, yhats, lin = _problem(rng, lengths=(3000, 3300, 2900, 2000), k=6)
+    design = prepare_design(yhats, views, lin)
+    scoring = scoring_design(design)
+    dyn = Dynamics().configure(views, yhats)
+    rows = sum(int(v.fit.sum()) for v in views)
+    monkeypatch.setattr(eff, "COARSE_MIN_ROWS", rows + 1)
+    assert not ranked_on_rows(dyn, scoring)  # too few rows: the exact grid
+    exact = _grid_scores([dyn], scoring)["dynamics"]
+    assert not np.isnan(exact).any()
+    monkeypatch.setattr(eff, "COARSE_MIN_ROWS", rows // 2)
+    assert ranked_on_rows(dyn, scoring)
+    assert not ranked_on_rows(Delay().configure(views, yhats), scoring)
+    assert not ranked_on_rows(Creep().configure(views, yhats), scoring)
+    coarse = coarse_design(scoring)
+    assert coarse is coarse_design(scoring)  # made once
+    assert [int(m.sum()) for _, m, _ in coarse.fitted] == [len(range(0, int(v.fit.sum()), 4)) for v in views
+                                                          if v.fit.any()]
+    ranked = _grid_scores([dyn], scoring)["dynamics"]
+    kept = ~np.isnan(ranked)
+    assert 4 <= kept.sum() < 0.2 * ranked.size
+    np.testing.assert_array_equal(ranked[kept], exact[kept])
+    assert np.nanargmin(ranked) == np.argmin(exact)
+    a = dyn.fit(yhats, views, lin, design=design, grid_scores=exact)
+    b = dyn.fit(yhats, views, lin, design=design, grid_scores=ranked)
+    np.testing.assert_array_equal(a.phi, b.phi)
+    assert b.evaluations < a.evaluations
