@@ -779,16 +779,23 @@ def has_convergence_history(history_best) -> bool:
 def _plain_log_labels(axis, values: np.ndarray) -> None:
     """Label a log axis with plain numbers (0.0025, not 2.5×10⁻³; no mathtext to lay out).
 
-    Minor ticks are labelled only when the finite positive ``values`` span less than a decade
-    (otherwise the decade labels suffice).
+    When the finite positive ``values`` span less than a decade, the minor ticks (2…9 × 10ᵏ) are
+    labelled too. Otherwise the axis has no minor ticks: labelled ticks at 1, 2 and 5 × 10ᵏ (up to
+    three decades) or at each decade, with their grid lines, carry the scale. A log axis' eight
+    minor ticks a decade — tick objects set up at every draw — were a third of a convergence
+    figure's instructions (149 → 97 M warm, 420 → 281 M for a process's first).
     """
-    from matplotlib.ticker import FuncFormatter, NullFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
     plain = FuncFormatter(lambda v, _: f"{v:.3g}")
     axis.set_major_formatter(plain)
     v = values[np.isfinite(values) & (values > 0)]
-    narrow = v.size > 0 and v.max() < 10.0 * v.min()
-    axis.set_minor_formatter(FuncFormatter(lambda x, _: f"{x:.3g}") if narrow else NullFormatter())
+    if v.size > 0 and v.max() < 10.0 * v.min():
+        axis.set_minor_formatter(FuncFormatter(lambda x, _: f"{x:.3g}"))
+        return
+    decades = math.log10(v.max() / v.min()) if v.size else math.inf
+    axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0) if decades <= 3.0 else (1.0,)))
+    axis.set_minor_locator(NullLocator())
 
 
 def _grid_shape(n: int) -> tuple[int, int]:
