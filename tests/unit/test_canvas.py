@@ -105,3 +105,27 @@ def test_a_full_layout_cache_starts_again(empty_layouts, monkeypatch):
     monkeypatch.setattr(canvas, "MAX_CACHED_TEXTS", 3)
     _pixels(canvas.Canvas)
     assert 0 < len(canvas._layouts) <= 3
+
+
+@pytest.mark.parametrize("angle", [0, 90])
+def test_a_text_rasterised_on_a_bounded_canvas_is_the_measured_one(angle):
+    """_rasterise sizes its scratch canvas from a bound instead of measuring the text: the same
+    image and offsets as on the measured canvas, and a text that outgrows the bound (its ink at the
+    canvas's edge) is drawn again on the measured one."""
+    from matplotlib.backends.backend_agg import RendererAgg
+    from matplotlib.font_manager import FontProperties
+
+    renderer = RendererAgg(200, 200, 110)
+    gc = renderer.new_gc()
+    for s, size in (("0.0123", 6), ("WWWWMMMM", 14), ("µm – Ω", 10), ("1", 30), ("  ", 8)):
+        prop = FontProperties(size=size)
+        w, h, _ = renderer.get_text_width_height_descent(s, prop, False)
+        measured = canvas._draw_alone(renderer, gc, s, prop, angle, None, w, h)
+        got = canvas._rasterise(renderer, gc, s, prop, angle, None)
+        if measured is None:
+            assert got is None, s
+            continue
+        np.testing.assert_array_equal(got[0], measured[0])
+        assert got[1:] == measured[1:], s
+    assert canvas._draw_alone(renderer, gc, "WWWWMMMM", FontProperties(size=14), angle, None, 5.0, 3.0) \
+        is canvas._CLIPPED
