@@ -1126,6 +1126,7 @@ def boxplot_figure(path, groups: Mapping[str, Sequence[float]], *, title: str = 
         ax.tick_params(axis="x", labelrotation=30)
     if log and nonempty:
         ax.set_yscale("log")
+        _plain_log_labels(ax.yaxis, np.concatenate([data[i] for i in nonempty]))
     ax.set_ylabel(ylabel)
     ax.grid(True, axis="y", which="both", alpha=0.3)
     if title:
