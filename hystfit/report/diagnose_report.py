@@ -94,9 +94,9 @@ def _plain_log_ticks(ax, x_ticks: Sequence[float], y_subs: Sequence[float] = (1.
     Hz, not 2×10¹), y at ``y_subs`` × 10ᵏ, both as %g; no minor ticks.
 
     A log axis' minor ticks (eight a decade, each a tick object with its line, grid line and
-    labels, set up at every draw) were 40 % of the instructions of a where-figure (893 → 536 M for
-    the conditions figure, 1178 → 697 M for the bands figure): the labelled ticks at 1, 2 and 5 and
-    their grid lines carry the scale."""
+    labels, set up at every draw) were 40 % of the instructions of a where-figure (891 → 527 M for
+    the conditions figure, 1178 → 654 M for the bands figure: ``python benchmarks/figure_work.py
+    --other TREE``): the labelled ticks at 1, 2 and 5 and their grid lines carry the scale."""
     from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullLocator
 
     plain = FuncFormatter(lambda v, _: f"{v:g}")

@@ -782,8 +782,9 @@ def _plain_log_labels(axis, values: np.ndarray) -> None:
     When the finite positive ``values`` span less than a decade, the minor ticks (2…9 × 10ᵏ) are
     labelled too. Otherwise the axis has no minor ticks: labelled ticks at 1, 2 and 5 × 10ᵏ (up to
     three decades) or at each decade, with their grid lines, carry the scale. A log axis' eight
-    minor ticks a decade — tick objects set up at every draw — were a third of a convergence
-    figure's instructions (149 → 97 M warm, 420 → 281 M for a process's first).
+    minor ticks a decade — tick objects set up at every draw — were a quarter of a convergence
+    figure's instructions (150 → 111 M warm, 400 → 299 M drawn first: ``python
+    benchmarks/figure_work.py --other TREE``).
     """
     from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
