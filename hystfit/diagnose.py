@@ -41,9 +41,8 @@ from .capture import Capture
 from .cells import cell_key
 from .conditions import condition_label, detect_condition, group_by_condition, is_step_and_hold, white_noise_sigma
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, make_effect,
-                      coarse_design, prepare_design, ranked_on_rows, scoring_design, signature_share,
-                      solve_coefficients, surrogate_spectrum)
-from .effects import COARSE_KEEP_MIN, COARSE_KEEP_SHARE
+                      COARSE_KEEP_MIN, COARSE_KEEP_SHARE, coarse_design, prepare_design, ranked_on_rows,
+                      scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
 from .identify import adapted_model, condition_groups, fit_captures, identify, prepare_shared
@@ -606,8 +605,8 @@ def heldout_captures(captures: Sequence[Capture], tonal: Sequence[bool] | None =
     ``tonal`` marks the captures driven at one frequency (periodic, or a sine whose amplitude
     changes: :func:`is_periodic`, :func:`is_swept`). A broadband capture's "frequency" (a PRBS, a
     step pattern, a multisine: its strongest spectral line, :func:`hystfit.conditions.detect_condition`)
-    says nothing about where it lies between the sines: counted, a step pattern at 0.3 Hz and a PRBS
-    at 600 Hz made every sine interior, and every sine was held out (the model was fitted on the
+    says nothing about where it lies between the sines: counted, a step pattern at 0.32 Hz and a
+    PRBS at ≈ 470 Hz made every sine interior, and every sine was held out (the model was fitted on the
     broadband captures alone and judged on sines only)."""
     tonal = [True] * len(captures) if tonal is None else list(tonal)
     f = np.array([c.frequency_Hz for c, t in zip(captures, tonal) if t], float)
@@ -1582,9 +1581,7 @@ def _split_info(split: SplitChoice, caps, views, swept, settings) -> dict:
         out["heldout_captures"] = [c.source for c, h in zip(caps, split.held_out) if h]
         # broadband captures (no one drive frequency) are split in time (:func:`_design`)
         out["split_in_time_captures"] = [c.source for c, v in zip(caps, views) if 0 < int(v.fit.sum()) < c.n]
-        out["fit_fraction"] = settings.fit_fraction
-    else:
-        out["fit_fraction"] = settings.fit_fraction
+    out["fit_fraction"] = settings.fit_fraction
     out["per_capture"] = per_cap
     return out
 

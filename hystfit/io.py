@@ -1050,6 +1050,18 @@ def _time_resolution(t: np.ndarray) -> float:
     return 16 * float(np.finfo(float).eps) * big
 
 
+class _TimeColumnError(InputError):
+    """A time column that cannot give the sampling: ``what`` is wrong with it (without the file's
+    label and the fix), for :func:`_time_axis`'s note when ``--fs`` takes over."""
+
+    def __init__(self, label: str, what: str, fix: str) -> None:
+        super().__init__(f"{label}: {what}; {fix}")
+        self.label, self.what, self.fix = label, what, fix
+
+    def __reduce__(self):  # a capture read aside reports its error across processes (pickled)
+        return type(self), (self.label, self.what, self.fix)
+
+
 def _check_time(table: _Table, col: int, t: np.ndarray, rows: np.ndarray) -> float:
     """Validate strictly increasing, uniform time (s); returns dt = span / (N − 1) in s.
 
@@ -1064,21 +1076,22 @@ def _check_time(table: _Table, col: int, t: np.ndarray, rows: np.ndarray) -> flo
         k = int(back[0]) + 1
         if np.all(d >= 0) and np.count_nonzero(d == 0) >= 0.25 * d.size:  # rounded, not shuffled
             res = float(np.min(d[d > 0])) if np.any(d > 0) else float("nan")
-            raise InputError(f"{table.label}: {name}: the time stamps repeat (row {rows[k]} has the previous "
-                             f"row's {t[k]:.9g} s, and {np.count_nonzero(d == 0)} rows do): they are rounded to "
-                             f"{res:.3g} s, coarser than the sampling; pass --fs HZ to take the sample rate "
-                             "instead of the time column, or export the time with more digits")
-        raise InputError(f"{table.label}: row {rows[k]}, {name}: time {t[k]:.9g} s is not after the previous row's "
-                         f"{t[k - 1]:.9g} s (time must strictly increase); sort the rows or remove duplicates")
+            raise _TimeColumnError(table.label, f"{name}: the time stamps repeat (row {rows[k]} has the previous "
+                                   f"row's {t[k]:.9g} s, and {np.count_nonzero(d == 0)} rows do): they are rounded to "
+                                   f"{res:.3g} s, coarser than the sampling", "pass --fs HZ to take the sample rate "
+                                   "instead of the time column, or export the time with more digits")
+        raise _TimeColumnError(table.label, f"row {rows[k]}, {name}: time {t[k]:.9g} s is not after the previous "
+                               f"row's {t[k - 1]:.9g} s (time must strictly increase)",
+                               "sort the rows or remove duplicates")
     med = float(np.median(d))
     tol = 1e-3 * med + _time_resolution(t)
     off = np.flatnonzero(np.abs(d - med) > tol)
     if off.size:
         k = int(off[0]) + 1
         rel = abs(d[k - 1] - med) / med * 100
-        raise InputError(f"{table.label}: row {rows[k]}, {name}: the time step {d[k - 1]:.6g} s differs from the "
-                         f"median step {med:.6g} s by {rel:.3g} % (limit 0.1 %): the sampling is not uniform "
-                         f"(gap or jitter); resample the capture to a uniform rate")
+        raise _TimeColumnError(table.label, f"row {rows[k]}, {name}: the time step {d[k - 1]:.6g} s differs from "
+                               f"the median step {med:.6g} s by {rel:.3g} % (limit 0.1 %): the sampling is not "
+                               "uniform (gap or jitter)", "resample the capture to a uniform rate")
     return float((t[-1] - t[0]) / (t.size - 1))
 
 
@@ -1211,12 +1224,11 @@ def _time_axis(table: _Table, chosen: dict, t: np.ndarray | None, rows: np.ndarr
         raise InputError(f"{table.label}: only {t.size} data row; a capture needs many samples")
     try:
         dt = _check_time(table, chosen["time"], t, rows)
-    except InputError as exc:
+    except _TimeColumnError as exc:
         if opts.fs is None:
             raise
         # --fs given: it takes over from a time column that cannot give the sampling
-        reason = str(exc).split(": ", 1)[1].split(";")[0]
-        notes.append(f"{reason}: the time column is not used, the sample rate is --fs {opts.fs:g} Hz")
+        notes.append(f"{exc.what}: the time column is not used, the sample rate is --fs {opts.fs:g} Hz")
         return 1.0 / float(opts.fs)
     if opts.fs is not None and abs(1.0 / dt - opts.fs) > 0.01 * opts.fs:
         raise InputError(f"{table.label}: {table.col_label(chosen['time'])} gives a sample rate of {1 / dt:.6g} Hz "

@@ -129,3 +129,28 @@ def test_a_text_rasterised_on_a_bounded_canvas_is_the_measured_one(angle):
         assert got[1:] == measured[1:], s
     assert canvas._draw_alone(renderer, gc, "WWWWMMMM", FontProperties(size=14), angle, None, 5.0, 3.0) \
         is canvas._CLIPPED
+
+
+def test_a_text_that_outgrows_the_bound_is_drawn_again_on_the_measured_canvas(monkeypatch):
+    """_rasterise's fallback: when the bounded canvas clips the ink, the text is measured and drawn
+    again, giving the measured canvas's image (here the bound is made too small on purpose)."""
+    from matplotlib.backends.backend_agg import RendererAgg
+    from matplotlib.font_manager import FontProperties
+
+    renderer = RendererAgg(200, 200, 110)
+    gc = renderer.new_gc()
+    prop = FontProperties(size=12)
+    w, h, _ = renderer.get_text_width_height_descent("0.0123", prop, False)
+    want = canvas._draw_alone(renderer, gc, "0.0123", prop, 0, None, w, h)
+    calls = []
+    draw = canvas._draw_alone
+
+    def first_too_small(r, g, s, p, angle, mtext, w_, h_):
+        calls.append((w_, h_))
+        return draw(r, g, s, p, angle, mtext, *((2.0, 2.0) if len(calls) == 1 else (w_, h_)))
+
+    monkeypatch.setattr(canvas, "_draw_alone", first_too_small)
+    got = canvas._rasterise(renderer, gc, "0.0123", prop, 0, None)
+    assert len(calls) == 2 and calls[1] == (w, h)
+    np.testing.assert_array_equal(got[0], want[0])
+    assert got[1:] == want[1:]
