@@ -22,7 +22,9 @@ and the median ratio of the pairs. On this project's shared virtual machine the 
 of a command repeats to about ±1 % (this tree against itself, the Quickstart, three pairs: 1.004;
 one process alone, ±0.5 %) where its wall time moves by ±20 %: it says whether a change does less
 work, not whether the machine's scheduling of that work got better (``--no-instructions`` turns
-it off).
+it off). Its CPU cycles are counted beside them: a change that removes BLAS products removes
+many instructions and few cycles (they retire several per cycle), so judge such a change by its
+cycles.
 """
 
 from __future__ import annotations
@@ -72,9 +74,11 @@ def perf_counts() -> bool:
 
 
 def run(tree: Path, args: list[str], instructions: bool = False, as_typed: bool = False,
-        out_name: str = "out") -> tuple[float, float, int | None]:
+        out_name: str = "out") -> tuple[float, float, int | None, int | None]:
     """Wall time, CPU seconds (every process of the command: :func:`bench_end_to_end.adopt_orphans`)
-    and, with ``instructions``, the user-space instructions of them all (``perf stat``).
+    and, with ``instructions``, the user-space instructions and CPU cycles of them all (``perf
+    stat``; cycles: what the instructions cost on this machine — BLAS products retire several
+    instructions per cycle, Python's interpreter less than one).
     ``as_typed``: without ``--quiet``, its progress lines and tables printed to pipes, as a user's
     script runs it (``--quiet`` skips the progress line, and with it what that line changes)."""
     env = {**e2e.command_env(), "PYTHONPATH": str(tree)}
@@ -83,17 +87,18 @@ def run(tree: Path, args: list[str], instructions: bool = False, as_typed: bool 
                *(() if as_typed else ("--quiet",))]
         counts = Path(tmp) / "perf.csv"
         if instructions:
-            cmd = ["perf", "stat", "-x,", "-e", "instructions:u", "-o", str(counts), "--",
+            cmd = ["perf", "stat", "-x,", "-e", "instructions:u,cycles:u", "-o", str(counts), "--",
                    sys.executable, "-c", ADOPT_AND_WAIT, *cmd]
         cpu0, t0 = _children_cpu_s(), time.perf_counter()
         subprocess.run(cmd, cwd=tmp, env=env, check=True, stdout=subprocess.PIPE if as_typed else subprocess.DEVNULL,
                        stderr=subprocess.PIPE if as_typed else None)
         wall = time.perf_counter() - t0
-        n = None
+        n = c = None
         if instructions:
-            rows = [line.split(",") for line in counts.read_text().splitlines() if "instructions" in line]
-            n = int(rows[0][0]) if rows and rows[0][0].isdigit() else None
-        return wall, _children_cpu_s() - cpu0, n
+            rows = [line.split(",") for line in counts.read_text().splitlines()]
+            n, c = (next((int(f[0]) for f in rows if len(f) > 2 and what in f[2] and f[0].isdigit()), None)
+                    for what in ("instructions", "cycles"))
+        return wall, _children_cpu_s() - cpu0, n, c
 
 
 def main() -> None:
@@ -115,7 +120,7 @@ def main() -> None:
     e2e.adopt_orphans()
     for tree in trees.values():
         run(tree, args, as_typed=ns.as_typed, out_name=ns.out_name)  # warm-up: bytecode and numba caches
-    walls: dict[str, list[tuple[float, float, int | None]]] = {name: [] for name in trees}
+    walls: dict[str, list[tuple[float, float, int | None, int | None]]] = {name: [] for name in trees}
     for i in range(ns.repeat):
         # which tree runs first alternates (AB BA AB …): a drift of the machine, or a cache the first
         # run of a pair warms, does not favour one tree
@@ -123,20 +128,26 @@ def main() -> None:
             walls[name].append(run(trees[name], args, count, as_typed=ns.as_typed, out_name=ns.out_name))
     how = "as typed (no --quiet, output to pipes)" if ns.as_typed else "with --quiet"
     print(f"`hystfit {' '.join(args)}`, {how}, {ns.repeat} runs each, alternately (the first of each pair alternates)\n")
-    print("| tree | best wall (s) | median wall (s) | median CPU (s) | median instructions (G) | every run: wall / CPU (s) |")
-    print("|---|---:|---:|---:|---:|---|")
+    print("| tree | best wall (s) | median wall (s) | median CPU (s) | median instructions (G) | median cycles (G) "
+          "| every run: wall / CPU (s) |")
+    print("|---|---:|---:|---:|---:|---:|---|")
     for name, tree in trees.items():
-        w = [x for x, _, _ in walls[name]]
-        c = [y for _, y, _ in walls[name]]
-        n = [k for _, _, k in walls[name] if k is not None]
+        w = [r[0] for r in walls[name]]
+        c = [r[1] for r in walls[name]]
+        n = [r[2] for r in walls[name] if r[2] is not None]
+        cyc = [r[3] for r in walls[name] if r[3] is not None]
         ins = f"{statistics.median(n) / 1e9:.3f}" if n else "–"
-        runs = ", ".join(f"{x:.2f} / {y:.1f}" for x, y, _ in walls[name])
-        print(f"| {name} ({tree}) | {min(w):.2f} | {statistics.median(w):.2f} | {statistics.median(c):.1f} | {ins} | {runs} |")
+        cy = f"{statistics.median(cyc) / 1e9:.3f}" if cyc else "–"
+        runs = ", ".join(f"{r[0]:.2f} / {r[1]:.1f}" for r in walls[name])
+        print(f"| {name} ({tree}) | {min(w):.2f} | {statistics.median(w):.2f} | {statistics.median(c):.1f} | {ins} | {cy} "
+              f"| {runs} |")
     this, other = walls["this tree"], walls["other"]
     ratios = [a[0] / b[0] for a, b in zip(this, other)]
     line = f"\nmedian ratio of the pairs (this tree / other): wall {statistics.median(ratios):.3f}"
     if count and all(a[2] and b[2] for a, b in zip(this, other)):
         line += f", instructions {statistics.median(a[2] / b[2] for a, b in zip(this, other)):.4f}"
+    if count and all(a[3] and b[3] for a, b in zip(this, other)):
+        line += f", cycles {statistics.median(a[3] / b[3] for a, b in zip(this, other)):.4f}"
     print(line)
 
 

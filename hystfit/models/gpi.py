@@ -55,42 +55,54 @@ def gpi_envelopes(uk, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr):
 
 
 @njit(cache=True, inline="always")
-def gpi_play(r, q, s, gl, gr, z):
-    """Advance the operator states ``s`` (n, m) by one sample of envelopes gl, gr (m,):
-    s_j = max(γ_l − r_j, min(γ_r + r_j, s_j)), and z = Σ_j q_j s_j into ``z`` (j in order). With
-    :func:`gpi_envelopes`, the one home of the gPI recurrence of the population kernels (gpi, pi2;
-    candidates innermost)."""
-    m = z.shape[0]
+def gpi_play(r, q, s, GL, GR, row, z, n, m):
+    """Advance the operator states ``s`` (n, m) by one sample whose envelopes are row ``row`` of
+    ``GL``, ``GR`` (:func:`gpi_envelope_rows`): s_j = max(γ_l − r_j, min(γ_r + r_j, s_j)), and
+    z = Σ_j q_j s_j into ``z`` (j in order). With :func:`gpi_envelopes`, the one home of the gPI
+    recurrence of the population kernels (gpi, pi2; candidates innermost). ``n``, ``m``: the
+    operators and candidates (passed, not read off four arrays' shapes: the loops then compile
+    without the checks that the arrays agree)."""
     for i in range(m):
         z[i] = 0.0
-    for j in range(s.shape[0]):
+    for j in range(n):
         for i in range(m):
-            v = max(gl[i] - r[j, i], min(gr[i] + r[j, i], s[j, i]))
+            v = max(GL[row, i] - r[j, i], min(GR[row, i] + r[j, i], s[j, i]))
             s[j, i] = v
             z[i] += q[j, i] * v
 
 
+#: samples whose envelopes an untabulated input has computed at a time, ahead of the time loop
+#: (:func:`gpi_envelopes_ahead`)
+ENVELOPE_CHUNK = 256
+
+
 @njit(cache=True, inline="always")
-def gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1):
-    """:func:`gpi_envelope_table` when ``index`` (each sample's input level) is given, else two
-    empty (0, m) tables (the envelopes are then computed per sample, :func:`gpi_envelopes_at`)."""
+def gpi_envelope_rows(index, levels, N, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1):
+    """The envelope rows a population kernel reads (:func:`gpi_play`): when ``index`` (each sample's
+    input level) is given, the table per level of :func:`gpi_envelope_table` (sample k reads row
+    index[k]); else two buffers of :data:`ENVELOPE_CHUNK` rows that :func:`gpi_envelopes_ahead`
+    fills (sample k reads row k − c0 of its chunk c0:c1).
+
+    Why rows and not one envelope per sample computed in the time loop: a loop with the
+    exponentials of the envelopes in it compiles without keeping the states in registers nor
+    vectorizing over candidates (measured: the gPI kernel 1.5–3.5× slower at 1–50 candidates)."""
     if index.shape[0] > 0:
         return gpi_envelope_table(levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
-    return np.empty((0, p1 - p0)), np.empty((0, p1 - p0))
+    rows = min(N, ENVELOPE_CHUNK)
+    return np.empty((rows, p1 - p0)), np.empty((rows, p1 - p0))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr):
-    """The envelopes at sample ``k`` into ``gl``, ``gr``: from the table ``GL``, ``GR`` of
-    :func:`gpi_envelope_table` when ``index`` (each sample's input level) is given, else computed
-    (:func:`gpi_envelopes`); both are the same expression, bit for bit."""
-    if index.shape[0] > 0:
-        lv = index[k]
-        for i in range(gl.shape[0]):
-            gl[i] = GL[lv, i]
-            gr[i] = GR[lv, i]
-    else:
-        gpi_envelopes(u[k], a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
+def gpi_envelopes_ahead(u, index, c0, c1, a1, a2, a3, a4, b1, b2, b3, b4, p0, GL, GR, gl, gr):
+    """For an untabulated input (``index`` empty), rows 0:c1 − c0 of ``GL``, ``GR`` ← the envelopes
+    of samples c0:c1 (:func:`gpi_envelopes`, the expression of the table: bit for bit the same);
+    a tabulated input's rows are all there already."""
+    if index.shape[0] == 0:
+        for k in range(c0, c1):
+            gpi_envelopes(u[k], a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
+            for i in range(gl.shape[0]):
+                GL[k - c0, i] = gl[i]
+                GR[k - c0, i] = gr[i]
 
 
 @njit(cache=True, inline="always")
@@ -137,7 +149,8 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
     """z of :func:`gpi_population` for the candidates p0:p1: into out (N, P), or — when ``y`` is
     non-empty — its moments Σz², Σz, Σz·y into out[p, 0:3] (no (N, P) array). With ``index`` (N,)
     non-empty, u_k = levels[index[k]] and the envelopes are tabulated per level (two exp per
-    candidate and level instead of per sample); otherwise computed per sample. With ``period``
+    candidate and level instead of per sample); otherwise computed :data:`ENVELOPE_CHUNK` samples
+    at a time ahead of the time loop (:func:`gpi_envelope_rows`). With ``period``
     T > 0 (the input repeats every T samples, :func:`input_period`) and z stored, the states are
     compared every T samples: once they equal those one period earlier, the rest of z repeats and
     is copied (the same numbers, not computed again)."""
@@ -150,28 +163,31 @@ def _gpi_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha, 
     acc = np.empty(m)
     sums = np.zeros((3, m))
     moments = y.shape[0] > 0
-    GL, GR = gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
+    tabulated = index.shape[0] > 0
+    GL, GR = gpi_envelope_rows(index, levels, N, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
     repeats = period > 0 and not moments
     s_prev = np.empty((n, m) if repeats else (0, 0))
-    for k in range(N):
-        if repeats and k > 0 and k % period == 0:
-            if k >= 2 * period and same_state(s, s_prev):
-                for kk in range(k, N):
-                    for i in range(m):
-                        out[kk, p0 + i] = out[kk - period, p0 + i]
-                break
-            copy_state(s_prev, s)
-        gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
-        gpi_play(r, q, s, gl, gr, acc)
-        if moments:
-            yk = y[k]
-            for i in range(m):
-                sums[0, i] += acc[i] * acc[i]
-                sums[1, i] += acc[i]
-                sums[2, i] += acc[i] * yk
-        else:
-            for i in range(m):
-                out[k, p0 + i] = acc[i]
+    for c0 in range(0, N, ENVELOPE_CHUNK):
+        c1 = min(N, c0 + ENVELOPE_CHUNK)
+        gpi_envelopes_ahead(u, index, c0, c1, a1, a2, a3, a4, b1, b2, b3, b4, p0, GL, GR, gl, gr)
+        for k in range(c0, c1):
+            if repeats and k > 0 and k % period == 0:
+                if k >= 2 * period and same_state(s, s_prev):
+                    for kk in range(k, N):
+                        for i in range(m):
+                            out[kk, p0 + i] = out[kk - period, p0 + i]
+                    return
+                copy_state(s_prev, s)
+            gpi_play(r, q, s, GL, GR, index[k] if tabulated else k - c0, acc, n, m)
+            if moments:
+                yk = y[k]
+                for i in range(m):
+                    sums[0, i] += acc[i] * acc[i]
+                    sums[1, i] += acc[i]
+                    sums[2, i] += acc[i] * yk
+            else:
+                for i in range(m):
+                    out[k, p0 + i] = acc[i]
     if moments:
         store_sums(out, p0, (sums[0], sums[1], sums[2]), 3)
 

@@ -21,7 +21,8 @@ from .base import Model
 from .composite import Composite
 from .pi import PI
 from .separable import scaled_response
-from .gpi import (GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_tables, gpi_envelopes_at, gpi_operators, gpi_play,
+from .gpi import (ENVELOPE_CHUNK, GPI, TABLE_BLOCK_ELEMENTS, gpi_envelope_rows, gpi_envelopes_ahead, gpi_operators,
+                  gpi_play,
                   copy_state, input_levels, input_period, same_state)
 
 optimize = lazy_module("scipy.optimize")  # imported on first use: keeps start-up fast
@@ -79,49 +80,53 @@ def _gpi2_block(u, levels, index, y, a1, a2, a3, a4, b1, b2, b3, b4, tau, alpha,
     gr = np.empty(m)
     z = np.empty(m)
     zf = np.empty(m)
-    GL, GR = gpi_envelope_tables(index, levels, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
+    tabulated = index.shape[0] > 0
+    GL, GR = gpi_envelope_rows(index, levels, N, a1, a2, a3, a4, b1, b2, b3, b4, p0, p1)
     repeats = period > 0 and period * m <= REPEAT_MAX_ELEMENTS
     z_period = np.empty((period, m) if repeats else (0, 0))  # z of the last period, at k % period
     s_prev = np.empty((n, m) if repeats else (0, 0))
     copying = False
-    for k in range(N):
-        if repeats and not copying and k > 0 and k % period == 0:
-            copying = k >= 2 * period and same_state(s, s_prev)
-            copy_state(s_prev, s)
-        if copying:
-            for i in range(m):
-                z[i] = z_period[k % period, i]
-        else:
-            gpi_envelopes_at(k, u, index, GL, GR, a1, a2, a3, a4, b1, b2, b3, b4, p0, gl, gr)
-            gpi_play(r, q, s, gl, gr, z)
-            if repeats:
+    for c0 in range(0, N, ENVELOPE_CHUNK):
+        c1 = min(N, c0 + ENVELOPE_CHUNK)
+        if not copying:
+            gpi_envelopes_ahead(u, index, c0, c1, a1, a2, a3, a4, b1, b2, b3, b4, p0, GL, GR, gl, gr)
+        for k in range(c0, c1):
+            if repeats and not copying and k > 0 and k % period == 0:
+                copying = k >= 2 * period and same_state(s, s_prev)
+                copy_state(s_prev, s)
+            if copying:
                 for i in range(m):
-                    z_period[k % period, i] = z[i]
-        if k == 0:
-            for i in range(m):
-                z0[i] = z[i]
-        yk = y[k] if mode != _OUTPUT else 0.0
-        for i in range(m):  # the stage, then each mode's use of z_f in its own loop (these vectorize)
-            p = p0 + i
-            d = z[i] - z0[i]
-            e = f0[p] * d + f1[p] * d1[i] + f2[p] * d2[i] - g1[p] * e1[i] - g2[p] * e2[i]
-            d2[i] = d1[i]
-            d1[i] = d
-            e2[i] = e1[i]
-            e1[i] = e
-            zf[i] = z0[i] + e
-        if mode == _OUTPUT:
-            for i in range(m):
-                out[k, p0 + i] = rho[p0 + i] * zf[i] + y0[p0 + i]
-        elif mode == _SSE:
-            for i in range(m):
-                res = rho[p0 + i] * zf[i] + y0[p0 + i] - yk
-                acc0[i] += res * res
-        else:
-            for i in range(m):
-                acc0[i] += zf[i] * zf[i]
-                acc1[i] += zf[i]
-                acc2[i] += zf[i] * yk
+                    z[i] = z_period[k % period, i]
+            else:
+                gpi_play(r, q, s, GL, GR, index[k] if tabulated else k - c0, z, n, m)
+                if repeats:
+                    for i in range(m):
+                        z_period[k % period, i] = z[i]
+            if k == 0:
+                for i in range(m):
+                    z0[i] = z[i]
+            yk = y[k] if mode != _OUTPUT else 0.0
+            for i in range(m):  # the stage, then each mode's use of z_f in its own loop (these vectorize)
+                p = p0 + i
+                d = z[i] - z0[i]
+                e = f0[p] * d + f1[p] * d1[i] + f2[p] * d2[i] - g1[p] * e1[i] - g2[p] * e2[i]
+                d2[i] = d1[i]
+                d1[i] = d
+                e2[i] = e1[i]
+                e1[i] = e
+                zf[i] = z0[i] + e
+            if mode == _OUTPUT:
+                for i in range(m):
+                    out[k, p0 + i] = rho[p0 + i] * zf[i] + y0[p0 + i]
+            elif mode == _SSE:
+                for i in range(m):
+                    res = rho[p0 + i] * zf[i] + y0[p0 + i] - yk
+                    acc0[i] += res * res
+            else:
+                for i in range(m):
+                    acc0[i] += zf[i] * zf[i]
+                    acc1[i] += zf[i]
+                    acc2[i] += zf[i] * yk
     if mode != _OUTPUT:
         store_sums(out, p0, (acc0, acc1, acc2), 1 if mode == _SSE else 3)
 

@@ -95,6 +95,8 @@ def _import_plotting(lean: bool = False) -> None:
         saved = sys.modules.get(_UNUSED_3D)
         sys.modules[_UNUSED_3D] = None  # type: ignore[assignment] - the import of the toolkit fails at once
         _without_set_signatures()
+        for name in _LOADED_ON_USE:
+            _load_on_use(name)
         try:
             with warnings.catch_warnings():
                 warnings.filterwarnings("ignore", message="Unable to import Axes3D", category=UserWarning)
@@ -110,6 +112,48 @@ def _import_plotting(lean: bool = False) -> None:
     from . import canvas, plots  # noqa: F401
 
     font_manager.get_font(font_manager.findfont(font_manager.FontProperties()))  # the first text loads the font
+
+
+#: modules matplotlib imports for what hystfit's figures never draw, made to load on first use in the
+#: figure server (:func:`_load_on_use`): the Adobe Glyph List, which ``matplotlib.dviread`` (TeX
+#: output) imports whole — 50 ms of the server's import, parsing a 4,500-line table
+_LOADED_ON_USE = ("fontTools.agl",)
+
+
+def _load_on_use(name: str) -> None:
+    """Make ``import name`` in this process bind a stand-in module that imports the real one when
+    an attribute of it is first read (PEP 562's module ``__getattr__``), then holds the real one's
+    names: the same module, later. (:class:`importlib.util.LazyLoader` does not do it on Python
+    3.11: the ``import`` statement reads the module's ``__spec__``, which loads it.) Nothing is
+    changed when the module is imported already or cannot be found."""
+    import importlib
+    import importlib.util
+    import types
+
+    if name in sys.modules:
+        return
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return
+    if spec is None:
+        return
+    stand_in = types.ModuleType(name)
+    stand_in.__spec__ = spec
+
+    def load(attr: str):
+        if sys.modules.get(name) is stand_in:
+            del sys.modules[name]
+        real = importlib.import_module(name)  # binds itself on its package, as any import does
+        stand_in.__dict__.update({k: v for k, v in vars(real).items() if k != "__getattr__"})
+        del stand_in.__dict__["__getattr__"]
+        return getattr(real, attr)
+
+    stand_in.__getattr__ = load  # type: ignore[attr-defined]
+    sys.modules[name] = stand_in
+    parent, _, child = name.rpartition(".")
+    if parent:  # as the import system does for a submodule: ``import a.b`` then reads a.b
+        setattr(sys.modules[parent], child, stand_in)
 
 
 def _without_set_signatures() -> None:
