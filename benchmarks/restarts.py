@@ -51,7 +51,8 @@ caps = load_captures(sorted(Path(data).glob('*.csv')))
 c0 = time.process_time()
 res = identify(caps, make_model(model, {}), make_optimizer(optimizers.get('auto'), {'restarts': restarts}),
                seed=seed, jobs=1)
-print(json.dumps({'cpu_s': time.process_time() - c0,
+import hystfit
+print(json.dumps({'tree': str(Path(hystfit.__file__).parent.parent), 'cpu_s': time.process_time() - c0,
                   'rmse': [next(v for k, v in f.metrics.items() if k.startswith('rmse_')) for f in res.fits],
                   'labels': [f.label for f in res.fits]}))
 """
@@ -88,9 +89,15 @@ def default_data(work: Path) -> list[Path]:
 
 def run_one(model: str, data: Path, restarts: int, seed: int, tree: Path = ROOT) -> dict:
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(tree)}
-    r = subprocess.run([sys.executable, "-c", CHILD, model, str(data), str(restarts), str(seed)], env=env,
-                       capture_output=True, text=True, check=True)
-    return json.loads(r.stdout.strip().splitlines()[-1])
+    # from a directory of its own: ``python -c`` puts the working directory first on sys.path, and a
+    # checkout there (this one, run from its root) would shadow ``tree``
+    with tempfile.TemporaryDirectory() as cwd:
+        r = subprocess.run([sys.executable, "-c", CHILD, model, str(Path(data).resolve()), str(restarts), str(seed)],
+                           env=env, capture_output=True, text=True, check=True, cwd=cwd)
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    if Path(out["tree"]).resolve() != Path(tree).resolve():
+        raise RuntimeError(f"the fit imported hystfit from {out['tree']}, not from {tree}")
+    return out
 
 
 def main() -> None:

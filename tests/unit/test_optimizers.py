@@ -195,8 +195,31 @@ def test_auto_runs_one_search_and_one_polish_by_default(monkeypatch):
     _, polishes = _spy_polishes(monkeypatch)
     res = Auto().minimize(obj, lo, hi, rng=np.random.default_rng(0))
     assert len(searches) == 1 and len(polishes) == 1
-    assert searches[0].pop == 24 and searches[0].iters == 60  # max(24, 5m), max(60, 15m) for m = 3
+    assert searches[0].pop == 24 and searches[0].iters == 60  # max(24, 3m), max(60, 7.5m) for m = 3
     assert res.fun == pytest.approx(polishes[0][1], rel=1e-12)
+
+
+def test_auto_sizes_the_search_by_the_nonlinear_parameters_beyond_the_defaults(monkeypatch):
+    """gpi's ten nonlinear parameters: 3m particles, 7.5m iterations, a 1.5m stall window (the
+    defaults 24, 60 and 12 are smaller); its polish decides where the fit ends (CHANGELOG:
+    benchmarks/restarts.py, the earlier 5m × 15m search gave no better polished fits)."""
+    from hystfit.models.gpi import GPI
+    from hystfit.objective import Objective, Series
+    from hystfit.optimizers.auto import Auto
+    from hystfit.params import DataScale
+
+    fs = 2000.0
+    u = 30.0 * (1 - np.cos(2 * np.pi * 5 * np.arange(400) / fs))
+    model = GPI()
+    ps = model.params(DataScale.from_arrays([u], [0.3 * u], [1 / fs]))
+    lo, hi = np.array([p.lower for p in ps]), np.array([p.upper for p in ps])
+    y = model.simulate_one(np.array([p.default for p in ps]), u, 1 / fs)
+    searches = []
+    real_pso = PSO.minimize
+    monkeypatch.setattr(PSO, "minimize", lambda self, *a, **kw: searches.append(self) or real_pso(self, *a, **kw))
+    Auto().minimize(Objective(model, [Series(u, y, 1 / fs)]), lo, hi, rng=np.random.default_rng(0))
+    assert len(model.separable().nonlinear) == 10
+    assert [(s.pop, s.iters, s.stop.stall_iter) for s in searches] == [(30, 75, 15)]
 
 
 # ------------------------------------------------------------------ LSQ: the normal-equation route
