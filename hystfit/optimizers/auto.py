@@ -67,7 +67,7 @@ class Auto(IteratedSearch):
     Without separable structure it falls back to one PSO over all parameters plus the polish
     (``restarts`` does not apply).
 
-    Settings: ``pop`` (24) particles and ``iters`` (60) iterations per search, ``stall_iter`` (12)
+    Settings: ``pop`` (16) particles and ``iters`` (30) iterations per search, ``stall_iter`` (6)
     and ``stall_tol`` (1e-7) for the stall stop of each search, ``restarts`` (1) searches, each
     polished, ``max_evals`` (None) and ``time_limit_s`` (None) for all searches together.
 
@@ -92,10 +92,10 @@ class Auto(IteratedSearch):
     applied_stop_rules = ("max_evals", "stall_iter", "stall_tol", "time_limit_s")
     required_stop_rules = {"stall_iter": "each search stops on a stall"}
 
-    pop: int = 24
-    iters: int = 60
+    pop: int = 16
+    iters: int = 30
     restarts: int = setting(1, whole=True, at_least=1, example=2)
-    stop: StopRules = stop_field(stall_iter=12, stall_tol=1e-7)
+    stop: StopRules = stop_field(stall_iter=6, stall_tol=1e-7)
 
     def minimize(self, objective: Objective, lower, upper, *, rng: np.random.Generator,
                  x0: np.ndarray | None = None, callback: Callback = None) -> OptimizeResult:

@@ -195,13 +195,13 @@ def test_auto_runs_one_search_and_one_polish_by_default(monkeypatch):
     _, polishes = _spy_polishes(monkeypatch)
     res = Auto().minimize(obj, lo, hi, rng=np.random.default_rng(0))
     assert len(searches) == 1 and len(polishes) == 1
-    assert searches[0].pop == 24 and searches[0].iters == 60  # max(24, 3m), max(60, 7.5m) for m = 3
+    assert searches[0].pop == 16 and searches[0].iters == 30  # max(16, 3m), max(30, 7.5m) for m = 3
     assert res.fun == pytest.approx(polishes[0][1], rel=1e-12)
 
 
 def test_auto_sizes_the_search_by_the_nonlinear_parameters_beyond_the_defaults(monkeypatch):
     """gpi's ten nonlinear parameters: 3m particles, 7.5m iterations, a 1.5m stall window (the
-    defaults 24, 60 and 12 are smaller); its polish decides where the fit ends (CHANGELOG:
+    defaults 16, 30 and 6 are smaller); its polish decides where the fit ends (CHANGELOG:
     benchmarks/restarts.py, the earlier 5m × 15m search gave no better polished fits)."""
     from hystfit.models.gpi import GPI
     from hystfit.objective import Objective, Series
