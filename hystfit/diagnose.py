@@ -1196,11 +1196,15 @@ class _Group:
     upper: np.ndarray
     indices: tuple[int, ...]
     objective: tuple | None = field(default=None, repr=False, compare=False)  # (lengths, Objective): _group_objective
+    #: capture index → (its input, the model's :meth:`~hystfit.models.base.Model.head_simulator` of it):
+    #: copies of a state share it (:func:`_base_predictions` simulates every state of a fit on the same inputs)
+    simulators: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
-        """Pickled without its objective (it holds the model's compiled simulators; a forked worker
-        returns its states to this process, which makes the objective again when it needs it)."""
-        return {**self.__dict__, "objective": None}
+        """Pickled without its objective and simulators (they hold the model's compiled simulators and
+        design matrices; a forked worker returns its states to this process, which makes them again
+        when it needs them)."""
+        return {**self.__dict__, "objective": None, "simulators": {}}
 
 
 def _group_objective(g: _Group, captures, lengths: Sequence[int]) -> Objective:
@@ -1232,7 +1236,11 @@ def _base_predictions(state: _State, captures: Sequence[Capture], lengths: Seque
         g = state.groups[state.group_of[i]]
         n = c.n if lengths is None else lengths[i]
         with np.errstate(all="ignore"):
-            out.append(g.model.simulate_one(g.theta, c.u[:n], c.dt))
+            u, sim = g.simulators.get(i, (None, None))
+            if u is not c.u:
+                sim = g.model.head_simulator(c.u, c.dt)
+                g.simulators[i] = (c.u, sim)
+            out.append(sim(g.theta, n))
     return out
 
 

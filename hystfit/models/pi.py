@@ -132,6 +132,14 @@ class PI(Model, PlayOperators):
         theta = self.check_theta(theta, self.n_operators + 1)
         return theta @ self.design_matrix(u, dt).T
 
+    def head_simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray, int], np.ndarray]:
+        """:meth:`simulate_one` over the first n samples with the design matrix of the whole input
+        made once: its first n rows are ``design_matrix(u[:n])`` (the play operators are causal),
+        C-contiguous as that is, so ``θ @ D[:n].T`` is the same product, bit for bit."""
+        D = self.design_matrix(np.asarray(u, float), dt)
+        d = self.n_operators + 1
+        return lambda theta, n: (self.check_theta(np.atleast_2d(np.asarray(theta, float)), d) @ D[:n].T)[0]
+
     def simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray], np.ndarray]:
         u = readonly(u)
         F = play_matrix(u, self.r)
