@@ -50,7 +50,9 @@ from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
 from .optimizers.lsq import polisher
-from .parallel import CellFailed, LocalExecutor, fork_call, fork_map, fork_workers, one_blas_thread, run_cells
+from ._warm import STEPS as WARM_STEPS, load_ahead
+from .parallel import (CellFailed, ForkedExecutor, LocalExecutor, fork_call, fork_map, fork_workers, one_blas_thread,
+                       run_cells)
 from .seeds import check_seed
 from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
 
@@ -1516,6 +1518,13 @@ def _base_fits(jobs: list, n_groups: int, model: Model, optimizer: Optimizer, se
             what = "base fit" if i < n_groups else "base fit (fit part)"
             advance(f"{what} {jobs[i][2]}" + (" (reused)" if reused else ""))
 
+    if (store is None and len(jobs) > 1 and fork_workers(SELECTION_WORKERS) > 1
+            and (executor is None or (isinstance(executor, LocalExecutor) and executor.workers == 1))):
+        # cells of this process only (nothing stored, one job at a time): on every core instead, in
+        # forked children that read the captures already here (the same fits); what the fits load
+        # (numba, scipy.optimize) is loaded here first, once, not in each child
+        load_ahead(WARM_STEPS)
+        executor = ForkedExecutor(SELECTION_WORKERS)
     fits = run_cells(_base_fit_job, jobs, shared=(model, optimizer, seed), executor=executor, store=store, keys=keys,
                      resume=resume, on_done=done, stats=stats)
     for (_, _, label, _), f in zip(jobs, fits):

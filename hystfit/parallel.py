@@ -923,6 +923,26 @@ class ForkedCall:
             pass
 
 
+class ForkedExecutor(Executor):
+    """Cells on this process and forked children (:func:`fork_map`), each with the retry of a cell
+    run here: for a short batch of cells that read data already in this process, where starting a
+    pool would cost more than the cells (no fork server, no pickled shared data; each child
+    returns its results at the end). The results come in job order once every cell is done, the
+    same numbers as one process gives."""
+
+    name = "forked"
+
+    def __init__(self, workers: int | None = None) -> None:
+        super().__init__()
+        self.workers = fork_workers(workers)
+
+    def run(self, fn, shared, items):
+        items = list(items)
+        out = fork_map(lambda k: _inline(fn, shared, items[k][1]), len(items), self.workers)
+        for (i, _), res in zip(items, out):
+            yield i, res
+
+
 def fork_call(fn: Callable[[], R], workers: int | None = None, *, kernels: bool = True) -> ForkedCall | None:
     """Start ``fn()`` (deterministic, reading data already in this process) in a forked child, or
     None where :func:`fork_map` with ``workers`` would not fork (one process inside pool workers,
