@@ -1518,11 +1518,11 @@ def _base_fits(jobs: list, n_groups: int, model: Model, optimizer: Optimizer, se
             what = "base fit" if i < n_groups else "base fit (fit part)"
             advance(f"{what} {jobs[i][2]}" + (" (reused)" if reused else ""))
 
-    if (store is None and len(jobs) > 1 and fork_workers(SELECTION_WORKERS) > 1
+    if (len(jobs) > 1 and fork_workers(SELECTION_WORKERS) > 1
             and (executor is None or (isinstance(executor, LocalExecutor) and executor.workers == 1))):
-        # cells of this process only (nothing stored, one job at a time): on every core instead, in
-        # forked children that read the captures already here (the same fits); what the fits load
-        # (numba, scipy.optimize) is loaded here first, once, not in each child
+        # cells of this process only, one after the other: on every core instead, in forked children
+        # that read the captures already here (the same fits; stored, when stored, once all are
+        # done); what the fits load (numba, scipy.optimize) is loaded here first, once, not in each child
         load_ahead(WARM_STEPS)
         executor = ForkedExecutor(SELECTION_WORKERS)
     fits = run_cells(_base_fit_job, jobs, shared=(model, optimizer, seed), executor=executor, store=store, keys=keys,
