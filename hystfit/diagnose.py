@@ -40,8 +40,8 @@ import numpy as np
 from .capture import Capture
 from .cells import cell_key
 from .conditions import condition_label, detect_condition, group_by_condition, is_step_and_hold, white_noise_sigma
-from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, make_effect,
-                      COARSE_KEEP_MIN, COARSE_KEEP_SHARE, coarse_design, prepare_design, ranked_on_rows,
+from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, _unit_phasors,
+                      make_effect, COARSE_KEEP_MIN, COARSE_KEEP_SHARE, coarse_design, prepare_design, ranked_on_rows,
                       scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
@@ -1772,7 +1772,49 @@ def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[f
                         pl_mean, pl_red, refit.fit.n_parameters, refit.share, refit.r2, params, ev, passes, refit.fit)
 
 
-def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
+@dataclass(frozen=True, eq=False)
+class _Ranked:
+    """A search grid of ``size`` points ranked on a subsample of rows whose ``best`` points (indices
+    into the grid) are still to be scored on every row (:func:`_grid_scores` with ``exact_later``;
+    :func:`_exact_grid_scores` scores them)."""
+
+    size: int
+    best: np.ndarray
+
+
+def _exact_grid_scores(effect: Effect, scoring, got) -> np.ndarray | None:
+    """The grid scores of ``effect`` as :func:`_grid_scores` gives them, from what it gave with
+    ``exact_later``: a :class:`_Ranked` grid's best points scored on every row of ``scoring`` here
+    (the same numbers as scored over the processes), NaN elsewhere; anything else as it is."""
+    if not isinstance(got, _Ranked):
+        return got
+    g = np.full(got.size, np.nan)
+    grid = np.asarray(effect.search_grid(), float)
+    g[got.best] = np.array([effect.score(c, scoring) for c in grid[got.best]])
+    return g
+
+
+#: effects whose search has run in this process (its kernels are loaded)
+_SEARCHED_HERE: set = set()
+
+
+def _load_kernels(searched: Sequence[Effect], design_of) -> None:
+    """Before the first forked scoring of a search grid: one grid point of each effect scored here,
+    so that the numba kernels its score runs are loaded in this process, once, and not again in
+    every forked child (≈ 30–60 ms each); and the placebos' phase kernel. Changes no number (a
+    delay's knot Gram products it computes are kept in the design as the search would keep them)."""
+    if fork_workers(SELECTION_WORKERS) <= 1:
+        return
+    for e in searched:
+        if e.name not in _SEARCHED_HERE:
+            e.score(np.asarray(e.search_grid(), float)[0], design_of(e))
+            _SEARCHED_HERE.add(e.name)
+    if "placebo" not in _SEARCHED_HERE:
+        _unit_phasors(np.zeros((1, 1)))
+        _SEARCHED_HERE.add("placebo")
+
+
+def _grid_scores(effects: Sequence[Effect], scoring, exact_later: bool = False) -> dict:
     """Per effect with searched parameters, the :meth:`~hystfit.effects.Effect.score` of every
     candidate of its search grid on ``scoring`` (a :func:`scoring_design`): each grid split over
     :data:`SELECTION_WORKERS` processes (the same numbers on any number), the largest grids first.
@@ -1781,7 +1823,10 @@ def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
     subsample of rows first (:func:`~hystfit.effects.coarse_design`); only its best points
     (:data:`~hystfit.effects.COARSE_KEEP_SHARE`, at least :data:`~hystfit.effects.COARSE_KEEP_MIN`)
     are scored on every row, the others are NaN (not scored): the search starts from the best
-    of the scored ones, which is the best of the whole grid unless the subsample ranked it out."""
+    of the scored ones, which is the best of the whole grid unless the subsample ranked it out.
+    ``exact_later``: those best points are not scored here but given as a :class:`_Ranked` (the
+    refit of the effect scores them, :func:`_exact_grid_scores`, in the processes that refit the
+    candidates: one round of forked processes less)."""
     searched = sorted((e for e in effects if e.searched_bounds()[0].size), key=lambda e: -e.searched_bounds()[0].size)
     if not searched:
         return {}
@@ -1796,6 +1841,7 @@ def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
                        len(chunks), SELECTION_WORKERS)
         return {name: np.concatenate([r for (e, _), r in zip(chunks, out) if e.name == name]) for name in points}
 
+    _load_kernels(searched, lambda e: coarse_design(scoring) if e.name in coarse else scoring)
     first = scored(grids, lambda e: coarse_design(scoring) if e.name in coarse else scoring)
     if not coarse:
         return first
@@ -1804,6 +1850,8 @@ def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
         ranking = np.argsort(first[name], kind="stable")
         k = max(COARSE_KEEP_MIN, int(math.ceil(COARSE_KEEP_SHARE * ranking.size)))
         best[name] = np.sort(ranking[:k])
+    if exact_later:
+        return {name: _Ranked(grids[name].shape[0], best[name]) if name in best else g for name, g in first.items()}
     exact = scored({name: grids[name][idx] for name, idx in best.items()}, lambda e: scoring)
     for name, idx in best.items():
         g = np.full(grids[name].shape[0], np.nan)
@@ -1825,11 +1873,13 @@ def _run_candidates(ctx: _StepContext, remaining: Sequence[Effect], step: int, c
     draws = _placebo_draws(ctx, remaining, settings, rng)
     searched = sorted((e for e in remaining if e.searched_bounds()[0].size), key=lambda e: -e.searched_bounds()[0].size)
     others = [e for e in remaining if not e.searched_bounds()[0].size]
-    grids = _grid_scores(searched, scoring_design(ctx.lin_cache[2])) if searched else {}  # every worker shares it
+    scoring = scoring_design(ctx.lin_cache[2])  # every worker shares it
+    grids = _grid_scores(searched, scoring, exact_later=True) if searched else {}
 
     def run(i: int):
         if i < len(searched):
-            return _refit_effect(ctx, searched[i], caps, views, settings, grids[searched[i].name])
+            eff = searched[i]
+            return _refit_effect(ctx, eff, caps, views, settings, _exact_grid_scores(eff, scoring, grids[eff.name]))
         if i < len(searched) + len(others):
             return _refit_effect(ctx, others[i - len(searched)], caps, views, settings)
         key, start = draws[i - len(searched) - len(others)]

@@ -142,7 +142,7 @@ def test_a_stage_grid_ranked_on_a_subsample_of_rows_scores_its_best_points_exact
     ranked this way."""
     import hystfit.effects as eff
     from hystfit.blocks.dynamics import Dynamics
-    from hystfit.diagnose import _grid_scores
+    from hystfit.diagnose import _Ranked, _exact_grid_scores, _grid_scores
     from hystfit.effects import coarse_design, ranked_on_rows, scoring_design
 
     rng = np.random.default_rng(3)
@@ -167,6 +167,12 @@ def test_a_stage_grid_ranked_on_a_subsample_of_rows_scores_its_best_points_exact
     kept = ~np.isnan(ranked)
     assert 4 <= kept.sum() < 0.2 * ranked.size
     np.testing.assert_array_equal(ranked[kept], exact[kept])
+    # the best points scored later, by the refit (one round of forked processes less): the same scores
+    later = _grid_scores([dyn], scoring, exact_later=True)["dynamics"]
+    assert isinstance(later, _Ranked) and later.size == ranked.size
+    np.testing.assert_array_equal(np.flatnonzero(kept), later.best)
+    np.testing.assert_array_equal(_exact_grid_scores(dyn, scoring, later), ranked)
+    assert _exact_grid_scores(dyn, scoring, exact) is exact
     assert np.nanargmin(ranked) == np.argmin(exact)
     a = dyn.fit(yhats, views, lin, design=design, grid_scores=exact)
     b = dyn.fit(yhats, views, lin, design=design, grid_scores=ranked)
