@@ -2034,6 +2034,8 @@ class _Design:
     conds: tuple[tuple[float, float], ...]
     group_of: tuple[int, ...]
     fine_fits: dict = field(default_factory=dict, repr=False)  # finer base → its fits on the fit part
+    #: (finer base, floor, the effects refitted on it in order) → the state: :func:`_refit_finer`
+    fine_states: dict = field(default_factory=dict, repr=False)
 
 
 def _fine_key(fine: Model, optimizer: Optimizer, seed: int):
@@ -2245,15 +2247,25 @@ def _refit_finer(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int,
     """The work of a :func:`resolution_check` of the base ``fine``: its fits on the fit part, then
     the ``chosen`` effects refitted on it in order (each search grid scored over the processes)."""
     fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
-    base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
+    key = _fine_key(fine, optimizer, seed)
+    # the states of the checks before (the same base, floor and first effects: the same refits) are
+    # not computed again: the check after the second named effect starts from the first's refit
+    states = d.fine_states if key is not None else {}
+    at = (key, float(sigma), ())
+    if at not in states:
+        base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
+        states[at] = (base.state, base.preds)
+    state, base_preds = states[at]
     views = list(d.views)
-    state = base.state
-    for eff in _configured(list(chosen), base.preds, views):
-        xs, lin = _linearize(state, caps, views)
-        design = prepare_design(xs, views, lin)
-        grids = _grid_scores([eff], scoring_design(design))  # split over the processes
-        state, _ = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations,
-                            grid_scores=grids.get(eff.name))
+    for k, eff in enumerate(_configured(list(chosen), base_preds, views)):
+        at = (key, float(sigma), tuple(chosen[:k + 1]))
+        if at not in states:
+            xs, lin = _linearize(state, caps, views)
+            design = prepare_design(xs, views, lin)
+            grids = _grid_scores([eff], scoring_design(design))  # split over the processes
+            states[at] = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations,
+                                  grid_scores=grids.get(eff.name))[0]
+        state = states[at]
     return _FinerRefit(state, _predictions(state, caps, views), fits)
 
 
@@ -2350,6 +2362,8 @@ def converge_resolution(caps, d: _Design, model: Model, optimizer: Optimizer, se
     while (fine := cur.refined()) is not None and _excess(cur_base.before, sigma) > sigma:
         fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
         fine_base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
+        if (key := _fine_key(fine, optimizer, seed)) is not None:  # where a check's refits on it start
+            d.fine_states.setdefault((key, float(sigma), ()), (fine_base.state, fine_base.preds))
         red = _shares(cur_base.before, fine_base.before, sigma)["reduction_mean_square"]
         adopted = red >= settings.resolution_threshold
         steps.append({"from": _resolution_of(cur)[1], "to": _resolution_of(fine)[1],
