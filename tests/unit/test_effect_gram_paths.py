@@ -178,3 +178,24 @@ def test_a_stage_grid_ranked_on_a_subsample_of_rows_scores_its_best_points_exact
     b = dyn.fit(yhats, views, lin, design=design, grid_scores=ranked)
     np.testing.assert_array_equal(a.phi, b.phi)
     assert b.evaluations < a.evaluations
+
+
+def test_designs_of_one_column_layout_share_their_solve_indices():
+    """The index sets of the normal equations depend on the column layout only: a fit's true re-solves
+    (a new design per step length) reuse those of the first design of that layout, the same solve."""
+    from hystfit.effects import _INDICES, _solve_indices
+
+    rng = np.random.default_rng(5)
+    views, yhats, lin = _problem(rng)
+    a = prepare_design(yhats, views, lin)
+    b = prepare_design([y + 1.0 for y in yhats], views, lin)
+    assert _solve_indices(a, 2, 1) is _solve_indices(b, 2, 1)
+    assert _solve_indices(a, 0, 2) is not _solve_indices(a, 2, 1)
+    plain = prepare_design(yhats, views)  # no base step: another layout
+    assert _solve_indices(plain, 2, 1) is not _solve_indices(a, 2, 1)
+    eff = Drift().configure(views, yhats)
+    shared = solve_coefficients(eff, np.empty(0), design=b)
+    _INDICES.clear()
+    alone = solve_coefficients(eff, np.empty(0), design=prepare_design([y + 1.0 for y in yhats], views, lin))
+    for x, y in zip(shared, alone):
+        np.testing.assert_array_equal(x, y)
