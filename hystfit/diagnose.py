@@ -40,8 +40,8 @@ import numpy as np
 from .capture import Capture
 from .cells import cell_key
 from .conditions import condition_label, detect_condition, group_by_condition, is_step_and_hold, white_noise_sigma
-from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, make_effect,
-                      COARSE_KEEP_MIN, COARSE_KEEP_SHARE, coarse_design, prepare_design, ranked_on_rows,
+from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, _unit_phasors,
+                      make_effect, COARSE_KEEP_MIN, COARSE_KEEP_SHARE, coarse_design, prepare_design, ranked_on_rows,
                       scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
@@ -50,7 +50,9 @@ from .models.base import Model
 from .objective import Objective, Series
 from .optimizers.base import Optimizer
 from .optimizers.lsq import polisher
-from .parallel import CellFailed, LocalExecutor, fork_call, fork_map, fork_workers, one_blas_thread, run_cells
+from ._warm import STEPS as WARM_STEPS, load_ahead
+from .parallel import (CellFailed, ForkedExecutor, LocalExecutor, fork_call, fork_map, fork_workers, one_blas_thread,
+                       run_cells)
 from .seeds import check_seed
 from .synth import Effects, Plant, raised_cosine, simulate_plant, step_pattern
 
@@ -1196,11 +1198,15 @@ class _Group:
     upper: np.ndarray
     indices: tuple[int, ...]
     objective: tuple | None = field(default=None, repr=False, compare=False)  # (lengths, Objective): _group_objective
+    #: capture index → (its input, the model's :meth:`~hystfit.models.base.Model.head_simulator` of it):
+    #: copies of a state share it (:func:`_base_predictions` simulates every state of a fit on the same inputs)
+    simulators: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __getstate__(self) -> dict:
-        """Pickled without its objective (it holds the model's compiled simulators; a forked worker
-        returns its states to this process, which makes the objective again when it needs it)."""
-        return {**self.__dict__, "objective": None}
+        """Pickled without its objective and simulators (they hold the model's compiled simulators and
+        design matrices; a forked worker returns its states to this process, which makes them again
+        when it needs them)."""
+        return {**self.__dict__, "objective": None, "simulators": {}}
 
 
 def _group_objective(g: _Group, captures, lengths: Sequence[int]) -> Objective:
@@ -1232,7 +1238,11 @@ def _base_predictions(state: _State, captures: Sequence[Capture], lengths: Seque
         g = state.groups[state.group_of[i]]
         n = c.n if lengths is None else lengths[i]
         with np.errstate(all="ignore"):
-            out.append(g.model.simulate_one(g.theta, c.u[:n], c.dt))
+            u, sim = g.simulators.get(i, (None, None))
+            if u is not c.u:
+                sim = g.model.head_simulator(c.u, c.dt)
+                g.simulators[i] = (c.u, sim)
+            out.append(sim(g.theta, n))
     return out
 
 
@@ -1508,6 +1518,13 @@ def _base_fits(jobs: list, n_groups: int, model: Model, optimizer: Optimizer, se
             what = "base fit" if i < n_groups else "base fit (fit part)"
             advance(f"{what} {jobs[i][2]}" + (" (reused)" if reused else ""))
 
+    if (len(jobs) > 1 and fork_workers(SELECTION_WORKERS) > 1
+            and (executor is None or (isinstance(executor, LocalExecutor) and executor.workers == 1))):
+        # cells of this process only, one after the other: on every core instead, in forked children
+        # that read the captures already here (the same fits; stored, when stored, once all are
+        # done); what the fits load (numba, scipy.optimize) is loaded here first, once, not in each child
+        load_ahead(WARM_STEPS)
+        executor = ForkedExecutor(SELECTION_WORKERS)
     fits = run_cells(_base_fit_job, jobs, shared=(model, optimizer, seed), executor=executor, store=store, keys=keys,
                      resume=resume, on_done=done, stats=stats)
     for (_, _, label, _), f in zip(jobs, fits):
@@ -1755,7 +1772,49 @@ def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[f
                         pl_mean, pl_red, refit.fit.n_parameters, refit.share, refit.r2, params, ev, passes, refit.fit)
 
 
-def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
+@dataclass(frozen=True, eq=False)
+class _Ranked:
+    """A search grid of ``size`` points ranked on a subsample of rows whose ``best`` points (indices
+    into the grid) are still to be scored on every row (:func:`_grid_scores` with ``exact_later``;
+    :func:`_exact_grid_scores` scores them)."""
+
+    size: int
+    best: np.ndarray
+
+
+def _exact_grid_scores(effect: Effect, scoring, got) -> np.ndarray | None:
+    """The grid scores of ``effect`` as :func:`_grid_scores` gives them, from what it gave with
+    ``exact_later``: a :class:`_Ranked` grid's best points scored on every row of ``scoring`` here
+    (the same numbers as scored over the processes), NaN elsewhere; anything else as it is."""
+    if not isinstance(got, _Ranked):
+        return got
+    g = np.full(got.size, np.nan)
+    grid = np.asarray(effect.search_grid(), float)
+    g[got.best] = np.array([effect.score(c, scoring) for c in grid[got.best]])
+    return g
+
+
+#: effects whose search has run in this process (its kernels are loaded)
+_SEARCHED_HERE: set = set()
+
+
+def _load_kernels(searched: Sequence[Effect], design_of) -> None:
+    """Before the first forked scoring of a search grid: one grid point of each effect scored here,
+    so that the numba kernels its score runs are loaded in this process, once, and not again in
+    every forked child (≈ 30–60 ms each); and the placebos' phase kernel. Changes no number (a
+    delay's knot Gram products it computes are kept in the design as the search would keep them)."""
+    if fork_workers(SELECTION_WORKERS) <= 1:
+        return
+    for e in searched:
+        if e.name not in _SEARCHED_HERE:
+            e.score(np.asarray(e.search_grid(), float)[0], design_of(e))
+            _SEARCHED_HERE.add(e.name)
+    if "placebo" not in _SEARCHED_HERE:
+        _unit_phasors(np.zeros((1, 1)))
+        _SEARCHED_HERE.add("placebo")
+
+
+def _grid_scores(effects: Sequence[Effect], scoring, exact_later: bool = False) -> dict:
     """Per effect with searched parameters, the :meth:`~hystfit.effects.Effect.score` of every
     candidate of its search grid on ``scoring`` (a :func:`scoring_design`): each grid split over
     :data:`SELECTION_WORKERS` processes (the same numbers on any number), the largest grids first.
@@ -1764,7 +1823,10 @@ def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
     subsample of rows first (:func:`~hystfit.effects.coarse_design`); only its best points
     (:data:`~hystfit.effects.COARSE_KEEP_SHARE`, at least :data:`~hystfit.effects.COARSE_KEEP_MIN`)
     are scored on every row, the others are NaN (not scored): the search starts from the best
-    of the scored ones, which is the best of the whole grid unless the subsample ranked it out."""
+    of the scored ones, which is the best of the whole grid unless the subsample ranked it out.
+    ``exact_later``: those best points are not scored here but given as a :class:`_Ranked` (the
+    refit of the effect scores them, :func:`_exact_grid_scores`, in the processes that refit the
+    candidates: one round of forked processes less)."""
     searched = sorted((e for e in effects if e.searched_bounds()[0].size), key=lambda e: -e.searched_bounds()[0].size)
     if not searched:
         return {}
@@ -1779,6 +1841,7 @@ def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
                        len(chunks), SELECTION_WORKERS)
         return {name: np.concatenate([r for (e, _), r in zip(chunks, out) if e.name == name]) for name in points}
 
+    _load_kernels(searched, lambda e: coarse_design(scoring) if e.name in coarse else scoring)
     first = scored(grids, lambda e: coarse_design(scoring) if e.name in coarse else scoring)
     if not coarse:
         return first
@@ -1787,6 +1850,8 @@ def _grid_scores(effects: Sequence[Effect], scoring) -> dict[str, np.ndarray]:
         ranking = np.argsort(first[name], kind="stable")
         k = max(COARSE_KEEP_MIN, int(math.ceil(COARSE_KEEP_SHARE * ranking.size)))
         best[name] = np.sort(ranking[:k])
+    if exact_later:
+        return {name: _Ranked(grids[name].shape[0], best[name]) if name in best else g for name, g in first.items()}
     exact = scored({name: grids[name][idx] for name, idx in best.items()}, lambda e: scoring)
     for name, idx in best.items():
         g = np.full(grids[name].shape[0], np.nan)
@@ -1808,11 +1873,13 @@ def _run_candidates(ctx: _StepContext, remaining: Sequence[Effect], step: int, c
     draws = _placebo_draws(ctx, remaining, settings, rng)
     searched = sorted((e for e in remaining if e.searched_bounds()[0].size), key=lambda e: -e.searched_bounds()[0].size)
     others = [e for e in remaining if not e.searched_bounds()[0].size]
-    grids = _grid_scores(searched, scoring_design(ctx.lin_cache[2])) if searched else {}  # every worker shares it
+    scoring = scoring_design(ctx.lin_cache[2])  # every worker shares it
+    grids = _grid_scores(searched, scoring, exact_later=True) if searched else {}
 
     def run(i: int):
         if i < len(searched):
-            return _refit_effect(ctx, searched[i], caps, views, settings, grids[searched[i].name])
+            eff = searched[i]
+            return _refit_effect(ctx, eff, caps, views, settings, _exact_grid_scores(eff, scoring, grids[eff.name]))
         if i < len(searched) + len(others):
             return _refit_effect(ctx, others[i - len(searched)], caps, views, settings)
         key, start = draws[i - len(searched) - len(others)]
@@ -1967,6 +2034,8 @@ class _Design:
     conds: tuple[tuple[float, float], ...]
     group_of: tuple[int, ...]
     fine_fits: dict = field(default_factory=dict, repr=False)  # finer base → its fits on the fit part
+    #: (finer base, floor, the effects refitted on it in order) → the state: :func:`_refit_finer`
+    fine_states: dict = field(default_factory=dict, repr=False)
 
 
 def _fine_key(fine: Model, optimizer: Optimizer, seed: int):
@@ -2178,15 +2247,25 @@ def _refit_finer(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int,
     """The work of a :func:`resolution_check` of the base ``fine``: its fits on the fit part, then
     the ``chosen`` effects refitted on it in order (each search grid scored over the processes)."""
     fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
-    base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
+    key = _fine_key(fine, optimizer, seed)
+    # the states of the checks before (the same base, floor and first effects: the same refits) are
+    # not computed again: the check after the second named effect starts from the first's refit
+    states = d.fine_states if key is not None else {}
+    at = (key, float(sigma), ())
+    if at not in states:
+        base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
+        states[at] = (base.state, base.preds)
+    state, base_preds = states[at]
     views = list(d.views)
-    state = base.state
-    for eff in _configured(list(chosen), base.preds, views):
-        xs, lin = _linearize(state, caps, views)
-        design = prepare_design(xs, views, lin)
-        grids = _grid_scores([eff], scoring_design(design))  # split over the processes
-        state, _ = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations,
-                            grid_scores=grids.get(eff.name))
+    for k, eff in enumerate(_configured(list(chosen), base_preds, views)):
+        at = (key, float(sigma), tuple(chosen[:k + 1]))
+        if at not in states:
+            xs, lin = _linearize(state, caps, views)
+            design = prepare_design(xs, views, lin)
+            grids = _grid_scores([eff], scoring_design(design))  # split over the processes
+            states[at] = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations,
+                                  grid_scores=grids.get(eff.name))[0]
+        state = states[at]
     return _FinerRefit(state, _predictions(state, caps, views), fits)
 
 
@@ -2283,6 +2362,8 @@ def converge_resolution(caps, d: _Design, model: Model, optimizer: Optimizer, se
     while (fine := cur.refined()) is not None and _excess(cur_base.before, sigma) > sigma:
         fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
         fine_base = _base_step(caps, d, fits, gap.full_pred, sigma, settings)
+        if (key := _fine_key(fine, optimizer, seed)) is not None:  # where a check's refits on it start
+            d.fine_states.setdefault((key, float(sigma), ()), (fine_base.state, fine_base.preds))
         red = _shares(cur_base.before, fine_base.before, sigma)["reduction_mean_square"]
         adopted = red >= settings.resolution_threshold
         steps.append({"from": _resolution_of(cur)[1], "to": _resolution_of(fine)[1],

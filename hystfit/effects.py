@@ -620,7 +620,15 @@ def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
     The same for every φ: computed once."""
     key = (ks, kl)
     if key not in design.indices:
+        # the same for every design of the same column layout (the designs a fit's true re-solves make,
+        # one per step length, share it): made once per layout in this process
         C = len(design.views)
+        layout = (ks, kl, C, design.lin is not None,
+                  tuple((X.shape[1], None if b is None else np.asarray(b).tobytes())
+                        for X, b in zip(design.X, design.cols)))
+        if layout in _INDICES:
+            design.indices[key] = _INDICES[layout]
+            return design.indices[key]
         out = []
         for c, (X, bcols) in enumerate(zip(design.X, design.cols)):
             idx = [np.arange(ks), ks + c * kl + np.arange(kl)] if ks + kl else []
@@ -633,8 +641,14 @@ def _solve_indices(design: _Design, ks: int, kl: int) -> list[tuple]:
             run = ix.size > 0 and bool(np.all(np.diff(ix) == 1))
             at = slice(int(ix[0]), int(ix[-1]) + 1) if run else ix
             out.append(((at, at) if run else np.ix_(ix, ix), at, None if sel is None else np.ix_(sel, sel), sel))
-        design.indices[key] = out
+        if len(_INDICES) >= 256:
+            _INDICES.clear()
+        design.indices[key] = _INDICES[layout] = out
     return design.indices[key]
+
+
+#: :func:`_solve_indices` per column layout (of every design made in this process, at most 256)
+_INDICES: dict = {}
 
 
 def scoring_design(design: _Design) -> _Design:

@@ -212,9 +212,14 @@ def _run_job(shared: tuple, job: tuple[int, int]) -> RunRecord:
 
 
 def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | None,
-               condition: tuple[float, float] | None, mape_floor: float = MAPE_THRESHOLD_FRACTION) -> ConditionFit:
+               condition: tuple[float, float] | None, mape_floor: float = MAPE_THRESHOLD_FRACTION,
+               objective: Objective | None = None) -> ConditionFit:
+    """The :class:`ConditionFit` of ``problem`` from its runs' ``records``. ``objective``: the
+    problem's objective when the runs were made in this process with it (its simulators — a PI's
+    play operators of every capture — are made once for the runs and the summary; the numbers
+    do not depend on it)."""
     captures = problem.captures
-    objective = problem.objective()
+    objective = problem.objective() if objective is None else objective
     best = int(np.argmin([rec.fun for rec in records]))
     theta = records[best].x
     preds = objective.predict(theta)
@@ -284,7 +289,7 @@ def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer
         records.append(_run(problem, optimizer, seed, cell, r, polish, objective))
         if progress:
             progress("advance", {"label": label, "run": r, "rmse": records[-1].rmse})
-    return _summarize(problem, records, label, condition, check_mape_floor(mape_floor))
+    return _summarize(problem, records, label, condition, check_mape_floor(mape_floor), objective)
 
 
 def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:

@@ -775,12 +775,18 @@ def run_cells(fn: Callable[[Any, J], R], jobs: Sequence[J], *, shared: Any = Non
 
 
 # ------------------------------------------------------------------------------------ forked maps
+#: children of :func:`fork_call` computing now (started and neither waited for nor stopped)
+_IN_FLIGHT = 0
+
+
 def fork_workers(workers: int | None = None) -> int:
-    """Processes :func:`fork_map` uses: ``workers``, by default all cores — one inside a pool
-    worker (it already has its core) or where ``fork`` is not available."""
+    """Processes :func:`fork_map` uses: ``workers``, by default all cores, less one per child of
+    :func:`fork_call` still computing (it has a core already: a fork_map beside it would only take
+    that core's time from it) — one inside a pool worker (it already has its core) or where
+    ``fork`` is not available."""
     if _SINGLE_THREADED or "fork" not in mp.get_all_start_methods():
         return 1
-    return default_jobs() if workers is None else max(1, int(workers))
+    return max(1, (default_jobs() if workers is None else int(workers)) - _IN_FLIGHT)
 
 
 def _claim_next(claim) -> int:
@@ -864,8 +870,10 @@ class ForkedCall:
     _NOTHING = object()
 
     def __init__(self, fn: Callable[[], R], pid: int, conn) -> None:
+        global _IN_FLIGHT
         self.fn, self.pid, self.conn = fn, pid, conn
         self._message: Any = ForkedCall._NOTHING
+        _IN_FLIGHT += 1
 
     def _receive(self) -> Any:
         """The child's message, read once: ``{0: value}``, the text of a result that did not pickle,
@@ -911,9 +919,11 @@ class ForkedCall:
         self._end(stop=True)
 
     def _end(self, stop: bool) -> None:
+        global _IN_FLIGHT
         if self.pid is None:
             return
         pid, self.pid = self.pid, None
+        _IN_FLIGHT -= 1
         self.conn.close()
         try:
             if stop:
@@ -921,6 +931,26 @@ class ForkedCall:
             os.waitpid(pid, 0)
         except (ChildProcessError, ProcessLookupError):
             pass
+
+
+class ForkedExecutor(Executor):
+    """Cells on this process and forked children (:func:`fork_map`), each with the retry of a cell
+    run here: for a short batch of cells that read data already in this process, where starting a
+    pool would cost more than the cells (no fork server, no pickled shared data; each child
+    returns its results at the end). The results come in job order once every cell is done, the
+    same numbers as one process gives."""
+
+    name = "forked"
+
+    def __init__(self, workers: int | None = None) -> None:
+        super().__init__()
+        self.workers = fork_workers(workers)
+
+    def run(self, fn, shared, items):
+        items = list(items)
+        out = fork_map(lambda k: _inline(fn, shared, items[k][1]), len(items), self.workers)
+        for (i, _), res in zip(items, out):
+            yield i, res
 
 
 def fork_call(fn: Callable[[], R], workers: int | None = None, *, kernels: bool = True) -> ForkedCall | None:

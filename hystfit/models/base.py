@@ -110,6 +110,15 @@ class Model(ABC):
         """Simulate a single parameter vector θ (d,) → y (N,)."""
         return self.simulate(np.atleast_2d(np.asarray(theta, float)), np.asarray(u, float), dt)[0]
 
+    def head_simulator(self, u: np.ndarray, dt: float) -> Callable[[np.ndarray, int], np.ndarray]:
+        """A closure ``(theta (d,), n) → y (n,)``: ``simulate_one(theta, u[:n], dt)``, the same bits,
+        for many θ and a few lengths ``n`` of one input (a diagnosis re-simulates each capture's fit
+        part and the whole capture after every step of every fit). Models override it to compute
+        what does not depend on θ once, for the whole input (PI: the play operators; causal, so the
+        first n rows are those of the input's first n samples). Default: simulate each time."""
+        u = np.asarray(u, float)
+        return lambda theta, n: self.simulate_one(theta, u[:n], dt)
+
     @property
     def composition(self) -> "tuple[Model, tuple] | None":
         """(base, blocks) for a composite model (:mod:`hystfit.models.composite`); None otherwise."""

@@ -62,6 +62,21 @@ def test_shapes_determinism_and_population_consistency(name):
 
 
 @pytest.mark.parametrize("name", NAMES)
+def test_head_simulator_gives_the_bits_of_simulate_one(name):
+    """A diagnosis re-simulates every capture's fit part and whole capture with the model's
+    head_simulator: it must be simulate_one of the first n samples, bit for bit."""
+    model, params, u, _ = prepared(name)
+    rng = np.random.default_rng(2)
+    lo, hi = np.array([p.lower for p in params]), np.array([p.upper for p in params])
+    sim = model.head_simulator(u, DT)
+    for theta in ([p.default for p in params], lo + rng.random(len(params)) * (hi - lo)):
+        theta = np.asarray(theta, float)
+        for n in (u.size, 1234, 7, 1):
+            with np.errstate(all="ignore"):
+                np.testing.assert_array_equal(sim(theta, n), model.simulate_one(theta, u[:n], DT))
+
+
+@pytest.mark.parametrize("name", NAMES)
 def test_random_parameters_inside_bounds_give_finite_output(name):
     model, params, u, _ = prepared(name)
     rng = np.random.default_rng(1)

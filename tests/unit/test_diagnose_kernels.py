@@ -172,6 +172,45 @@ def test_finer_base_is_fitted_once_per_diagnosis(monkeypatch):
     assert len(calls) == 4
 
 
+def test_refits_on_a_finer_base_are_made_once_per_effect_prefix(monkeypatch):
+    """The check after the second named effect refits the first on the same finer base as the check
+    after the first did: that refit (and the base step under it) is reused, not computed again."""
+    from types import SimpleNamespace
+
+    import hystfit.diagnose as D
+
+    steps, augmented = [], []
+
+    def fake_base_step(caps, d, fits, full_pred, sigma, settings):
+        steps.append(sigma)
+        return D._Base(object(), [np.zeros(c.n) for c in caps], 0.0, 0.0, (), False)
+
+    def fake_augment(state, eff, caps, views, lin_cache, iterations, phi0=None, grid_scores=None):
+        augmented.append(eff.name)
+        return (state, eff.name), None
+
+    monkeypatch.setattr(D, "_fine_base_fits", lambda *a: [object()])
+    monkeypatch.setattr(D, "_base_step", fake_base_step)
+    monkeypatch.setattr(D, "_augment", fake_augment)
+    monkeypatch.setattr(D, "_linearize", lambda state, caps, views: (None, None))
+    monkeypatch.setattr(D, "prepare_design", lambda xs, views, lin: None)
+    monkeypatch.setattr(D, "scoring_design", lambda design: None)
+    monkeypatch.setattr(D, "_grid_scores", lambda effects, scoring: {})
+    monkeypatch.setattr(D, "_predictions", lambda state, caps, views: state)
+    caps = _two_raised_cosines(400)
+    design = D._design(caps, D.DiagnoseSettings(), False)
+    opt = make_optimizer(optimizers.get("auto"), {})
+    fine = make_model("pi", {"n_operators": 20})
+    settings, gap = D.DiagnoseSettings(), SimpleNamespace(full_pred=None)
+    first = D._refit_finer(caps, design, fine, opt, 0, gap, ["creep"], 0.01, settings)
+    both = D._refit_finer(caps, design, fine, opt, 0, gap, ["creep", "delay"], 0.01, settings)
+    assert augmented == ["creep", "delay"] and len(steps) == 1
+    assert both.state[0] is first.state  # delay refitted on the creep refit of the first check
+    D._refit_finer(caps, design, fine, opt, 0, gap, ["creep"], 0.02, settings)  # another floor: refitted
+    D._refit_finer(caps, design, make_model("pi", {"n_operators": 40}), opt, 0, gap, ["creep"], 0.01, settings)
+    assert augmented == ["creep", "delay", "creep", "creep"] and len(steps) == 3
+
+
 def test_linearized_state_pickles_and_reuses_its_objective():
     """A state whose groups keep their objective (:func:`hystfit.diagnose._group_objective`) still
     pickles — a forked selection worker sends its refitted states back — and a second linearization

@@ -142,7 +142,7 @@ def test_a_stage_grid_ranked_on_a_subsample_of_rows_scores_its_best_points_exact
     ranked this way."""
     import hystfit.effects as eff
     from hystfit.blocks.dynamics import Dynamics
-    from hystfit.diagnose import _grid_scores
+    from hystfit.diagnose import _Ranked, _exact_grid_scores, _grid_scores
     from hystfit.effects import coarse_design, ranked_on_rows, scoring_design
 
     rng = np.random.default_rng(3)
@@ -167,8 +167,35 @@ def test_a_stage_grid_ranked_on_a_subsample_of_rows_scores_its_best_points_exact
     kept = ~np.isnan(ranked)
     assert 4 <= kept.sum() < 0.2 * ranked.size
     np.testing.assert_array_equal(ranked[kept], exact[kept])
+    # the best points scored later, by the refit (one round of forked processes less): the same scores
+    later = _grid_scores([dyn], scoring, exact_later=True)["dynamics"]
+    assert isinstance(later, _Ranked) and later.size == ranked.size
+    np.testing.assert_array_equal(np.flatnonzero(kept), later.best)
+    np.testing.assert_array_equal(_exact_grid_scores(dyn, scoring, later), ranked)
+    assert _exact_grid_scores(dyn, scoring, exact) is exact
     assert np.nanargmin(ranked) == np.argmin(exact)
     a = dyn.fit(yhats, views, lin, design=design, grid_scores=exact)
     b = dyn.fit(yhats, views, lin, design=design, grid_scores=ranked)
     np.testing.assert_array_equal(a.phi, b.phi)
     assert b.evaluations < a.evaluations
+
+
+def test_designs_of_one_column_layout_share_their_solve_indices():
+    """The index sets of the normal equations depend on the column layout only: a fit's true re-solves
+    (a new design per step length) reuse those of the first design of that layout, the same solve."""
+    from hystfit.effects import _INDICES, _solve_indices
+
+    rng = np.random.default_rng(5)
+    views, yhats, lin = _problem(rng)
+    a = prepare_design(yhats, views, lin)
+    b = prepare_design([y + 1.0 for y in yhats], views, lin)
+    assert _solve_indices(a, 2, 1) is _solve_indices(b, 2, 1)
+    assert _solve_indices(a, 0, 2) is not _solve_indices(a, 2, 1)
+    plain = prepare_design(yhats, views)  # no base step: another layout
+    assert _solve_indices(plain, 2, 1) is not _solve_indices(a, 2, 1)
+    eff = Drift().configure(views, yhats)
+    shared = solve_coefficients(eff, np.empty(0), design=b)
+    _INDICES.clear()
+    alone = solve_coefficients(eff, np.empty(0), design=prepare_design([y + 1.0 for y in yhats], views, lin))
+    for x, y in zip(shared, alone):
+        np.testing.assert_array_equal(x, y)

@@ -124,6 +124,24 @@ def test_fork_call_cancel_stops_the_child_at_once():
     call.cancel()  # a second cancel does nothing
 
 
+def test_a_fork_call_computing_takes_one_core_from_fork_map():
+    """While a fork_call child computes, fork_map beside it uses one process less (it would only take
+    that child's core); its core is given back when the result is taken or the child stopped."""
+    import time
+
+    assert fork_workers(2) == 2
+    call = parallel.fork_call(lambda: (time.sleep(0.2), _item(3))[1])
+    assert fork_workers(2) == 1 and fork_workers(3) == 2
+    assert fork_map(_item, 4, 2) == [_item(i) for i in range(4)]  # the same results, in this process
+    assert call.result() == _item(3)
+    assert fork_workers(2) == 2
+    call = parallel.fork_call(lambda: time.sleep(60))
+    assert fork_workers(2) == 1
+    call.cancel()
+    call.cancel()
+    assert fork_workers(2) == 2
+
+
 def test_fork_call_that_raises_raises_here():
     def fn():
         raise InputError("bad")

@@ -103,3 +103,19 @@ def test_inverted_output_gives_weights_of_one_negative_sign_and_an_exact_inverse
     target = 80.0 - 5.0 * (1 - np.cos(2 * np.pi * 5 * t))
     back = m.simulate_one(fit.theta, m.invert(fit.theta, target, 1e-4), 1e-4)
     np.testing.assert_allclose(back, target, atol=1e-9)
+
+
+def test_head_simulator_keeps_the_design_matrix_of_short_inputs_only(monkeypatch):
+    """A diagnosis keeps a PI's head simulator per capture: the design matrix is kept up to
+    HEAD_SIMULATOR_MAX entries (simulated at each call beyond), the same bits either way."""
+    import hystfit.models.pi as pi_module
+
+    m = PI(n_operators=8, thresholds_V=tuple(float(j) for j in range(8)))
+    u = 4.0 * np.sin(np.linspace(0, 6 * np.pi, 500)) + 4.0
+    theta = np.linspace(0.1, 1.0, 9)
+    kept = m.head_simulator(u, 1e-3)
+    monkeypatch.setattr(pi_module, "HEAD_SIMULATOR_MAX", 100)
+    each = m.head_simulator(u, 1e-3)
+    for n in (500, 321, 1):
+        np.testing.assert_array_equal(kept(theta, n), m.simulate_one(theta, u[:n], 1e-3))
+        np.testing.assert_array_equal(each(theta, n), kept(theta, n))
