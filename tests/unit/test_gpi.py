@@ -201,3 +201,31 @@ def test_recovery_with_noise():
     uv = 55 * (1 - np.cos(2 * np.pi * 3 * t)) * (1 - 0.3 * np.cos(2 * np.pi * 7 * t)) / 2.6
     e = m.simulate_one(x, uv, dt) - m.simulate_one(TRUE, uv, dt)
     assert math.sqrt(np.mean(e ** 2)) < sigma
+
+
+@pytest.mark.parametrize("tabulated", [False, True])
+def test_kernel_matches_the_python_reference_across_envelope_blocks(rng, tabulated):
+    """The kernel reads each sample's envelopes from rows computed ahead: a table per input level,
+    or blocks of ENVELOPE_CHUNK samples (a 1,000-sample rough input: three block boundaries and a
+    short last block). Both routes, outputs and moments, against the plain-Python reference."""
+    from hystfit.models.gpi import ENVELOPE_CHUNK, gpi_population, input_levels
+
+    N = 3 * ENVELOPE_CHUNK + 232
+    u = _input(N) + rng.normal(scale=2.0, size=N)
+    if tabulated:
+        u = np.round(u)  # ≤ 70 distinct levels: the table route
+    levels = input_levels(u)
+    assert (levels[1].size > 0) == tabulated
+    m = GPI(7)
+    lo, hi = _box(m, DataScale.from_arrays([u], [0.3 * u], [1e-3]))
+    theta = lo + rng.random((5, 12)) * (hi - lo)
+    theta[0] = TRUE
+    y = m.simulate(theta, u, 1e-3)
+    for p in range(5):
+        ref = reference_gpi(theta[p], u, 7)
+        np.testing.assert_allclose(y[p], ref, rtol=0, atol=1e-9 * np.max(np.abs(ref)))
+    cols = [np.ascontiguousarray(theta[:, i]) for i in (0, 1, 2, 3, 4, 5, 6, 7, 9, 10)]
+    z = gpi_population(u, *cols, 7, levels)
+    target = rng.normal(size=N)
+    sums = gpi_population(u, *cols, 7, levels, target)
+    np.testing.assert_allclose(sums, np.stack([(z * z).sum(0), z.sum(0), z.T @ target], axis=1), rtol=1e-12)
