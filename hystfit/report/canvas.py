@@ -85,26 +85,90 @@ _CLIPPED = object()
 
 def _draw_alone(renderer: RendererAgg, gc, s: str, prop, angle: float, mtext, w: float, h: float):
     """``s`` drawn on a scratch canvas that holds a text of width ``w`` and height ``h`` (pixels) at
-    0° and 90° around its anchor: (image, left, bottom) as :func:`_rasterise`, None without ink, or
-    :data:`_CLIPPED` when the ink reaches the canvas's edge."""
-    size = math.ceil(w + 2 * h) + 8  # holds the text at 0° and 90° around the anchor below
-    x0, y0 = math.ceil(h) + 4, size - math.ceil(h) - 4
-    scratch = RendererAgg(size, size, renderer.dpi)
+    ``angle`` (0° or 90°) around its anchor: (image, left, bottom) as :func:`_rasterise`, None
+    without ink, or :data:`_CLIPPED` when the ink reaches the canvas's edge.
+
+    The canvas runs along the text only (``w`` + 2 ``h`` by 3 ``h``, the anchor ``h`` in from the
+    start and the baseline side): a square one of ``w`` + 2 ``h`` held both angles, ≈ 25 times the
+    pixels for a title, cleared and searched for ink. The image and offsets are the same on any
+    canvas that holds the ink (tested)."""
+    along, across = math.ceil(w + 2 * h) + 8, math.ceil(3 * h) + 8
+    margin = math.ceil(h) + 4
+    if angle == 0:  # runs right from the anchor; ascent up (2 h of room), descent down
+        width, height, x0, y0 = along, across, margin, across - margin
+    else:  # 90°: runs up from the anchor; ascent to the left (2 h of room), descent to the right
+        width, height, x0, y0 = across, along, across - margin, along - margin
+    scratch = RendererAgg(width, height, renderer.dpi)
     local = scratch.new_gc()
     local.copy_properties(gc)
     local.set_clip_rectangle(None)  # the clip of the figure applies when the image is stamped
     local.set_clip_path(None)
-    RendererAgg.draw_text(scratch, local, x0, y0, s, prop, angle, False, mtext)
+    _draw_glyphs(scratch, local, x0, y0, s, prop, angle, mtext)
     local.restore()
     rgba = np.asarray(scratch.buffer_rgba())
     ink = rgba[..., 3] > 0
-    if not ink.any():
+    rows = np.flatnonzero(ink.any(axis=1))
+    if rows.size == 0:
         return None
-    rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
+    cols = np.flatnonzero(ink.any(axis=0))
     top, bottom, left, right = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-    if top == 0 or left == 0 or bottom == size or right == size:
+    if top == 0 or left == 0 or bottom == height or right == width:
         return _CLIPPED
     return rgba[top:bottom, left:right][::-1].copy(), int(left - x0), int(bottom - y0)
+
+
+def _glyph_api() -> bool:
+    """Whether this matplotlib draws a text glyph by glyph through the private FreeType calls
+    :func:`_draw_glyphs` repeats (matplotlib ≥ 3.11; older ones rasterise a whole string in C++)."""
+    from matplotlib import ft2font
+
+    needed = ("_layout", "_set_transform", "_render_glyph")
+    return (hasattr(RendererAgg, "_draw_text_glyphs_and_boxes") and hasattr(RendererAgg, "_prepare_font")
+            and all(hasattr(ft2font.FT2Font, name) for name in needed) and hasattr(ft2font, "RenderMode"))
+
+
+_GLYPH_API = _glyph_api()
+#: FreeType's 16.16 transform of a text at 0° and 90°, with the angle's cosine and sine
+_ROTATIONS = {0: ([[0x10000, 0], [0, 0x10000]], 1.0, 0.0), 90: ([[0, -0x10000], [0x10000, 0]], 0.0, 1.0)}
+
+
+def _draw_glyphs(scratch: RendererAgg, gc, x: float, y: float, s: str, prop, angle: float, mtext) -> None:
+    """``RendererAgg.draw_text`` of a plain text at 0° or 90°: the same pixels (tested), half the time.
+
+    matplotlib 3.11 draws a text glyph by glyph in Python, rebuilding the same rotation matrix with
+    numpy and setting the font's size for every glyph: ≈ 55 µs a glyph, 1.7 ms for a 30-character
+    title. Here the matrix is built once per angle and the size set once per font, the same
+    FreeType calls with the same arguments otherwise. Other matplotlib versions, and anything but
+    an upright or 90° text, are drawn by matplotlib itself."""
+    if not _GLYPH_API or angle not in _ROTATIONS:
+        RendererAgg.draw_text(scratch, gc, x, y, s, prop, angle, False, mtext)
+        return
+    from matplotlib.backends.backend_agg import get_hinting_flag
+    from matplotlib.ft2font import RenderMode
+
+    flags = get_hinting_flag()
+    font = scratch._prepare_font(prop)
+    items = font._layout(s, flags=flags, features=mtext.get_fontfeatures() if mtext is not None else None,
+                         language=mtext.get_language() if mtext is not None else None)
+    size = prop.get_size_in_points()
+    matrix, cos, sin = _ROTATIONS[angle]
+    antialiased = gc.get_antialiased()
+    mode = RenderMode.NORMAL if antialiased else RenderMode.MONO
+    height = scratch.height
+    draw = scratch._renderer.draw_text_image
+    sized = None
+    for item in items:
+        glyph_font, dx, dy = item.ft_object, item.x, item.y  # dy is upwards
+        if glyph_font is not sized:
+            glyph_font.set_size(size, scratch.dpi)
+            sized = glyph_font
+        glyph_font._set_transform(matrix, [round(0x40 * (x + dx * cos - dy * sin)),
+                                           round(0x40 * (height - y + dx * sin + dy * cos))])  # FreeType's y is up
+        bitmap = glyph_font._render_glyph(item.glyph_index, flags, mode)
+        buffer = bitmap.buffer
+        if not antialiased:
+            buffer *= 0xff
+        draw(buffer, bitmap.left, int(height) - bitmap.top + buffer.shape[0], 0, gc)
 
 
 class TextCachingRenderer(RendererAgg):
