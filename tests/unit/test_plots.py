@@ -298,3 +298,43 @@ def test_a_log_heatmap_colour_bar_is_labelled_with_plain_numbers(tmp_path, monke
     labels = [t.get_text() for t in seen["cb"].ax.yaxis.get_ticklabels() if t.get_text()]
     assert labels and not any("$" in t for t in labels)
     assert "0.01" in labels and "0.1" in labels
+
+
+def test_template_axes_draw_their_ticks_as_matplotlib_does(tmp_path, rng, monkeypatch):
+    """A template axis works out its ticks once per draw and draws the ticks' lines together
+    (plots._TicksOncePerDraw): the same bytes as matplotlib's own Axis.draw, for the loop, time
+    series and overview figures (linear axes: batched) and the convergence figure (log axis:
+    matplotlib's draw), and the ticks are worked out afresh on the next draw."""
+    u = np.linspace(0.0, 60.0, 3000)
+    y = 0.3 * u + rng.normal(0, 0.05, u.size)
+    t = np.arange(u.size) * 1e-4
+    hist = np.geomspace(1.0, 1e-4, 50)
+
+    def draw_all(d):
+        d.mkdir()
+        plots.loop_figure(d / "l.png", u, y, y + 0.01, title="a")
+        plots.timeseries_figure(d / "t.png", t, y, y + 0.01, title="a")
+        plots.loop_figure(d / "l2.png", 2 * u, -y, y, title="b")  # other ranges: other ticks
+        plots.convergence_figure(d / "c.png", hist, hist * 2, title="a")
+        plots.overview_figure(d / "o.png", [{"title": f"p{i}", "u": u * (i + 1), "y_meas": y, "y_model": y + 0.01}
+                                            for i in range(3)], title="o")
+        return {p.name: p.read_bytes() for p in d.iterdir()}
+
+    drawn = []
+    batched = plots._TicksOncePerDraw._draw_batched
+
+    def counting(self, renderer):
+        drawn.append(self.axis.get_scale())
+        return batched(self, renderer)
+
+    import threading
+
+    monkeypatch.setattr(plots._TicksOncePerDraw, "_draw_batched", counting)
+    monkeypatch.setattr(plots, "_templates", threading.local())  # templates made in this test
+    ours = draw_all(tmp_path / "ours")
+    assert "linear" in drawn and "log" not in drawn  # batched on linear axes only
+    monkeypatch.setattr(plots._TicksOncePerDraw, "_draw", lambda self, renderer, *a, **k: self.draw(renderer, *a, **k))
+    monkeypatch.setattr(plots._TicksOncePerDraw, "_update_ticks", lambda self: self.update())
+    monkeypatch.setattr(plots._TicksOncePerDraw, "_measure", lambda self, ticks, renderer: self.measure(ticks, renderer))
+    monkeypatch.setattr(plots, "_templates", threading.local())  # new templates: matplotlib's methods
+    assert draw_all(tmp_path / "matplotlib's") == ours
