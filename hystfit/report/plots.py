@@ -471,7 +471,7 @@ class _TicksOncePerDraw:
         self.update, self.measure, self.draw = axis._update_ticks, axis._get_ticklabel_bboxes, axis.draw
         self.drawing = False
         self.ticks = self.boxes = None
-        self.batches: dict[str, object] = {}
+        self.batches: dict[str, tuple] = {}  # part -> (its line, the style it was given)
         self.batchable = all(hasattr(axis, name) for name in self.NEEDED)
         axis._update_ticks, axis._get_ticklabel_bboxes, axis.draw = self._update_ticks, self._measure, self._draw
 
@@ -522,18 +522,28 @@ class _TicksOncePerDraw:
 
     def _batch(self, part: str, lines: list):
         """One line with the style of ``lines[0]`` through every line's points, NaN between lines
-        (markers only where a line has its points: a tick mark's one point)."""
+        (markers only where a line has its points: a tick mark's one point). The style is copied
+        again only when ``lines[0]`` is another line or has another style (ticks are kept by the
+        axis from figure to figure)."""
         from matplotlib.lines import Line2D
 
         if len(lines) == 1:
             return lines[0]
-        batch = self.batches.get(part)
+        first = lines[0]
+        style = (id(first), first.get_color(), first.get_linewidth(), first.get_alpha(), first.get_linestyle(),
+                 first.get_marker(), first.get_markersize(), first.get_markeredgewidth(), first.get_markeredgecolor(),
+                 first.get_transform(), first.get_clip_path(), first.get_clip_box())
+        batch, seen = self.batches.get(part, (None, None))
         if batch is None:
-            batch = self.batches[part] = Line2D([], [])
-        batch.update_from(lines[0])
-        batch.set_figure(lines[0].get_figure())
-        xs = [np.asarray(line.get_xdata(orig=False), dtype=float) for line in lines]
-        ys = [np.asarray(line.get_ydata(orig=False), dtype=float) for line in lines]
+            batch = Line2D([], [])
+        if style != seen:
+            batch.update_from(first)
+            batch.set_figure(first.get_figure())
+            self.batches[part] = (batch, style)
+        # as set (no units on these axes), broadcast as the line does when it draws (a grid line
+        # holds its one position and the span 0, 1)
+        xs, ys = zip(*(np.broadcast_arrays(np.asarray(line.get_xdata(), dtype=float),
+                                           np.asarray(line.get_ydata(), dtype=float)) for line in lines))
         if all(x.size == 1 for x in xs):  # one point each (tick marks): no break needed
             batch.set_data(np.concatenate(xs), np.concatenate(ys))
         else:
@@ -631,7 +641,7 @@ def _plot_xy(ax, x, y, style: dict, label=None, lw_scale: float = 1.0):
     """Draw the path ``(x, y)`` reduced to the pixels of ``ax`` (:func:`pixel_path`)."""
     w, h = _axes_pixels(ax)
     xs, ys = pixel_path(x, y, OVERSAMPLE * w, OVERSAMPLE * h)
-    ax.plot(xs, ys, **{**style, "lw": style["lw"] * lw_scale}, label=label)
+    _add_line(ax, xs, ys, **{**style, "lw": style["lw"] * lw_scale}, label=label)
 
 
 def _plot_series(ax, t, y, style: dict, label=None):
@@ -639,7 +649,22 @@ def _plot_series(ax, t, y, style: dict, label=None):
     idx = column_envelope(t, y, _axes_pixels(ax)[0])
     if idx is not None:
         t, y = t[idx], y[idx]
-    return ax.plot(t, _finite_or_nan(y), **style, label=label)
+    return _add_line(ax, t, _finite_or_nan(y), **style, label=label)
+
+
+def _add_line(ax, x, y, **style) -> list:
+    """``ax.plot(x, y, **style)`` for float arrays and a style that names its colour: the same
+    line, added without ``plot``'s argument parsing and property cycle (which such a style does
+    not advance); the axes autoscale to it as after ``plot``."""
+    from matplotlib.lines import Line2D
+
+    if "color" not in style or not hasattr(ax, "_request_autoscale_view"):
+        return ax.plot(x, y, **style)
+    line = Line2D(x, y, **style)
+    ax.add_line(line)
+    ax._request_autoscale_view("x")
+    ax._request_autoscale_view("y")
+    return [line]
 
 
 def _draw_loops(ax, caps, labels: Sequence[str], lw_scale: float = 1.0) -> None:
