@@ -512,11 +512,16 @@ class _TicksOncePerDraw:
         for t in ticks:
             t.label1.draw(renderer)
             t.label2.draw(renderer)
-        axis._update_label_position(renderer)
-        axis.label.draw(renderer)
-        axis._update_offset_text_position(tlb1, tlb2)
-        axis.offsetText.set_text(axis.major.formatter.get_offset())
-        axis.offsetText.draw(renderer)
+        # the label and the offset text placed only when they draw something (an empty text draws
+        # nothing wherever it is: most overview panels, the upper time-series axes)
+        if axis.label.get_visible() and axis.label.get_text():
+            axis._update_label_position(renderer)
+            axis.label.draw(renderer)
+        offset = axis.major.formatter.get_offset()
+        axis.offsetText.set_text(offset)
+        if offset and axis.offsetText.get_visible():
+            axis._update_offset_text_position(tlb1, tlb2)
+            axis.offsetText.draw(renderer)
         axis.stale = False
         return True
 

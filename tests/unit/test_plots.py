@@ -315,6 +315,7 @@ def test_template_axes_draw_their_ticks_as_matplotlib_does(tmp_path, rng, monkey
         plots.loop_figure(d / "l.png", u, y, y + 0.01, title="a")
         plots.timeseries_figure(d / "t.png", t, y, y + 0.01, title="a")
         plots.loop_figure(d / "l2.png", 2 * u, -y, y, title="b")  # other ranges: other ticks
+        plots.timeseries_figure(d / "t2.png", 1e3 + t, 1e6 + y, 1e6 + y + 0.01)  # offset texts on both axes
         plots.convergence_figure(d / "c.png", hist, hist * 2, title="a")
         plots.overview_figure(d / "o.png", [{"title": f"p{i}", "u": u * (i + 1), "y_meas": y, "y_model": y + 0.01}
                                             for i in range(3)], title="o")
