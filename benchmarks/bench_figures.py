@@ -15,7 +15,13 @@ Run:  python benchmarks/bench_figures.py [--kinds [--instructions] | --compare]
    every figure of the kind after the warm-up once and, in another run, four times; the
    difference over three passes, per figure. It repeats to about ±1 %, where CPU seconds move by
    ±20 % on a shared machine: use it to tell whether a change does less work.
-3. One loop figure of a long periodic capture (10⁶ and 10⁷ samples, 20,000 cycles): time, points
+3. ``--cpu [--other TREE] [--repeat N]``: the CPU seconds of the Quickstart's figures drawn in one
+   fresh process after the figure server's import and warm-up, twice (the first pass as the
+   command's figure workers draw, with layouts and texts made; the second with them kept), medians
+   over ``--repeat`` processes; with ``--other``, that tree's too, alternately (both draw the same
+   jobs, made here). Where ``perf stat`` cannot count instructions (as on this project's current
+   machine), this is the rerunnable measure of a change to the drawing.
+4. One loop figure of a long periodic capture (10⁶ and 10⁷ samples, 20,000 cycles): time, points
    drawn, and the voltage span of what is drawn against the data's span (stride: aliasing).
 """
 
@@ -221,7 +227,78 @@ def long_loop(n: int, cycles: int = 20_000) -> dict:
     return out
 
 
+#: draws the pickled jobs ``argv[1]`` twice after the server's import and warm-up; prints the
+#: imported hystfit's file and each pass's CPU seconds
+_DRAW_TWICE = r"""
+import json, pickle, sys, tempfile, time
+from dataclasses import replace
+from pathlib import Path
+import hystfit
+from hystfit.report import render
+jobs = pickle.load(open(sys.argv[1], "rb"))
+render._import_plotting(lean=True)
+render._warm_up()
+passes = []
+with tempfile.TemporaryDirectory() as tmp:
+    jobs = [replace(j, path=Path(tmp) / Path(j.path).name) for j in jobs]
+    for _ in range(2):
+        t = time.process_time()
+        for j in jobs:
+            render._render(j)
+        passes.append(time.process_time() - t)
+print(json.dumps([hystfit.__file__, *passes]))
+"""
+
+
+def figure_cpu(other: str | None, repeat: int) -> dict[str, tuple[list[float], list[float]]]:
+    """CPU seconds of the Quickstart's figures, first and second pass, per tree (see ``--cpu``)."""
+    import json
+    import os
+    import pickle
+    import subprocess
+
+    from hystfit.report import identify_report
+
+    res = _quickstart_fit()
+    jobs: list = []
+    trees = [str(ROOT)] + ([str(Path(other).resolve())] if other else [])
+    out = {t: ([], []) for t in trees}
+    with tempfile.TemporaryDirectory() as tmp:
+        figures = identify_report.ConditionFigures(Path(tmp), res.optimizer_name)
+        figures._stream = types.SimpleNamespace(add=jobs.extend, result=lambda: None, cancel=lambda: None)  # collect
+        figures.result(res)
+        dump = Path(tmp) / "jobs.pickle"
+        dump.write_bytes(pickle.dumps(jobs))
+        for i in range(repeat):
+            for tree in (trees if i % 2 == 0 else trees[::-1]):
+                env = {**os.environ, "PYTHONPATH": tree, "OPENBLAS_NUM_THREADS": "1"}
+                r = subprocess.run([sys.executable, "-c", _DRAW_TWICE, str(dump)], env=env, cwd=tmp,
+                                   capture_output=True, text=True, check=True)
+                imported, first, second = json.loads(r.stdout.strip().splitlines()[-1])
+                if not imported.startswith(tree):
+                    raise RuntimeError(f"{tree}: imported {imported} instead")
+                out[tree][0].append(first)
+                out[tree][1].append(second)
+    return out
+
+
 def main() -> None:
+    if "--cpu" in sys.argv[1:]:
+        import argparse
+        import statistics
+
+        ap = argparse.ArgumentParser()
+        ap.add_argument("--cpu", action="store_true")
+        ap.add_argument("--other")
+        ap.add_argument("--repeat", type=int, default=5)
+        a = ap.parse_args()
+        got = figure_cpu(a.other, a.repeat)
+        print(f"Quickstart figures drawn in one process, CPU seconds, median of {a.repeat} (every run)\n")
+        print("| tree | first pass (s) | second pass (s) |\n|---|---:|---:|")
+        for tree, (first, second) in got.items():
+            print(f"| {tree} | {statistics.median(first):.3f} ({', '.join(f'{v:.2f}' for v in first)}) | "
+                  f"{statistics.median(second):.3f} ({', '.join(f'{v:.2f}' for v in second)}) |")
+        return
     if "--kinds" in sys.argv[1:] and "--instructions" in sys.argv[1:]:
         counts = figure_instructions()
         if counts is None:
