@@ -1,6 +1,6 @@
 """Figures: hystfit's per-pixel reduction and parallel rendering against the straightforward way.
 
-Run:  python benchmarks/bench_figures.py [--kinds [--instructions] | --compare]
+Run:  python benchmarks/bench_figures.py [--kinds [--instructions] | --compare | --cpu [--other TREE] [--repeat N]]
 
 1. The Quickstart's figures (``identify sample_data``: 24 conditions, a loop, time series and
    convergence figure each, and the overview), drawn by hystfit (``render_figures``: a process per
