@@ -449,9 +449,11 @@ class _TicksOncePerDraw:
     matplotlib's ``Axis.draw`` updates the ticks (locator, formatter, each tick's position and
     text) and measures the tick labels, then places the axis label by updating and measuring them
     all again, and the spine's extent it unions with updates them a third time: ≈ 10 % of a
-    small figure's time. Nothing changes the ticks within one draw, so while the axis draws, the
-    second and later updates return the first one's ticks and the labels' boxes measured for them
-    (the same objects, so the same pixels; tested). Outside a draw every call computes as before.
+    small figure's time. Nothing changes the ticks while what they are made from is unchanged (the
+    view, the axes' place, the locators and formatters: :meth:`_state`), so later updates return
+    the first one's ticks — those :func:`_fit_left_margin` made before the draw, as a rule — and
+    within a draw the labels' boxes measured for them (the same objects, so the same pixels;
+    tested). After a draw the next update computes afresh.
 
     On a linear axis whose drawn ticks are all major ticks, their grid lines, tick marks and labels
     are drawn as matplotlib's ``Tick.draw`` would, except that the grid lines are one line
@@ -470,7 +472,7 @@ class _TicksOncePerDraw:
         self.axis = axis
         self.update, self.measure, self.draw = axis._update_ticks, axis._get_ticklabel_bboxes, axis.draw
         self.drawing = False
-        self.ticks = self.boxes = None
+        self.ticks = self.boxes = self.key = None
         self.batches: dict[str, tuple] = {}  # part -> (its line, the style it was given)
         self.batchable = all(hasattr(axis, name) for name in self.NEEDED)
         axis._update_ticks, axis._get_ticklabel_bboxes, axis.draw = self._update_ticks, self._measure, self._draw
@@ -482,6 +484,7 @@ class _TicksOncePerDraw:
 
     def _draw(self, renderer, *args, **kwargs):
         self.drawing = True
+        self.boxes = None  # the labels' boxes: measured once per draw
         try:
             if not (self.batchable and self.axis.get_visible() and self.axis.get_scale() == "linear"
                     and self._draw_batched(renderer)):
@@ -558,11 +561,18 @@ class _TicksOncePerDraw:
         return batch
 
     def _update_ticks(self):
-        if not self.drawing:
-            return self.update()
-        if self.ticks is None:
-            self.ticks = self.update()
+        key = self._state()
+        if self.ticks is None or key != self.key:
+            self.ticks, self.key, self.boxes = self.update(), key, None
         return self.ticks
+
+    def _state(self) -> tuple:
+        """What the ticks are made from: the view, where the axes sits (a locator may size its
+        ticks to it), the locators and formatters and the scale. The ticks worked out before a
+        draw (:func:`_fit_left_margin` measures their labels) serve the draw while it is unchanged."""
+        axis = self.axis
+        return (tuple(axis.get_view_interval()), axis.axes.bbox.bounds, axis.get_scale(),
+                id(axis.major.locator), id(axis.major.formatter), id(axis.minor.locator), id(axis.minor.formatter))
 
     def _measure(self, ticks, renderer):
         if not self.drawing or ticks is not self.ticks:
@@ -706,23 +716,11 @@ def _text_width(renderer, text) -> float:
 
 
 def _tick_label_widths(axis, renderer) -> list[float]:
-    """Pixel widths of the tick labels ``axis`` will draw in its view (major and minor), as
-    ``Axis._update_ticks`` makes them: the locator's ticks, formatted all at once (measured on the
-    axis's first tick label, whose text the draw sets again)."""
-    lo, hi = sorted(axis.get_view_interval())
-    tol = 1e-9 * max(abs(lo), abs(hi), 1e-300)
-    widths = []
-    for ticker, ticks, first in ((axis.major, axis.get_majorticklocs(), axis.majorTicks),
-                                 (axis.minor, axis.get_minorticklocs(), axis.minorTicks)):
-        ticks = np.asarray(ticks, dtype=float)
-        if ticks.size == 0:
-            continue
-        scratch = first[0].label1
-        for t, label in zip(ticks, ticker.formatter.format_ticks(ticks)):
-            if label and lo - tol <= t <= hi + tol:
-                scratch.set_text(label)
-                widths.append(_text_width(renderer, scratch))
-    return widths
+    """Pixel widths of the tick labels ``axis`` will draw in its view (major and minor): the ticks
+    ``Axis._update_ticks`` makes for the draw (on a template's axis the draw reuses them:
+    :class:`_TicksOncePerDraw`), each visible label measured once per process by string and font."""
+    return [_text_width(renderer, t.label1) for t in axis._update_ticks()
+            if t.label1.get_visible() and t.label1.get_text()]
 
 
 def _fit_left_margin(fig: Figure, left_in: float) -> None:
