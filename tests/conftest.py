@@ -58,6 +58,18 @@ for _line in sorted(_found):
 
 
 @pytest.fixture
+def server():
+    """A figure server of :mod:`hystfit.report.render` of its own (forked whatever threads this test
+    process runs), closed afterwards."""
+    from hystfit.report import render
+
+    render._close_server()
+    render._server = render._FigureServer()
+    yield render._server
+    render._close_server()
+
+
+@pytest.fixture
 def kernel_twins():
     """``run(code)``: runs ``code`` in a fresh process (so that no other test's calls count), then
     returns the kernels it made numba compile twice for read-only and writable arrays."""

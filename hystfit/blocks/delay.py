@@ -59,13 +59,12 @@ def delay_population(x: np.ndarray, delay_s: np.ndarray, dt: float) -> np.ndarra
     values = np.unique(d)
     if P > 1 and values.size <= 4 and np.all(np.isfinite(np.asarray(delay_s, dtype=np.float64))):
         # few distinct delays (a finite-difference Jacobian perturbs the delay in one row at most):
-        # the rows of each by slices, the same products and sum per sample as below (same numbers)
-        if values.size == 1:
-            return _shift_each_row(x, int(n[0]), float(f[0]))
+        # the rows of each in one pass, the same products and sum per sample as below (same numbers)
         out = np.empty((P, N))
+        xr = readonly(x)
         for v in values:
-            rows = np.flatnonzero(d == v)
-            out[rows] = _shift_each_row(x[rows], int(n[rows[0]]), float(f[rows[0]]))
+            rows = np.flatnonzero(d == v) if values.size > 1 else np.arange(P)
+            _shift_rows_into(xr, readonly(rows, np.int64), int(n[rows[0]]), float(f[rows[0]]), out)
         return out
     idx = np.arange(N)[None, :] - n[:, None]
     x0 = np.take_along_axis(x, np.clip(idx, 0, N - 1), axis=1)
@@ -77,18 +76,21 @@ def delay_population(x: np.ndarray, delay_s: np.ndarray, dt: float) -> np.ndarra
     return out
 
 
-def _shift_each_row(x: np.ndarray, n: int, f: float) -> np.ndarray:
-    """Every row of x (P, N) delayed by n + f samples: (1 − f)·x[k − n] + f·x[k − n − 1], indices
-    clamped at 0 (as :func:`delay_population`). :func:`shift_rows` along axis 1, the same numbers;
-    by slices, because a population's rows are contiguous (0.019 s against 0.031 s for
-    ``shift_rows(x.T).T`` at 86 × 40,788)."""
-    P, N = x.shape
-    out = np.empty((P, N))
-    head = min(n + 1, N)  # samples k ≤ n read x[0] twice
-    out[:, :head] = (1.0 - f) * x[:, :1] + f * x[:, :1]
-    if head < N:
-        out[:, head:] = (1.0 - f) * x[:, 1:N - n] + f * x[:, :N - n - 1]
-    return out
+@njit(cache=True)
+def _shift_rows_into(x, rows, n, f, out):
+    """Rows ``rows`` of x (P, N) delayed by n + f samples into the same rows of ``out``:
+    (1 − f)·x[k − n] + f·x[k − n − 1], indices clamped at 0 (as :func:`delay_population`'s gather,
+    the same two products and sum per sample, hence the same numbers). One pass over each row, no
+    temporaries and no copy of the rows (0.07 s against 0.27 s for the finite-difference Jacobians
+    of diagnose's recommended fit on sample_data, ``pi+creep+delay``)."""
+    N = x.shape[1]
+    g = 1.0 - f
+    for r in range(rows.shape[0]):
+        p = rows[r]
+        for k in range(N):
+            i0 = max(k - n, 0)
+            i1 = max(k - n - 1, 0)
+            out[p, k] = g * x[p, i0] + f * x[p, i1]
 
 
 def max_delay_s(dt: float, fmax_Hz: float) -> float:

@@ -411,6 +411,23 @@ def release_early() -> None:
         _close_server(wait=False)
 
 
+def yield_cores(nice: int) -> bool:
+    """Let the figure server (when one runs) draw on the cores this process's work leaves idle: its
+    nice value raised by ``nice`` (its pool's workers inherit it), so while this process and its
+    forked children fit on every core the server takes a small share of a core instead of a third
+    of each, and draws in the gaps (a serial step, a wait for the last item of a round, a fit on one
+    core). For a command whose figures can wait and whose computing can use every core (diagnose).
+    The priority is never raised again (an unprivileged process cannot): on a machine busy with other
+    work the figures draw more slowly. False where there is no server or the system refuses."""
+    if _server is None or nice <= 0:
+        return False
+    try:
+        os.setpriority(os.PRIO_PROCESS, _server.pid, os.getpriority(os.PRIO_PROCESS, _server.pid) + int(nice))
+    except (AttributeError, OSError):  # no setpriority (Windows), or refused
+        return False
+    return True
+
+
 def _close_server(wait: bool = True) -> None:
     global _server
     if _server is not None:

@@ -4,6 +4,7 @@ population has at most two) take slices, with the numbers of the per-row gather,
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 
 from hystfit.blocks.delay import delay_population
@@ -45,3 +46,21 @@ def test_rows_with_different_delays_and_a_non_finite_delay():
     np.testing.assert_array_equal(delay_population(x, delays, 1e-4), _gather(x, delays, 1e-4))
     out = delay_population(x, np.array([np.nan, np.nan, np.nan]), 1e-4)
     assert np.all(np.isnan(out))  # a non-finite delay is a failed candidate, never a delay of 0
+
+
+@pytest.mark.parametrize("samples", [0.0, 3.0, 3.25, 200.0])
+def test_non_finite_samples_pass_through_the_row_kernel_as_through_the_gather(samples):
+    """The rows of a shared delay take one pass of a kernel (``_shift_rows_into``): the products and
+    the sum of the gather per sample, so also an infinite sample gives what the gather gives (with
+    f = 0, 1·inf + 0·inf = NaN, not inf) — a finite-difference population of a Jacobian, one row's
+    delay perturbed."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(9, 40))
+    x[2, 5], x[4, 0], x[6, 11] = np.inf, -np.inf, np.nan
+    delays = np.full(9, samples * 1e-4)
+    delays[7] *= 1.0 + 1e-6
+    with np.errstate(invalid="ignore"):  # 0·inf, on purpose
+        expected = _gather(x, delays, 1e-4)
+        np.testing.assert_array_equal(delay_population(x, delays, 1e-4), expected)
+        xt = np.asfortranarray(x)  # any memory layout
+        np.testing.assert_array_equal(delay_population(xt, delays, 1e-4), expected)

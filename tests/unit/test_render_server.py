@@ -25,14 +25,6 @@ def _jobs(out, rng, n=4):
     return jobs
 
 
-@pytest.fixture
-def server():
-    render._close_server()
-    render._server = render._FigureServer()
-    yield render._server
-    render._close_server()
-
-
 @pytest.mark.parametrize("n_jobs", [1, 2])
 def test_server_draws_the_same_bytes_as_this_process(tmp_path, rng, server, n_jobs):
     seed = int(rng.integers(1 << 30))
