@@ -497,13 +497,18 @@ def print_capture_notes(captures) -> None:
                 stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
-def start_figures(output: FigureOutputArgs) -> None:
+def start_figures(output: FigureOutputArgs, *, behind: bool = False) -> None:
     """With figures ahead, start the figure server (matplotlib imported on the other core) before
-    the command imports its own modules, loads and fits: first thing in a command that draws."""
+    the command imports its own modules, loads and fits: first thing in a command that draws.
+    ``behind``: the command's own work comes first — the server runs at a lower priority
+    (:func:`hystfit.report.render.yield_cores` by ``render.FIGURES_NICE``) and draws on the cores
+    the work leaves idle."""
     if output.plots:
-        from ..report.render import preload
+        from ..report import render
 
-        preload(claim_early=True)
+        render.preload(claim_early=True)
+        if behind:
+            render.yield_cores(render.FIGURES_NICE)
 
 
 def load_for_command(data, options, output: OutputArgs, *, recursive: bool, ahead=()):

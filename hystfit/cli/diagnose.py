@@ -14,10 +14,6 @@ from .common import (CaptureArgs, DataArg, ExecutorArgs, FigureOutputArgs, OutDi
                      start_figures, stdout, writing)
 
 
-#: how far the figure server's priority is lowered while diagnose computes (:func:`hystfit.report.render.yield_cores`):
-#: its selection steps keep every core busy, and its figures wait for the gaps
-FIGURES_NICE = 5
-
 DiagnoseJobs = jobs_option("Parallel processes for the base fits of --per-condition (the numbers do not depend on "
                            "it).", show_default="1")
 
@@ -64,11 +60,7 @@ def diagnose(
 
     Writes OUT/diagnosis.json, OUT/diagnosis.md and OUT/figures/.
     """
-    start_figures(output)
-    if output.plots:
-        from ..report.render import yield_cores
-
-        yield_cores(FIGURES_NICE)
+    start_figures(output, behind=True)  # its selection steps keep every core busy; the figures wait for the gaps
     from ..diagnose import DiagnoseSettings, fit_recommended
     from ..seeds import check_seed
     from ..parallel import CellStats

@@ -35,7 +35,7 @@ def identify(
 
     Writes OUT/params.json, OUT/report.csv, OUT/report.md and OUT/plots/.
     """
-    start_figures(output)
+    start_figures(output, behind=True)  # the fits come first; the figures take the other core and the gaps
     from ..identify import condition_groups, identify as run_identify, startup_steps
     from ..io import staged_output_dir
     from ..registry import optimizers

@@ -411,6 +411,13 @@ def release_early() -> None:
         _close_server(wait=False)
 
 
+#: how far a command that computes on every core while its figures are drawn lowers the figure
+#: server's priority (:func:`yield_cores`, through ``cli.common.start_figures(behind=True)``):
+#: identify and diagnose. +5 gained as much as +10 or +19 in alternate runs of both, and leaves the
+#: figures half a normal share on a machine busy with other work
+FIGURES_NICE = 5
+
+
 def yield_cores(nice: int) -> bool:
     """Let the figure server (when one runs) draw on the cores this process's work leaves idle: its
     nice value raised by ``nice`` (its pool's workers inherit it), so while this process and its

@@ -1,4 +1,4 @@
-"""diagnose lets its figure server draw in the gaps its computing leaves (:func:`hystfit.report.render.yield_cores`):
+"""identify and diagnose let their figure server draw in the gaps their computing leaves (:func:`hystfit.report.render.yield_cores`):
 the server's priority is lowered, the figures are the same bytes."""
 
 import os
@@ -8,7 +8,6 @@ import pytest
 from typer.testing import CliRunner
 
 from hystfit.cli import app
-from hystfit.cli import diagnose as diagnose_cli
 from hystfit.report import render
 from hystfit.report.render import FigureJob
 
@@ -46,8 +45,9 @@ class _Stop(Exception):
     pass
 
 
-@pytest.mark.parametrize("flags,expected", [([], [diagnose_cli.FIGURES_NICE]), (["--no-plots"], [])])
-def test_the_diagnose_command_lets_its_figures_wait_for_idle_cores(monkeypatch, tmp_path, flags, expected):
+@pytest.mark.parametrize("command", ["diagnose", "identify"])
+@pytest.mark.parametrize("flags,expected", [([], [render.FIGURES_NICE]), (["--no-plots"], [])])
+def test_the_command_lets_its_figures_wait_for_idle_cores(monkeypatch, tmp_path, command, flags, expected):
     """With figures, the command lowers its figure server's priority before it loads and computes
     (here stopped right after, at the loading)."""
     calls = []
@@ -56,8 +56,8 @@ def test_the_diagnose_command_lets_its_figures_wait_for_idle_cores(monkeypatch, 
     def stop(*args, **kwargs):
         raise _Stop
 
-    monkeypatch.setattr("hystfit.cli.diagnose.load_for_command", stop)
-    r = CliRunner().invoke(app, ["diagnose", str(tmp_path), "--out", str(tmp_path / "out"), "--quiet", *flags])
+    monkeypatch.setattr(f"hystfit.cli.{command}.load_for_command", stop)
+    r = CliRunner().invoke(app, [command, str(tmp_path), "--out", str(tmp_path / "out"), "--quiet", *flags])
     assert isinstance(r.exception, _Stop), r.output
     assert calls == expected
     render._close_server()
