@@ -438,9 +438,26 @@ def _template(key: tuple, build: Callable[[], Figure]) -> Figure:
         for ax in fig.axes:
             _TicksOncePerDraw.install(ax.xaxis)
             _TicksOncePerDraw.install(ax.yaxis)
+        _unpainted_backgrounds(fig)
     else:
         _reset(fig)
     return fig
+
+
+def _unpainted_backgrounds(fig: Figure) -> None:
+    """Leave out the axes' backgrounds that paint the figure's own background again: an opaque
+    axes patch of the figure's colour, over an axes no other axes overlaps, changes no pixel
+    (the figure's background is drawn first). It still clips the axes' curves."""
+    from matplotlib.colors import to_rgba
+
+    face = to_rgba(fig.get_facecolor())
+    if not fig.patch.get_visible() or face[3] != 1.0:
+        return
+    boxes = [ax.get_position() for ax in fig.axes]
+    for i, ax in enumerate(fig.axes):
+        alone = not any(j != i and box.overlaps(boxes[i]) for j, box in enumerate(boxes))
+        if alone and to_rgba(ax.patch.get_facecolor()) == face and ax.patch.get_visible() and ax.patch.get_alpha() in (None, 1.0):
+            ax.patch.set_visible(False)
 
 
 class _TicksOncePerDraw:
