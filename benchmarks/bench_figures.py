@@ -84,17 +84,25 @@ def quickstart_figures() -> dict:
 def figure_kinds(fit=None) -> dict[str, tuple[int, float]]:
     """CPU seconds per figure kind of the Quickstart, drawn serially here after the figure server's
     warm-up (``render._warm_up``), as one worker of the pool draws them: kind → (figures, seconds)."""
-    from hystfit.report import identify_report, render
+    from hystfit.report import render
 
-    res = fit if fit is not None else _quickstart_fit()
     render._import_plotting()
     render._warm_up()
-    jobs: list = []
     with tempfile.TemporaryDirectory() as tmp:
-        figures = identify_report.ConditionFigures(Path(tmp), res.optimizer_name)
-        figures._stream = types.SimpleNamespace(add=jobs.extend, result=lambda: None, cancel=lambda: None)  # collect
-        figures.result(res)
-        return _cpu_per_kind(jobs)
+        return _cpu_per_kind(_quickstart_jobs(Path(tmp), fit))
+
+
+def _quickstart_jobs(out_dir: Path, fit=None) -> list:
+    """The Quickstart's figure jobs (``fit``, or the Quickstart's fit made here), writing into
+    ``out_dir/plots``, collected instead of drawn."""
+    from hystfit.report import identify_report
+
+    res = fit if fit is not None else _quickstart_fit()
+    jobs: list = []
+    figures = identify_report.ConditionFigures(out_dir, res.optimizer_name)
+    figures._stream = types.SimpleNamespace(add=jobs.extend, result=lambda: None, cancel=lambda: None)  # collect
+    figures.result(res)
+    return jobs
 
 
 def _cpu_per_kind(jobs) -> dict[str, tuple[int, float]]:
@@ -150,15 +158,9 @@ def figure_instructions(fit=None) -> dict[str, tuple[int, float]] | None:
     fresh process drawing them 4 times against one drawing them once; None without ``perf stat``."""
     import pickle
 
-    from hystfit.report import identify_report
-
-    res = fit if fit is not None else _quickstart_fit()
-    jobs: list = []
     out: dict[str, tuple[int, float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        figures = identify_report.ConditionFigures(Path(tmp), res.optimizer_name)
-        figures._stream = types.SimpleNamespace(add=jobs.extend, result=lambda: None, cancel=lambda: None)  # collect
-        figures.result(res)
+        jobs = _quickstart_jobs(Path(tmp), fit)
         dump = Path(tmp) / "jobs.pickle"
         dump.write_bytes(pickle.dumps(jobs))
         for kind in dict.fromkeys(j.function for j in jobs):
@@ -257,16 +259,10 @@ def figure_cpu(other: str | None, repeat: int) -> dict[str, tuple[list[float], l
     import pickle
     import subprocess
 
-    from hystfit.report import identify_report
-
-    res = _quickstart_fit()
-    jobs: list = []
     trees = [str(ROOT)] + ([str(Path(other).resolve())] if other else [])
     out = {t: ([], []) for t in trees}
     with tempfile.TemporaryDirectory() as tmp:
-        figures = identify_report.ConditionFigures(Path(tmp), res.optimizer_name)
-        figures._stream = types.SimpleNamespace(add=jobs.extend, result=lambda: None, cancel=lambda: None)  # collect
-        figures.result(res)
+        jobs = _quickstart_jobs(Path(tmp))
         dump = Path(tmp) / "jobs.pickle"
         dump.write_bytes(pickle.dumps(jobs))
         for i in range(repeat):
