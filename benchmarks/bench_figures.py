@@ -1,6 +1,7 @@
 """Figures: hystfit's per-pixel reduction and parallel rendering against the straightforward way.
 
-Run:  python benchmarks/bench_figures.py [--kinds [--instructions] | --compare | --cpu [--other TREE] [--repeat N]]
+Run:  python benchmarks/bench_figures.py [--kinds [--instructions] | --compare | --cpu [--other TREE] [--repeat N]
+                                         | --texts [--other TREE]]
 
 1. The Quickstart's figures (``identify sample_data``: 24 conditions, a loop, time series and
    convergence figure each, and the overview), drawn by hystfit (``render_figures``: a process per
@@ -21,7 +22,12 @@ Run:  python benchmarks/bench_figures.py [--kinds [--instructions] | --compare |
    over ``--repeat`` processes; with ``--other``, that tree's too, alternately (both draw the same
    jobs, made here). Where ``perf stat`` cannot count instructions (as on this project's current
    machine), this is the rerunnable measure of a change to the drawing.
-4. One loop figure of a long periodic capture (10⁶ and 10⁷ samples, 20,000 cycles): time, points
+4. ``--texts [--other TREE]``: what a text the process has not drawn yet costs, in ms per text
+   (180 titles such as ``pi – 40V_50Hz (a40V_f50Hz.csv)``, 12 pt, 110 dpi, best of 3): matplotlib's
+   own ``RendererAgg.draw_text`` on a canvas just large enough, and the canvas's whole
+   rasterisation of a new text (``canvas._rasterise``: scratch canvas, glyphs, ink search), in a
+   fresh process per tree.
+5. One loop figure of a long periodic capture (10⁶ and 10⁷ samples, 20,000 cycles): time, points
    drawn, and the voltage span of what is drawn against the data's span (stride: aliasing).
 """
 
@@ -278,7 +284,59 @@ def figure_cpu(other: str | None, repeat: int) -> dict[str, tuple[list[float], l
     return out
 
 
+#: times a new text's rasterisation (see ``--texts``); prints the imported hystfit and the ms per text
+_TEXTS = r"""
+import json, time
+import hystfit
+from hystfit.report import canvas, render
+render._import_plotting(lean=True)
+from matplotlib.backends.backend_agg import RendererAgg
+from matplotlib.font_manager import FontProperties
+prop = FontProperties(size=12)
+titles = [f"pi – {a}V_{f}Hz (a{a}V_f{f}Hz.csv)" for a in range(10, 100) for f in (10, 20)]
+page = RendererAgg(800, 600, 110)
+gc = page.new_gc()
+def per_text(draw):
+    best = 9.0
+    for _ in range(3):
+        t = time.perf_counter()
+        for s in titles:
+            draw(s)
+        best = min(best, (time.perf_counter() - t) / len(titles))
+    return 1e3 * best
+def matplotlib_draw(s):
+    scratch = RendererAgg(700, 40, 110)
+    RendererAgg.draw_text(scratch, scratch.new_gc(), 10, 30, s, prop, 0, False, None)
+print(json.dumps([hystfit.__file__, per_text(matplotlib_draw), per_text(lambda s: canvas._rasterise(page, gc, s, prop, 0, None))]))
+"""
+
+
+def text_costs(other: str | None) -> dict[str, tuple[float, float]]:
+    """ms per new text: matplotlib's draw_text and the canvas's rasterisation, per tree (``--texts``)."""
+    import json
+    import os
+    import subprocess
+
+    out = {}
+    for tree in [str(ROOT)] + ([str(Path(other).resolve())] if other else []):
+        env = {**os.environ, "PYTHONPATH": tree, "OPENBLAS_NUM_THREADS": "1"}
+        with tempfile.TemporaryDirectory() as tmp:
+            r = subprocess.run([sys.executable, "-c", _TEXTS], env=env, cwd=tmp, capture_output=True, text=True, check=True)
+        imported, agg, ours = json.loads(r.stdout.strip().splitlines()[-1])
+        if not imported.startswith(tree):
+            raise RuntimeError(f"{tree}: imported {imported} instead")
+        out[tree] = (agg, ours)
+    return out
+
+
 def main() -> None:
+    if "--texts" in sys.argv[1:]:
+        other = sys.argv[sys.argv.index("--other") + 1] if "--other" in sys.argv[1:] else None
+        print("| tree | matplotlib's draw_text (ms per text) | the canvas's rasterisation of a new text (ms) |")
+        print("|---|---:|---:|")
+        for tree, (agg, ours) in text_costs(other).items():
+            print(f"| {tree} | {agg:.2f} | {ours:.2f} |")
+        return
     if "--cpu" in sys.argv[1:]:
         import argparse
         import statistics

@@ -133,12 +133,12 @@ _ROTATIONS = {0: ([[0x10000, 0], [0, 0x10000]], 1.0, 0.0), 90: ([[0, -0x10000], 
 
 
 def _draw_glyphs(scratch: RendererAgg, gc, x: float, y: float, s: str, prop, angle: float, mtext) -> None:
-    """``RendererAgg.draw_text`` of a plain text at 0° or 90°: the same pixels (tested), half the time.
+    """``RendererAgg.draw_text`` of a plain text at 0° or 90°: the same pixels (tested).
 
     matplotlib 3.11 draws a text glyph by glyph in Python, rebuilding the same rotation matrix with
-    numpy and setting the font's size for every glyph: ≈ 55 µs a glyph, 1.7 ms for a 30-character
-    title. Here the matrix is built once per angle and the size set once per font, the same
-    FreeType calls with the same arguments otherwise. Other matplotlib versions, and anything but
+    numpy and setting the font's size for every glyph (``python benchmarks/bench_figures.py
+    --texts``: ≈ 2.3 ms for a 30-character title). Here the matrix is built once per angle and the
+    size set once per font, the same FreeType calls with the same arguments otherwise. Other matplotlib versions, and anything but
     an upright or 90° text, are drawn by matplotlib itself."""
     if not _GLYPH_API or angle not in _ROTATIONS:
         RendererAgg.draw_text(scratch, gc, x, y, s, prop, angle, False, mtext)

@@ -1,14 +1,14 @@
 """A corner legend of lines and filled bands, drawn straight onto the canvas.
 
 matplotlib's :class:`~matplotlib.legend.Legend` builds a tree of offset boxes on creation and lays
-it out again on every draw (measuring each text several times): ≈ 2.5 ms a legend, 16 % of the
-Quickstart's figure time (three legends per condition). The fixed-layout figures (loop and time
-series) only need a legend in a corner of the axes, with line and band handles, so
-:func:`corner_legend` draws that directly: the same geometry as matplotlib's legend with its
-default settings (the rcParams ``legend.*`` in force: padding, spacing, handle size, frame colour
-and transparency, rounded corners), computed from the texts' cached layouts
-(:mod:`hystfit.report.canvas`), then one frame, one handle and one text per entry. Markers,
-titles, columns and ``loc="best"`` are left to matplotlib's legend.
+it out again on every draw, measuring each text several times. The fixed-layout figures (loop and
+time series) only need a legend in a corner of the axes, with line and band handles and one-line
+labels, so :func:`corner_legend` draws that directly: the geometry of matplotlib's legend (the
+rcParams ``legend.*`` in force: padding, spacing, handle size, frame colour and transparency,
+rounded corners), computed from the texts' cached layouts (:mod:`hystfit.report.canvas`), then
+one frame, one handle and one text per entry — the same pixels (``tests/unit/test_legend.py``).
+Settings it does not draw (label colours taken from the lines, a shadow) and anything else
+(markers, titles, columns, ``loc="best"``) are left to matplotlib's legend.
 
 This module imports matplotlib; :mod:`hystfit.report.plots` imports it when it draws.
 """
@@ -136,8 +136,7 @@ class CornerLegend(Artist):
 
 
 def _label_colour():
-    colour = mpl.rcParams["legend.labelcolor"]
-    return mpl.rcParams["text.color"] if colour in (None, "None", "none", "linecolor") else colour
+    return mpl.rcParams["text.color"]  # legend.labelcolor unset (:func:`drawable`)
 
 
 def _extent(text: Text, renderer) -> tuple[float, float, float]:
@@ -179,15 +178,24 @@ def _handle(source: Artist, old: Artist | None = None) -> Artist:
     return box
 
 
+def drawable() -> bool:
+    """Whether the legend settings in force are ones :class:`CornerLegend` draws as matplotlib's
+    legend would: label colours of their own (not taken from the lines) and no shadow."""
+    return mpl.rcParams["legend.labelcolor"] in (None, "None", "none") and not mpl.rcParams["legend.shadow"]
+
+
 def corner_legend(ax, loc: str = "upper right", fontsize=None) -> CornerLegend | None:
     """Show a :class:`CornerLegend` of ``ax``'s labelled lines and bands (as ``ax.legend(loc=loc)``
-    would show them) and return it; None when nothing is labelled. The axes keeps its legend (a
+    would show them) and return it; None when nothing is labelled, or when the legend settings in
+    force are not :func:`drawable` (then ``ax.legend`` draws it). The axes keeps its legend (a
     template's next figure restyles it)."""
     legend = next((a for a in ax.artists if isinstance(a, CornerLegend)), None)
     entries = _entries(ax)
-    if not entries:
+    if not entries or not drawable():
         if legend is not None:
             legend.set_visible(False)
+        if entries:  # settings this legend does not draw: matplotlib's own
+            ax.legend(loc=loc, fontsize=fontsize)
         return None
     if legend is None:
         legend = CornerLegend(ax)

@@ -465,8 +465,7 @@ class _TicksOncePerDraw:
 
     matplotlib's ``Axis.draw`` updates the ticks (locator, formatter, each tick's position and
     text) and measures the tick labels, then places the axis label by updating and measuring them
-    all again, and the spine's extent it unions with updates them a third time: ≈ 10 % of a
-    small figure's time. Nothing changes the ticks while what they are made from is unchanged (the
+    all again, and the spine's extent it unions with updates them a third time. Nothing changes the ticks while what they are made from is unchanged (the
     view, the axes' place, the locators and formatters: :meth:`_state`), so later updates return
     the first one's ticks — those :func:`_fit_left_margin` made before the draw, as a rule — and
     within a draw the labels' boxes measured for them (the same objects, so the same pixels;
@@ -493,6 +492,7 @@ class _TicksOncePerDraw:
         self.batches: dict[str, tuple] = {}  # part -> (its line, the style it was given)
         self.batchable = all(hasattr(axis, name) for name in self.NEEDED)
         axis._update_ticks, axis._get_ticklabel_bboxes, axis.draw = self._update_ticks, self._measure, self._draw
+        axis._hystfit_ticks = self  # for the template's reset (:meth:`forget`)
 
     @classmethod
     def install(cls, axis) -> None:
@@ -577,6 +577,10 @@ class _TicksOncePerDraw:
                            np.concatenate([v for y in ys for v in (y, gap)][:-1]))
         return batch
 
+    def forget(self) -> None:
+        """Drop the ticks kept (a template's next figure): the next update computes afresh."""
+        self.ticks = self.boxes = self.key = None
+
     def _update_ticks(self):
         key = self._state()
         if self.ticks is None or key != self.key:
@@ -613,6 +617,10 @@ def _reset_axes(ax) -> None:
 
     for artist in [*ax.lines, *ax.patches, *ax.collections, *ax.texts, *ax.images]:
         artist.remove()
+    for axis in (ax.xaxis, ax.yaxis):
+        kept = getattr(axis, "_hystfit_ticks", None)
+        if kept is not None:
+            kept.forget()
     for artist in ax.artists:  # a corner legend is kept, hidden, and shown again with new entries
         if getattr(artist, "reusable", False):
             artist.set_visible(False)

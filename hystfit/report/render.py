@@ -423,7 +423,7 @@ def yield_cores(nice: int) -> bool:
     nice value raised by ``nice`` (its pool's workers inherit it), so while this process and its
     forked children fit on every core the server takes a small share of a core instead of a third
     of each, and draws in the gaps (a serial step, a wait for the last item of a round, a fit on one
-    core). For a command whose figures can wait and whose computing can use every core (diagnose).
+    core). For a command whose figures can wait for its computing (identify, diagnose).
     The priority is never raised again (an unprivileged process cannot): on a machine busy with other
     work the figures draw more slowly. False where there is no server or the system refuses."""
     if _server is None or nice <= 0:

@@ -80,3 +80,15 @@ def test_unknown_corner_is_refused():
     fig, ax = _axes()
     with pytest.raises(ValueError, match="loc must be one of"):
         legend.corner_legend(ax, "best")
+
+
+@pytest.mark.parametrize("setting", [{"legend.labelcolor": "linecolor"}, {"legend.shadow": True}])
+def test_settings_it_does_not_draw_are_left_to_matplotlib(setting):
+    import matplotlib as mpl
+
+    with mpl.rc_context(setting):
+        fig, ax = _axes()
+        assert legend.corner_legend(ax) is None
+        assert ax.get_legend() is not None  # matplotlib's legend, with the setting applied
+    fig, ax = _axes()
+    assert legend.corner_legend(ax) is not None and ax.get_legend() is None

@@ -339,3 +339,37 @@ def test_template_axes_draw_their_ticks_as_matplotlib_does(tmp_path, rng, monkey
     monkeypatch.setattr(plots._TicksOncePerDraw, "_measure", lambda self, ticks, renderer: self.measure(ticks, renderer))
     monkeypatch.setattr(plots, "_templates", threading.local())  # new templates: matplotlib's methods
     assert draw_all(tmp_path / "matplotlib's") == ours
+
+
+def test_template_backgrounds_left_out_only_where_they_repaint_the_figures(tmp_path, rng, monkeypatch):
+    """A template's axes background of the figure's own colour is not drawn (plots._unpainted_backgrounds):
+    the same bytes as with it drawn; an axes of another colour, or overlapping another, keeps it."""
+    import threading
+
+    import matplotlib.figure
+
+    u = np.linspace(0.0, 60.0, 2000)
+    y = 0.3 * u + rng.normal(0, 0.05, u.size)
+    monkeypatch.setattr(plots, "_templates", threading.local())
+    plots.loop_figure(tmp_path / "a.png", u, y, y + 0.01, title="a")
+    (fig,) = [f for k, f in plots._templates.figures.items() if k[0] == "loop"]
+    assert not fig.axes[0].patch.get_visible()
+    monkeypatch.setattr(plots, "_unpainted_backgrounds", lambda fig: None)
+    monkeypatch.setattr(plots, "_templates", threading.local())
+    plots.loop_figure(tmp_path / "b.png", u, y, y + 0.01, title="a")
+    assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()
+    monkeypatch.undo()
+
+    grey = matplotlib.figure.Figure(figsize=(3, 2))
+    grey.add_subplot().set_facecolor("0.9")
+    plots._unpainted_backgrounds(grey)
+    assert grey.axes[0].patch.get_visible()
+    overlapping = matplotlib.figure.Figure(figsize=(3, 2))
+    overlapping.add_axes((0.1, 0.1, 0.6, 0.6))
+    overlapping.add_axes((0.5, 0.5, 0.4, 0.4))
+    plots._unpainted_backgrounds(overlapping)
+    assert all(ax.patch.get_visible() for ax in overlapping.axes)
+    alone = matplotlib.figure.Figure(figsize=(3, 2))
+    alone.add_subplot()
+    plots._unpainted_backgrounds(alone)
+    assert not alone.axes[0].patch.get_visible()
