@@ -200,7 +200,7 @@ def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int
         pol = final.minimize(objective, problem.lower, problem.upper, rng=rng, x0=res.x)
         if pol.fun <= fun:
             x, fun = pol.x, pol.fun
-    return RunRecord(run, s, res, pol, np.asarray(x, float), float(fun), float(np.sqrt(fun)),
+    return RunRecord(run, s, res, pol, np.asarray(x, float), float(fun), float(np.sqrt(max(fun, 0.0))),
                      time.perf_counter() - t_run)
 
 

@@ -156,7 +156,9 @@ class Objective(ObjectiveFunction):
     def __call__(self, theta: np.ndarray) -> np.ndarray:
         theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
         self.nfev += theta.shape[0]
-        mse = self._sse(theta) / self.n_total
+        # a sum of squares is ≥ 0; its quadratic form (less a skipped prefix's) can round below 0
+        # at an exact fit of noiseless data (≈ −1e-26): 0 then, as the simulated sum would give
+        mse = np.maximum(self._sse(theta), 0.0) / self.n_total
         return np.where(np.isfinite(mse), mse, np.inf)
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
