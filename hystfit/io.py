@@ -1496,12 +1496,18 @@ def _umask() -> int:
 _UMASK = _umask()
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: "bytes | Iterable[bytes]") -> None:
+def atomic_write_bytes(path: str | os.PathLike, data: "bytes | Iterable[bytes]", *, sync: bool = True) -> None:
     """Write ``data`` (bytes, or pieces of them written one after the other: a large table need not
     be held whole in memory) to ``path`` via a temporary file in the same directory and ``os.replace``.
 
     Readers see the old file or the complete new one, never a partial file. Parent directories
     are created. Raises :class:`OutputError` when the location cannot be written.
+
+    ``sync``: the file's data reach the disk (``fsync``) before it replaces ``path``, so that after
+    a crash ``path`` holds the old file or the new one, not an empty one. The wait for the disk is
+    most of a small file's cost (``python benchmarks/write_cost.py``); figures, which a command
+    redraws from its numbers, are written without it (as plotting libraries write theirs), the
+    numbers themselves with it.
     """
     p = Path(path)
     tmp = None
@@ -1514,8 +1520,9 @@ def atomic_write_bytes(path: str | os.PathLike, data: "bytes | Iterable[bytes]")
             else:
                 for piece in data:
                     fh.write(piece)
-            fh.flush()
-            os.fsync(fh.fileno())
+            if sync:
+                fh.flush()
+                os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, p)
         tmp = None

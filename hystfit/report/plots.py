@@ -396,7 +396,7 @@ def _save(fig: Figure, path, dpi: int, draw: Callable | None = None) -> Path:
         path.write(png)
         return path
     path = Path(path)
-    atomic_write_bytes(path, png)
+    atomic_write_bytes(path, png, sync=False)  # a figure is redrawn from the numbers: no wait for the disk
     return path
 
 

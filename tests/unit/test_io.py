@@ -545,6 +545,28 @@ def test_atomic_writes(tmp_path):
         atomic_write_text(blocker / "x.txt", "y")
 
 
+def test_numbers_reach_the_disk_figures_do_not_wait_for_it(tmp_path, monkeypatch):
+    """Text and tables are fsynced before they replace a file; a figure (redrawn from the numbers)
+    is written atomically without the wait (``sync=False``, as ``plots._save`` writes)."""
+    import io as _io
+
+    from hystfit.report import plots
+
+    synced = []
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real(fd))[1])
+    atomic_write_text(tmp_path / "a.json", "{}")
+    assert len(synced) == 1
+    atomic_write_bytes(tmp_path / "b.png", b"x", sync=False)
+    assert len(synced) == 1 and (tmp_path / "b.png").read_bytes() == b"x"
+    buf = _io.BytesIO()
+    plots.loop_figure(buf, [0.0, 1.0, 0.0], [0.0, 1.0, 0.2], title="t")
+    plots.loop_figure(tmp_path / "fig.png", [0.0, 1.0, 0.0], [0.0, 1.0, 0.2], title="t")
+    assert len(synced) == 1
+    assert (tmp_path / "fig.png").read_bytes() == buf.getvalue()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.png", "fig.png"]
+
+
 def test_atomic_write_failure_keeps_old_file(tmp_path):
     d = tmp_path / "ro"
     d.mkdir()
