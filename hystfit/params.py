@@ -105,6 +105,26 @@ class DataScale:
         """Output range / input range: the natural gain scale (e.g. µm/V)."""
         return self.y_range / self.u_range
 
+    @property
+    def input_bias_V(self) -> float:
+        """How far the input's range lies from 0 V (V, ≥ 0): :attr:`u_min` for an input that stays
+        above 0 V, −:attr:`u_max` for one that stays below, 0 for one through 0 V. A biased drive
+        (a sine of ±30 V about 100 V, a stage held at mid-stroke) has 70 V; a drive from or about
+        0 V has 0 (and a DAC's few mV above 0 V next to nothing: the scales that use it change
+        continuously with it)."""
+        return max(self.u_min, -self.u_max, 0.0)
+
+    def offset_bounds(self) -> tuple[float, float]:
+        """The search box of a model's output offset (``y0`` and its kin, in the output's unit).
+
+        The output's range widened by its span on either side, and by 2 × :attr:`gain` ×
+        :attr:`input_bias_V` more: for a biased input the model's input-proportional part carries
+        ≈ gain × the bias (≈ 20 µm at 0.3 µm/V and 70 V), which the offset takes back, and the
+        output's own span (≈ 20 µm for ±30 V) is too narrow a margin for it. An input from or
+        about 0 V keeps the box it had."""
+        extra = self.y_range + 2.0 * self.gain * self.input_bias_V
+        return self.y_min - extra, self.y_max + extra
+
     @classmethod
     def from_arrays(cls, us: Sequence[np.ndarray], ys: Sequence[np.ndarray], dts: Sequence[float],
                     frequencies_Hz: Sequence[float] | None = None) -> "DataScale":

@@ -227,13 +227,12 @@ class BoucWen(Model):
 
     def params(self, scale: DataScale) -> tuple[Param, ...]:
         g, du = scale.gain, scale.u_range
-        span = scale.y_range
         ps = (
             Param("Kv", "out/V", -3 * g, 3 * g, g, "linear gain"),
             Param("alpha", "out/V", -3 * g, 3 * g, 0.1 * g, "hysteresis input gain α"),
             Param("beta", "1/V", 0.0, 50.0 / du, 2.0 / du, "shape parameter β (normalised by h_ref^(1−n) when n is free)"),
             Param("gamma", "1/V", -50.0 / du, 50.0 / du, 0.0, "shape parameter γ, multiplies sgn(α)·u̇·|h| (paper 004's γ = γ·sgn(α); normalised by h_ref^(1−n) when n is free)"),
-            Param("y0", "out", scale.y_min - span, scale.y_max + span, 0.0, "output offset"),
+            Param("y0", "out", *scale.offset_bounds(), 0.0, "output offset"),
         )
         if self.free_exponent:
             ps += (Param("n", "1", 1.0, 4.0, 1.0, "Bouc–Wen exponent n"),)

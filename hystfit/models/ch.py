@@ -275,7 +275,7 @@ class ColemanHodgdon(Model):
             Param("A3", "1/V", 0.0, 10.0 / du, 1.0 / du, "slope correction rate A3 (only K is identifiable)"),
             Param("A4", "out", -yr, yr, 0.05 * yr, "loop amplitude A4 (> 0: counter-clockwise loop)"),
             Param("A5", "1/V", -20.0 / du, 20.0 / du, 2.0 / du, "loop shape A5"),
-            Param("A6", "out", scale.y_min - yr, scale.y_max + yr, mid, "output offset A6"),
+            Param("A6", "out", *scale.offset_bounds(), mid, "output offset A6"),
         )
 
     def slope(self, theta: np.ndarray) -> np.ndarray:

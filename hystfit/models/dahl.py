@@ -203,7 +203,7 @@ class Dahl(Model):
                   "initial slope σ of h after a reversal (sign = orientation)"),
             Param("Fc", "out", 1e-3 * yr, yr, 0.05 * yr, "saturation level F_c of h"),
             Param("a", "1", 0.25, 4.0, 1.0, "shape exponent a"),
-            Param("d0", "out", scale.y_min - yr, scale.y_max + yr, 0.0, "output offset"),
+            Param("d0", "out", *scale.offset_bounds(), 0.0, "output offset"),
         )
 
     def separable(self):

@@ -333,7 +333,7 @@ class FractionalZener(OptionalOffset, Model):
         return max(0, int(round(float(self.memory_s) / float(dt))))
 
     def params(self, scale: DataScale) -> tuple[Param, ...]:
-        g, yr = scale.gain, scale.y_range
+        g = scale.gain
         sg = -1.0 if scale.sign < 0 else 1.0
         tc = scale.u_range / scale.rate_max
         ps = [
@@ -344,7 +344,7 @@ class FractionalZener(OptionalOffset, Model):
             Param("a", "1", 0.01, 0.99, 0.5, "fractional order a"),
         ]
         if self.offset:
-            ps.append(Param("y0", "out", scale.y_min - yr, scale.y_max + yr, 0.0, "output offset"))
+            ps.append(Param("y0", "out", *scale.offset_bounds(), 0.0, "output offset"))
         return tuple(ps)
 
     # ------------------------------------------------------------------ simulation

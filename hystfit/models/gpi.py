@@ -428,7 +428,6 @@ class GPI(Model):
         g = scale.gain
         a2_def = 0.5 / h
         a3_lim = 4.0 + 4.0 * abs(uc) / h
-        span = scale.y_range
         ps = []
         for side, what in (("a", "γ_l (rising-input envelope)"), ("b", "γ_r (falling-input envelope)")):
             ps += [
@@ -443,7 +442,7 @@ class GPI(Model):
              Param("rho", "out/V", -3.0 * g, 0.0, -0.5 * g, "density scale ρ = p(0), weight of the r = 0 operator")),
             Param("tau", "1/V", 0.0, 10.0 * n / U, 0.6 * n / U, "density decay τ: p(r) = ρ·exp(−τ r)"),
             Param("alpha_r", "V", 0.01 * U / n, 2.0 * U / n, 0.5 * U / n, "threshold step α_r: r_j = α_r·j"),
-            Param("y0", "out", scale.y_min - span, scale.y_max + span,
+            Param("y0", "out", *scale.offset_bounds(),
                   0.5 * (scale.y_min + scale.y_max) if scale.y_min > 0 or scale.y_max < 0 else 0.0, "output offset"),
         ]
         return tuple(ps)

@@ -217,7 +217,7 @@ class LuGre(OptionalOffset, Model):
             Param("vs", "V/s", 1e-3 * R, 2.0 * R, 0.3 * R, "Stribeck rate v_s"),
         ]
         if self.offset:
-            ps.append(Param("y0", "out", scale.y_min - yr, scale.y_max + yr, 0.0, "output offset"))
+            ps.append(Param("y0", "out", *scale.offset_bounds(), 0.0, "output offset"))
         return tuple(ps)
 
     def _cols(self, theta: np.ndarray):

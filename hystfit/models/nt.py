@@ -241,7 +241,7 @@ class NT(OptionalOffset, Model):
             Param("k2", "1/V", 0.01 / U, 20.0 / U, 1.0 / U, "softsign shape k2"),
         ]
         if self.offset:
-            ps.append(Param("y0", "out", scale.y_min - yr, scale.y_max + yr, 0.0, "output offset"))
+            ps.append(Param("y0", "out", *scale.offset_bounds(), 0.0, "output offset"))
         return tuple(ps)
 
     # ------------------------------------------------------------------ simulation

@@ -101,7 +101,12 @@ class PI(Model, PlayOperators):
             return self
         n = self.n_operators
         j = np.arange(n, dtype=float)
-        umax = scale.u_abs_max
+        # paper 003's r_j = j·max|u|/n for an input from or about 0 V, less the input's bias
+        # (DataScale.input_bias_V) for a biased one: on a ±30 V sine about 100 V, thresholds up to
+        # max|u| = 130 V leave every operator with r ≥ 30 V still after the first rise, 7 of 10
+        # (tests/unit/test_pi.py); up to 130 − 70 = 60 V they spread as on a drive from 0 V. The
+        # same r_j as the paper's wherever the input reaches 0 V.
+        umax = scale.u_abs_max - scale.input_bias_V
         r = j * umax / n if self.placement == "uniform" else (j / n) ** 2 * umax
         return PI(n, self.placement, tuple(float(x) for x in r), self.nonnegative)
 
@@ -119,8 +124,7 @@ class PI(Model, PlayOperators):
             lo, hi = -hi, -lo
         ps = [Param(f"w{j}", "out/V", lo, hi, s * (g / self.n_operators if j else g / 2),
                     f"weight of the play operator with threshold r{j}") for j in range(self.n_operators)]
-        span = scale.y_range
-        ps.append(Param("y0", "out", scale.y_min - span, scale.y_max + span, 0.5 * (scale.y_min + scale.y_max) if scale.y_min > 0 or scale.y_max < 0 else 0.0,
+        ps.append(Param("y0", "out", *scale.offset_bounds(), 0.5 * (scale.y_min + scale.y_max) if scale.y_min > 0 or scale.y_max < 0 else 0.0,
                         "output offset"))
         return tuple(ps)
 
