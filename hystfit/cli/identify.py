@@ -75,6 +75,7 @@ def identify(
                                        f"the other runs are in {out}, every failure in {out}/report.md")
     if not quiet:
         _print_bound_notes(res)
+        _print_offset_notes(res)
     if json_out:
         _print_summary_json(res, out, seed)
     elif not quiet:
@@ -96,6 +97,19 @@ def _print_bound_notes(res) -> None:
         stderr.print(f"  {line}", markup=False, highlight=False, soft_wrap=True)
     if len(pinned) > 5:
         stderr.print(f"  … and {len(pinned) - 5} more in report.md", markup=False, highlight=False)
+
+
+def _print_offset_notes(res) -> None:
+    from ..report.identify_report import offset_notes
+
+    lines = offset_notes(res)
+    if not lines:
+        return
+    stderr.print(f"note: {len(lines)} parameter set(s) miss an output offset:", markup=False, highlight=False)
+    for line in lines[:5]:
+        stderr.print(f"  {line}", markup=False, highlight=False, soft_wrap=True)
+    if len(lines) > 5:
+        stderr.print(f"  … and {len(lines) - 5} more", markup=False, highlight=False)
 
 
 def _print_summary_json(res, out, seed: int) -> None:
