@@ -431,6 +431,15 @@ def loop_margins(nominal: NominalPlant, kp: float, ki: float, kd: float = 0.0, t
     return gm, pm, fc
 
 
+def margins_text(gain_margin: float, phase_margin_deg: float) -> str:
+    """The nominal loop's margins in words: a margin :func:`loop_margins` found no crossing for
+    (inf) is said so, not printed as ``inf°``."""
+    gm = f"GM = {gain_margin:.3g}" if math.isfinite(gain_margin) else "GM = ∞ (the phase never reaches −180°)"
+    pm = (f"PM = {phase_margin_deg:.3g}°" if math.isfinite(phase_margin_deg)
+          else "PM: none (the loop gain does not fall through 1 below Nyquist)")
+    return f"{gm}, {pm}"
+
+
 def auto_pid(nominal: NominalPlant, bandwidth_Hz: float | None = None, anti_windup: str = "backcalc") -> PIDGains:
     """Integral-dominant PI from the nominal plant (the rule in the module docstring)."""
     dt, K = nominal.dt, nominal.gain
@@ -439,28 +448,37 @@ def auto_pid(nominal: NominalPlant, bandwidth_Hz: float | None = None, anti_wind
     def gains(s: float) -> tuple[float, float]:
         return s * 0.25 / K, s * 2 * np.pi * f_max / K
 
+    def ok(s: float) -> bool:
+        kp, ki = gains(s)
+        gm, pm, _ = loop_margins(nominal, kp, ki)
+        return gm >= MIN_GAIN_MARGIN and pm >= MIN_PHASE_MARGIN_DEG
+
+    def largest_ok() -> float:
+        """The largest s ≤ 1 whose nominal loop has the automatic rule's margins (0: none)."""
+        if ok(1.0):
+            return 1.0
+        lo_s, hi_s = 0.0, 1.0
+        for _ in range(40):
+            mid = 0.5 * (lo_s + hi_s)
+            lo_s, hi_s = (mid, hi_s) if ok(mid) else (lo_s, mid)
+        return lo_s
+
     if bandwidth_Hz is not None:
         bw = float(bandwidth_Hz)
         if not (math.isfinite(bw) and 0 < bw < 0.5 / dt):
             raise ConfigError(f"--bandwidth {bw:g} Hz must lie in (0, {0.5 / dt:g}) Hz (below Nyquist)")
         s = bw / f_max
+        gm, pm, _ = loop_margins(nominal, *gains(s))
+        if not (gm > 1.0 and pm > 0.0):  # the nominal loop is unstable: its run would only diverge
+            best = largest_ok() * f_max
+            hint = (f"at most {best:.3g} Hz keeps GM ≥ {MIN_GAIN_MARGIN:g} and PM ≥ {MIN_PHASE_MARGIN_DEG:g}° "
+                    "(leave --bandwidth out to get it)" if best > 0 else "give --kp/--ki instead")
+            raise ConfigError(f"--bandwidth {bw:g} Hz makes the nominal loop unstable ({margins_text(gm, pm)}); {hint}")
         rule = (f"Ki = 2π·{bw:g} Hz / K, Kp = 0.25/K·({bw:g}/{f_max:g}), K = {K:.4g} per V (given bandwidth)")
     else:
-        def ok(s: float) -> bool:
-            kp, ki = gains(s)
-            gm, pm, _ = loop_margins(nominal, kp, ki)
-            return gm >= MIN_GAIN_MARGIN and pm >= MIN_PHASE_MARGIN_DEG
-
-        if ok(1.0):
-            s = 1.0
-        else:
-            lo_s, hi_s = 0.0, 1.0
-            for _ in range(40):
-                mid = 0.5 * (lo_s + hi_s)
-                lo_s, hi_s = (mid, hi_s) if ok(mid) else (lo_s, mid)
-            s = lo_s
-            if s <= 0:
-                raise ConfigError("automatic PID tuning found no stable gains for the nominal plant; give --kp/--ki")
+        s = largest_ok()
+        if s <= 0:
+            raise ConfigError("automatic PID tuning found no stable gains for the nominal plant; give --kp/--ki")
         rule = (f"integral-dominant PI: Ki = s·2π·{f_max:g} Hz / K, Kp = s·0.25/K, Kd = 0, K = {K:.4g} per V, "
                 f"s = {s:.3g} (largest ≤ 1 with nominal GM ≥ {MIN_GAIN_MARGIN:g} and PM ≥ {MIN_PHASE_MARGIN_DEG:g}°)")
     kp, ki = gains(s)

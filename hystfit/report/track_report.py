@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from ..invert import condition_text
 from ..io import Columns, atomic_write_text, write_table
 from ..results import dumps, json_safe, schema_fields
-from ..track import TrackResult
+from ..track import TrackResult, margins_text
 from .invert_report import detail_windows, draw_figures, figure_job, invert_summary, span_dicts, span_table
 from .plots import display_unit
 from .tables import fmt, notes_and_figures
@@ -75,7 +76,11 @@ def track_markdown(res: TrackResult, figures: list[str], command: str | None = N
         p = res.pid
         L.append(f"- PID: Kp = {p.kp:.4g} V/{du}, Ki = {p.ki:.4g} V/({du}·s), Kd = {p.kd:.4g} V·s/{du}, "
                  f"derivative filter {p.tf_s:.3g} s, anti-windup {p.anti_windup} (Tt = {p.tt_s:.3g} s); {p.rule}; "
-                 f"nominal bandwidth ≈ {p.bandwidth_Hz:.4g} Hz, GM = {p.gain_margin:.3g}, PM = {p.phase_margin_deg:.3g}°")
+                 + (f"nominal bandwidth ≈ {p.bandwidth_Hz:.4g} Hz, " if math.isfinite(p.bandwidth_Hz) else
+                    "no nominal bandwidth (no gain crossover below Nyquist), ")
+                 + margins_text(p.gain_margin, p.phase_margin_deg)
+                 + ("" if p.gain_margin > 1.0 and p.phase_margin_deg > 0.0 else
+                    " — **the nominal loop is unstable with these gains**"))
     if res.smc is not None:
         L.append(f"- sliding mode (paper 003 eq. 25–42; smc on top of the feedforward, smc-noinv without the "
                  f"inverse compensation): {res.smc.describe()}")

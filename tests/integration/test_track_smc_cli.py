@@ -44,3 +44,19 @@ def test_smc_options_noinv_and_bandwidths(params, tmp_path):
 def test_bad_smc_options_are_one_line_errors(params, tmp_path, args, word):
     r = run("track", params, "--sine", "2,10", "-c", "smc", *args, "--out", tmp_path / "x", "--no-plots")
     assert r.exit_code == 2 and word in r.output, r.output
+
+
+def test_an_unstable_bandwidth_is_refused_and_unstable_gains_are_reported_as_such(params, tmp_path):
+    """A blind test's finds: --bandwidth above what the nominal loop tolerates ran to exit 0 (error
+    128 % of the stroke); user gains without a crossover printed `≈ nan Hz` and `PM = inf°`."""
+    r = run("track", params, "--sine", "2,10", "-c", "pid", "--bandwidth", "4000", "--out", tmp_path / "x",
+            "--no-plots")
+    assert r.exit_code == 2 and "makes the nominal loop unstable" in r.output and "at most" in r.output, r.output
+    assert not (tmp_path / "x").exists()
+    out = tmp_path / "y"
+    r = run("track", params, "--sine", "2,10", "-c", "pid", "--kp", "1e9", "--ki", "0", "--kd", "0", "--out", out,
+            "--no-plots")
+    assert r.exit_code == 0, r.output
+    md = (out / "report.md").read_text()
+    assert "the nominal loop is unstable with these gains" in md
+    assert "nan Hz" not in md and "inf°" not in md
