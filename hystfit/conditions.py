@@ -227,6 +227,51 @@ def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str
     return out
 
 
+#: a capture whose strongest spectral line carries less than this share of its input's power is
+#: broadband: a PRBS 0.4 %, multisines of 40, 5 and 3 equal lines 8, 17 and 33 %; a sine and a
+#: raised cosine carry 100 %, a triangle 99 %, a rising-amplitude sine 88 % (hystfit.synth's)
+TONAL_SHARE_MIN = 0.5
+
+
+def tonal_share(u: np.ndarray) -> float:
+    """The share of the (mean-removed, Hann-windowed) input's spectral power within ±2 bins (the
+    window's main lobe) of its strongest line: ≈ 1 for one drive frequency, small for a broadband
+    input."""
+    x = np.asarray(u, dtype=np.float64)
+    if x.size < 8:
+        return 1.0
+    p = np.abs(np.fft.rfft((x - x.mean()) * np.hanning(x.size))) ** 2
+    total = float(p[1:].sum())
+    if not total > 0:
+        return 1.0
+    k = 1 + int(np.argmax(p[1:]))
+    return float(p[max(k - 2, 1):k + 3].sum()) / total
+
+
+def broadband_cell_warnings(captures: Sequence[Capture]) -> list[str]:
+    """Warnings for broadband captures (:func:`tonal_share` below :data:`TONAL_SHARE_MIN`, a PRBS or a
+    multisine, not a step-and-hold input) whose detected condition makes them a cell of a look-up
+    table with other conditions: the cell's frequency is only their strongest line, and
+    ``simulate``/``invert`` interpolate between cells by frequency as if it were a drive's. One
+    line per capture, naming it; none for a table of one condition or a condition given by the
+    user (``--condition``, columns)."""
+    groups = group_by_condition(captures)
+    if len(groups) < 2:
+        return []
+    out = []
+    for c in captures:
+        if c.condition_source != "detected" or is_step_and_hold(c.u):
+            continue
+        share = tonal_share(c.u)
+        if share < TONAL_SHARE_MIN:
+            label = condition_label((c.amplitude_V, c.frequency_Hz))
+            out.append(f"{c.source}: the input is broadband (its strongest line, {c.frequency_Hz:g} Hz, carries "
+                       f"{100 * share:.0f} % of its power: a PRBS, a multisine, noise), so its look-up-table cell "
+                       f"{label} stands for no drive frequency, and simulate and invert interpolate across it as if "
+                       "it did; fit it on its own, or name its condition with --condition")
+    return out
+
+
 def count_cycles(u: np.ndarray, dt: float, frequency_Hz: float) -> float:
     """Number of input cycles in a capture: duration ``len(u)·dt`` (s) times ``frequency_Hz`` (Hz)."""
     return float(np.asarray(u).shape[0] * dt * frequency_Hz)

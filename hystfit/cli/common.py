@@ -497,6 +497,17 @@ def print_capture_notes(captures) -> None:
                 stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
+def print_table_warnings(captures, per_condition: bool, output: OutputArgs) -> None:
+    """Before a look-up table is fitted (``per_condition``): a warning per broadband capture that
+    would be one of its cells (:func:`hystfit.conditions.broadband_cell_warnings`)."""
+    if not per_condition or output.quiet:
+        return
+    from ..conditions import broadband_cell_warnings
+
+    for line in broadband_cell_warnings(captures):
+        stderr.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
+
+
 def start_figures(output: FigureOutputArgs, *, behind: bool = False) -> None:
     """With figures ahead, start the figure server (matplotlib imported on the other core) before
     the command imports its own modules, loads and fits: first thing in a command that draws.

@@ -10,7 +10,7 @@ import typer
 
 from .app import command
 from .common import (DataArg, ExecutorArgs, FigureOutputArgs, FitArgs, FitCaptureArgs, Iters, MapeFloor, OutDir,
-                     Polish, Pop, Runs, Seed, cell_run, load_for_command, start_figures, new_table, print_cell_summary,
+                     Polish, Pop, Runs, Seed, cell_run, load_for_command, print_table_warnings, start_figures, new_table, print_cell_summary,
                      print_json, progress_bar, stdout, writing)
 
 
@@ -89,6 +89,7 @@ def compare(
 
         captures = load_for_command(data, options, output, recursive=capture.recursive,
                                     ahead=startup_steps(jobs=execution.jobs, executor=cr.executor))
+        print_table_warnings(captures, fit.per_condition, output)
         with progress_bar(output.chatty, "compare") as cb:
             res = run_compare(captures, model_names, opt_names, runs=runs, seed=seed, jobs=execution.jobs,
                               polish=polish, model_options=mopts, optimizer_options=opt_options, bounds=bnds,

@@ -10,7 +10,7 @@ import typer
 
 from .app import command
 from .common import (DataArg, ExecutorArgs, FigureOutputArgs, FitArgs, FitCaptureArgs, Iters, MapeFloor, OutDir,
-                     Polish, Pop, Runs, Seed, cell_run, load_for_command, start_figures, new_table, print_cell_summary,
+                     Polish, Pop, Runs, Seed, cell_run, load_for_command, print_table_warnings, start_figures, new_table, print_cell_summary,
                      print_json, progress_bar, stderr, stdout, writing)
 
 
@@ -55,6 +55,7 @@ def identify(
         captures = load_for_command(data, options, output, recursive=capture.recursive,
                                     ahead=startup_steps(m, o, jobs=execution.jobs, executor=cr.executor,
                                                         n_cells=runs if one_cell else None, polish=polish))
+        print_table_warnings(captures, fit.per_condition, output)
         # each condition's figures are drawn while the next conditions are fitted
         n_conditions = len(condition_groups(captures, not fit.per_condition))
         with (ConditionFigures(stage, o.name, execution.jobs, n_conditions=n_conditions) if output.plots

@@ -225,3 +225,39 @@ def test_step_and_hold_inputs_are_told_from_prbs_and_slow_drives():
     _, slow = synth.raised_cosine(60.0, 1.0, 5, 10_000)
     others += [slow, slow + 0.01 * r.standard_normal(slow.size)]
     assert not any(is_step_and_hold(u) for u in others)
+
+
+def test_tonal_share_tells_one_drive_frequency_from_a_broadband_input():
+    from hystfit import synth
+    from hystfit.conditions import TONAL_SHARE_MIN, tonal_share
+
+    fs = 10_000
+    tonal = [synth.sine(30, 23.7, 5, fs), synth.raised_cosine(60, 20, 1.5, fs), synth.triangle(60, 7, 4, fs),
+             synth.rising_sine(60, 20, 50, fs)]
+    broad = [synth.prbs(60, fs, 3.0, 2500.0, seed=1), synth.multisine(60, [10, 40, 160], fs, 3.0),
+             synth.multisine(60, synth.multisine_frequencies(1000.0, 3.0), fs, 3.0)]
+    assert all(tonal_share(u) > 0.85 for _, u in tonal)
+    assert all(tonal_share(u) < 0.35 for _, u in broad)
+    assert 0.35 < TONAL_SHARE_MIN < 0.85
+
+
+def test_a_broadband_capture_in_a_look_up_table_is_warned_about():
+    """Found by a blind test: a multisine among sines became the cell 60V_16Hz without a word, and
+    simulate blended it into a 20 Hz prediction (RMSE 0.33 against 0.04 µm without it)."""
+    from dataclasses import replace
+
+    from hystfit import synth
+    from hystfit.capture import Capture
+    from hystfit.conditions import broadband_cell_warnings, detect_condition
+
+    def cap(name, t, u):
+        a, f = detect_condition(u, t[1] - t[0])
+        return Capture(source=name, t=t, u=u, y=0.3 * u, dt=t[1] - t[0], amplitude_V=a, frequency_Hz=f)
+
+    sines = [cap("a60f10.csv", *synth.raised_cosine(60, 10, 3)), cap("a60f40.csv", *synth.raised_cosine(60, 40, 3))]
+    ms = cap("ms.csv", *synth.multisine(60, synth.multisine_frequencies(1000.0, 3.0)))
+    got = broadband_cell_warnings(sines + [ms])
+    assert len(got) == 1 and got[0].startswith("ms.csv: the input is broadband") and "--condition" in got[0]
+    assert broadband_cell_warnings(sines) == []  # tonal cells only
+    assert broadband_cell_warnings([ms]) == []  # no table to interpolate in
+    assert broadband_cell_warnings(sines + [replace(ms, condition_source="option")]) == []  # named by the user
