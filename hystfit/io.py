@@ -1324,15 +1324,29 @@ def start_jump(u: np.ndarray) -> float:
     return 0.0
 
 
+#: an input whose peak-to-peak is at most this share of its level (60 µV of ripple on 30 V) is
+#: constant: no DAC resolves it (16 bits over 100 V: 1.5 mV), it is noise on a held voltage
+CONSTANT_INPUT_FRACTION = 1e-5
+#: an output whose peak-to-peak is at most this share of its level (0 included) did not move: a
+#: disconnected sensor, a column of its zero; the finest interferometer resolves ≈ 1e-9 of its range
+CONSTANT_OUTPUT_FRACTION = 1e-9
+
+
 def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u: np.ndarray,
             y: np.ndarray | None, dt: float, y_unit: str, rows: np.ndarray | None = None,
             windowed: bool = False) -> Capture:
     """Trim the idle start, check excitation and length, settle the condition, build the Capture."""
     label = table.label
     ptp = float(u.max() - u.min()) if u.size else 0.0
-    if ptp <= 1e-9:
-        raise InputError(f"{label}: {table.col_label(chosen['input'])}: the input is constant ({u[0]:g} V), "
+    level = float(np.max(np.abs(u))) if u.size else 0.0
+    if ptp <= max(1e-9, CONSTANT_INPUT_FRACTION * level):
+        within = f" within {ptp:.3g} V" if ptp > 0 else ""
+        raise InputError(f"{label}: {table.col_label(chosen['input'])}: the input is constant{within} ({u[0]:g} V), "
                          "there is no excitation; check the input column (--input-col)")
+    if y is not None and y.size and float(y.max() - y.min()) <= CONSTANT_OUTPUT_FRACTION * float(np.max(np.abs(y))):
+        raise InputError(f"{label}: {table.col_label(chosen['output'])}: the output is constant ({y[0]:g} "
+                         f"{'µm' if y_unit == 'um' else y_unit}) while the input moves: the sensor recorded nothing to identify from; check "
+                         "the output column (--output-col) or the sensor")
     start = idle_samples(u)
     if start:
         u = u[start:]
