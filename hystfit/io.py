@@ -901,6 +901,11 @@ def _missing_column_error(table: _Table, role: str) -> InputError:
         return InputError(f"{table.label}: no target (desired displacement) column found ({table.listing()}); "
                           "name it e.g. 'target_um' or 'displacement_um', or pass --target-col")
     examples = {"input": "voltage_V", "output": "displacement_um"}[role]
+    empty = [i for i, n in enumerate(table.names or []) if _is_candidate(n, role) and table.is_empty(i)]
+    if empty:  # the column is there, its cells are not: say so, not that it is missing
+        i = empty[0]
+        return InputError(f"{table.label}: column {i} {table.names[i]!r}, the {_WHAT[role]}, is empty (no cell has a "
+                          f"value); check the export, or pass {_FLAGS[role]} NAME for another column")
     return InputError(f"{table.label}: no {_WHAT[role]} column found ({table.listing()})"
                       f"{_bad_unit_hint(table.names or [], role)}; pass {_FLAGS[role]} NAME or a 0-based index, "
                       f"or name the column e.g. {examples!r}")

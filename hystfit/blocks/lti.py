@@ -612,19 +612,19 @@ def measure_gain_phase(v, y, dt: float, skip: float = 0.05) -> list[tuple[float,
     for a, b in zip(_as_list(v), _as_list(y)):
         f = _fundamental(a)
         if not 0 < f < 0.5:
-            raise InputError("fit_linear_to_sine: a capture has no oscillation to measure a gain/phase from")
+            raise InputError("linear part from sines: a capture has no oscillation to measure a gain/phase from")
         N = a.shape[0]
         i0 = max(int(skip * N), int(math.ceil(1.0 / f)))
         periods = math.floor((N - i0) * f)
         if periods < 1:
             raise InputError(
-                f"fit_linear_to_sine: a capture holds {N * f:.2f} periods; at least 2 are needed (the first is skipped)")
+                f"linear part from sines: a capture holds {N * f:.2f} periods; at least 2 are needed (the first is skipped)")
         i1 = i0 + int(round(periods / f))
         harmonics = max(1, min(5, int(0.45 / f)))
         Vc, Yc = _harmonic_phasors(np.stack([a[i0:i1], b[i0:i1]], axis=1), f, harmonics)
         # phasors refer to sample i0 for both signals, so the ratio is unaffected
         if abs(Vc) == 0:
-            raise InputError("fit_linear_to_sine: zero input amplitude at the fundamental")
+            raise InputError("linear part from sines: zero input amplitude at the fundamental")
         out.append((f / dt, Yc / Vc))
     return out
 
@@ -694,8 +694,9 @@ def fit_linear_to_sine(v, y, dt: float, *, fn_bounds_Hz: tuple[float, float] | N
     G_u = np.array([G[g].mean() for g in groups])
     if f_u.size < 2:
         raise InputError(
-            "fit_linear_to_sine: all sine captures have the same frequency; the linear part needs captures at "
-            "≥ 2 frequencies (or one broadband capture: PRBS, multisine, chirp)")
+            "linear part from sines: every capture has the same drive frequency; the linear part needs sines at "
+            "≥ 2 frequencies, or one broadband capture (a PRBS, a multisine, a chirp; a step pattern's power falls "
+            "as 1/f² and excites too few frequencies)")
     fs = 1.0 / dt
     lo_f, hi_f = fn_bounds_Hz if fn_bounds_Hz is not None else (min(2.0 * f_u.max(), 0.4 * fs), 0.45 * fs)
 
@@ -782,11 +783,13 @@ class LinearPartFields:
 
 
 def is_broadband(u: np.ndarray, min_bins: int = 64, level: float = 1e-3) -> bool:
-    """True when the input excites many frequencies (PRBS, multisine, chirp, steps), not a few lines.
+    """True when the input excites many frequencies (PRBS, multisine, chirp), not a few lines.
 
     Counts the bins of the Hann-windowed power spectrum of u − mean above ``level`` × its peak:
     a sine or raised cosine has ≈ 4 (the main lobe), a triangle ≈ 12 (three harmonics), a
-    40-line multisine ≈ 120 and a PRBS thousands; ≥ ``min_bins`` counts as broadband.
+    40-line multisine ≈ 120 and a PRBS thousands; ≥ ``min_bins`` counts as broadband. A step pattern
+    (power ∝ 1/f²) has ≈ 40: too few to identify a linear stage from. (Whether a capture is one drive
+    frequency, a look-up table's question, is :func:`hystfit.conditions.tonal_share`'s.)
     """
     u = np.asarray(u, dtype=np.float64)
     if u.shape[0] < 4 * min_bins:
@@ -806,7 +809,7 @@ class Lti(Block, LinearPartFields):
 
     identified once from all the captures before the fit (:meth:`prepare`): correlation →
     impulse response → Hankel SVD (ERA, :func:`identify_linear_era`, paper 003 eq. 4–12) on the
-    broadband captures (PRBS, multisine, steps), with the input voltage as the stage input (the
+    broadband captures (PRBS, multisine, chirp), with the input voltage as the stage input (the
     first pass of paper 003's two-step procedure), scaled to unit static gain so the base model
     keeps the quasi-static gain. Structure, not parameters: it adds no entry to θ, and the base
     model's parameters are fitted through it. Sine-only data cannot determine it (one frequency
@@ -860,8 +863,9 @@ class Lti(Block, LinearPartFields):
         caps = captures_at_one_rate(captures, "lti")
         broad = [c for c in caps if is_broadband(c.u)]
         if not broad:
-            raise ConfigError("lti: no broadband capture (PRBS, multisine, steps) to identify the linear stage from; "
-                              "sine captures determine one frequency each — use the dynamics block instead")
+            raise ConfigError("lti: no broadband capture (a PRBS, a multisine, a chirp) to identify the linear stage "
+                              "from; sine captures determine one frequency each, and a step pattern's power falls "
+                              "as 1/f² (too few frequencies) — use the dynamics block instead")
         lin = identify_linear_era([c.u for c in broad], [c.y for c in broad], broad[0].dt,
                                   max_order=self.max_order, n_markov=self.n_markov, order=self.era_order,
                                   feedthrough=self.feedthrough, correlation=self.correlation)

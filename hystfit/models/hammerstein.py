@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
@@ -174,10 +175,15 @@ class Hammerstein(Model, LinearPartFields, PlayOperators):
         if self.order > 0 or self.linear_method != "none":
             return self
         caps = captures_at_one_rate(captures, "hammerstein", " before identifying the linear part")
-        fitted = type(self).from_data([c.u for c in caps], [c.y for c in caps], caps[0].dt, self.n_operators,
-                                      placement=self.placement, nonnegative=self.nonnegative,
-                                      max_order=self.max_order, n_markov=self.n_markov, feedthrough=self.feedthrough,
-                                      correlation=self.correlation, order=self.era_order)
+        try:
+            fitted = type(self).from_data([c.u for c in caps], [c.y for c in caps], caps[0].dt, self.n_operators,
+                                          placement=self.placement, nonnegative=self.nonnegative,
+                                          max_order=self.max_order, n_markov=self.n_markov,
+                                          feedthrough=self.feedthrough, correlation=self.correlation,
+                                          order=self.era_order)
+        except InputError as exc:  # the captures' names: the arrays' functions do not know them
+            names = ", ".join(Path(c.source).name for c in caps[:4]) + (", …" if len(caps) > 4 else "")
+            raise InputError(f"{exc} (captures: {names})") from None
         return replace(fitted, thresholds_V=self.thresholds_V)
 
     def adapt(self, scale: DataScale) -> "Hammerstein":
@@ -306,9 +312,9 @@ class Hammerstein(Model, LinearPartFields, PlayOperators):
         """
         us, ys = _as_list(captures_u), _as_list(captures_y)
         if not us or len(us) != len(ys) or any(a.shape != b.shape for a, b in zip(us, ys)):
-            raise InputError("Hammerstein.from_data: need matching, non-empty lists of input and output captures")
+            raise InputError("hammerstein: need matching, non-empty lists of input and output captures")
         if method not in ("auto", "era", "sine"):
-            raise ConfigError(f"Hammerstein.from_data: method must be 'auto', 'era' or 'sine', got {method!r}")
+            raise ConfigError(f"hammerstein: method must be 'auto', 'era' or 'sine', got {method!r}")
         scale = DataScale.from_arrays(us, ys, [dt] * len(us))
         base = cls(n_operators, placement, None, nonnegative, max_order=max_order, n_markov=n_markov,
                    feedthrough=feedthrough, correlation=correlation, era_order=order).adapt(scale)
@@ -337,7 +343,7 @@ class Hammerstein(Model, LinearPartFields, PlayOperators):
                 start = lin.continuous
             if not lin.is_stable:
                 raise InputError(
-                    f"Hammerstein.from_data: the identified linear part is unstable (spectral radius "
+                    f"hammerstein: the identified linear part is unstable (spectral radius "
                     f"{lin.spectral_radius:.4f}); use a longer or richer capture or a lower max_order")
             model = base.with_linear(lin.normalized())
             if method == "sine":

@@ -313,8 +313,23 @@ def test_sine_only_data_fits_gain_and_phase():
     # the direct function, from the known PI output
     lin = fit_linear_to_sine([pi_output(u) for u in us], ys, DT)
     assert lin.method == "sine-gain-phase" and len(lin.fit_points) == 3
-    with pytest.raises(InputError, match="same frequency"):
+    with pytest.raises(InputError, match="same drive frequency"):
         fit_linear_to_sine([pi_output(us[0])] * 2, [ys[0]] * 2, DT)
+
+
+def test_the_linear_part_s_errors_name_the_captures_and_no_function():
+    """A blind test's find: a step pattern gave `fit_linear_to_sine: all sine captures have the same
+    frequency`: a function's name, no file, and nothing on why steps did not count as broadband."""
+    from hystfit import synth
+    from hystfit.capture import Capture
+
+    t, u = synth.step_pattern(60.0, 2.0, 5_000)
+    cap = Capture(source="/data/steps.csv", t=t, u=u, y=pi_output(u), dt=t[1] - t[0])
+    with pytest.raises(InputError) as got:
+        Hammerstein(10).prepare([cap])
+    msg = str(got.value)
+    assert "(captures: steps.csv)" in msg and "step pattern" in msg
+    assert "fit_linear_to_sine" not in msg and "from_data" not in msg
 
 
 def test_inverse_round_trip_acceptable_zeros_is_exact():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import json
 import os
 from pathlib import Path
@@ -369,6 +370,15 @@ def test_an_input_held_within_noise_and_an_output_that_never_moves_are_refused(t
     msg = error_of(path)
     assert "flat.csv" in msg and "'displacement_um'" in msg and "the output is constant (5 µm)" in msg
     assert "--output-col" in msg
+
+
+def test_an_empty_output_column_is_named_as_empty_not_missing(tmp_path):
+    """A blind test's find: a 'displacement' column with no values was reported as no output
+    column found, listing the very column."""
+    path = tmp_path / "emptycol.csv"
+    path.write_text("time,voltage,displacement\n" + "".join(f"{i * 1e-3},{math.sin(i / 5.0)},\n" for i in range(200)))
+    msg = error_of(path)
+    assert "column 2 'displacement', the output (displacement), is empty" in msg and "--output-col" in msg
 
 
 def test_column_selection_errors(tmp_path):
