@@ -1370,6 +1370,9 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     elif windowed and not start:
         notes.append(f"starts mid-loop: the --start window begins while the input moves ({u[0]:.4g} V), so the "
                      "actuator's hysteresis state at the start is unknown; start the window at a rest or turning point")
+    for what, x, unit in (("input", u, "V"), ("output", y, "µm" if y_unit == "um" else y_unit)):
+        if x is not None:
+            notes += _glitch_notes(what, x, unit, rows, start)
     amp, freq, source = _condition(table, chosen, opts, notes, u, dt)
     cycles = count_cycles(u, dt, freq)
     if cycles < opts.min_cycles:
@@ -1385,6 +1388,39 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
                    y=None if y is None else np.ascontiguousarray(y, np.float64), dt=float(dt), y_unit=y_unit,
                    trimmed_s=start * dt, trimmed_samples=int(start), amplitude_V=float(amp), frequency_Hz=float(freq),
                    condition_source=source, notes=tuple(notes), warmup_samples=warm)
+
+
+#: a sample further than this many times the bulk's span (without its 0.1 % or 3 most extreme
+#: samples at either end) beyond
+#: the bulk is a glitch: 1000 V in one row of a 0…60 V drive, a sensor's dropout to 1e6
+GLITCH_SPANS = 1.0
+#: the bulk's percentiles are taken of at most this many samples (strided): a 10⁷-row capture
+#: costs a comparison per sample, not a sort
+GLITCH_SAMPLE = 100_000
+
+
+def _glitch_notes(what: str, x: np.ndarray, unit: str, rows: np.ndarray | None, start: int) -> list[str]:
+    """A warning when a few samples of ``x`` lie far outside the rest (at most 0.1 % of them, or 3,
+    each more than :data:`GLITCH_SPANS` × the bulk's span beyond it): a glitch sets the condition's
+    amplitude (1000 V for a 60 V drive) and the fit's scale, silently. Rows named as in the file."""
+    if x.size < 20:
+        return []
+    bulk = x[::max(1, x.size // GLITCH_SAMPLE)]
+    k = max(3, math.ceil(0.001 * bulk.size))  # the few extreme samples a glitch may be are left out of the bulk
+    part = np.partition(bulk, (k, bulk.size - 1 - k))
+    lo, hi = float(part[k]), float(part[bulk.size - 1 - k])
+    span = hi - lo
+    if not span > 0:
+        return []
+    far = np.flatnonzero((x < lo - GLITCH_SPANS * span) | (x > hi + GLITCH_SPANS * span))
+    if far.size == 0 or far.size > max(3, 0.001 * x.size):
+        return []
+    at = [int(rows[start + i]) if rows is not None and rows.size > start + i else int(start + i) + 1 for i in far[:3]]
+    where = ", ".join(f"row {r} ({float(x[i]):.6g} {unit})" for r, i in zip(at, far[:3]))
+    more = f" and {far.size - 3} more" if far.size > 3 else ""
+    return [f"warning: {far.size} {what} sample(s) lie far outside the rest ({float(lo):.4g}…{float(hi):.4g} {unit}): "
+            f"{where}{more}: a glitch? It sets the capture's range and its fit; drop or repair the row(s), or cut "
+            "them off with --start/--stop"]
 
 
 def _condition(table, chosen, opts, notes, u, dt) -> tuple[float, float, str]:

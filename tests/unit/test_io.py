@@ -381,6 +381,23 @@ def test_an_empty_output_column_is_named_as_empty_not_missing(tmp_path):
     assert "column 2 'displacement', the output (displacement), is empty" in msg and "--output-col" in msg
 
 
+def test_a_glitch_row_is_warned_about_with_its_row_and_value(tmp_path):
+    """A blind test's find: one row of 1000 V in a 0…60 V drive made the condition 1000V_20Hz (R²
+    0.25) without a word; the same for 1000 µm in the output."""
+    t, u, y = sine()
+    g = u.copy()
+    g[120] = 1000.0
+    c = load_capture(write_csv(tmp_path / "uglitch.csv", ("time_s", "voltage_V", "displacement_um"), [t, g, y]))
+    got = [n for n in c.notes if "far outside" in n]
+    assert len(got) == 1 and got[0].startswith("warning: 1 input sample(s)") and "row 122 (1000 V)" in got[0]
+    h = y.copy()
+    h[[50, 51]] = -500.0
+    c = load_capture(write_csv(tmp_path / "yglitch.csv", ("time_s", "voltage_V", "displacement_um"), [t, u, h]))
+    assert any("2 output sample(s)" in n and "row 52 (-500 µm)" in n for n in c.notes)
+    clean = load_capture(write_csv(tmp_path / "clean.csv", ("time_s", "voltage_V", "displacement_um"), [t, u, y]))
+    assert not any("far outside" in n for n in clean.notes)
+
+
 def test_column_selection_errors(tmp_path):
     path, _ = std_file(tmp_path)
     msg = error_of(path, LoadOptions(input_col=7))
