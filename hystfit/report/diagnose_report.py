@@ -26,7 +26,7 @@ from .render import FigureJob, FigureStream
 from .tables import fmt
 from .diagnose_wording import (DEFINITIONS, evidence_text, noise_method_text, pointers_text, reconciliation_why,
                                resolution_text, split_description, split_why,
-                               converged_text, during_text, joint_text)
+                               converged_text, during_text, joint_text, loop_position_text)
 
 #: What each candidate effect means, in one plain sentence.
 PLAIN = {
@@ -734,8 +734,7 @@ def _md_where(d: Diagnosis, figs: dict[str, str]) -> list[str]:
         L += ["", f"({br['hold']['n_samples']} samples with a constant input — the turning points of a periodic drive, "
                   "not a hold — are left out of this table.)"]
     lp = w["by_loop_position"]
-    L += ["", f"Near turning points (within 10 % of the half-cycle stroke): RMSE {lp['near_turning_points']['rmse_out']:.4g} {u}; "
-              f"mid-stroke: {lp['mid_stroke']['rmse_out']:.4g} {u}."]
+    L += ["", loop_position_text(lp["near_turning_points"], lp["mid_stroke"], d.unit)]
     lv = w["by_level"]
     if "level_dependent_rms_out" in lv:
         L += [f"Mean residual as a function of the input level: the part common to both branches (a static "

@@ -33,6 +33,7 @@ __all__ = [
     "evidence_text",
     "creep_character",
     "reconciliation_why",
+    "loop_position_text",
 ]
 
 #: ``noise.method``: how the floor was estimated.
@@ -279,6 +280,32 @@ def reconciliation_why(reason: str, reduction: float, threshold: float) -> str:
         return (f"the refit does not carry the pattern over to held-out data (reduction {reduction:.2f} < "
                 f"{threshold:g})")
     return "it passes the reduction but fails another rule (placebo or noise floor)"
+
+
+def loop_position_text(near: dict, mid: dict, unit: str) -> str:
+    """The near-turning-points / mid-stroke sentence of diagnosis.md (``where.by_loop_position``).
+
+    A part with no samples has no RMSE (NaN in the record, null in the JSON): it is said in words,
+    with why — an input that jumps from level to level (PRBS, steps) never passes through the middle
+    of a stroke, so every moving sample sits at a turning point; one that never moves has neither."""
+    u = display_unit(unit)
+
+    def has(part: dict) -> bool:
+        return bool(part.get("n_samples", 1)) and part["rmse_out"] is not None and np.isfinite(part["rmse_out"])
+
+    if has(near) and has(mid):
+        return (f"Near turning points (within 10 % of the half-cycle stroke): RMSE {near['rmse_out']:.4g} {u}; "
+                f"mid-stroke: {mid['rmse_out']:.4g} {u}.")
+    if not has(near) and not has(mid):
+        return ("No samples near turning points or at mid-stroke: the input never moves, so there is no stroke "
+                "to locate the error in.")
+    if has(near):
+        return (f"Near turning points (within 10 % of the half-cycle stroke): RMSE {near['rmse_out']:.4g} {u}; "
+                "no samples at mid-stroke: the input never passes through the middle 80 % of a stroke (it jumps "
+                "from one level to the next within a sample, as a PRBS or step input does), so the error cannot be "
+                "split by loop position.")
+    return (f"No samples near turning points (within 10 % of the half-cycle stroke); mid-stroke: RMSE "
+            f"{mid['rmse_out']:.4g} {u}.")
 
 
 def resolution_text(r: dict, unit: str) -> str:

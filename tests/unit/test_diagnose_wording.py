@@ -102,3 +102,21 @@ def test_orchestration_imports_nothing_from_report():
     imported = [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
     imported += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
     assert not [m for m in imported if "report" in m.split(".")]
+
+
+def test_loop_position_without_samples_is_said_in_words():
+    """Issue: a PRBS capture has no sample at mid-stroke (it jumps from level to level), and the
+    report printed "mid-stroke: nan µm"."""
+    from hystfit.report.diagnose_wording import loop_position_text
+
+    near = {"rmse_out": 17.674, "n_samples": 622}
+    none = {"rmse_out": float("nan"), "n_samples": 0}
+    assert loop_position_text(near, {"rmse_out": 0.134, "n_samples": 9}, "um") == (
+        "Near turning points (within 10 % of the half-cycle stroke): RMSE 17.67 µm; mid-stroke: 0.134 µm.")
+    text = loop_position_text(near, none, "um")
+    assert "nan" not in text and text.startswith("Near turning points (within 10 % of the half-cycle stroke): "
+                                                 "RMSE 17.67 µm; no samples at mid-stroke: ")
+    both = loop_position_text(none, none, "nm")
+    assert "nan" not in both and both.startswith("No samples near turning points or at mid-stroke")
+    text = loop_position_text(none, {"rmse_out": 0.5, "n_samples": 3}, "nm")
+    assert "nan" not in text and text.startswith("No samples near turning points") and "0.5 nm" in text
