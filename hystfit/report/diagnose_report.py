@@ -26,7 +26,8 @@ from .render import FigureJob, FigureStream
 from .tables import fmt
 from .diagnose_wording import (DEFINITIONS, evidence_text, noise_method_text, pointers_text, reconciliation_why,
                                resolution_text, split_description, split_why,
-                               converged_text, during_text, joint_text)
+                               converged_text, during_text, joint_text, best_not_named_text, loop_position_text,
+                               not_named_reasons)
 
 #: What each candidate effect means, in one plain sentence.
 PLAIN = {
@@ -581,10 +582,14 @@ def _verdict_paragraph(d: Diagnosis) -> list[str]:
             lines.append("**Verdict: none.** The model is already as good as the noise allows; there is no gap "
                          "worth explaining.")
         else:
+            # The best candidate's failed checks, not the threshold alone: one that removes more than
+            # the threshold was turned down by the placebo or the noise floor, and the verdict says so.
             best = d.effects[0] if d.effects else None
-            lines.append("**Verdict: none.** No candidate effect removes a meaningful share (at least "
-                         f"{100 * d.settings.threshold:.0f} %) of the gap on held-out data"
-                         + (f" (the best, `{best.effect}`, removes {100 * best.reduction:.0f} %)" if best else "")
+            lines.append("**Verdict: none.** No candidate effect passes the verdict rule (item 6 of *What was "
+                         "done*) on held-out data"
+                         + (": " + best_not_named_text(best.effect, best.passes, best.reduction, best.improvement,
+                                                       best.placebo_improvement, d.settings.threshold, d.unit)
+                            if best else "")
                          + ". The remaining gap lies in the base model's own loop shape (or in an effect not in "
                            "the library): try a more flexible hysteresis model or the per-condition look-up table.")
             fc = d.where["summary"].get("first_cycle_ratio")
@@ -734,8 +739,7 @@ def _md_where(d: Diagnosis, figs: dict[str, str]) -> list[str]:
         L += ["", f"({br['hold']['n_samples']} samples with a constant input — the turning points of a periodic drive, "
                   "not a hold — are left out of this table.)"]
     lp = w["by_loop_position"]
-    L += ["", f"Near turning points (within 10 % of the half-cycle stroke): RMSE {lp['near_turning_points']['rmse_out']:.4g} {u}; "
-              f"mid-stroke: {lp['mid_stroke']['rmse_out']:.4g} {u}."]
+    L += ["", loop_position_text(lp["near_turning_points"], lp["mid_stroke"], d.unit)]
     lv = w["by_level"]
     if "level_dependent_rms_out" in lv:
         L += [f"Mean residual as a function of the input level: the part common to both branches (a static "
@@ -796,10 +800,11 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
         if i == 0:
             L += ["Evidence per effect:", ""]
             for r in step:
-                failed = [k.replace("_", " ") for k, ok in r.passes.items() if not ok]
+                failed = not_named_reasons(r.passes, r.reduction, r.improvement, r.placebo_improvement,
+                                           d.settings.threshold, d.unit)
                 L += [f"- **{r.effect}** ({PLAIN.get(r.effect, '')}): {evidence_text(r.evidence, d.unit)}."
                       + (joint_text(r.effect, r.joint, d.unit) if r.joint is not None
-                         else f" Not named: fails {', '.join(failed)}." if failed else "")]
+                         else f" Not named: {'; and '.join(failed)}." if failed else "")]
             L += ["", "(*Signature*: the shape this effect would add to the error to first order — e.g. a lag adds "
                       "a copy of the velocity; its share is how much of the error above the noise that shape alone "
                       "matches, before any refit.)"]

@@ -33,6 +33,9 @@ __all__ = [
     "evidence_text",
     "creep_character",
     "reconciliation_why",
+    "not_named_reasons",
+    "best_not_named_text",
+    "loop_position_text",
 ]
 
 #: ``noise.method``: how the floor was estimated.
@@ -279,6 +282,85 @@ def reconciliation_why(reason: str, reduction: float, threshold: float) -> str:
         return (f"the refit does not carry the pattern over to held-out data (reduction {reduction:.2f} < "
                 f"{threshold:g})")
     return "it passes the reduction but fails another rule (placebo or noise floor)"
+
+
+def _pct(x: float, digits: int = 0) -> str:
+    return f"{100 * x:.{digits}f} %"
+
+
+def _pct_pair(x: float, threshold: float) -> tuple[str, str]:
+    """``x`` and ``threshold`` as percentages with as many decimals as it takes for a reduction that
+    misses the threshold not to print as equal to it (29.8 % against 30 %, not 30 % against 30 %)."""
+    d = 0
+    while d < 3 and x < threshold and round(100 * x, d) >= round(100 * threshold, d):
+        d += 1
+    return _pct(x, d), _pct(threshold, d)
+
+
+def not_named_reasons(passes: dict, reduction: float, improvement: float, placebo: float, threshold: float,
+                      unit: str) -> list[str]:
+    """Why an effect was not named, one plain clause per check of the verdict rule it failed
+    (:attr:`hystfit.diagnose.EffectResult.passes`), with the numbers the check compared; empty when it
+    failed none. Worded from the checks themselves so that the report never gives a reason the
+    effect did not fail (a reduction above the threshold explained by the threshold)."""
+    u = display_unit(unit)
+    out = []
+    if not passes.get("reduction_at_least_threshold", True):
+        got, need = _pct_pair(reduction, threshold)
+        out.append(f"it removes only {got} of the gap above the noise on held-out data, less than the {need} the "
+                   "rule asks for")
+    if not passes.get("beats_placebo", True):
+        if improvement > 0:
+            than = "smaller than" if improvement <= placebo else "not clearly more than"
+            out.append(f"its held-out improvement ({improvement:.3g} {u}) is {than} what random corrections with as "
+                       f"many adjustable parameters gain by chance (the best of them: {placebo:.3g} {u}), so the gain "
+                       "may be chance rather than this effect")
+        else:
+            out.append(f"it does not improve the held-out RMSE ({improvement:+.3g} {u}; the best random correction "
+                       f"with as many adjustable parameters: {placebo:+.3g} {u})")
+    if not passes.get("gap_above_noise", True):
+        out.append("the gap it was tested on is too close to the sensor noise to tell any effect from noise")
+    return out
+
+
+def best_not_named_text(effect: str, passes: dict, reduction: float, improvement: float, placebo: float,
+                        threshold: float, unit: str) -> str:
+    """The best candidate of a verdict "none" and why it was not named (:func:`not_named_reasons`).
+
+    A best candidate that removes at least the threshold failed another check (placebo or noise
+    floor): the sentence says so, instead of blaming a threshold it reached."""
+    reasons = not_named_reasons(passes, reduction, improvement, placebo, threshold, unit)
+    if passes.get("reduction_at_least_threshold", True):
+        got, need = _pct_pair(reduction, threshold)
+        head = f"the best, `{effect}`, removes {got} of the gap above the noise (the rule asks for at least {need})"
+        return head + (", but " + "; and ".join(reasons) if reasons else "")
+    return f"the best, `{effect}`, falls short: " + "; and ".join(reasons)
+
+
+def loop_position_text(near: dict, mid: dict, unit: str) -> str:
+    """The near-turning-points / mid-stroke sentence of diagnosis.md (``where.by_loop_position``).
+
+    A part with no samples has no RMSE (NaN in the record, null in the JSON): it is said in words,
+    with why — an input that jumps from level to level (PRBS, steps) never passes through the middle
+    of a stroke, so every moving sample sits at a turning point; one that never moves has neither."""
+    u = display_unit(unit)
+
+    def has(part: dict) -> bool:
+        return bool(part.get("n_samples", 1)) and part["rmse_out"] is not None and np.isfinite(part["rmse_out"])
+
+    if has(near) and has(mid):
+        return (f"Near turning points (within 10 % of the half-cycle stroke): RMSE {near['rmse_out']:.4g} {u}; "
+                f"mid-stroke: {mid['rmse_out']:.4g} {u}.")
+    if not has(near) and not has(mid):
+        return ("No samples near turning points or at mid-stroke: the input never moves, so there is no stroke "
+                "to locate the error in.")
+    if has(near):
+        return (f"Near turning points (within 10 % of the half-cycle stroke): RMSE {near['rmse_out']:.4g} {u}; "
+                "no samples at mid-stroke: the input never passes through the middle 80 % of a stroke (it jumps "
+                "from one level to the next within a sample, as a PRBS or step input does), so the error cannot be "
+                "split by loop position.")
+    return (f"No samples near turning points (within 10 % of the half-cycle stroke); mid-stroke: RMSE "
+            f"{mid['rmse_out']:.4g} {u}.")
 
 
 def resolution_text(r: dict, unit: str) -> str:

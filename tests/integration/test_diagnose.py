@@ -8,6 +8,7 @@ full confusion matrix is ``benchmarks/diagnose_confusion.py`` (see docs/diagnose
 """
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -152,6 +153,26 @@ def test_noise_floor_survives_a_ringing_capture():
     assert d.effects[0].reduction == pytest.approx(
         (d.effects[0].heldout_rmse_before - d.effects[0].heldout_rmse_after)
         / (d.effects[0].heldout_rmse_before - d.noise["sigma"]))
+
+
+def test_prbs_report_has_no_nan(tmp_path):
+    """A PRBS capture jumps from level to level: no sample lies mid-stroke. diagnosis.md says so in
+    words (it printed "mid-stroke: nan µm"), and diagnosis.json keeps n_samples 0 with a null RMSE."""
+    from hystfit.conditions import detect_condition
+    from hystfit.synth import prbs, simulate_plant
+
+    t, u = prbs(60.0, fs_Hz=5000, duration_s=0.5, seed=1)
+    a, f = detect_condition(u, 2e-4)
+    plant = Plant().with_effects(Effects.only("dynamics").with_noise(0.008))
+    caps = [Capture("prbs.csv", t, u, simulate_plant(plant, t, u, seed=0), 2e-4, amplitude_V=a, frequency_Hz=f)]
+    d = diagnose(caps, PI(), Auto(), seed=0, effects=("delay",), settings=DiagnoseSettings(max_effects=1))
+    assert d.where["by_loop_position"]["mid_stroke"]["n_samples"] == 0
+    write_diagnose_outputs(d, tmp_path, make_figures=False)
+    md = (tmp_path / "diagnosis.md").read_text()
+    assert "no samples at mid-stroke: " in md and not re.search(r"\b(nan|inf)\b", md)
+    text = (tmp_path / "diagnosis.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text)["where"]["by_loop_position"]["mid_stroke"] == {"rmse_um": None, "n_samples": 0}
 
 
 def test_one_effect_matches_the_virtual_actuator():

@@ -102,3 +102,66 @@ def test_orchestration_imports_nothing_from_report():
     imported = [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
     imported += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
     assert not [m for m in imported if "report" in m.split(".")]
+
+
+def _verdict_none(best):
+    """A verdict-"none" diagnosis with a gap well above the noise and ``best`` as the best candidate:
+    just the fields :func:`_verdict_paragraph` reads."""
+    from types import SimpleNamespace
+
+    from hystfit.diagnose import DiagnoseSettings
+
+    return SimpleNamespace(base_model="bw", unit="um", verdict="none", settings=DiagnoseSettings(), effects=[best],
+                           noise={"sigma": 0.01}, where={"summary": {}},
+                           gap={"rmse_out": 0.2, "heldout_rmse_out": 0.18, "heldout_excess_rmse_out": 0.18})
+
+
+def test_verdict_none_says_which_check_the_best_candidate_failed():
+    """Issue: dg3 --model bw --seed 4 printed "No candidate effect removes … at least 30 % (the best,
+    `drift`, removes 32 %)": drift was turned down by the placebo, not by the threshold it passed."""
+    from types import SimpleNamespace
+
+    from hystfit.report.diagnose_report import _verdict_paragraph
+    from hystfit.report.diagnose_wording import best_not_named_text, not_named_reasons
+
+    placebo_fail = {"reduction_at_least_threshold": True, "beats_placebo": False, "gap_above_noise": True}
+    drift = SimpleNamespace(effect="drift", passes=placebo_fail, reduction=0.32, improvement=0.055,
+                            placebo_improvement=0.0738)
+    text = "\n".join(_verdict_paragraph(_verdict_none(drift)))
+    assert "removes a meaningful share" not in text
+    assert ("the best, `drift`, removes 32 % of the gap above the noise (the rule asks for at least 30 %), but its "
+            "held-out improvement (0.055 µm) is smaller than what random corrections with as many adjustable "
+            "parameters gain by chance (the best of them: 0.0738 µm)") in text
+
+    short = {"reduction_at_least_threshold": False, "beats_placebo": True, "gap_above_noise": True}
+    text = best_not_named_text("drift", short, 0.24, 0.087, -0.0058, 0.3, "um")
+    assert text == ("the best, `drift`, falls short: it removes only 24 % of the gap above the noise on held-out "
+                    "data, less than the 30 % the rule asks for")
+    # a reduction just below the threshold never prints as equal to it
+    assert "only 29.8 % of the gap" in best_not_named_text("drift", short, 0.298, 0.1, 0.0, 0.3, "um")
+    assert "less than the 30.0 %" in best_not_named_text("drift", short, 0.298, 0.1, 0.0, 0.3, "um")
+    # every failed check gets its clause, and only those
+    fails = dict.fromkeys(placebo_fail, False)
+    reasons = not_named_reasons(fails, 0.0, -1e-4, 0.009, 0.3, "nm")
+    assert len(reasons) == 3 and "does not improve the held-out RMSE (-0.0001 nm" in reasons[1]
+    assert "too close to the sensor noise" in reasons[2]
+    assert not_named_reasons(dict.fromkeys(placebo_fail, True), 0.5, 0.1, 0.0, 0.3, "um") == []
+    assert "not clearly more than" in not_named_reasons(placebo_fail, 0.5, 0.1, 0.099, 0.3, "um")[0]
+
+
+def test_loop_position_without_samples_is_said_in_words():
+    """Issue: a PRBS capture has no sample at mid-stroke (it jumps from level to level), and the
+    report printed "mid-stroke: nan µm"."""
+    from hystfit.report.diagnose_wording import loop_position_text
+
+    near = {"rmse_out": 17.674, "n_samples": 622}
+    none = {"rmse_out": float("nan"), "n_samples": 0}
+    assert loop_position_text(near, {"rmse_out": 0.134, "n_samples": 9}, "um") == (
+        "Near turning points (within 10 % of the half-cycle stroke): RMSE 17.67 µm; mid-stroke: 0.134 µm.")
+    text = loop_position_text(near, none, "um")
+    assert "nan" not in text and text.startswith("Near turning points (within 10 % of the half-cycle stroke): "
+                                                 "RMSE 17.67 µm; no samples at mid-stroke: ")
+    both = loop_position_text(none, none, "nm")
+    assert "nan" not in both and both.startswith("No samples near turning points or at mid-stroke")
+    text = loop_position_text(none, {"rmse_out": 0.5, "n_samples": 3}, "nm")
+    assert "nan" not in text and text.startswith("No samples near turning points") and "0.5 nm" in text
