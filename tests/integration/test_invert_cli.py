@@ -157,6 +157,13 @@ def test_invert_refuses_to_overwrite_without_force(tables, tmp_path):
     (("--sine", "a,b"), "--sine"),
     (("--sine", "-10,10"), "amplitude"),
     (("--sine", "10,5000"), "samples per cycle"),
+    # a built-in target over the sample limit is refused before anything is allocated (the 1e7-cycle typo
+    # asked for 10⁹ samples and was OOM-killed; the 1e300 ones overflowed the count into a traceback)
+    (("--sine", "10,20,1e7", "--offset", "2"), "--sine 10,20,1e7: 5e+09 samples at 10000 Hz exceed the limit of "
+                                               "1e+07 samples"),
+    (("--triangle", "10,10,1e300"), "--triangle 10,10,1e300: 1e+303 samples"),
+    (("--steps", "10,4@1e300"), "use a shorter hold, fewer levels or a lower sample rate (--fs)"),
+    (("--multi", "--fs", "1e300"), "--multi: "),
     (("--triangle", "10,0"), "frequency"),
     (("--steps", "10@x"), "hold"),
     (("--steps", "10,10"), "differ"),
@@ -283,6 +290,14 @@ def test_track_bad_input_exit_2_one_line_nothing_written(tables, tmp_path, args,
     r = run("track", tables["pi"], "--sine", "10,10,1", "--offset", "2", *args, "--out", out)
     assert_error(r, needle, out)
     assert not any(p.name.startswith(".tr.tmp") for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("target", [("--sine", "10,10,1e7"), ("--steps", "10@1e300")])
+def test_track_refuses_a_built_in_target_over_the_sample_limit(tables, tmp_path, target):
+    out = tmp_path / "tr"
+    r = run("track", tables["pi"], *target, "--offset", "2", "--out", out)
+    assert_error(r, f"{' '.join(target)}: ", out)
+    assert "exceed the limit of 1e+07 samples" in r.stderr
 
 
 def test_invert_track_and_simulate_load_neither_pandas_nor_matplotlib_in_the_commands_process(tables, tmp_path):
