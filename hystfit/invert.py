@@ -1016,9 +1016,7 @@ def check_invert_options(pf: ParamsFile, target: Target, method: str, condition,
                          max_slew) -> InvertLimits:
     """The options of :func:`invert_target` checked (one-line ConfigError) and completed with the
     default limits."""
-    if target.unit != pf.unit:
-        raise ConfigError(f"the target is in {target.unit} but {pf.path} is in {pf.unit}; convert the target "
-                          f"(or name its column e.g. target_{pf.unit})")
+    pf.check_unit(target.unit, "the target", f"convert the target (or name its column e.g. target_{pf.unit})")
     if method not in ("interpolate", "nearest"):
         raise ConfigError(f"method {method!r}: choose interpolate or nearest")
     dlo, dhi = default_voltage_limits(pf)

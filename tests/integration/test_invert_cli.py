@@ -300,6 +300,27 @@ def test_track_refuses_a_built_in_target_over_the_sample_limit(tables, tmp_path,
     assert "exceed the limit of 1e+07 samples" in r.stderr
 
 
+def test_simulate_refuses_a_capture_in_another_unit_than_the_parameters(tables, tmp_path):
+    """The µm table on the same capture in nm: refused as invert refuses an nm target (it gave an RMSE of
+    thousands "um", exit 0, and a prediction file labelling the nm data as µm)."""
+    d = pd.read_csv(SAMPLE / "a20V_f10Hz.csv")
+    nm = tmp_path / "nm.csv"
+    pd.DataFrame({"time_s": d.time_s, "voltage_V": d.voltage_V, "displacement_nm": d.displacement_um * 1e3}).to_csv(
+        nm, index=False)
+    out = tmp_path / "sim"
+    r = run("simulate", tables["pi"], SAMPLE / "a20V_f10Hz.csv", nm, "--out", out, "--no-plots")
+    assert_error(r, f"nm.csv: the measured output is in nm but {tables['pi']} is in um; convert it to um", out)
+    assert not any(p.name.startswith(".sim") for p in tmp_path.iterdir())
+    # an input-only capture has no output unit to disagree with
+    pd.DataFrame({"time_s": d.time_s, "voltage_V": d.voltage_V}).to_csv(tmp_path / "u.csv", index=False)
+    r = run("simulate", tables["pi"], tmp_path / "u.csv", "--out", out, "--no-plots", "--quiet")
+    assert r.exit_code == 0, r.output
+    # the same check (one home, ParamsFile.check_unit) still refuses an nm target in invert
+    pd.DataFrame({"time_s": d.time_s, "target_nm": d.displacement_um * 1e3}).to_csv(tmp_path / "t.csv", index=False)
+    assert_error(run("invert", tables["pi"], tmp_path / "t.csv", "--out", tmp_path / "v.csv"),
+                 "the target is in nm", tmp_path / "v.csv")
+
+
 def test_invert_track_and_simulate_load_neither_pandas_nor_matplotlib_in_the_commands_process(tables, tmp_path):
     """The voltages, runs and predictions are written without pandas, and the figures are drawn by the figure
     server the console script forks at its start (matplotlib loads there meanwhile)."""
