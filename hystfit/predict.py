@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .blocks.dynamics import check_below_nyquist
 from .capture import Capture
 from .invert import CellUse, clamp_note, extrapolated_cells, extrapolation_note, select_cells
 from .metrics import compute_metrics
@@ -65,6 +66,10 @@ def predict_capture(pf: ParamsFile, capture: Capture, method: str = "interpolate
         cells, query, clamped = select_cells(pf, capture.condition, method)
     else:
         cells, query, clamped = _no_condition(pf)
+    for c in cells:  # a stage the capture's rate does not resolve: refused in words, not NaN predictions
+        fn = pf.cells[c.index].model.natural_frequency_Hz(pf.cells[c.index].theta)
+        if fn is not None:
+            check_below_nyquist(fn, capture.dt, f"{capture.source}: cell {c.label}")
     y = sum(c.weight * pf.cells[c.index].predict(capture.u, capture.dt) for c in cells)
     y = np.asarray(y, float)
     notes = []
