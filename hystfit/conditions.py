@@ -20,6 +20,24 @@ from .minimize1d import minimize_bounded
 
 ConditionKey = tuple[float, float]
 
+#: The rule a given operating condition (``--condition``, a sidecar's ``condition``, the loader's
+#: option) obeys, in the words of its error messages.
+CONDITION_RULE = "amplitude (V) and frequency (Hz) must be finite numbers > 0"
+
+
+def is_valid_condition(amplitude_V, frequency_Hz) -> bool:
+    """Whether a given condition obeys :data:`CONDITION_RULE`.
+
+    One test for every place a condition is given, so they refuse the same values: NaN fails
+    ``> 0`` by itself, but inf would pass it and become a cell label (``60V_infHz``), an infinite
+    table coordinate and ``inf`` in the reports; zero or a negative value has no meaning.
+    """
+    try:
+        a, f = float(amplitude_V), float(frequency_Hz)
+    except (TypeError, ValueError):
+        return False
+    return math.isfinite(a) and math.isfinite(f) and a > 0 and f > 0
+
 #: Zero-padding factor of the FFT used to locate the input's fundamental.
 _PAD = 4
 #: Upper bound on the padded FFT length (samples); long captures are padded less.

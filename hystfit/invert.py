@@ -107,6 +107,8 @@ __all__ = [
     "steps_target",
     "multi_target",
     "target_from_array",
+    "check_target_samples",
+    "MAX_TARGET_SAMPLES",
     "load_target",
     "default_voltage_limits",
     "select_cells",
@@ -221,14 +223,37 @@ def _finite(name: str, value: float) -> float:
 
 #: Fewest samples per cycle of a built-in periodic trajectory (below it the samples are not the shape).
 MIN_SAMPLES_PER_CYCLE = 4
+#: Most samples of a built-in trajectory (10⁷: 1000 s at 10 kHz). A typo in the cycles, the hold or
+#: ``--fs`` (``--sine 10,20,1e7``) would otherwise ask for billions of samples, and the arrays of
+#: the inversion and its preview would exhaust the memory before any output (an OOM kill, not an
+#: error). The limit is checked on the sample count before anything is allocated.
+MAX_TARGET_SAMPLES = 10_000_000
+#: Peak memory of ``hystfit invert`` per target sample (bytes), beyond the ≈ 0.3 GB of imported
+#: libraries: a PI table's 2·10⁶-sample sine peaks at 0.63 GB resident (``/usr/bin/time -v``),
+#: ≈ 165 B per sample. Used to say in the error what a limit-sized target costs.
+TARGET_BYTES_PER_SAMPLE = 165
 
 
-def _periodic_n(freq_Hz: float, cycles: float, fs: float) -> int:
+def check_target_samples(n: float, fs: float, source: str, fix: str) -> int:
+    """``n`` (the sample count of a built-in trajectory, computed in floating point so a huge one
+    cannot overflow) as an int, or a one-line ConfigError naming ``source`` (what the user asked
+    for, e.g. ``--sine 10,20,1e7``) and ``fix`` when it exceeds :data:`MAX_TARGET_SAMPLES`."""
+    if not (math.isfinite(n) and n <= MAX_TARGET_SAMPLES):
+        gb = MAX_TARGET_SAMPLES * TARGET_BYTES_PER_SAMPLE / 1e9
+        raise ConfigError(f"{source}: {n:.3g} samples at {fs:g} Hz exceed the limit of {MAX_TARGET_SAMPLES:.0e} "
+                          f"samples (≈ {gb:.1f} GB of memory for invert); {fix}")
+    return int(n)
+
+
+def _periodic_n(freq_Hz: float, cycles: float, fs: float, source: str = "") -> int:
     if freq_Hz * MIN_SAMPLES_PER_CYCLE > fs:
         raise ConfigError(f"{freq_Hz:g} Hz sampled at {fs:g} Hz gives fewer than {MIN_SAMPLES_PER_CYCLE} samples per "
                           f"cycle; raise the sample rate (--fs) to at least {MIN_SAMPLES_PER_CYCLE * freq_Hz:g} Hz or "
                           "lower the frequency")
-    n = int(math.floor(cycles * fs / freq_Hz + 1e-9)) + 1
+    x = cycles * fs / freq_Hz + 1e-9
+    n = check_target_samples(math.floor(x) + 1.0 if math.isfinite(x) else x, fs,
+                             source or f"{_fmt(cycles)} cycles at {_fmt(freq_Hz)} Hz",
+                             "use fewer cycles or a lower sample rate (--fs)")
     if n < 3:
         raise ConfigError(f"{cycles:g} cycles at {freq_Hz:g} Hz give fewer than 3 samples at {fs:g} Hz; "
                           "raise the sample rate (--fs) or the number of cycles")
@@ -240,7 +265,7 @@ def _fmt(x: float) -> str:
 
 
 def sine_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 10_000.0, *, offset: float = 0.0,
-                unit: str = "um") -> Target:
+                unit: str = "um", source: str = "") -> Target:
     """Sine trajectory of paper 002 eq. 16: y = A/2·sin(2πft − π/2) + A/2 + offset.
 
     It starts at ``offset`` at rest (zero slope), peaks at ``offset + A`` and returns to
@@ -254,11 +279,13 @@ def sine_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 10_00
     fs : sample rate (Hz).
     offset : displacement at the start and at every minimum (``unit``).
     unit : displacement unit.
+    source : what the user asked for (e.g. ``--sine 10,20,5``), named when the trajectory would
+        exceed :data:`MAX_TARGET_SAMPLES`.
     """
     amp, freq_Hz, cycles, fs = (_positive(n, v) for n, v in
                                 (("amplitude", amp), ("frequency_Hz", freq_Hz), ("cycles", cycles), ("fs", fs)))
     offset = _finite("offset", offset)
-    n = _periodic_n(freq_Hz, cycles, fs)
+    n = _periodic_n(freq_Hz, cycles, fs, source)
     t = np.arange(n, dtype=np.float64) / fs
     y = offset + 0.5 * amp * np.sin(2.0 * np.pi * freq_Hz * t - 0.5 * np.pi) + 0.5 * amp
     desc = f"sine {_fmt(amp)} {unit} p-p, {_fmt(freq_Hz)} Hz, {_fmt(cycles)} cycles, offset {_fmt(offset)} {unit}"
@@ -266,7 +293,7 @@ def sine_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 10_00
 
 
 def triangle_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 10_000.0, *, offset: float = 0.0,
-                    unit: str = "um") -> Target:
+                    unit: str = "um", source: str = "") -> Target:
     """Triangle trajectory offset → offset + A → offset per cycle (constant speed 2·A·f).
 
     Parameters as :func:`sine_target`.
@@ -274,7 +301,7 @@ def triangle_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 1
     amp, freq_Hz, cycles, fs = (_positive(n, v) for n, v in
                                 (("amplitude", amp), ("frequency_Hz", freq_Hz), ("cycles", cycles), ("fs", fs)))
     offset = _finite("offset", offset)
-    n = _periodic_n(freq_Hz, cycles, fs)
+    n = _periodic_n(freq_Hz, cycles, fs, source)
     t = np.arange(n, dtype=np.float64) / fs
     phase = np.mod(freq_Hz * t, 1.0)
     y = offset + amp * (1.0 - np.abs(2.0 * phase - 1.0))
@@ -284,7 +311,7 @@ def triangle_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 1
 
 
 def steps_target(levels: Sequence[float] = (10.0,), hold_s: float = 0.2, fs: float = 10_000.0, *,
-                 offset: float = 0.0, lead_s: float | None = None, unit: str = "um") -> Target:
+                 offset: float = 0.0, lead_s: float | None = None, unit: str = "um", source: str = "") -> Target:
     """Step-and-hold trajectory (paper 002 Table 6 uses one 10 µm step).
 
     The target rests at ``offset`` for ``lead_s`` (default ``hold_s / 4``), then jumps to
@@ -299,6 +326,8 @@ def steps_target(levels: Sequence[float] = (10.0,), hold_s: float = 0.2, fs: flo
     offset : rest level before the first step (``unit``).
     lead_s : rest time before the first step (s).
     unit : displacement unit.
+    source : what the user asked for (e.g. ``--steps 10@0.2``), named when the trajectory would
+        exceed :data:`MAX_TARGET_SAMPLES`.
 
     Notes
     -----
@@ -313,6 +342,11 @@ def steps_target(levels: Sequence[float] = (10.0,), hold_s: float = 0.2, fs: flo
     lead_s = hold_s / 4.0 if lead_s is None else float(lead_s)
     if not (math.isfinite(lead_s) and lead_s >= 0):
         raise ConfigError(f"lead_s must be a finite number >= 0. Got {lead_s!r} instead.")
+    # counted in floating point and checked before rounding: a huge hold cannot overflow or allocate
+    check_target_samples(round(lead_s * fs) + round(hold_s * fs) * float(len(levels))
+                         if math.isfinite(hold_s * fs) and math.isfinite(lead_s * fs) else math.inf, fs,
+                         source or f"steps: {len(levels)} level(s), hold {_fmt(hold_s)} s",
+                         "use a shorter hold, fewer levels or a lower sample rate (--fs)")
     n_hold = int(round(hold_s * fs))
     n_lead = int(round(lead_s * fs))
     if n_hold < 3:
@@ -337,17 +371,24 @@ def steps_target(levels: Sequence[float] = (10.0,), hold_s: float = 0.2, fs: flo
 
 
 def multi_target(amps: Sequence[float] = MULTI_AMPLITUDES_UM, freqs_Hz: Sequence[float] = MULTI_FREQUENCIES_HZ,
-                 cycles: float = 1, fs: float = 10_000.0, *, offset: float = 0.0, unit: str = "um") -> Target:
+                 cycles: float = 1, fs: float = 10_000.0, *, offset: float = 0.0, unit: str = "um",
+                 source: str = "") -> Target:
     """Variable-amplitude, variable-frequency sequence of eq. 16 sines (paper 002 §5, Table 5).
 
     Default: 10, 8, 6, 4, 2 µm at 0.5, 1, 2, 5, 10 Hz, ``cycles`` whole cycles each (every
     segment starts and ends at ``offset`` at rest, so the joins are smooth). One segment per
-    (amplitude, frequency), so each gets its own table cell.
+    (amplitude, frequency), so each gets its own table cell. ``source``: what the user asked for
+    (e.g. ``--multi``), named when the whole sequence would exceed :data:`MAX_TARGET_SAMPLES`.
     """
     amps, freqs_Hz = list(amps), list(freqs_Hz)
     if not amps or len(amps) != len(freqs_Hz):
         raise ConfigError(f"multi: give as many amplitudes as frequencies (got {len(amps)} and {len(freqs_Hz)})")
     cycles, fs = _positive("cycles", cycles), _positive("fs", fs)
+    # the whole sequence checked before any segment is made (the segments share their join samples)
+    xs = [cycles * fs / _positive("frequency_Hz", f) + 1e-9 for f in freqs_Hz]
+    check_target_samples(sum(math.floor(x) for x in xs) + 1.0 if all(map(math.isfinite, xs)) else math.inf, fs,
+                         source or f"multi: {len(xs)} segment(s) of {_fmt(cycles)} cycle(s)",
+                         "use a lower sample rate (--fs)" if source else "use fewer cycles or a lower sample rate")
     parts, segs, start = [], [], 0
     for a, f in zip(amps, freqs_Hz):
         s = sine_target(a, f, cycles, fs, offset=offset, unit=unit)
@@ -975,9 +1016,7 @@ def check_invert_options(pf: ParamsFile, target: Target, method: str, condition,
                          max_slew) -> InvertLimits:
     """The options of :func:`invert_target` checked (one-line ConfigError) and completed with the
     default limits."""
-    if target.unit != pf.unit:
-        raise ConfigError(f"the target is in {target.unit} but {pf.path} is in {pf.unit}; convert the target "
-                          f"(or name its column e.g. target_{pf.unit})")
+    pf.check_unit(target.unit, "the target", f"convert the target (or name its column e.g. target_{pf.unit})")
     if method not in ("interpolate", "nearest"):
         raise ConfigError(f"method {method!r}: choose interpolate or nearest")
     dlo, dhi = default_voltage_limits(pf)

@@ -45,8 +45,9 @@ import numpy as np
 
 from ._process import alive
 from .capture import Capture
-from .conditions import count_cycles, detect_condition, nonstationary_notes, white_noise_sigma
-from .errors import InputError, OutputError
+from .conditions import (CONDITION_RULE, count_cycles, detect_condition, is_valid_condition, nonstationary_notes,
+                         white_noise_sigma)
+from .errors import ConfigError, InputError, OutputError
 
 CAPTURE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".parquet", ".pq")
 PARQUET_SUFFIXES = (".parquet", ".pq")
@@ -227,9 +228,9 @@ def _sidecar_value(sc: Path, key: str, val):
         return unit
     # condition
     ok = isinstance(val, list) and len(val) == 2 and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0 for v in val)
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in val) and is_valid_condition(*val)
     if not ok:
-        raise bad("must be [amplitude_V, frequency_Hz] with positive numbers")
+        raise bad(f"must be [amplitude_V, frequency_Hz]: {CONDITION_RULE}")
     return (float(val[0]), float(val[1]))
 
 
@@ -1432,6 +1433,8 @@ def _condition(table, chosen, opts, notes, u, dt) -> tuple[float, float, str]:
         det = detect_condition(u, dt) if col_a is None or col_f is None else (None, None)
         return (col_a if col_a is not None else det[0]), (col_f if col_f is not None else det[1]), "column"
     if opts.condition is not None:
+        if len(opts.condition) != 2 or not is_valid_condition(*opts.condition):
+            raise ConfigError(f"condition {tuple(opts.condition)!r}: {CONDITION_RULE}, e.g. (40, 10)")
         return float(opts.condition[0]), float(opts.condition[1]), "option"
     a, f = detect_condition(u, dt)
     notes += [f"warning: {w}" for w in nonstationary_notes(u, dt, (a, f))]

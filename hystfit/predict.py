@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .blocks.dynamics import check_below_nyquist
 from .capture import Capture
 from .invert import CellUse, clamp_note, extrapolated_cells, extrapolation_note, select_cells
 from .metrics import compute_metrics
@@ -50,11 +51,25 @@ class Prediction:
 
 def predict_capture(pf: ParamsFile, capture: Capture, method: str = "interpolate", *,
                     align_offset: bool = False) -> Prediction:
-    """Predict ``capture``'s output with the table ``pf``; see the module docstring."""
+    """Predict ``capture``'s output with the table ``pf``; see the module docstring.
+
+    A measured output in another unit than the parameter file's is refused
+    (:meth:`ParamsFile.check_unit`, as ``invert`` refuses such a target): the metrics would
+    compare numbers in two units and the prediction file would label the capture's output with
+    the parameter file's unit. An input-only capture has no output unit to check.
+    """
+    if capture.y is not None:
+        pf.check_unit(capture.y_unit, f"{capture.source}: the measured output",
+                      f"convert it to {pf.unit} (a column named e.g. displacement_{pf.unit}) or simulate with "
+                      f"parameters identified from captures in {capture.y_unit}")
     if _has_condition(capture):
         cells, query, clamped = select_cells(pf, capture.condition, method)
     else:
         cells, query, clamped = _no_condition(pf)
+    for c in cells:  # a stage the capture's rate does not resolve: refused in words, not NaN predictions
+        fn = pf.cells[c.index].model.natural_frequency_Hz(pf.cells[c.index].theta)
+        if fn is not None:
+            check_below_nyquist(fn, capture.dt, f"{capture.source}: cell {c.label}")
     y = sum(c.weight * pf.cells[c.index].predict(capture.u, capture.dt) for c in cells)
     y = np.asarray(y, float)
     notes = []

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from . import __version__
-from .errors import HystfitError, InputError
+from .errors import ConfigError, HystfitError, InputError
 from .io import OUTPUT_UNITS
 from .identify import ConditionFit, IdentifyResult, unit_param
 from .models.base import Model
@@ -260,6 +260,20 @@ class ParamsFile:
             "bounds_overrides": self.bounds_overrides,
             "conditions": [c.to_dict() for c in self.cells],
         })
+
+    def check_unit(self, unit: str, what: str, fix: str) -> None:
+        """Refuse data in another output unit than the parameters (one-line :class:`ConfigError`).
+
+        The parameters (weights in ``unit``/V, offsets in ``unit``) hold for the unit they were
+        identified in: applied to data in another unit the model is off by the unit's factor while
+        its outputs are labelled with the parameter file's unit. hystfit keeps every output in the
+        unit its file names (captures are not converted on load) and refuses a mix, as ``identify``,
+        ``compare`` and ``diagnose`` do for captures in several units; ``simulate``, ``invert`` and
+        ``track`` check their capture, target or plant here. ``what`` names the data (``"nm.csv:
+        the output"``), ``fix`` says what to do.
+        """
+        if unit != self.unit:
+            raise ConfigError(f"{what} is in {unit} but {self.path} is in {self.unit}; {fix}")
 
     @classmethod
     def from_dict(cls, data: dict, path: str = "") -> "ParamsFile":

@@ -960,8 +960,9 @@ def _check_track_options(controllers: Sequence[str], *, anti_windup: str, noise_
         raise ConfigError("--smc-option applies to the smc and smc-noinv controllers; add one to the controllers")
     if gains_given and bandwidth_Hz is not None and not any(c.startswith("smc") for c in controllers):
         raise ConfigError("--bandwidth sets automatic gains (and the sliding mode); drop it or drop --kp/--ki/--kd")
-    if plant_pf.unit != pf.unit:
-        raise ConfigError(f"the plant {plant_pf.path} is in {plant_pf.unit} but {pf.path} is in {pf.unit}")
+    pf.check_unit(plant_pf.unit, f"the plant {plant_pf.path}",
+                  f"identify the plant from captures in {pf.unit} (or the controller's model from captures in "
+                  f"{plant_pf.unit})")
 
 
 def _plant_choices(pf: ParamsFile, plant_pf: ParamsFile, inv: InversionResult, method: str) -> list[SegmentChoice]:

@@ -93,6 +93,11 @@ class Block(Effect):
         """Per-capture regressors (n, k) projected out of the residual (nuisance blocks only)."""
         return None
 
+    def natural_frequency_Hz(self, theta: np.ndarray) -> float | None:
+        """f_n (Hz) of the block's second-order stage for θ (k,), None without one
+        (:meth:`hystfit.models.base.Model.natural_frequency_Hz`)."""
+        return None
+
     # ------------------------------------------------------------------ inverse and stepping
     @abstractmethod
     def invert(self, theta: np.ndarray, y: np.ndarray, dt: float) -> np.ndarray:

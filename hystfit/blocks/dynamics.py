@@ -121,6 +121,20 @@ def _stage_coefficients(fn_Hz: float, zeta: float, dt: float) -> tuple[float, ..
     return tuple(float(c[0]) for c in bilinear_biquad(fn_Hz, zeta, dt))
 
 
+def check_below_nyquist(fn_Hz: float, dt: float, what: str) -> None:
+    """Refuse a sample period at whose Nyquist frequency 1/(2·dt) the stage f_n = ``fn_Hz`` is not
+    resolved (one-line :class:`ConfigError` naming ``what``, f_n, the sample rate and the fix).
+
+    :func:`bilinear_biquad` has no discretization there (prewarping tan(ω_n·dt/2) passes its
+    pole) and gives NaN coefficients, so a simulation would be NaN from the first sample: an
+    identified model must be refused on such data, not run into empty predictions.
+    """
+    if not fn_Hz * dt < 0.5:
+        raise ConfigError(f"{what}: the stage's natural frequency f_n = {fn_Hz:.6g} Hz is not below the Nyquist "
+                          f"frequency {0.5 / dt:.6g} Hz of data sampled at {1.0 / dt:.6g} Hz; use data sampled "
+                          f"above {2.0 * fn_Hz:.6g} Hz or identify the model from data at {1.0 / dt:.6g} Hz")
+
+
 def second_order_at_rest(x: np.ndarray, fn_Hz: float, zeta: float, dt: float) -> np.ndarray:
     """Filter ``x`` ((N,) or (N, m), along axis 0) by the prewarped second-order stage, at rest at x(0).
 
@@ -291,6 +305,9 @@ class Dynamics(Block):
             out["phase_lag_at_highest_excitation_deg"] = -math.degrees(math.atan2(h.imag, h.real))
             out["gain_at_highest_excitation"] = abs(h)
         return out
+
+    def natural_frequency_Hz(self, theta):
+        return float(np.ravel(theta)[0])
 
     # ------------------------------------------------------------------ composite interface
     def apply_population(self, x, theta, dt):

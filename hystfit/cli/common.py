@@ -240,8 +240,10 @@ def parse_condition(value: Optional[str]) -> tuple[float, float] | None:
         a, f = (float(x) for x in value.split(","))
     except ValueError:
         raise ConfigError(f"--condition {value!r}: expected AMPLITUDE_V,FREQUENCY_HZ, e.g. 40,10") from None
-    if not (a > 0 and f > 0):
-        raise ConfigError(f"--condition {value!r}: amplitude and frequency must be positive")
+    from ..conditions import CONDITION_RULE, is_valid_condition
+
+    if not is_valid_condition(a, f):
+        raise ConfigError(f"--condition {value!r}: {CONDITION_RULE}, e.g. 40,10")
     return (a, f)
 
 

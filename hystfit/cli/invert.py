@@ -95,10 +95,10 @@ def build_target(pf, target: Optional[Path], *, sine: Optional[str], triangle: O
     unit = pf.unit
     if sine is not None:
         a, f, n = _periodic(sine, "--sine")
-        return inv.sine_target(a, f, n, rate, offset=offset, unit=unit)
+        return inv.sine_target(a, f, n, rate, offset=offset, unit=unit, source=f"--sine {sine}")
     if triangle is not None:
         a, f, n = _periodic(triangle, "--triangle")
-        return inv.triangle_target(a, f, n, rate, offset=offset, unit=unit)
+        return inv.triangle_target(a, f, n, rate, offset=offset, unit=unit, source=f"--triangle {triangle}")
     if steps is not None:
         levels_text, _, hold_text = steps.partition("@")
         levels = _numbers(levels_text, "--steps", 1, 1000, "10 or 10,4,8@0.1")
@@ -110,8 +110,8 @@ def build_target(pf, target: Optional[Path], *, sine: Optional[str], triangle: O
                 raise ConfigError(f"--steps {steps!r}: the hold after '@' must be a number of seconds") from None
             if not hold > 0:
                 raise ConfigError(f"--steps {steps!r}: the hold must be > 0 s")
-        return inv.steps_target(levels, hold, rate, offset=offset, unit=unit)
-    return inv.multi_target(fs=rate, offset=offset, unit=unit)
+        return inv.steps_target(levels, hold, rate, offset=offset, unit=unit, source=f"--steps {steps}")
+    return inv.multi_target(fs=rate, offset=offset, unit=unit, source="--multi")
 
 
 def limit_warnings(res) -> list[str]:

@@ -106,6 +106,18 @@ class Model(ABC):
         """
         return linear_sse_evaluator(self, u, dt, y)
 
+    def natural_frequency_Hz(self, theta: np.ndarray) -> float | None:
+        """The natural frequency f_n (Hz) of a second-order stage in the model for θ (d,), None
+        without one (the default).
+
+        A stage discretized by the bilinear transform exists only below the Nyquist frequency of
+        the data it runs on; above it the simulation is NaN (a search scores such candidates
+        +inf). Commands that simulate an identified model on other data (``simulate``) ask for
+        it to refuse a too-low sample rate in words (:func:`hystfit.blocks.dynamics.check_below_nyquist`)
+        instead of writing empty predictions.
+        """
+        return None
+
     def simulate_one(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         """Simulate a single parameter vector θ (d,) → y (N,)."""
         return self.simulate(np.atleast_2d(np.asarray(theta, float)), np.asarray(u, float), dt)[0]

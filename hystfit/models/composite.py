@@ -152,6 +152,13 @@ class Composite(Model):
             out += [replace(p, name=f"{b.name}.{p.name}") for p in b.params(scale)]
         return tuple(out)
 
+    def natural_frequency_Hz(self, theta: np.ndarray) -> float | None:
+        """The base's stage f_n, else the first block's that has one (each block appears once)."""
+        tb, parts = self.split(np.asarray(theta, dtype=np.float64).ravel()[None, :])
+        found = [self.base.natural_frequency_Hz(tb[0])] + [b.natural_frequency_Hz(th[0])
+                                                           for b, th in zip(self.blocks, parts)]
+        return next((f for f in found if f is not None), None)
+
     # ------------------------------------------------------------------ simulation
     def _chain(self, x: np.ndarray, parts: list[np.ndarray], dt: float) -> np.ndarray:
         with np.errstate(all="ignore"):

@@ -431,6 +431,12 @@ class PI2(Model):
                               "--model-option fn_Hz=… zeta=…, or use --model-option identification=joint")
         return np.full(P, float(self.fn_Hz)), np.full(P, float(self.zeta))
 
+    def natural_frequency_Hz(self, theta: np.ndarray) -> float | None:
+        """The linear subsystem's f_n: θ's (joint) or the structure's (two-step), None before it is identified."""
+        if not self.joint and self.fn_Hz is None:
+            return None
+        return float(self._stage(np.atleast_2d(np.asarray(theta, dtype=np.float64)))[0][0])
+
     # ------------------------------------------------------------------ simulation
     def simulate(self, theta: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         """gPI output (:func:`~hystfit.models.gpi.gpi_population`), stage (:func:`biquad_columns`), offset: (P, N)."""

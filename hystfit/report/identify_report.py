@@ -18,11 +18,25 @@ from .tables import fmt, frame, markdown_table, metric_columns, metric_legend
 UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m"}
 
 
+def _warmup(res: IdentifyResult) -> bool:
+    """Whether any capture of the identification has a warm-up (``--warmup``)."""
+    return any(c.warmup_samples for f in res.fits for c in f.captures)
+
+
 def summary_rows(res: IdentifyResult) -> list[dict]:
+    """One row per condition for report.csv, report.md and the console.
+
+    ``samples`` counts the samples the metrics score, as ``metrics.n_samples`` in params.json
+    does: with ``--warmup`` the warm-up samples are simulated but not scored, so they are not
+    counted there. With a warm-up, ``samples_total`` follows it: every sample, warm-up included.
+    """
     rows = []
+    warm = _warmup(res)
     for f in res.fits:
         row = {"condition": f.label, "amplitude_V": f.amplitude_V, "frequency_Hz": f.frequency_Hz,
-               "captures": len(f.captures), "samples": int(sum(c.n for c in f.captures))}
+               "captures": len(f.captures), "samples": int(sum(c.n - c.warmup_samples for c in f.captures))}
+        if warm:
+            row["samples_total"] = int(sum(c.n for c in f.captures))
         for k in metric_columns(res.unit):
             row[k] = f.metrics.get(k, np.nan)
         row["runtime_s"] = f.runtime_s
@@ -150,8 +164,11 @@ def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> st
              f"- runs computed {res.cell_stats.computed}, reused from an interrupted run {res.cell_stats.reused}", ""]
     if res.failed:
         lines += ["## Failed runs (left out)", "", *[f"- {f}" for f in res.failed], ""]
-    lines += ["## Metrics per condition", "", markdown_table(frame(summary_rows(res))), "",
-              "Formulas (e = model − measured):", "", metric_legend(u), ""]
+    lines += ["## Metrics per condition", "", markdown_table(frame(summary_rows(res))), ""]
+    if _warmup(res):
+        lines += ["`samples`: the samples the metrics score (`n_samples` in params.json); `samples_total`: with "
+                  "the warm-up samples (--warmup), simulated but not scored.", ""]
+    lines += ["Formulas (e = model − measured):", "", metric_legend(u), ""]
     for f in res.fits:
         lines += [f"## {f.label}", "",
                   f"Sources: {', '.join(c.source for c in f.captures)}", ""]

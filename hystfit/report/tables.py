@@ -71,8 +71,8 @@ def markdown_table(table: "Records | pandas.DataFrame", digits: int = 4) -> str:
 
 def _is_count(column) -> bool:
     name = str(column)
-    return name.startswith("n_") and not name.endswith("_pct") or name in ("evaluations", "nfev", "samples", "runs",
-                                                                           "iterations")
+    return name.startswith("n_") and not name.endswith("_pct") or name in ("evaluations", "nfev", "samples",
+                                                                           "samples_total", "runs", "iterations")
 
 
 def metric_legend(unit: str) -> str:

@@ -120,6 +120,12 @@ def test_existing_output_refused_without_force(small_data, tmp_path):
     (("--bounds", "w0=1:0"), "lower must be below upper"),
     (("--model-option", "n_operators=0"), "n_operators"),
     (("--condition", "abc"), "AMPLITUDE_V,FREQUENCY_HZ"),
+    # inf passed "> 0" and became the cell 60V_infHz with inf in the reports; nan and 0 were refused already
+    (("--condition", "60,inf"), "--condition '60,inf': amplitude (V) and frequency (Hz) must be finite numbers > 0"),
+    (("--condition", "inf,10"), "must be finite numbers > 0"),
+    (("--condition", "60,-inf"), "must be finite numbers > 0"),
+    (("--condition", "60,nan"), "must be finite numbers > 0"),
+    (("--condition", "0,10"), "must be finite numbers > 0"),
     (("--opt", "lsq", "--pop", "5"), "--pop does not apply"),
 ])
 def test_bad_options_exit_2_one_line(small_data, tmp_path, args, needle):

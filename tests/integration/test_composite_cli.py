@@ -94,3 +94,27 @@ def test_synth_rising_sine_excitation(tmp_path):
     r = _run("synth", "capture", "--excitation", "rising-sine", "--amplitude", "60", "--frequency", "20",
              "--cycles", "10", tmp_path / "rs.csv")
     assert r.exit_code == 0, r.output
+
+
+def test_simulate_refuses_a_stage_above_the_captures_nyquist_frequency(tmp_path):
+    """A dynamics block identified at 10 kHz (f_n ≥ 3 kHz) on a capture at 1 kHz: one line naming f_n, the
+    capture's rate and the fix, exit 2, nothing written (it wrote all-empty predictions, null metrics, exit 0)."""
+    out = tmp_path / "id"
+    r = _run("identify", SAMPLE / "a40V_f10Hz.csv", "--model", "pi+dynamics", "--bounds", "dynamics.fn_Hz=3000:4000",
+             "--out", out, "--no-plots", "--quiet", "--jobs", "1")
+    assert r.exit_code == 0, r.output
+    fn = next(p["value"] for p in json.loads((out / "params.json").read_text())["conditions"][0]["parameters"]
+              if p["name"] == "dynamics.fn_Hz")
+    slow = tmp_path / "slow.csv"
+    pd.read_csv(SAMPLE / "a40V_f10Hz.csv").iloc[::10].to_csv(slow, index=False)  # 1 kHz: Nyquist 500 Hz
+    sim = tmp_path / "sim"
+    r = _run("simulate", out / "params.json", slow, "--out", sim, "--no-plots")
+    assert r.exit_code == 2, r.output
+    msg = r.stderr.strip()
+    assert len(msg.splitlines()) == 1 and "Traceback" not in r.output
+    assert msg.startswith("hystfit: error: ") and "slow.csv: cell" in msg
+    assert f"f_n = {fn:.6g} Hz is not below the Nyquist frequency 500 Hz of data sampled at 1000 Hz" in msg
+    assert f"use data sampled above {2 * fn:.6g} Hz" in msg
+    assert not sim.exists() and not any(p.name.startswith(".sim") for p in tmp_path.iterdir())
+    r = _run("simulate", out / "params.json", SAMPLE / "a40V_f10Hz.csv", "--out", sim, "--no-plots", "--quiet")
+    assert r.exit_code == 0, r.output  # at the identification's rate it simulates

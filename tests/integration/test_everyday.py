@@ -398,6 +398,16 @@ def test_warmup_is_simulated_but_not_scored(tmp_path):
     assert mf["n_samples"] - mw["n_samples"] == 5000  # 1 s at 5 kHz left out of the objective and the metrics
     assert mw["max_error_um"] < 0.2 * mf["max_error_um"]
     assert "warm-up: the first 1 s (5000 samples) are simulated but not scored" in r.stderr
+    # report.csv / report.md count the scored samples as params.json does (they said the total), and name the total
+    import csv
+
+    rw = next(csv.DictReader((tmp_path / "w" / "report.csv").open()))
+    rf = next(csv.DictReader((tmp_path / "f" / "report.csv").open()))
+    assert int(rw["samples"]) == mw["n_samples"] and int(rw["samples_total"]) == mf["n_samples"]
+    assert int(rf["samples"]) == mf["n_samples"] and "samples_total" not in rf  # no warm-up, no second count
+    md = (tmp_path / "w" / "report.md").read_text()
+    assert "| samples | samples_total |" in md and f"| {mw['n_samples']} | {mf['n_samples']} |" in md
+    assert "`samples`: the samples the metrics score (`n_samples` in params.json)" in md
     r = run("identify", REAL, "--warmup", "100", "--out", tmp_path / "x")
     assert r.exit_code == 2 and "--warmup 100 s leaves" in one_error_line(r)
 

@@ -157,6 +157,13 @@ def test_invert_refuses_to_overwrite_without_force(tables, tmp_path):
     (("--sine", "a,b"), "--sine"),
     (("--sine", "-10,10"), "amplitude"),
     (("--sine", "10,5000"), "samples per cycle"),
+    # a built-in target over the sample limit is refused before anything is allocated (the 1e7-cycle typo
+    # asked for 10⁹ samples and was OOM-killed; the 1e300 ones overflowed the count into a traceback)
+    (("--sine", "10,20,1e7", "--offset", "2"), "--sine 10,20,1e7: 5e+09 samples at 10000 Hz exceed the limit of "
+                                               "1e+07 samples"),
+    (("--triangle", "10,10,1e300"), "--triangle 10,10,1e300: 1e+303 samples"),
+    (("--steps", "10,4@1e300"), "use a shorter hold, fewer levels or a lower sample rate (--fs)"),
+    (("--multi", "--fs", "1e300"), "--multi: "),
     (("--triangle", "10,0"), "frequency"),
     (("--steps", "10@x"), "hold"),
     (("--steps", "10,10"), "differ"),
@@ -283,6 +290,35 @@ def test_track_bad_input_exit_2_one_line_nothing_written(tables, tmp_path, args,
     r = run("track", tables["pi"], "--sine", "10,10,1", "--offset", "2", *args, "--out", out)
     assert_error(r, needle, out)
     assert not any(p.name.startswith(".tr.tmp") for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("target", [("--sine", "10,10,1e7"), ("--steps", "10@1e300")])
+def test_track_refuses_a_built_in_target_over_the_sample_limit(tables, tmp_path, target):
+    out = tmp_path / "tr"
+    r = run("track", tables["pi"], *target, "--offset", "2", "--out", out)
+    assert_error(r, f"{' '.join(target)}: ", out)
+    assert "exceed the limit of 1e+07 samples" in r.stderr
+
+
+def test_simulate_refuses_a_capture_in_another_unit_than_the_parameters(tables, tmp_path):
+    """The µm table on the same capture in nm: refused as invert refuses an nm target (it gave an RMSE of
+    thousands "um", exit 0, and a prediction file labelling the nm data as µm)."""
+    d = pd.read_csv(SAMPLE / "a20V_f10Hz.csv")
+    nm = tmp_path / "nm.csv"
+    pd.DataFrame({"time_s": d.time_s, "voltage_V": d.voltage_V, "displacement_nm": d.displacement_um * 1e3}).to_csv(
+        nm, index=False)
+    out = tmp_path / "sim"
+    r = run("simulate", tables["pi"], SAMPLE / "a20V_f10Hz.csv", nm, "--out", out, "--no-plots")
+    assert_error(r, f"nm.csv: the measured output is in nm but {tables['pi']} is in um; convert it to um", out)
+    assert not any(p.name.startswith(".sim") for p in tmp_path.iterdir())
+    # an input-only capture has no output unit to disagree with
+    pd.DataFrame({"time_s": d.time_s, "voltage_V": d.voltage_V}).to_csv(tmp_path / "u.csv", index=False)
+    r = run("simulate", tables["pi"], tmp_path / "u.csv", "--out", out, "--no-plots", "--quiet")
+    assert r.exit_code == 0, r.output
+    # the same check (one home, ParamsFile.check_unit) still refuses an nm target in invert
+    pd.DataFrame({"time_s": d.time_s, "target_nm": d.displacement_um * 1e3}).to_csv(tmp_path / "t.csv", index=False)
+    assert_error(run("invert", tables["pi"], tmp_path / "t.csv", "--out", tmp_path / "v.csv"),
+                 "the target is in nm", tmp_path / "v.csv")
 
 
 def test_invert_track_and_simulate_load_neither_pandas_nor_matplotlib_in_the_commands_process(tables, tmp_path):

@@ -234,3 +234,24 @@ def test_lti_block_refuses_sine_only_data():
     caps = _plant_captures(synth.Effects(dynamics=True), freqs=(20.0,), rising=False, cycles=3)
     with pytest.raises(ConfigError, match="no broadband capture"):
         make_model("pi+lti").prepare(caps)
+
+
+def test_natural_frequency_of_a_stage_is_read_from_theta_or_the_structure():
+    """What simulate checks against a capture's Nyquist frequency (check_below_nyquist)."""
+    from hystfit.blocks.dynamics import check_below_nyquist
+    from hystfit.models.pi2 import PI2
+
+    sc = DataScale(0.0, 60.0, 0.0, 20.0, 1e-4, 4000.0)
+    m = make_model("pi+dynamics").adapt(sc)
+    theta = np.array([p.default for p in m.params(sc)])
+    names = [p.name for p in m.params(sc)]
+    theta[names.index("dynamics.fn_Hz")] = 1234.0
+    assert m.natural_frequency_Hz(theta) == 1234.0
+    assert make_model("pi+delay").natural_frequency_Hz(np.zeros(len(make_model("pi+delay").params(sc)))) is None
+    two_step = PI2(fn_Hz=900.0, zeta=0.2)
+    assert two_step.natural_frequency_Hz(np.zeros(len(two_step.params(sc)))) == 900.0
+    assert PI2().natural_frequency_Hz(np.zeros(len(PI2().params(sc)))) is None  # not identified yet
+    check_below_nyquist(1234.0, 1e-4, "x")  # 5 kHz Nyquist
+    with pytest.raises(ConfigError, match="^x: the stage's natural frequency f_n = 1234 Hz is not below the Nyquist "
+                                          "frequency 500 Hz of data sampled at 1000 Hz; use data sampled above 2468 Hz"):
+        check_below_nyquist(1234.0, 1e-3, "x")

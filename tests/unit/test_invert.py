@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hystfit.errors import ConfigError, InputError
-from hystfit.invert import (apply_limits, find_spans, invert_target, load_target, multi_target, rest_output,
+from hystfit.invert import (MAX_TARGET_SAMPLES, apply_limits, check_target_samples, find_spans, invert_target, load_target, multi_target, rest_output,
                             select_cells, sine_target, steps_target, target_from_array, triangle_target)
 from hystfit.models.bw import BoucWen
 from hystfit.models.pi import PI
@@ -79,6 +79,22 @@ def test_triangle_steps_and_multi_targets():
 def test_bad_target_parameters_raise_config_error(call):
     with pytest.raises(ConfigError):
         call()
+
+
+@pytest.mark.parametrize("call", [
+    lambda: sine_target(10, 20, cycles=1e7), lambda: triangle_target(10, 20, cycles=1e300),
+    lambda: steps_target((10.0, 4.0), hold_s=1e300), lambda: steps_target((10.0,), hold_s=1.0, fs=1e300),
+    lambda: multi_target(fs=1e7), lambda: multi_target(cycles=1e300),
+])
+def test_built_in_targets_over_the_sample_limit_are_refused_before_allocating(call):
+    with pytest.raises(ConfigError, match="exceed the limit of 1e\\+07 samples"):
+        call()
+
+
+def test_the_sample_limit_admits_exactly_its_count():
+    assert check_target_samples(float(MAX_TARGET_SAMPLES), 1e4, "x", "fix") == MAX_TARGET_SAMPLES
+    with pytest.raises(ConfigError, match="^--sine 1,2: 1e\\+07 samples at 10000 Hz exceed .*; fix$"):
+        check_target_samples(MAX_TARGET_SAMPLES + 1.0, 1e4, "--sine 1,2", "fix")
 
 
 def test_load_target_columns_units_and_errors(tmp_path):

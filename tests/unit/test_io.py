@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 import hystfit.io as hio
-from hystfit.errors import InputError, OutputError
+from hystfit.errors import ConfigError, InputError, OutputError
 from hystfit.io import (
     LoadOptions,
     atomic_write_bytes,
@@ -478,6 +478,9 @@ def test_condition_from_columns_and_option(tmp_path):
     assert c.condition == (40.0, 10.5) and c.condition_source == "column"
     c = load_capture(std_file(tmp_path, name="o.csv")[0], LoadOptions(condition=(35.0, 9.5)))
     assert c.condition == (35.0, 9.5) and c.condition_source == "option"
+    for bad in ((35.0, math.inf), (math.nan, 9.5), (35.0, 0.0)):  # the rule of --condition and the sidecar
+        with pytest.raises(ConfigError, match="must be finite numbers > 0"):
+            load_capture(std_file(tmp_path, name="o.csv")[0], LoadOptions(condition=bad))
     freq = t * 0 + 10
     freq[30:] = 20
     path = write_csv(tmp_path / "vary.csv", ("time_s", "voltage_V", "displacement_um", "frequency (Hz)"),
@@ -510,6 +513,7 @@ def test_sidecar_supplies_defaults_and_cli_overrides(tmp_path):
     ('{"time_col": -1}', "'time_col'"),
     ('{"output_unit": "inch"}', "'output_unit'"),
     ('{"condition": [40]}', "'condition'"),
+    ('{"condition": [40, Infinity]}', "'condition'"),
     ('{"no_header": "yes"}', "'no_header'"),
     ('{"delimiter": ";"}', "'delimiter'"),
 ])
