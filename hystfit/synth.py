@@ -482,6 +482,11 @@ class Effects:
             )
         base = cls()
         changes: dict[str, object] = {n: True for n in names}
+        if "asymmetry" in names and not abs(base.asymmetry_a2 * strength) < 1.0:
+            raise ConfigError(f"--strength {strength:g} with asymmetry: its bow |a₂| = |{base.asymmetry_a2:g} × "
+                              f"{strength:g}| = {abs(base.asymmetry_a2 * strength):g} must stay below 1 (a monotone "
+                              f"output); use --strength below {1.0 / abs(base.asymmetry_a2):.3g}, or leave "
+                              "asymmetry out")
         if strength != 1.0:
             scaled = {
                 "asymmetry": {"asymmetry_a2": base.asymmetry_a2 * strength},

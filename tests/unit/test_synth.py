@@ -458,3 +458,18 @@ def test_cli_campaign_refuses_non_empty_dir_unless_forced(cli, tmp_path):
     p = plant_with(S.Effects.none())
     expected = S.simulate_plant(p, df["time_s"].to_numpy(), df["voltage_V"].to_numpy())
     np.testing.assert_allclose(df["displacement_um"], expected, atol=1e-6)
+
+
+def test_a_strength_that_breaks_the_asymmetry_names_the_option_not_a_field():
+    """A blind test's find: `synth … --effects all --strength 10` answered `asymmetry_a2 must lie
+    in (-1, 1)`, a field name the command line never shows."""
+    import pytest
+
+    from hystfit.errors import ConfigError
+    from hystfit.synth import Effects
+
+    with pytest.raises(ConfigError, match=r"--strength 10 with asymmetry: its bow \|a₂\| = \|-0\.12 × 10\| = 1\.2 "
+                                          r"must stay below 1 .*use --strength below 8\.33"):
+        Effects.from_names(["asymmetry", "creep"], strength=10.0)
+    assert Effects.from_names(["asymmetry"], strength=8.0).asymmetry
+    assert Effects.from_names(["creep"], strength=10.0).creep  # no asymmetry: no such bound
