@@ -681,6 +681,38 @@ def _parser_error(label: str, exc: Exception, numbered: list[tuple[int, str]]) -
     return InputError(f"{label}: cannot parse the file as delimited text ({reason}); check the file format")
 
 
+def _index_as_column(df):
+    """A DataFrame written by pandas with its time as the index (``df.set_index('time_s')``, a
+    DatetimeIndex or TimedeltaIndex of a logger) with that index as its first column: named as it
+    was, ``time`` when it is an unnamed time axis. A plain row number (RangeIndex) is left out."""
+    import pandas as pd
+
+    idx = df.index
+    if isinstance(idx, pd.RangeIndex) or isinstance(idx, pd.MultiIndex):
+        return df
+    timeaxis = isinstance(idx, (pd.DatetimeIndex, pd.TimedeltaIndex))
+    if idx.name is None and not timeaxis:
+        return df
+    name = str(idx.name) if idx.name is not None else "time"
+    if name in map(str, df.columns):
+        return df
+    out = df.reset_index(drop=True)
+    out.insert(0, name, idx.to_numpy())
+    return out
+
+
+def _as_seconds(col):
+    """A time column of datetimes or durations as seconds (float) since its first sample; any
+    other column as it is."""
+    import pandas as pd
+
+    if pd.api.types.is_timedelta64_dtype(col):
+        return col.dt.total_seconds()
+    if pd.api.types.is_datetime64_any_dtype(col):
+        return (col - col.iloc[0]).dt.total_seconds()
+    return col
+
+
 def _read_parquet(path: Path, label: str) -> _Table:
     import pandas as pd
 
@@ -695,7 +727,8 @@ def _read_parquet(path: Path, label: str) -> _Table:
                          "pass a capture with time, input and output columns")
     if df.shape[0] == 0:
         raise InputError(f"{label}: the Parquet file has columns but no data rows; pass a capture with data")
-    cols = [df.iloc[:, i].reset_index(drop=True) for i in range(df.shape[1])]
+    df = _index_as_column(df)
+    cols = [_as_seconds(df.iloc[:, i].reset_index(drop=True)) for i in range(df.shape[1])]
     return _Table(label, [str(c) for c in df.columns], cols, np.arange(1, df.shape[0] + 1, dtype=np.int64))
 
 

@@ -398,6 +398,23 @@ def test_a_glitch_row_is_warned_about_with_its_row_and_value(tmp_path):
     assert not any("far outside" in n for n in clean.notes)
 
 
+def test_a_parquet_file_with_its_time_as_the_index_loads(tmp_path):
+    """A blind test's find: `df.set_index('time_s').to_parquet(...)` (pandas' habit) gave "no time
+    column found"; a logger's DatetimeIndex or a TimedeltaIndex did too. The index is the time
+    column (datetimes and durations in seconds since the first sample)."""
+    t, u, y = sine()
+    df = pd.DataFrame({"time_s": t, "voltage_V": u, "displacement_um": y})
+    ref = load_capture(write_csv(tmp_path / "ref.csv", ("time_s", "voltage_V", "displacement_um"), [t, u, y]))
+    df.set_index("time_s").to_parquet(tmp_path / "named.parquet")
+    logged = df.drop(columns="time_s").set_axis(pd.Timestamp("2026-11-28 10:00") + pd.to_timedelta(t, unit="s"))
+    logged.to_parquet(tmp_path / "datetime.parquet")
+    df.drop(columns="time_s").set_axis(pd.to_timedelta(t, unit="s")).to_parquet(tmp_path / "timedelta.parquet")
+    for name in ("named", "datetime", "timedelta"):
+        c = load_capture(tmp_path / f"{name}.parquet")
+        assert c.n == ref.n and c.dt == pytest.approx(ref.dt, rel=1e-9), name
+        np.testing.assert_allclose(c.u, ref.u, rtol=0, atol=1e-9)
+
+
 def test_column_selection_errors(tmp_path):
     path, _ = std_file(tmp_path)
     msg = error_of(path, LoadOptions(input_col=7))
