@@ -665,6 +665,11 @@ def invert_cell(cell: Cell, y: np.ndarray, dt: float, initial_voltage: float,
         The model cannot be inverted (e.g. negative weights) or returns non-finite voltages.
     """
     model, theta = cell.model, cell.theta
+    fn = model.natural_frequency_Hz(theta)
+    if fn is not None:  # the stage's inverse needs its f_n resolved, as simulate's prediction does
+        from .blocks.dynamics import check_below_nyquist
+
+        check_below_nyquist(fn, dt, f"the target sampled at {1.0 / dt:.6g} Hz (--fs): cell {cell.label}")
     pre = preroll_voltage(cell, initial_voltage, dt)
     if history is not None and len(history):
         pre = np.concatenate([pre, np.asarray(history, dtype=np.float64)])

@@ -118,3 +118,11 @@ def test_simulate_refuses_a_stage_above_the_captures_nyquist_frequency(tmp_path)
     assert not sim.exists() and not any(p.name.startswith(".sim") for p in tmp_path.iterdir())
     r = _run("simulate", out / "params.json", SAMPLE / "a40V_f10Hz.csv", "--out", sim, "--no-plots", "--quiet")
     assert r.exit_code == 0, r.output  # at the identification's rate it simulates
+    # invert and track say the same of a target sampled too slowly (they said `dynamics: cannot invert
+    # with fn_Hz=…`, without the fix)
+    for cmd, dest in (("invert", tmp_path / "v.csv"), ("track", tmp_path / "trk")):
+        r = _run(cmd, out / "params.json", "--sine", "5,10", "--fs", "1000", "--out", dest, "--no-plots", "--quiet")
+        assert r.exit_code == 2, r.output
+        msg = r.stderr.strip()
+        assert len(msg.splitlines()) == 1 and "the target sampled at 1000 Hz (--fs): cell" in msg, msg
+        assert f"use data sampled above {2 * fn:.6g} Hz" in msg and not dest.exists()
