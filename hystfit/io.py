@@ -1382,10 +1382,11 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
         within = f" within {ptp:.3g} V" if ptp > 0 else ""
         raise InputError(f"{label}: {table.col_label(chosen['input'])}: the input is constant{within} ({u[0]:g} V), "
                          "there is no excitation; check the input column (--input-col)")
-    if y is not None and y.size and float(y.max() - y.min()) <= CONSTANT_OUTPUT_FRACTION * float(np.max(np.abs(y))):
-        raise InputError(f"{label}: {table.col_label(chosen['output'])}: the output is constant ({y[0]:g} "
-                         f"{'µm' if y_unit == 'um' else y_unit}) while the input moves: the sensor recorded nothing to identify from; check "
-                         "the output column (--output-col) or the sensor")
+    if y is not None and y.size and float(np.ptp(y)) <= CONSTANT_OUTPUT_FRACTION * float(np.max(np.abs(y))):
+        unit = "µm" if y_unit == "um" else y_unit
+        raise InputError(f"{label}: {table.col_label(chosen['output'])}: the output is constant ({y[0]:g} {unit}) "
+                         "while the input moves: the sensor recorded nothing to identify from; check the output "
+                         "column (--output-col) or the sensor")
     start = idle_samples(u)
     if start:
         u = u[start:]

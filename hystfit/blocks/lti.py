@@ -618,7 +618,8 @@ def measure_gain_phase(v, y, dt: float, skip: float = 0.05) -> list[tuple[float,
         periods = math.floor((N - i0) * f)
         if periods < 1:
             raise InputError(
-                f"linear part from sines: a capture holds {N * f:.2f} periods; at least 2 are needed (the first is skipped)")
+                f"linear part from sines: a capture holds {N * f:.2f} periods; at least 2 are needed (the first "
+                "is skipped)")
         i1 = i0 + int(round(periods / f))
         harmonics = max(1, min(5, int(0.45 / f)))
         Vc, Yc = _harmonic_phasors(np.stack([a[i0:i1], b[i0:i1]], axis=1), f, harmonics)

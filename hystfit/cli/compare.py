@@ -10,7 +10,8 @@ import typer
 
 from .app import command
 from .common import (DataArg, ExecutorArgs, FigureOutputArgs, FitArgs, FitCaptureArgs, Iters, MapeFloor, OutDir,
-                     Polish, Pop, Runs, Seed, cell_run, load_for_command, print_table_warnings, start_figures, new_table, print_cell_summary,
+                     Polish, Pop, Runs, Seed, cell_run, load_for_command, print_table_warnings, start_figures,
+                     new_table, print_cell_summary,
                      print_json, progress_bar, stdout, writing)
 
 

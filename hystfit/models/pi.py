@@ -124,8 +124,8 @@ class PI(Model, PlayOperators):
             lo, hi = -hi, -lo
         ps = [Param(f"w{j}", "out/V", lo, hi, s * (g / self.n_operators if j else g / 2),
                     f"weight of the play operator with threshold r{j}") for j in range(self.n_operators)]
-        ps.append(Param("y0", "out", *scale.offset_bounds(), 0.5 * (scale.y_min + scale.y_max) if scale.y_min > 0 or scale.y_max < 0 else 0.0,
-                        "output offset"))
+        mid = 0.5 * (scale.y_min + scale.y_max) if scale.y_min > 0 or scale.y_max < 0 else 0.0
+        ps.append(Param("y0", "out", *scale.offset_bounds(), mid, "output offset"))
         return tuple(ps)
 
     # ------------------------------------------------------------------ simulation

@@ -361,12 +361,13 @@ def test_an_input_held_within_noise_and_an_output_that_never_moves_are_refused(t
     """Found by a blind test: 60 µV of ripple on 30 V was fitted as the condition 0.00006V_20Hz
     (R² 0.98 of noise), and a constant output column gave `nan` metrics, both with exit 0."""
     t, u, y = sine()
-    path = write_csv(tmp_path / "held.csv", ("time_s", "voltage_V", "displacement_um"), [t, 30 + 3e-5 * u / np.ptp(u), y])
+    cols = ("time_s", "voltage_V", "displacement_um")
+    path = write_csv(tmp_path / "held.csv", cols, [t, 30 + 3e-5 * u / np.ptp(u), y])
     msg = error_of(path)
     assert "held.csv" in msg and "the input is constant within 3e-05 V" in msg and "--input-col" in msg
-    small = write_csv(tmp_path / "small.csv", ("time_s", "voltage_V", "displacement_um"), [t, 30 + 0.01 * u / np.ptp(u), y])
+    small = write_csv(tmp_path / "small.csv", cols, [t, 30 + 0.01 * u / np.ptp(u), y])
     assert load_capture(small).n > 0  # 10 mV about 30 V is an excitation
-    path = write_csv(tmp_path / "flat.csv", ("time_s", "voltage_V", "displacement_um"), [t, u, 0 * y + 5.0])
+    path = write_csv(tmp_path / "flat.csv", cols, [t, u, 0 * y + 5.0])
     msg = error_of(path)
     assert "flat.csv" in msg and "'displacement_um'" in msg and "the output is constant (5 µm)" in msg
     assert "--output-col" in msg
