@@ -11,7 +11,7 @@ import typer
 from .app import command
 from .common import (CaptureArgs, DataArg, ExecutorArgs, FigureOutputArgs, OutDir, PerCondition, Seed, cell_run,
                      jobs_option, load_for_command, new_table, parse_key_values, print_cell_summary, print_json, progress_bar,
-                     start_figures, stdout, writing)
+                     start_figures, stderr, stdout, writing)
 
 
 DiagnoseJobs = jobs_option("Parallel processes for the base fits of --per-condition (the numbers do not depend on "
@@ -117,6 +117,14 @@ def diagnose(
     if rec is not None:
         stats.add(rec.cell_stats)
     print_cell_summary(stats, cr.describe(), quiet or json_out)
+    from ..diagnose import noise_floor_doubtful
+
+    if noise_floor_doubtful(d.noise) and not quiet:  # the verdict rests on the floor: said before it
+        from ..report.diagnose_wording import doubtful_floor_text
+        from ..report.plots import display_unit
+
+        stderr.print(f"warning: {doubtful_floor_text(d.noise, display_unit(d.unit))}", markup=False, highlight=False,
+                     soft_wrap=True)
     if json_out:
         print_json({**diagnosis_document(d), "params": str(out / "params.json") if d.explained_by else None})
         return

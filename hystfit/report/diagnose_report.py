@@ -16,7 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..diagnose import Diagnosis, EffectResult, WhereFigureData
+from ..diagnose import Diagnosis, EffectResult, WhereFigureData, noise_floor_doubtful
 from ..effects import EFFECTS
 from ..io import atomic_write_text
 from ..results import dumps, identify_to_dict, json_safe, schema_fields, unit_keys
@@ -24,7 +24,7 @@ from . import plots
 from .plots import _decimate, _decimate_minmax, _new_figure, _save, _stride, display_unit
 from .render import FigureJob, FigureStream
 from .tables import fmt
-from .diagnose_wording import (DEFINITIONS, evidence_text, noise_method_text, pointers_text, reconciliation_why,
+from .diagnose_wording import (DEFINITIONS, doubtful_floor_text, evidence_text, noise_method_text, pointers_text, reconciliation_why,
                                resolution_text, split_description, split_why,
                                converged_text, during_text, joint_text, best_not_named_text, loop_position_text,
                                not_named_reasons)
@@ -695,6 +695,9 @@ def _md_gap(d: Diagnosis, figs: dict[str, str]) -> list[str]:
         L += [f"The repeatability ({d.noise['repeatability_out']:.3g} {u}) is well above the white-noise floor: the "
               "noise has slow components, or the process does not repeat from cycle to cycle (creep, drift). "
               "The floor used here is the white part only, so slow noise would count as model gap.", ""]
+    if noise_floor_doubtful(d.noise):
+        text = doubtful_floor_text(d.noise, u)
+        L += [f"**Caution:** {text[0].upper()}{text[1:]}.", ""]
 
     return L
 

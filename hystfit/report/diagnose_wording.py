@@ -55,6 +55,17 @@ def noise_method_text(noise: dict) -> str:
     return NOISE_METHODS[noise["method"]] + (NOISE_METHOD_REFINED if noise.get("refined") else "")
 
 
+def doubtful_floor_text(noise: dict, unit: str) -> str:
+    """Why the noise floor cannot be trusted (:func:`hystfit.diagnose.noise_floor_doubtful`), and
+    what to do."""
+    return (f"the noise floor σ = {noise['sigma']:.3g} {unit} is {noise['sigma'] / noise['repeatability_out']:.0f}× the "
+            f"cycle-to-cycle repeatability ({noise['repeatability_out']:.3g} {unit}), and the fastest drive has only "
+            f"{noise['samples_per_cycle_min']:.3g} samples per cycle: the floor measures the residual's own change "
+            "between samples, not the sensor, and is overestimated. Effects whose gain lies below it go unnamed, and a "
+            "verdict that the model is as good as the noise allows does not hold; record at a higher sample rate "
+            "(at least 20 samples per cycle)")
+
+
 #: the ``definition`` entries of the where-analysis sections.
 DEFINITIONS = {
     "by_loop_position": "near = within 10 % of the half-cycle stroke from a turning point of the input",
