@@ -1019,6 +1019,8 @@ def load_table(path: str | os.PathLike, roles: Sequence[str], *, columns: Mappin
 #: Longest run of consecutive non-finite rows inside the data that ``--drop-nonfinite`` repairs by
 #: linear interpolation (dropping them would make the sampling non-uniform).
 MAX_INTERPOLATED_RUN = 3
+#: above this share of a capture's rows interpolated by --drop-nonfinite, the note is a warning
+MAX_INTERPOLATED_SHARE = 0.01
 
 
 def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: bool,
@@ -1068,8 +1070,14 @@ def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: b
             repaired[role] = (col, a)
         arrays = repaired
         i0 = int(np.flatnonzero(inner)[0])
-        notes.append(f"interpolated {int(inner.sum())} isolated row(s) with NaN/inf/empty cells inside the data "
-                     f"linearly between their neighbours (first: row {table.rows[i0]})")
+        share = float(inner.sum()) / inner.size
+        line = (f"interpolated {int(inner.sum())} isolated row(s) with NaN/inf/empty cells inside the data "
+                f"linearly between their neighbours (first: row {table.rows[i0]})")
+        if share > MAX_INTERPOLATED_SHARE:  # made-up samples: smooth, noiseless, not measured
+            line = (f"warning: {line}: {100 * share:.0f} % of the capture is interpolated, not measured; fits, "
+                    "metrics and diagnose's noise floor treat those rows as data (the floor comes out too low); "
+                    "repair the recording or cut a complete part with --start/--stop")
+        notes.append(line)
     edge = bad & ~inner
     if not edge.any():
         return None, arrays
