@@ -756,6 +756,32 @@ def _cell_text(table: _Table, col: int, k: int) -> str:
     return repr(text if len(text) <= 40 else text[:37] + "...")
 
 
+def _time_values(table: _Table, col: int, notes: list[str]) -> np.ndarray:
+    """The time column as numbers (:func:`_numeric`), or, when its cells are date-times (a logger's
+    ``2026-11-28 10:00:00.000200``, ISO 8601), as seconds since its first one, said in a note. A
+    column of neither keeps :func:`_numeric`'s error, naming the first bad cell."""
+    try:
+        return _numeric(table, col)
+    except InputError:
+        s = table.cols[col]
+        if isinstance(s, np.ndarray) or s.dtype.kind in "fiub":
+            raise
+        import pandas as pd
+
+        text = s.astype(str).str.strip()
+        if not re.match(r"\d{4}-\d{2}-\d{2}[T ]\d", str(text.iloc[0])):
+            raise
+        stamps = pd.to_datetime(text, format="ISO8601", errors="coerce")
+        bad = np.flatnonzero(stamps.isna().to_numpy())
+        if bad.size:
+            k = int(bad[0])
+            raise InputError(f"{table.label}: row {table.rows[k]}, {table.col_label(col)}: {_cell_text(table, col, k)} "
+                             "is not a date-time like the column's others (ISO 8601, e.g. 2026-11-28 10:00:00.0002); "
+                             "fix the cell or remove the row")
+        notes.append(f"{table.col_label(col)} holds date-times: time in seconds since {text.iloc[0]}")
+        return (stamps - stamps.iloc[0]).dt.total_seconds().to_numpy(dtype=np.float64)
+
+
 def _numeric(table: _Table, col: int) -> np.ndarray:
     """Column ``col`` as float64 (NaN for empty/missing cells); non-numeric text → InputError."""
     s = table.cols[col]
@@ -1313,7 +1339,8 @@ def load_capture(path: str | os.PathLike, options: LoadOptions = LoadOptions()) 
     table = _read_table(p, label, opts.no_header)
     notes.extend(table.notes)
     chosen = _select_columns(table, opts, notes)
-    arrays = {r: (chosen[r], _numeric(table, chosen[r])) for r in ("time", "input", "output") if chosen[r] is not None}
+    arrays = {r: (chosen[r], _time_values(table, chosen[r], notes) if r == "time" else _numeric(table, chosen[r]))
+              for r in ("time", "input", "output") if chosen[r] is not None}
     keep, arrays = _nonfinite(table, arrays, opts.drop_nonfinite, notes)
     rows = table.rows if keep is None else table.rows[keep]
     data = {r: (a if keep is None else a[keep]) for r, (_, a) in arrays.items()}

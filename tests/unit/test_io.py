@@ -432,6 +432,27 @@ def test_a_parquet_file_with_its_time_as_the_index_loads(tmp_path):
         np.testing.assert_allclose(c.u, ref.u, rtol=0, atol=1e-9)
 
 
+def test_a_time_column_of_date_times_is_read_as_seconds(tmp_path):
+    """A blind test's find: a logger's `timestamp` column (`2026-11-28 10:00:00.000200`) was "not a
+    number", with or without --fs. ISO 8601 date-times are seconds since the first, said in a note."""
+    t, u, y = sine()
+    start = pd.Timestamp("2026-11-28 10:00:00")
+    ref = load_capture(write_csv(tmp_path / "ref.csv", ("time_s", "voltage_V", "displacement_um"), [t, u, y]))
+    for sep, name in ((" ", "space.csv"), ("T", "iso.csv")):
+        stamps = [(start + pd.Timedelta(seconds=float(x))).isoformat(sep=sep) for x in t]
+        path = tmp_path / name
+        path.write_text("timestamp,voltage_V,displacement_um\n"
+                        + "".join(f"{s},{a:.12g},{b:.12g}\n" for s, a, b in zip(stamps, u, y)))
+        c = load_capture(path)
+        assert c.n == ref.n and c.dt == pytest.approx(ref.dt, rel=1e-9), name
+        assert any("holds date-times: time in seconds since 2026-11-28" in n for n in c.notes)
+    bad = tmp_path / "mixed.csv"
+    bad.write_text("timestamp,voltage_V,displacement_um\n2026-11-28 10:00:00,0,0\n" + "".join(
+        f"{'yesterday' if i == 5 else '2026-11-28 10:00:%02d' % i},{math.sin(i)},{i}\n" for i in range(1, 40)))
+    msg = error_of(bad)
+    assert "mixed.csv: row 7, column 'timestamp'" in msg and "'yesterday'" in msg and "is not a date-time" in msg
+
+
 def test_column_selection_errors(tmp_path):
     path, _ = std_file(tmp_path)
     msg = error_of(path, LoadOptions(input_col=7))
