@@ -1443,6 +1443,8 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     for what, x, unit in (("input", u, "V"), ("output", y, "µm" if y_unit == "um" else y_unit)):
         if x is not None:
             notes += _glitch_notes(what, x, unit, rows, start)
+    if y is not None:
+        notes += _saturation_notes(u, y, "µm" if y_unit == "um" else y_unit)
     amp, freq, source = _condition(table, chosen, opts, notes, u, dt)
     cycles = count_cycles(u, dt, freq)
     if cycles < opts.min_cycles:
@@ -1467,6 +1469,37 @@ GLITCH_SPANS = 1.0
 #: the bulk's percentiles are taken of at most this many samples (strided): a 10⁷-row capture
 #: costs a comparison per sample, not a sort
 GLITCH_SAMPLE = 100_000
+
+
+#: an output held at its extreme while the input sweeps at least this share of its range is clipped
+SATURATION_INPUT_SHARE = 0.2
+
+
+def _saturation_notes(u: np.ndarray, y: np.ndarray, unit: str) -> list[str]:
+    """A warning when the output sits exactly at its maximum (or minimum) while the input moves over
+    a fifth of its range or more (:data:`SATURATION_INPUT_SHARE`): a sensor or an amplifier at the
+    end of its range. A turning point's dwell, where the output repeats its extreme for a few
+    samples, has the input still near its own extreme there. The runs of the extreme value are
+    found in one pass; the widest input span over one of them decides."""
+    if y.size < 20:
+        return []
+    span_u = float(np.ptp(u))
+    if not span_u > 0:
+        return []
+    out = []
+    for side, level in (("maximum", float(y.max())), ("minimum", float(y.min()))):
+        at = y == level
+        if at.sum() < 3:
+            continue
+        edges = np.diff(np.concatenate(([0], at.astype(np.int8), [0])))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        widest = max(float(np.ptp(u[a:b])) for a, b in zip(starts, stops))
+        if widest >= SATURATION_INPUT_SHARE * span_u:
+            out.append(f"warning: the output stays at its {side}, {level:.6g} {unit}, for {int(at.sum())} samples "
+                       f"({100 * at.mean():.0f} %) while the input moves over up to {widest:.3g} V: a sensor or "
+                       "amplifier at the end of its range? Clipped samples are not the actuator's motion; cut them "
+                       "off with --start/--stop or record within the sensor's range")
+    return out
 
 
 def _glitch_notes(what: str, x: np.ndarray, unit: str, rows: np.ndarray | None, start: int) -> list[str]:
