@@ -235,6 +235,10 @@ def test_simulate_reports_bias_and_aligns_an_offset_on_request(grid_params, tmp_
     assert r.exit_code == 0, r.output
     m = json.loads(r.stdout)["captures"][0]["metrics"]
     assert m["bias_um"] == pytest.approx(-3.0, abs=0.05) and m["rmse_um"] > 2.9
+    notes = json.loads(r.stdout)["captures"][0]["notes"]  # a blind test's find: no hint of --align-offset
+    assert any("the error is mostly a constant" in n and "--align-offset" in n for n in notes), notes
+    r0 = run("simulate", grid_params, SAMPLE / "a20V_f20Hz.csv", "--out", tmp_path / "c", "--no-plots", "--json")
+    assert not any("mostly a constant" in n for n in json.loads(r0.stdout)["captures"][0]["notes"])
     r = run("simulate", grid_params, shifted, "--out", tmp_path / "b", "--no-plots", "--json", "--align-offset",
             "--condition", "20,20")
     assert r.exit_code == 0, r.output
