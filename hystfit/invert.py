@@ -1017,11 +1017,32 @@ class InvertLimits:
                 "max_slew_V_per_s": self.max_slew}
 
 
+#: a target further than this many times the table's identified output span beyond that span is out
+#: of reach: no voltage within the limits makes it, and the usual cause is a unit (m for µm)
+TARGET_REACH_SPANS = 10.0
+
+
+def _check_reach(pf: ParamsFile, target: Target) -> None:
+    """Refuse a target far outside the outputs the table was identified on (one-line ConfigError):
+    a blind test's 2…12 m sine for a 21 µm stage (the table in m) clipped every sample, asked for a
+    rest voltage of 4.9e6 V and wrote a constant voltage, with exit 0."""
+    lo = min(float(c.scale.y_min) for c in pf.cells)
+    hi = max(float(c.scale.y_max) for c in pf.cells)
+    span = hi - lo
+    t_lo, t_hi = float(np.min(target.y)), float(np.max(target.y))
+    if span > 0 and (t_hi > hi + TARGET_REACH_SPANS * span or t_lo < lo - TARGET_REACH_SPANS * span):
+        u = pf.unit
+        raise ConfigError(f"the target spans {t_lo:.4g}…{t_hi:.4g} {u}, far beyond the outputs the table was identified "
+                          f"on ({lo:.4g}…{hi:.4g} {u}): no voltage reaches it. Targets are in the table's output unit "
+                          f"({u}); convert the target, or identify the model on data that covers it")
+
+
 def check_invert_options(pf: ParamsFile, target: Target, method: str, condition, initial_voltage, vmin, vmax,
                          max_slew) -> InvertLimits:
     """The options of :func:`invert_target` checked (one-line ConfigError) and completed with the
     default limits."""
     pf.check_unit(target.unit, "the target", f"convert the target (or name its column e.g. target_{pf.unit})")
+    _check_reach(pf, target)
     if method not in ("interpolate", "nearest"):
         raise ConfigError(f"method {method!r}: choose interpolate or nearest")
     dlo, dhi = default_voltage_limits(pf)

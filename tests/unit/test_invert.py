@@ -391,3 +391,17 @@ def test_captures_and_targets_count_samples_one_way():
     cap = Capture("c.csv", t=np.arange(5) * 1e-3, u=np.zeros(5), y=None, dt=1e-3)
     assert isinstance(tgt, UniformSamples) and isinstance(cap, UniformSamples)
     assert (tgt.n, tgt.fs) == (tgt.y.size, pytest.approx(1e4)) and (cap.n, cap.fs) == (5, pytest.approx(1e3))
+
+
+def test_a_target_far_beyond_the_identified_outputs_is_refused_naming_the_unit():
+    """A blind test's find: a table in m (a 21 µm stage) and `--sine 10,20 --offset 2`: a 2…12 m target
+    clipped at every sample, a rest voltage of 4.9e6 V and exit 0."""
+    from hystfit.errors import ConfigError
+    from hystfit.invert import invert_target, sine_target
+
+    pf = table([pi_cell()], unit="m")  # outputs 0.25…18.85 in the table's unit
+    with pytest.raises(ConfigError, match=r"the target spans 2…2002 m, far beyond the outputs the table was "
+                                          r"identified on \(0\.25…18\.85 m\).*Targets are in the table's output unit \(m\)"):
+        invert_target(pf, sine_target(2000.0, 20.0, 1, 10_000.0, offset=2.0, unit="m"))
+    res = invert_target(pf, sine_target(25.0, 20.0, 1, 10_000.0, offset=2.0, unit="m"))  # beyond, but within reach
+    assert res.voltage_V.size > 0
