@@ -352,9 +352,11 @@ def steps_target(levels: Sequence[float] = (10.0,), hold_s: float = 0.2, fs: flo
     if n_hold < 3:
         raise ConfigError(f"hold_s {hold_s:g} s gives fewer than 3 samples at {fs:g} Hz; raise the hold time or --fs")
     seq = [0.0] + levels
-    for a, b in zip(seq, seq[1:]):
+    for i, (a, b) in enumerate(zip(seq, seq[1:])):
         if a == b:
-            raise ConfigError(f"steps: consecutive levels must differ (got {a:g} twice); drop the repeated level")
+            where = (f"the first level, {b:g}, is the rest level the target starts at (0 above the offset)" if i == 0
+                     else f"two consecutive levels are {a:g}")
+            raise ConfigError(f"steps: each level must differ from the one before; {where}: drop it")
     n = n_lead + n_hold * len(levels)
     y = np.full(n, offset, dtype=np.float64)
     steps = []

@@ -1448,8 +1448,10 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     amp, freq, source = _condition(table, chosen, opts, notes, u, dt)
     cycles = count_cycles(u, dt, freq)
     if cycles < opts.min_cycles:
+        fix = ("widen the --start/--stop window" if windowed or opts.start_s is not None or opts.stop_s is not None
+               else "record a longer capture")
         raise InputError(f"{label}: only {cycles:.3g} input cycles of {freq:g} Hz after trimming, the minimum is "
-                         f"{opts.min_cycles:g}; record a longer capture")
+                         f"{opts.min_cycles:g}; {fix}")
     warm = int(round(opts.warmup_s / dt)) if opts.warmup_s else 0
     if warm > u.size - max(4, u.size // 4):
         raise InputError(f"{label}: --warmup {opts.warmup_s:g} s leaves {max(u.size - warm, 0)} of {u.size} samples "

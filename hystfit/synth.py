@@ -698,7 +698,9 @@ def simulate_plant_components(
     if e.dynamics:
         fn, zeta = float(e.dynamics_fn_Hz), float(e.dynamics_zeta)
         if not fn * dt < 0.5:
-            raise ConfigError(f"dynamics_fn_Hz ({fn:g} Hz) must lie below the Nyquist frequency ({0.5 / dt:g} Hz).")
+            raise ConfigError(f"the plant's dynamics (stage resonance f_n = {fn:g} Hz, one of the default effects) needs "
+                              f"a sample rate above {2 * fn:g} Hz, got {1 / dt:g} Hz; raise --fs, or leave dynamics out "
+                              "(--effects creep,noise,quantization)")
         z = Dynamics().apply_population(z[None, :], np.array([[fn, zeta]]), dt)[0]
     comps["dynamics"] = out(z)
 

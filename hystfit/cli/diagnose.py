@@ -130,9 +130,11 @@ def diagnose(
         return
     if quiet:
         return
-    u = d.unit
-    table = new_table(title=f"{d.base_model}: held-out gap per added effect (noise floor {d.noise['sigma']:.3g} {u}) — "
-                        f"verdict: {d.verdict}")
+    from ..report.plots import display_unit
+
+    u = d.unit  # the columns' names, as identify's (rmse_um); the title in words (µm)
+    table = new_table(title=f"{d.base_model}: held-out gap per added effect (noise floor {d.noise['sigma']:.3g} "
+                            f"{display_unit(u)}) — verdict: {d.verdict}")
     for col in ("effect", f"before_{u}", f"after_{u}", "reduction", f"placebo_{u}", "passes"):
         table.add_column(col, justify="right")
     for r in d.effects:

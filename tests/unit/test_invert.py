@@ -405,3 +405,15 @@ def test_a_target_far_beyond_the_identified_outputs_is_refused_naming_the_unit()
         invert_target(pf, sine_target(2000.0, 20.0, 1, 10_000.0, offset=2.0, unit="m"))
     res = invert_target(pf, sine_target(25.0, 20.0, 1, 10_000.0, offset=2.0, unit="m"))  # beyond, but within reach
     assert res.voltage_V.size > 0
+
+
+def test_a_steps_target_starting_at_its_rest_level_is_explained():
+    """A blind test's find: `--steps 0,5,10,15@0.05` answered `got 0 twice` for a 0 given once: the
+    target rests at 0 above its offset before the first level."""
+    from hystfit.errors import ConfigError
+    from hystfit.invert import steps_target
+
+    with pytest.raises(ConfigError, match=r"the first level, 0, is the rest level the target starts at"):
+        steps_target([0.0, 5.0, 10.0], 0.05)
+    with pytest.raises(ConfigError, match=r"two consecutive levels are 5"):
+        steps_target([5.0, 5.0, 10.0], 0.05)

@@ -467,6 +467,14 @@ def test_an_output_clipped_at_its_maximum_while_the_input_moves_is_warned_about(
     assert not any("stays at its" in n for n in c.notes)
 
 
+def test_too_few_cycles_in_a_window_names_the_window_not_the_recording(tmp_path):
+    """A blind test's find: `--stop 0.02` left under two cycles and was told to record a longer capture."""
+    path, _ = std_file(tmp_path)
+    msg = error_of(path, LoadOptions(stop_s=0.15))
+    assert "only 1.5 input cycles" in msg and "widen the --start/--stop window" in msg
+    assert "record a longer capture" in error_of(std_file(tmp_path, name="short.csv", cycles=1.5)[0])
+
+
 def test_column_selection_errors(tmp_path):
     path, _ = std_file(tmp_path)
     msg = error_of(path, LoadOptions(input_col=7))
