@@ -1473,44 +1473,34 @@ GLITCH_SPANS = 1.0
 GLITCH_SAMPLE = 100_000
 
 
-#: an output held at one value while the input sweeps at least this share of its range is stuck
-#: (a dropout, a clipped or frozen sensor): no actuator holds still while its drive moves that far
+#: an output held at its extreme while the input sweeps at least this share of its range is clipped
 SATURATION_INPUT_SHARE = 0.2
 
 
 def _saturation_notes(u: np.ndarray, y: np.ndarray, unit: str) -> list[str]:
-    """A warning when the output holds exactly one value over a run of samples while the input
-    moves over a fifth of its range or more (:data:`SATURATION_INPUT_SHARE`): a sensor or an
-    amplifier at the end of its range (the value is the output's maximum or minimum), or a dropout
-    or a frozen reading (any other value). A turning point's dwell, or a coarse sensor repeating
-    a value, keeps the input near where it was. The runs of equal values and their input spans
-    are found in one vectorised pass (``reduceat``), however many runs a quantized sensor makes."""
+    """A warning when the output sits exactly at its maximum (or minimum) while the input moves over
+    a fifth of its range or more (:data:`SATURATION_INPUT_SHARE`): a sensor or an amplifier at the
+    end of its range. A turning point's dwell, where the output repeats its extreme for a few
+    samples, has the input still near its own extreme there. The runs of the extreme value are
+    found in one pass; the widest input span over one of them decides."""
     if y.size < 20:
         return []
     span_u = float(np.ptp(u))
     if not span_u > 0:
         return []
-    starts = np.flatnonzero(np.concatenate(([True], y[1:] != y[:-1])))
-    lengths = np.diff(np.concatenate((starts, [y.size])))
-    spans = np.maximum.reduceat(u, starts) - np.minimum.reduceat(u, starts)
-    stuck = np.flatnonzero((lengths >= 3) & (spans >= SATURATION_INPUT_SHARE * span_u))
-    if stuck.size == 0:
-        return []
-    hi, lo = float(y.max()), float(y.min())
     out = []
-    for kind, pick in (("maximum", lambda v: v == hi), ("minimum", lambda v: v == lo),
-                       ("a value inside its range", lambda v: lo < v < hi)):
-        sel = [k for k in stuck if pick(float(y[starts[k]]))]
-        if not sel:
+    for side, level in (("maximum", float(y.max())), ("minimum", float(y.min()))):
+        at = y == level
+        if at.sum() < 3:
             continue
-        n = int(lengths[sel].sum())
-        level = float(y[starts[sel[0]]])
-        what = ("a sensor or amplifier at the end of its range?" if kind != "a value inside its range"
-                else "a dropout or a frozen reading?")
-        out.append(f"warning: the output stays at {'its ' + kind if kind != 'a value inside its range' else kind}, "
-                   f"{level:.6g} {unit}, for {n} samples ({100 * n / y.size:.0f} %) while the input moves over up to "
-                   f"{float(spans[sel].max()):.3g} V: {what} Those samples are not the actuator's motion; cut them "
-                   "off with --start/--stop or repair the recording")
+        edges = np.diff(np.concatenate(([0], at.astype(np.int8), [0])))
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        widest = max(float(np.ptp(u[a:b])) for a, b in zip(starts, stops))
+        if widest >= SATURATION_INPUT_SHARE * span_u:
+            out.append(f"warning: the output stays at its {side}, {level:.6g} {unit}, for {int(at.sum())} samples "
+                       f"({100 * at.mean():.0f} %) while the input moves over up to {widest:.3g} V: a sensor or "
+                       "amplifier at the end of its range? Clipped samples are not the actuator's motion; cut them "
+                       "off with --start/--stop or record within the sensor's range")
     return out
 
 
