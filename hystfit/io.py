@@ -1489,16 +1489,26 @@ def _saturation_notes(u: np.ndarray, y: np.ndarray, unit: str) -> list[str]:
     if not span_u > 0:
         return []
     out = []
+    need = None
     for side, level in (("maximum", float(y.max())), ("minimum", float(y.min()))):
-        at = y == level
-        if at.sum() < 3:
+        idx = np.flatnonzero(y == level)  # the runs from the samples at the level only: O(their count)
+        if idx.size < 3:
             continue
-        edges = np.diff(np.concatenate(([0], at.astype(np.int8), [0])))
-        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-        widest = max(float(np.ptp(u[a:b])) for a, b in zip(starts, stops))
+        cut = np.flatnonzero(np.diff(idx) != 1) + 1
+        starts = idx[np.concatenate(([0], cut))]
+        stops = idx[np.concatenate((cut - 1, [idx.size - 1]))] + 1
+        if need is None:
+            # a run can only span that much input if it lasts long enough at the input's fastest
+            # rate: the short runs of a quantized sensor at its extreme are not looked at
+            d = np.diff(u)
+            need = max(3.0, SATURATION_INPUT_SHARE * span_u / max(float(d.max()), -float(d.min()), 1e-300))
+        long = stops - starts >= need
+        if not long.any():
+            continue
+        widest = max(float(np.ptp(u[a:b])) for a, b in zip(starts[long], stops[long]))
         if widest >= SATURATION_INPUT_SHARE * span_u:
-            out.append(f"warning: the output stays at its {side}, {level:.6g} {unit}, for {int(at.sum())} samples "
-                       f"({100 * at.mean():.0f} %) while the input moves over up to {widest:.3g} V: a sensor or "
+            out.append(f"warning: the output stays at its {side}, {level:.6g} {unit}, for {idx.size} samples "
+                       f"({100 * idx.size / y.size:.0f} %) while the input moves over up to {widest:.3g} V: a sensor or "
                        "amplifier at the end of its range? Clipped samples are not the actuator's motion; cut them "
                        "off with --start/--stop or record within the sensor's range")
     return out
