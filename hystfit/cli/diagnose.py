@@ -67,9 +67,8 @@ def diagnose(
     from ..diagnose import diagnose as run_diagnose
     from ..io import staged_output_dir
     from ..registry import optimizers
-    from ..report.diagnose_report import diagnosis_document, next_step_line, write_diagnose_outputs
+    from ..report.diagnose_report import write_diagnose_outputs
     from ..report.diagnose_report import start_figures as start_diagnose_figures, start_where_figures
-    from ..report.diagnose_wording import pointers_text
     from ..factory import make_model, make_optimizer
 
     opt_cls = optimizers.get(opt)
@@ -117,12 +116,18 @@ def diagnose(
     if rec is not None:
         stats.add(rec.cell_stats)
     print_cell_summary(stats, cr.describe(), quiet or json_out)
+    _print_diagnosis(d, out, quiet, json_out)
+
+
+def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
+    """The console's part of a diagnosis: a caution on a doubtful noise floor (stderr), then the JSON
+    summary (``--json``) or the effects' table, the where-pointers and the next step (stdout)."""
     from ..diagnose import noise_floor_doubtful
+    from ..report.diagnose_report import diagnosis_document, next_step_line
+    from ..report.diagnose_wording import doubtful_floor_text, pointers_text
+    from ..report.plots import display_unit
 
     if noise_floor_doubtful(d.noise) and not quiet:  # the verdict rests on the floor: said before it
-        from ..report.diagnose_wording import doubtful_floor_text
-        from ..report.plots import display_unit
-
         stderr.print(f"warning: {doubtful_floor_text(d.noise, display_unit(d.unit))}", markup=False, highlight=False,
                      soft_wrap=True)
     if json_out:
@@ -130,8 +135,6 @@ def diagnose(
         return
     if quiet:
         return
-    from ..report.plots import display_unit
-
     u = d.unit  # the columns' names, as identify's (rmse_um); the title in words (µm)
     table = new_table(title=f"{d.base_model}: held-out gap per added effect (noise floor {d.noise['sigma']:.3g} "
                             f"{display_unit(u)}) — verdict: {d.verdict}")
