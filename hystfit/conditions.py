@@ -247,7 +247,8 @@ def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str
 
 #: a capture whose strongest spectral line carries less than this share of its input's power is
 #: broadband: a PRBS 0.4 %, multisines of 40, 5 and 3 equal lines 8, 17 and 33 %; a sine and a
-#: raised cosine carry 100 %, a triangle 99 %, a rising-amplitude sine 88 % (hystfit.synth's)
+#: raised cosine carry 100 %, a triangle 99 %, a rising-amplitude sine 88 % (hystfit.synth's:
+#: ``python benchmarks/blind_cases.py``, case 6)
 TONAL_SHARE_MIN = 0.5
 
 

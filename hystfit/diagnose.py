@@ -822,7 +822,8 @@ def noise_floor_doubtful(noise: dict) -> bool:
     """Whether the white-noise floor of :func:`estimate_noise` is probably overestimated: a periodic
     drive with fewer than :data:`COARSE_SAMPLES_PER_CYCLE` samples per cycle, where the third
     difference of the residual measures the residual's own change between samples, not the sensor
-    (a blind test: a 500 Hz drive at 5 kHz gave σ = 0.50 µm for a sensor of 0.008 µm), and a floor
+    (a 500 Hz drive at 5 kHz: σ 0.37 µm against a repeatability of 0.014 µm on the virtual stage,
+    ``python benchmarks/blind_cases.py``, case 4), and a floor
     over :data:`DOUBTFUL_FLOOR_RATIO` × the repeatability, which does not see that change. Either
     alone is no sign: a well-sampled slow drive can repeat far more closely than its white noise
     (quantized outputs), and a coarse drive of a smooth residual can still give the right floor."""

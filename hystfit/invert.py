@@ -1026,8 +1026,8 @@ TARGET_REACH_SPANS = 10.0
 
 def _check_reach(pf: ParamsFile, target: Target) -> None:
     """Refuse a target far outside the outputs the table was identified on (one-line ConfigError):
-    a blind test's 2…12 m sine for a 21 µm stage (the table in m) clipped every sample, asked for a
-    rest voltage of 4.9e6 V and wrote a constant voltage, with exit 0."""
+    a blind test's 2…12 m sine against a table identified in m for a stage of some 20 µm clipped
+    at every sample and wrote a voltage that reached nothing, with exit 0."""
     lo = min(float(c.scale.y_min) for c in pf.cells)
     hi = max(float(c.scale.y_max) for c in pf.cells)
     span = hi - lo

@@ -789,7 +789,7 @@ def is_broadband(u: np.ndarray, min_bins: int = 64, level: float = 1e-3) -> bool
     Counts the bins of the Hann-windowed power spectrum of u − mean above ``level`` × its peak:
     a sine or raised cosine has ≈ 4 (the main lobe), a triangle ≈ 12 (three harmonics), a
     40-line multisine ≈ 120 and a PRBS thousands; ≥ ``min_bins`` counts as broadband. A step pattern
-    (power ∝ 1/f²) has ≈ 40: too few to identify a linear stage from. (Whether a capture is one drive
+    (power ∝ 1/f²) has far fewer: too few to identify a linear stage from. (Whether a capture is one drive
     frequency, a look-up table's question, is :func:`hystfit.conditions.tonal_share`'s.)
     """
     u = np.asarray(u, dtype=np.float64)

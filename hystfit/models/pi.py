@@ -104,7 +104,7 @@ class PI(Model, PlayOperators):
         # paper 003's r_j = j·max|u|/n for an input from or about 0 V, less the input's bias
         # (DataScale.input_bias_V) for a biased one: on a ±30 V sine about 100 V, thresholds up to
         # max|u| = 130 V leave every operator with r ≥ 30 V still after the first rise, 7 of 10
-        # (tests/unit/test_pi.py); up to 130 − 70 = 60 V they spread as on a drive from 0 V. The
+        # (tests/integration/test_recovery.py); up to 130 − 70 = 60 V they spread as on a drive from 0 V. The
         # same r_j as the paper's wherever the input reaches 0 V.
         umax = scale.u_abs_max - scale.input_bias_V
         r = j * umax / n if self.placement == "uniform" else (j / n) ** 2 * umax

@@ -48,7 +48,7 @@ def test_bad_smc_options_are_one_line_errors(params, tmp_path, args, word):
 
 def test_an_unstable_bandwidth_is_refused_and_unstable_gains_are_reported_as_such(params, tmp_path):
     """A blind test's finds: --bandwidth above what the nominal loop tolerates ran to exit 0 (error
-    128 % of the stroke); user gains without a crossover printed `≈ nan Hz` and `PM = inf°`."""
+    the run diverging); user gains without a crossover printed `≈ nan Hz` and `PM = inf°`."""
     r = run("track", params, "--sine", "2,10", "-c", "pid", "--bandwidth", "4000", "--out", tmp_path / "x",
             "--no-plots")
     assert r.exit_code == 2 and "makes the nominal loop unstable" in r.output and "at most" in r.output, r.output

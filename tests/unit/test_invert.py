@@ -394,8 +394,8 @@ def test_captures_and_targets_count_samples_one_way():
 
 
 def test_a_target_far_beyond_the_identified_outputs_is_refused_naming_the_unit():
-    """A blind test's find: a table in m (a 21 µm stage) and `--sine 10,20 --offset 2`: a 2…12 m target
-    clipped at every sample, a rest voltage of 4.9e6 V and exit 0."""
+    """A blind test's find: a table in m and `--sine 10,20 --offset 2`, a 2…12 m target for a stage of
+    some 20 µm, clipped at every sample with exit 0."""
     from hystfit.errors import ConfigError
     from hystfit.invert import invert_target, sine_target
 

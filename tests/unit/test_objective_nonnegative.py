@@ -3,7 +3,7 @@
 The PI objective's sum of squares is a quadratic form (``linear_sse_evaluator``); with a skipped
 warm-up (``--warmup``) it is the form over the whole capture less the form over the skipped prefix. At the true
 parameters of a noiseless capture both are rounding noise of ‖y‖² and their difference fell below
-0 (down to ≈ −4e-10 µm² here), which printed ``RuntimeWarning: invalid value encountered in sqrt``
+0 (the test asserts that some trials do), which printed ``RuntimeWarning: invalid value encountered in sqrt``
 and gave a NaN RMSE.
 """
 

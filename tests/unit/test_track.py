@@ -155,7 +155,7 @@ def test_auto_pid_backs_off_on_a_resonant_nominal_plant():
 
 def test_a_bandwidth_that_makes_the_nominal_loop_unstable_is_refused_with_the_highest_safe_one():
     """Found by a blind test: --bandwidth 1000 Hz on a 5 kHz loop gave GM 0.61, a run whose error
-    grew to 128 % of the stroke, and exit 0. Now: one line with the margins and what to give."""
+    diverged, and exit 0. Now: one line with the margins and what to give."""
     dt, K = 2e-4, 0.31
     with pytest.raises(ConfigError, match=r"--bandwidth 1000 Hz makes the nominal loop unstable \(GM = 0\.\d+.*"
                                           r"at most 250 Hz keeps GM ≥ 2 and PM ≥ 45°"):
