@@ -115,6 +115,21 @@ _BY_NAME = {m.name: m for m in METRICS}
 _UNIT_DISPLAY = {"um": "µm"}
 
 
+#: an error whose mean (bias) is at least this share of its RMSE is mostly a constant (the mean's
+#: square is then ≥ 25 % of the mean squared error): an output offset the model does not carry
+MOSTLY_CONSTANT_SHARE = 0.5
+
+
+def mostly_constant(metrics: dict, unit: str) -> tuple[float, float] | None:
+    """(bias, RMSE) of ``metrics`` (:func:`compute_metrics`' keys in ``unit``) when the error is mostly a
+    constant (:data:`MOSTLY_CONSTANT_SHARE`), else None: the one test behind identify's note on a
+    missing output offset and simulate's on ``--align-offset``."""
+    bias, rmse = metrics.get(metric_key("bias", unit)), metrics.get(metric_key("rmse", unit))
+    if bias is None or not rmse or not (math.isfinite(bias) and math.isfinite(rmse)):
+        return None
+    return (float(bias), float(rmse)) if abs(bias) >= MOSTLY_CONSTANT_SHARE * rmse else None
+
+
 def metric_key(name: str, unit: str) -> str:
     """Dictionary / column key of a metric.
 

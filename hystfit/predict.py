@@ -20,7 +20,6 @@ least-squares optimum of a constant); it is reported, never silent.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +27,7 @@ import numpy as np
 from .blocks.dynamics import check_below_nyquist
 from .capture import Capture
 from .invert import CellUse, clamp_note, extrapolated_cells, extrapolation_note, select_cells
-from .metrics import compute_metrics, metric_key
+from .metrics import compute_metrics, mostly_constant
 from .results import ParamsFile
 
 
@@ -84,17 +83,13 @@ def predict_capture(pf: ParamsFile, capture: Capture, method: str = "interpolate
         notes.append(f"offset {offset:+.4g} {pf.unit} fitted to this capture and added to the prediction "
                      "(--align-offset)")
     metrics = compute_metrics(capture.y, y, pf.unit) if capture.y is not None else None
-    if metrics is not None and not align_offset:
-        bias, rmse = metrics.get(metric_key("bias", pf.unit)), metrics.get(metric_key("rmse", pf.unit))
-        if bias is not None and rmse and math.isfinite(bias) and abs(bias) >= BIAS_NOTE_SHARE * rmse:
-            notes.append(f"the error is mostly a constant (bias {bias:+.4g} {pf.unit} of RMSE {rmse:.4g} {pf.unit}): "
+    constant = mostly_constant(metrics, pf.unit) if metrics is not None and not align_offset else None
+    if constant is not None:
+        bias, rmse = constant
+        notes.append(f"the error is mostly a constant (bias {bias:+.4g} {pf.unit} of RMSE {rmse:.4g} {pf.unit}): "
                          "a sensor zero that moved since the identification? --align-offset fits it per capture")
     return Prediction(capture, y, tuple((c.label, c.weight) for c in cells), metrics, offset, tuple(notes))
 
-
-#: a prediction whose bias is at least this share of its RMSE (its square ≥ 25 % of the mean squared
-#: error) gets a note naming --align-offset
-BIAS_NOTE_SHARE = 0.5
 
 
 def _has_condition(capture: Capture) -> bool:

@@ -9,6 +9,7 @@ import numpy as np
 from .. import __version__
 from ..identify import IdentifyResult, unit_param
 from ..io import atomic_write_text, write_table
+from ..metrics import mostly_constant
 from ..results import dumps, identify_to_dict
 from . import plots
 from ..params import AT_BOUND_RTOL
@@ -207,32 +208,21 @@ def bound_notes(res: IdentifyResult) -> list[str]:
     return out
 
 
-#: a fit without an output offset whose residual's mean is at least this share of its RMSE is
-#: told that one would help (the mean's square is then ≥ 25 % of the mean squared error)
-OFFSET_NOTE_SHARE = 0.5
-
-
 def offset_notes(res: IdentifyResult) -> list[str]:
     """One line per parameter set of a model fitted without its output offset (``offset=false``,
-    lugre's default: paper 002's parameters) whose residual is mostly a constant: the captures'
-    output does not rest where the model's does (a sensor's zero, a stage's rest position), which
-    only an offset takes back. Without the note such a fit ends with R² far below 0 and nothing
-    but a bound note (for the console)."""
+    lugre's default: paper 002's parameters) whose error is mostly a constant
+    (:func:`hystfit.metrics.mostly_constant`): the captures' output does not rest where the model's
+    does (a sensor's zero, a stage's rest position), which only an offset takes back. Without the
+    note such a fit ends with R² far below 0 and nothing but a bound note (for the console)."""
     out = []
     for f in res.fits:
         base = getattr(f.model, "base", f.model)  # a composite's base model carries the option
-        if getattr(base, "offset", None) is not False:
-            continue
-        e = np.concatenate([np.asarray(p, float)[c.warmup_samples:] - np.asarray(c.y, float)[c.warmup_samples:]
-                            for p, c in zip(f.predictions, f.captures)])
-        e = e[np.isfinite(e)]
-        if e.size == 0:
-            continue
-        mean, rmse = float(np.mean(e)), float(np.sqrt(np.mean(e * e)))
-        if rmse > 0 and abs(mean) >= OFFSET_NOTE_SHARE * rmse:
+        constant = mostly_constant(f.metrics, f.unit) if getattr(base, "offset", None) is False else None
+        if constant is not None:
             u = plots.display_unit(f.unit)
             out.append(f"{f.label}: {base.name} is fitted without an output offset (offset=false), and its residual "
-                       f"is mostly a constant ({fmt(mean)} {u} of RMSE {fmt(rmse)} {u}): add --model-option offset=true")
+                       f"is mostly a constant ({fmt(constant[0])} {u} of RMSE {fmt(constant[1])} {u}): add "
+                       "--model-option offset=true")
     return out
 
 

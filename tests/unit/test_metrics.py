@@ -185,3 +185,13 @@ def test_j_model_divides_by_the_model_output_as_004_prints_it():
     assert m["j"] == pytest.approx(1.5 / 21, rel=1e-12)
     legend = dict(describe_metrics("um"))
     assert "y_model" in legend["j_model"] and "mape_floor" in legend["mape"]
+
+
+def test_mostly_constant_is_one_test_for_identify_and_simulate():
+    """Bias at least half the RMSE: identify's missing-offset note and simulate's --align-offset note."""
+    from hystfit.metrics import mostly_constant
+
+    assert mostly_constant({"bias_um": -30.8, "rmse_um": 31.7}, "um") == (-30.8, 31.7)
+    assert mostly_constant({"bias_um": 0.01, "rmse_um": 0.04}, "um") is None
+    assert mostly_constant({"bias_nm": 30.0, "rmse_nm": 31.0}, "um") is None  # another unit's keys
+    assert mostly_constant({"bias_um": float("nan"), "rmse_um": 1.0}, "um") is None
