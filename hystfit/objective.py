@@ -194,7 +194,8 @@ class Objective(ObjectiveFunction):
         return out
 
     @staticmethod
-    def _fd_population(theta: np.ndarray, rel_step: float, upper: np.ndarray | None):
+    def _fd_population(theta: np.ndarray, rel_step: float, upper: np.ndarray | None,
+                       lower: np.ndarray | None = None):
         """θ (d,) → (steps h (d,), population (d+1, d): θ and θ + h_j e_j).
 
         Step h_j = rel_step·max(|θ_j|, 1e-3·max|θ|); with ``upper`` given, a step that would leave
@@ -202,17 +203,22 @@ class Objective(ObjectiveFunction):
         """
         theta = np.asarray(theta, dtype=np.float64).ravel()
         d = theta.size
-        h = rel_step * np.maximum(np.abs(theta), 1e-3 * (np.max(np.abs(theta)) + 1e-12))
+        if lower is not None and upper is not None:  # each parameter's floor from its own box
+            floor = 1e-3 * (np.asarray(upper, dtype=np.float64) - np.asarray(lower, dtype=np.float64))
+        else:
+            floor = 1e-3 * (np.max(np.abs(theta)) + 1e-12)
+        h = rel_step * np.maximum(np.abs(theta), floor)
         if upper is not None:
             h = np.where(theta + h > np.asarray(upper, dtype=np.float64), -h, h)
         pop = np.repeat(theta[None, :], d + 1, axis=0)
         pop[1:] += np.diag(h)
         return h, pop
 
-    def jacobian(self, theta: np.ndarray, rel_step: float = 1e-6, upper: np.ndarray | None = None) -> np.ndarray:
+    def jacobian(self, theta: np.ndarray, rel_step: float = 1e-6, upper: np.ndarray | None = None,
+                 lower: np.ndarray | None = None) -> np.ndarray:
         """Forward-difference Jacobian of the residuals (M, d), all d+1 candidates in one population
         call per capture (steps as :meth:`_fd_population`)."""
-        h, pop = self._fd_population(theta, rel_step, upper)
+        h, pop = self._fd_population(theta, rel_step, upper, lower)
         out = np.empty((h.size, self.n_total))  # Jᵀ, filled capture by capture (no stacked copy of the simulations)
         col = 0
         with np.errstate(all="ignore"):
@@ -226,7 +232,8 @@ class Objective(ObjectiveFunction):
         return out.T
 
     def normal_equations(self, theta: np.ndarray, rel_step: float = 1e-6,
-                         upper: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float, int]:
+                         upper: np.ndarray | None = None,
+                         lower: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float, int]:
         """(JᵀJ (d, d), Jᵀr (d,), rᵀr, M) at θ without forming the (M, d) Jacobian or the (M,)
         residual vector: one pass, one capture at a time (its d + 1 candidates θ, θ + h_j e_j in one
         population call, steps as :meth:`_fd_population`), differences and products over time
@@ -238,7 +245,7 @@ class Objective(ObjectiveFunction):
         on a 10⁶-sample capture. Counts d + 1 evaluations. Non-finite simulations propagate
         (callers check).
         """
-        h, pop = self._fd_population(theta, rel_step, upper)
+        h, pop = self._fd_population(theta, rel_step, upper, lower)
         d = h.size
         JtJ = np.zeros((d, d))
         Jtr = np.zeros(d)

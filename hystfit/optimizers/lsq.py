@@ -135,7 +135,7 @@ class LSQ(Optimizer):
         population_jacobian = objective.jacobian
         if population_jacobian is not None and objective.residuals is not None:
             def jac(th):  # noqa: E306
-                J = np.asarray(population_jacobian(th, upper=upper), float)
+                J = np.asarray(population_jacobian(th, upper=upper, lower=lower), float)
                 tr.nfev += th.size + 1
                 finite = np.isfinite(J)
                 return J if finite.all() else np.where(finite, J, 0.0)  # a fresh array either way
@@ -172,7 +172,7 @@ class LSQ(Optimizer):
             return tr.result(self.name)
 
         def system(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            JtJ, Jtr, _, _ = normal_equations(th, upper=upper)
+            JtJ, Jtr, _, _ = normal_equations(th, upper=upper, lower=lower)
             tr.nfev += d + 1
             JtJ, Jtr = np.array(JtJ, dtype=np.float64), np.array(Jtr, dtype=np.float64)
             bad = ~(np.all(np.isfinite(JtJ), axis=1) & np.isfinite(Jtr) & np.isfinite(np.diag(JtJ)))
