@@ -1,6 +1,6 @@
 """Where the time of ``hystfit diagnose`` goes, phase by phase, and what the parallel parts cost.
 
-Run:  python benchmarks/diagnose_phases.py [DATA] [--model pi] [--mode timeline|ahead|forks|figures] [--repeat 4]
+Run:  python benchmarks/diagnose_phases.py [DATA] [--model pi] [--mode timeline|ahead|forks|figures|parallel] [--repeat 4]
 
 - ``timeline`` (default): the command (``diagnose DATA --model M --out TMP --quiet``) run in this
   process once, with every phase's start and end in seconds since the start: loading, the base fits, the
@@ -16,6 +16,11 @@ Run:  python benchmarks/diagnose_phases.py [DATA] [--model pi] [--mode timeline|
   ``--repeat`` times each: the seconds of the resolution checks and of the whole diagnosis.
 - ``forks``: one ``fork_map`` round trip with a trivial item in this process after a diagnosis (its
   data, numba and scipy loaded): the fork, the child's start and reply, its exit and reaping.
+- ``parallel``: the diagnosis in this process (no figures, warm: its kernels loaded, its imports
+  done), alternately on one process and on every core, ``--repeat`` times each: wall seconds and
+  CPU seconds (this process and its forked children). Serial CPU against parallel wall is how much
+  the forks gain; parallel CPU against serial CPU is what they cost (copy-on-write faults, child
+  start-up and the parent's waits are not in the serial run).
 - ``figures``: the CPU seconds of each figure of the diagnosis, drawn twice in this process (the
   first as a freshly forked worker would, the second with its caches filled), and, in a fresh
   process, the figure server's matplotlib import and warm-up.
@@ -28,6 +33,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -220,11 +226,46 @@ def figures(data: str, model_name: str) -> None:
             print(f"| {job.function.rpartition(':')[2]} | {cpu[0]:.3f} | {cpu[1]:.3f} |")
 
 
+def parallel(data: str, model_name: str, repeat: int) -> None:
+    import resource
+
+    import hystfit.diagnose as D
+    import hystfit.parallel as P
+    from hystfit.factory import make_model, make_optimizer
+    from hystfit.io import LoadOptions, load_captures
+    from hystfit.registry import optimizers
+
+    def cpu() -> float:
+        a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+        return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+    caps = load_captures([Path(data)], LoadOptions())
+    model, opt = make_model(model_name, {}), make_optimizer(optimizers.get("auto"), {})
+    D.diagnose(caps, model, opt, seed=0)  # warm-up
+    single = P._SINGLE_THREADED
+    rows = {True: [], False: []}
+    try:
+        for _ in range(repeat):
+            for serial in (True, False):
+                P._SINGLE_THREADED = serial or single
+                c, t = cpu(), time.perf_counter()
+                D.diagnose(caps, model, opt, seed=0)
+                rows[serial].append((time.perf_counter() - t, cpu() - c))
+    finally:
+        P._SINGLE_THREADED = single
+    print(f"diagnose {data} --model {model_name} in this process, no figures, warm, {repeat} alternate runs each\n")
+    print("| processes | wall, median (s) | CPU, median (s) | every run: wall / CPU (s) |\n|---|---:|---:|---|")
+    for serial in (True, False):
+        r = rows[serial]
+        print(f"| {'one' if serial else 'every core'} | {statistics.median(w for w, _ in r):.2f} | "
+              f"{statistics.median(c for _, c in r):.2f} | {', '.join(f'{w:.2f} / {c:.2f}' for w, c in r)} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data", nargs="?", default=str(ROOT / "sample_data"))
     ap.add_argument("--model", default="pi")
-    ap.add_argument("--mode", choices=["timeline", "ahead", "forks", "figures"], default="timeline")
+    ap.add_argument("--mode", choices=["timeline", "ahead", "forks", "figures", "parallel"], default="timeline")
     ap.add_argument("--repeat", type=int, default=4)
     args = ap.parse_args()
     if args.mode == "timeline":
@@ -233,6 +274,8 @@ def main() -> None:
         ahead(args.data, args.model, args.repeat)
     elif args.mode == "forks":
         forks(args.data, args.model, args.repeat)
+    elif args.mode == "parallel":
+        parallel(args.data, args.model, args.repeat)
     else:
         figures(args.data, args.model)
 

@@ -882,14 +882,16 @@ def _headerless_error(table: _Table, role: str, roles: Sequence[str] = ("time", 
 
 def _select_roles(table: _Table, roles: Sequence[str], specs: Mapping[str, str | int | None],
                   optional: Sequence[str] = (), fallback: Mapping[str, str] | None = None,
-                  notes: list[str] | None = None) -> dict[str, int | None]:
+                  notes: list[str] | None = None, unit_optional: Sequence[str] = ()) -> dict[str, int | None]:
     """Column index per role: explicit specs first (a name or 0-based index), then by name (alias
     and unit) in the order of ``roles``; each column serves one role. ``optional`` roles may be
     absent (None); ``fallback`` lets a role accept another role's names when none of its own is
     found. A role none of whose names is found takes the one column whose name gives its unit in
-    brackets (:func:`_unit_column`; said in ``notes``), once every role has had its names (not an
-    ``optional`` role: a file that loaded without it loads as before). Every
-    failure is one line naming the file, the column and the fix."""
+    brackets (:func:`_unit_column`; said in ``notes``), once every role has had its names — an
+    ``optional`` role only when it is in ``unit_optional`` (the measured output of a capture that
+    may have none: ``simulate`` finds ``Weg [µm]`` as ``identify`` does; the time column of a
+    file read with ``--fs`` is not looked for). Every failure is one line naming the file, the
+    column and the fix."""
     chosen: dict[str, int | None] = {}
     for role in roles:
         if specs.get(role) is not None:
@@ -902,7 +904,7 @@ def _select_roles(table: _Table, roles: Sequence[str], specs: Mapping[str, str |
         seen[i] = role
     for by_unit in (False, True):
         for role in roles:
-            if role in chosen or (by_unit and role in optional):
+            if role in chosen or (by_unit and role in optional and role not in unit_optional):
                 continue  # an optional role (--fs given: no time column needed) is found by its names only
             if by_unit:
                 found = _unit_column(table, role, set(seen))
@@ -938,7 +940,7 @@ def _select_columns(table: _Table, opts: LoadOptions, notes: list[str] | None = 
     optional = [r for r, absent in (("time", opts.fs is not None), ("output", not opts.require_output)) if absent]
     chosen = _select_roles(table, ("input", "output", "time"),
                            {"time": opts.time_col, "input": opts.input_col, "output": opts.output_col}, optional,
-                           notes=notes)
+                           notes=notes, unit_optional=("output",))
     taken = {i for i in chosen.values() if i is not None}
     for role in ("amplitude", "frequency"):
         found = _auto_column(table, role, taken)
@@ -1348,6 +1350,10 @@ def load_capture(path: str | os.PathLike, options: LoadOptions = LoadOptions()) 
     u = data["input"] * _scale(table, chosen["input"], "input")
     y = data.get("output")
     y_unit = _output_unit(table, chosen["output"], opts, notes) if y is not None else (opts.output_unit or "um")
+    if y is None and table.names is not None and len(table.names) > sum(i is not None for i in chosen.values()):
+        # a capture that may have no measured output (simulate) but has columns left: perhaps it is one of them
+        notes.append(f"no measured output column found ({table.listing()}): predictions only, no metrics; pass "
+                     "--output-col NAME to compare with a measured output")
     dt = _time_axis(table, chosen, t, rows, opts, notes)
     u, y, rows, windowed = _window(table, opts, notes, u, y, rows, dt)
     return _finish(table, chosen, opts, notes, u, y, dt, y_unit, rows, windowed)

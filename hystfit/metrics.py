@@ -130,6 +130,29 @@ def mostly_constant(metrics: dict, unit: str) -> tuple[float, float] | None:
     return (float(bias), float(rmse)) if abs(bias) >= MOSTLY_CONSTANT_SHARE * rmse else None
 
 
+#: a measured output whose correlation with the prediction is below −this runs opposite to it
+#: (an inverted sensor sign): :func:`runs_opposite`
+OPPOSITE_CORRELATION = 0.5
+
+
+def runs_opposite(y_meas, y_model) -> float | None:
+    """The correlation of the measured output with the prediction when it is below
+    −:data:`OPPOSITE_CORRELATION` (the measurement moves against the model: an output of the other
+    sign, e.g. a sensor mounted the other way or a channel recorded inverted), else None. The test
+    behind simulate's note on an inverted output, which a constant offset (:func:`mostly_constant`)
+    cannot explain."""
+    ym, yp = _as_pair(y_meas, y_model)
+    ok = np.isfinite(ym) & np.isfinite(yp)
+    if not ok.any():
+        return None
+    a, b = ym[ok] - ym[ok].mean(), yp[ok] - yp[ok].mean()
+    den = math.sqrt(float(a @ a) * float(b @ b))
+    if den == 0.0:
+        return None
+    r = float(a @ b) / den
+    return r if r < -OPPOSITE_CORRELATION else None
+
+
 def metric_key(name: str, unit: str) -> str:
     """Dictionary / column key of a metric.
 

@@ -27,7 +27,7 @@ import numpy as np
 from .blocks.dynamics import check_below_nyquist
 from .capture import Capture
 from .invert import CellUse, clamp_note, extrapolated_cells, extrapolation_note, select_cells
-from .metrics import compute_metrics, mostly_constant
+from .metrics import compute_metrics, mostly_constant, runs_opposite
 from .results import ParamsFile
 
 
@@ -83,8 +83,13 @@ def predict_capture(pf: ParamsFile, capture: Capture, method: str = "interpolate
         notes.append(f"offset {offset:+.4g} {pf.unit} fitted to this capture and added to the prediction "
                      "(--align-offset)")
     metrics = compute_metrics(capture.y, y, pf.unit) if capture.y is not None else None
+    opposite = runs_opposite(capture.y, y) if capture.y is not None else None
     constant = mostly_constant(metrics, pf.unit) if metrics is not None and not align_offset else None
-    if constant is not None:
+    if opposite is not None:  # no offset explains a measurement that moves against the prediction
+        notes.append(f"the measured output runs opposite to the prediction (correlation {opposite:.2f}): an output "
+                     "of the other sign (a sensor mounted the other way, a channel recorded inverted)? negate the "
+                     "output column, or identify on captures of this sign")
+    elif constant is not None:
         bias, rmse = constant
         notes.append(f"the error is mostly a constant (bias {bias:+.4g} {pf.unit} of RMSE {rmse:.4g} {pf.unit}): "
                          "a sensor zero that moved since the identification? --align-offset fits it per capture")

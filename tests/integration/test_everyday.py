@@ -249,6 +249,25 @@ def test_simulate_reports_bias_and_aligns_an_offset_on_request(grid_params, tmp_
     assert "--align-offset" in r.stderr
 
 
+def test_simulate_says_an_inverted_output_runs_opposite_not_that_a_zero_moved(grid_params, tmp_path):
+    """A blind test's find: a capture recorded with the output's sign inverted was blamed on a sensor
+    zero that moved (a hint of --align-offset, which cannot fix it)."""
+    import pandas as pd
+
+    df = pd.read_csv(SAMPLE / "a20V_f20Hz.csv")
+    ycol = [c for c in df.columns if c not in ("time_s", "voltage_V")][0]
+    df[ycol] = -df[ycol]
+    inverted = tmp_path / "inverted_20V_20Hz.csv"
+    df.to_csv(inverted, index=False)
+    r = run("simulate", grid_params, inverted, SAMPLE / "a20V_f20Hz.csv", "--out", tmp_path / "s", "--no-plots",
+            "--json")
+    assert r.exit_code == 0, r.output
+    notes = [c["notes"] for c in json.loads(r.stdout)["captures"]]
+    assert any("runs opposite to the prediction (correlation -1.00)" in n and "negate" in n for n in notes[0])
+    assert not any("mostly a constant" in n for n in notes[0])
+    assert not any("opposite" in n for n in notes[1])
+
+
 def test_console_tables_show_distinct_path_suffixes():
     from hystfit.report.tables import distinct_names
 

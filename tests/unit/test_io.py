@@ -962,6 +962,24 @@ def test_columns_named_in_another_language_are_found_by_their_unit(tmp_path):
     assert "column 'Spannung [V]', by the unit in its name" in said and "--input-col" in said
 
 
+def test_a_capture_whose_output_is_optional_finds_it_by_its_unit_as_identify_does(tmp_path):
+    """``simulate`` reads its captures with the output optional: a 'Weg [um]' column was then not
+    looked for by its unit, and the validation compared nothing (metrics null, exit 0) where
+    ``identify`` fitted the same file. An input-only file with a column left over says so."""
+    t, u, y = sine()
+    opts = LoadOptions(require_output=False)
+    path = write_csv(tmp_path / "de.csv", ("Zeit [ms]", "Spannung [V]", "Weg [um]"), [t * 1e3, u, y])
+    cap = load_capture(path, opts)
+    assert cap.y is not None and cap.y_unit == "um"
+    np.testing.assert_allclose(cap.y, y)
+    assert any("column 'Weg [um]', by the unit in its name" in n for n in cap.notes), cap.notes
+    cap = load_capture(write_csv(tmp_path / "ch.csv", ("time_s", "voltage_V", "Ch3"), [t, u, y]), opts)
+    assert cap.y is None
+    assert any("no measured output column found" in n and "'Ch3'" in n and "--output-col" in n for n in cap.notes)
+    cap = load_capture(write_csv(tmp_path / "in.csv", ("time_s", "voltage_V"), [t, u]), opts)
+    assert cap.y is None and not any("no measured output" in n for n in cap.notes)
+
+
 def test_a_name_wins_over_a_unit_and_two_columns_of_one_unit_are_an_error(tmp_path):
     t, u, y = sine()
     # the alias names the input; 'Monitor [V]' (another voltage) is left alone, no note about it
