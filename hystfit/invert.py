@@ -1043,7 +1043,8 @@ def check_invert_options(pf: ParamsFile, target: Target, method: str, condition,
                          max_slew) -> InvertLimits:
     """The options of :func:`invert_target` checked (one-line ConfigError) and completed with the
     default limits."""
-    pf.check_unit(target.unit, "the target", f"convert the target (or name its column e.g. target_{pf.unit})")
+    what = f"the target {target.description.removeprefix('file ')}" if target.kind == "file" else "the target"
+    pf.check_unit(target.unit, what, f"convert the target (or name its column e.g. target_{pf.unit})")
     _check_reach(pf, target)
     if method not in ("interpolate", "nearest"):
         raise ConfigError(f"method {method!r}: choose interpolate or nearest")

@@ -446,8 +446,8 @@ class _PlainProgress:
 
     def __call__(self, event: str, info: dict) -> None:
         now = self._time()
-        if event == "start":
-            self.total = info.get("total")
+        if event == "start":  # a new phase (invert's segments, then track's controllers): counted afresh
+            self.total, self.done = info.get("total"), 0
         elif event == "advance":
             self.done += 1
             final = self.total is not None and self.done >= self.total
@@ -493,10 +493,16 @@ def print_capture_notes(captures) -> None:
 
     for c, name in zip(captures, distinct_names([c.source for c in captures])):
         for note in c.notes:
-            if note.startswith("warning: "):
-                stderr.print(f"warning: {name}: {note[9:]}", markup=False, highlight=False, soft_wrap=True)
-            else:
-                stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
+            print_note(name, note)
+
+
+def print_note(name: str, note: str) -> None:
+    """One note about the capture ``name`` on stderr: ``warning: NAME: …`` for a note that is a
+    warning (starts with ``warning: ``), else ``note: NAME: …``."""
+    if note.startswith("warning: "):
+        stderr.print(f"warning: {name}: {note[9:]}", markup=False, highlight=False, soft_wrap=True)
+    else:
+        stderr.print(f"note: {name}: {note}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
 def print_table_warnings(captures, per_condition: bool, output: OutputArgs) -> None:

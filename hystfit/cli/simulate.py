@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from .app import command
-from .common import (CaptureArgs, DataArg, Method, OutputArgs, new_table, phase, print_json, start_figures, stderr,
+from .common import (CaptureArgs, DataArg, Method, OutputArgs, new_table, phase, print_json, print_note, start_figures,
                      stdout, writing)
 
 
@@ -54,7 +54,7 @@ def simulate(
             summary = write_simulate_outputs(pf, preds, stage, fmt=fmt, make_plots=output.plots)
     for s in summary:
         for note in s["notes"]:
-            stderr.print(f"note: {Path(s['capture']).name}: {note}", markup=False, highlight=False, soft_wrap=True)
+            print_note(Path(s["capture"]).name, note)
     if output.json_out:
         print_json({"out": str(out), "params": str(params), "captures": summary})
         return

@@ -396,6 +396,11 @@ def test_progress_on_a_pipe_is_plain_lines(pi_params, tmp_path, monkeypatch):
     r = run("invert", pi_params, "--sine", "10,10", "--out", tmp_path / "v.csv")
     assert r.exit_code == 0, r.output
     assert "invert: running" in r.stderr and "writing" in r.stderr
+    # track counts its controllers afresh after invert's segments (a blind test saw "track: 5/4 smc")
+    r = run("track", pi_params, "--sine", "10,10", "--controller", "ff,pid,ff+pid", "--out", tmp_path / "t",
+            "--no-plots")
+    assert r.exit_code == 0, r.output
+    assert "track: 3/3 ff+pid" in r.stderr and "4/3" not in r.stderr, r.stderr
 
 
 def test_diagnose_report_leaves_out_a_hold_branch_of_a_few_samples():

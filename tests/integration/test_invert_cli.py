@@ -318,7 +318,7 @@ def test_simulate_refuses_a_capture_in_another_unit_than_the_parameters(tables, 
     # the same check (one home, ParamsFile.check_unit) still refuses an nm target in invert
     pd.DataFrame({"time_s": d.time_s, "target_nm": d.displacement_um * 1e3}).to_csv(tmp_path / "t.csv", index=False)
     assert_error(run("invert", tables["pi"], tmp_path / "t.csv", "--out", tmp_path / "v.csv"),
-                 "the target is in nm", tmp_path / "v.csv")
+                 "t.csv (column 'target_nm') is in nm", tmp_path / "v.csv")  # the target's file named
 
 
 def test_invert_track_and_simulate_load_neither_pandas_nor_matplotlib_in_the_commands_process(tables, tmp_path):
