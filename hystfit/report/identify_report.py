@@ -12,6 +12,7 @@ from ..io import atomic_write_text, write_table
 from ..metrics import mostly_constant
 from ..results import dumps, identify_to_dict
 from . import plots
+from .tables import distinct_names
 from ..params import AT_BOUND_RTOL
 from .render import FigureJob, FigureStream
 from .tables import fmt, frame, markdown_table, metric_columns, metric_legend
@@ -170,6 +171,9 @@ def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> st
         lines += ["`samples`: the samples the metrics score (`n_samples` in params.json); `samples_total`: with "
                   "the warm-up samples (--warmup), simulated but not scored.", ""]
     lines += ["Formulas (e = model − measured):", "", metric_legend(u), ""]
+    offsets = offset_notes(res)
+    if offsets:
+        lines += ["## Output offsets", "", *[f"- {n}" for n in offsets], ""]
     for f in res.fits:
         lines += [f"## {f.label}", "",
                   f"Sources: {', '.join(c.source for c in f.captures)}", ""]
@@ -218,12 +222,34 @@ def offset_notes(res: IdentifyResult) -> list[str]:
     for f in res.fits:
         base = getattr(f.model, "base", f.model)  # a composite's base model carries the option
         constant = mostly_constant(f.metrics, f.unit) if getattr(base, "offset", None) is False else None
+        u = plots.display_unit(f.unit)
         if constant is not None:
-            u = plots.display_unit(f.unit)
             out.append(f"{f.label}: {base.name} is fitted without an output offset (offset=false), and its residual "
                        f"is mostly a constant ({fmt(constant[0])} {u} of RMSE {fmt(constant[1])} {u}): add "
                        "--model-option offset=true")
+        elif (split := _split_offsets(f)) is not None:
+            blocks = [b.name for b in getattr(f.model, "blocks", ())]
+            fix = ("" if "drift" in blocks else
+                   f" --model {f.model.name}+drift fits an offset (and a slow ramp) per capture, or fit them apart")
+            out.append(f"{f.label}: its captures rest at different output levels — the error of each is mostly a "
+                       f"constant, of both signs ({', '.join(f'{n} {b:+.4g} {u}' for n, b in split)}): a sensor "
+                       f"zero that moved between recordings?{fix}")
     return out
+
+
+def _split_offsets(f) -> list[tuple[str, float]] | None:
+    """(capture name, bias) of the captures of one parameter set whose error is each mostly a constant
+    (:func:`hystfit.metrics.mostly_constant`), when there are at least two and their biases have both
+    signs: captures pooled in one fit whose output rests at different levels (a sensor zero that
+    moved between recording days), which one shared offset cannot take back; else None."""
+    pcs = list(f.per_capture)
+    if len(pcs) < 2:
+        return None
+    names = distinct_names([str(pc.get("source", "")) for pc in pcs])
+    found = [(n, c[0]) for n, pc in zip(names, pcs) if (c := mostly_constant(pc, f.unit)) is not None]
+    if len(found) < 2 or not (min(b for _, b in found) < 0 < max(b for _, b in found)):
+        return None
+    return found
 
 
 def write_identify_outputs(res: IdentifyResult, out_dir: Path, *, make_plots: bool = True,

@@ -249,6 +249,28 @@ def test_simulate_reports_bias_and_aligns_an_offset_on_request(grid_params, tmp_
     assert "--align-offset" in r.stderr
 
 
+def test_identify_notes_captures_of_one_condition_resting_at_different_levels(tmp_path):
+    """A blind test's find: two recordings of one condition whose sensor zero moved by 2 µm were
+    pooled into one fit (RMSE ≈ 1 µm against ≈ 0.01 µm alone) without a word."""
+    import pandas as pd
+
+    df = pd.read_csv(SAMPLE / "a20V_f20Hz.csv")
+    ycol = [c for c in df.columns if c not in ("time_s", "voltage_V")][0]
+    (tmp_path / "pool").mkdir()
+    for name, shift in (("day1_20V_20Hz.csv", 1.0), ("day2_20V_20Hz.csv", -1.0)):
+        day = df.copy()
+        day[ycol] += shift
+        day.to_csv(tmp_path / "pool" / name, index=False)
+    r = run("identify", tmp_path / "pool", "--out", tmp_path / "o", "--no-plots")
+    assert r.exit_code == 0, r.output
+    err = " ".join(r.stderr.split())
+    assert "rest at different output levels" in err and "day1_20V_20Hz.csv -1 µm" in err and "--model pi+drift" in err
+    assert "## Output offsets" in (tmp_path / "o" / "report.md").read_text()
+    r = run("identify", SAMPLE / "a20V_f20Hz.csv", SAMPLE / "a20V_f10Hz.csv", "--global", "--out", tmp_path / "g",
+            "--no-plots")
+    assert r.exit_code == 0 and "different output levels" not in r.stderr
+
+
 def test_simulate_says_an_inverted_output_runs_opposite_not_that_a_zero_moved(grid_params, tmp_path):
     """A blind test's find: a capture recorded with the output's sign inverted was blamed on a sensor
     zero that moved (a hint of --align-offset, which cannot fix it)."""
