@@ -207,6 +207,30 @@ def is_step_and_hold(u: np.ndarray) -> bool:
     return all(float(np.ptp(seg)) <= held for seg in np.split(u, jumps) if seg.size)
 
 
+def amplitude_thirds(u: np.ndarray) -> tuple[float, float] | None:
+    """The input's peak-to-peak (V) in the first and in the last third of a capture, or None where
+    that says nothing about its amplitude: fewer than 30 samples, or a step-and-hold input
+    (:func:`is_step_and_hold`), whose levels differ between its thirds by design."""
+    u = np.asarray(u, dtype=np.float64)
+    n = u.size
+    if n < 30 or is_step_and_hold(u):
+        return None
+    return float(np.ptp(u[: n // 3])), float(np.ptp(u[n - n // 3:]))
+
+
+def amplitude_changes(u: np.ndarray) -> bool:
+    """Whether the drive's amplitude changes along the capture (a rising-amplitude sine, a decaying
+    one, a sweep whose amplitude follows its frequency): the peak-to-peak of its first and last
+    third (:func:`amplitude_thirds`) differ by more than :data:`STATIONARY_RATIO`. The one test behind
+    the loader's warning (:func:`nonstationary_notes`) and diagnose's split (a capture whose fitted
+    part would not reach the amplitudes of its held-out part)."""
+    pp = amplitude_thirds(u)
+    if pp is None:
+        return False
+    lo, hi = min(pp), max(pp)
+    return (lo > 0 and hi / lo > STATIONARY_RATIO) or lo == 0 < hi
+
+
 def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str]:
     """Warnings for a capture whose amplitude or frequency changes along it (rising sines, sweeps).
 
@@ -224,13 +248,13 @@ def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str
     """
     u = np.asarray(u, dtype=np.float64)
     n = u.size
-    if n < 30 or is_step_and_hold(u):
+    pp = amplitude_thirds(u)
+    if pp is None:
         return []
     thirds = (u[: n // 3], u[n - n // 3:])
     out = []
-    pp = [float(x.max() - x.min()) for x in thirds]
     label = condition_label(key)
-    if min(pp) > 0 and max(pp) / min(pp) > STATIONARY_RATIO or min(pp) == 0 < max(pp):
+    if amplitude_changes(u):
         out.append(f"the amplitude changes along the capture (peak-to-peak {pp[0]:.3g} V in the first third, "
                    f"{pp[1]:.3g} V in the last): it is not one operating condition, and its label {label} (the full "
                    "range) holds only where the drive is largest; cut a stationary part with --start/--stop or name "

@@ -39,7 +39,8 @@ import numpy as np
 
 from .capture import Capture
 from .cells import cell_key
-from .conditions import condition_label, detect_condition, group_by_condition, is_step_and_hold, white_noise_sigma
+from .conditions import (amplitude_changes, condition_label, detect_condition, group_by_condition, is_step_and_hold,
+                         white_noise_sigma)
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, _unit_phasors,
                       make_effect, COARSE_KEEP_MIN, COARSE_KEEP_SHARE, coarse_design, prepare_design, ranked_on_rows,
                       scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
@@ -583,29 +584,13 @@ def interior_masks(captures: Sequence[Capture], periodic: Sequence[bool], fracti
     return masks
 
 
-def is_swept(u: np.ndarray, dt: float, frequency_Hz: float, ratio: float = 1.3) -> bool:
-    """Whether the drive's amplitude changes within the capture: the median peak-to-peak of the
-    last third of its cycles and of the first third differ by more than ``ratio`` (a
-    rising-amplitude sine, a decaying one, a sweep whose amplitude follows the frequency)."""
-    if not (np.isfinite(frequency_Hz) and frequency_Hz > 0):
-        return False
-    P = 1.0 / (frequency_Hz * dt)
-    n_cyc = int(u.shape[0] // P) if P >= 4 else 0
-    if n_cyc < 6:
-        return False
-    ptp = np.array([np.ptp(u[int(k * P):int((k + 1) * P)]) for k in range(n_cyc)])
-    third = n_cyc // 3
-    a, b = float(np.median(ptp[:third])), float(np.median(ptp[-third:]))
-    return max(a, b) > ratio * max(min(a, b), 1e-12)
-
-
 def heldout_captures(captures: Sequence[Capture], tonal: Sequence[bool] | None = None) -> list[bool]:
     """The captures a ``"capture"`` split holds out: among the ``tonal`` ones (default: all), those
     whose drive frequency lies strictly between the lowest and the highest tonal one (relative
     margin 1 %); all False when there is none.
 
     ``tonal`` marks the captures driven at one frequency (periodic, or a sine whose amplitude
-    changes: :func:`is_periodic`, :func:`is_swept`). A broadband capture's "frequency" (a PRBS, a
+    changes: :func:`is_periodic`, :func:`hystfit.conditions.amplitude_changes`). A broadband capture's "frequency" (a PRBS, a
     step pattern, a multisine: its strongest spectral line, :func:`hystfit.conditions.detect_condition`)
     says nothing about where it lies between the sines: counted, a step pattern at 0.32 Hz and a
     PRBS at ≈ 470 Hz made every sine interior, and every sine was held out (the model was fitted on the
@@ -2090,7 +2075,7 @@ def _fine_base_fits(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: i
 def _design(caps: Sequence[Capture], settings: "DiagnoseSettings", per_condition: bool) -> _Design:
     """Periodicity, sweeps, the split and the fit masks of the captures, and the parameter groups."""
     periodic = [is_periodic(c.u, c.dt, c.frequency_Hz) for c in caps]
-    swept = [is_swept(c.u, c.dt, c.frequency_Hz) for c in caps]
+    swept = [amplitude_changes(c.u) for c in caps]
     # driven at one frequency: periodic, or a sine whose amplitude changes — never a step pattern,
     # whose "cycles" at its strongest spectral line can look swept on a long capture
     tonal = [(p or s) and not is_step_and_hold(c.u) for c, p, s in zip(caps, periodic, swept)]
