@@ -390,3 +390,33 @@ def test_design_controllers_designs_only_what_the_controllers_need():
     assert isinstance(d, ControllerDesign) and d.pid is None and d.smc is None
     d = design_controllers(nominal, ["ff+pid", "smc"], 60.0, kp=0.5)
     assert d.pid.kp == 0.5 and d.pid.ki == 0.0 and d.smc is not None
+
+
+def _stage_table(fn_Hz: float = 800.0, zeta: float = 0.05) -> ParamsFile:
+    """pi+dynamics at its default weights, with a lightly damped stage."""
+    from hystfit.factory import make_model
+
+    sc = DataScale(0.0, 60.0, 0.25, 0.25 + 0.31 * 60, 1e-4, 4000.0)
+    m = make_model("pi+dynamics", {}).adapt(sc)
+    names = [p.name for p in m.params(sc)]
+    theta = np.array([p.default for p in m.params(sc)], float)
+    theta[names.index("dynamics.fn_Hz")], theta[names.index("dynamics.zeta")] = fn_Hz, zeta
+    return ParamsFile("stage.json", "pi+dynamics", "um", "per-condition", (Cell("60V_10Hz", 60.0, 10.0, m, theta, sc),), {})
+
+
+def test_a_step_through_a_resonant_stage_is_said_to_be_too_fast_for_it():
+    """A blind test's find: a 10 µm step through pi+…+dynamics asked for a voltage impulse, clipped
+    by the limits; the feedforward overshot 25 % and ff+pid 116 %, with only a count of limited
+    samples said. The inversion now says why and what to do."""
+    pf = _stage_table()
+    inv = invert_target(pf, steps_target((10.0,), hold_s=0.02, fs=1e4, offset=2.0))
+    assert inv.clip_spans
+    said = [n for n in inv.notes if "faster than the model's stage (f_n = 800 Hz)" in n]
+    assert said and "rise time" in said[0] and "pid alone" in said[0], inv.notes
+    # a slow sine through the same stage, partly below what 0 V reaches: clipped for as long as it is
+    # there (milliseconds, the limits' own report), not a stage's spike: nothing said about the stage
+    inv = invert_target(pf, sine_target(10.0, 10.0, cycles=2, offset=2.0))
+    assert inv.clip_spans and not any("faster than" in n for n in inv.notes)
+    # clipping without a stage (a static PI asked for more than its limits) is another matter
+    inv = invert_target(pi_table(), steps_target((10.0,), hold_s=0.02, fs=1e4, offset=2.0), vmax=30.0)
+    assert inv.clip_spans and not any("faster than" in n for n in inv.notes)
