@@ -97,10 +97,11 @@ def main() -> None:
         print(f"RMSE {rmse(ROOT, d / 'off50.csv', d, '--model', 'lugre')}; note: {note[0] if note else 'none'}")
 
         print("\n## 3. Large output offsets: identify RMSE\n")
-        print("| capture | model | RMSE |\n|---|---|---:|")
+        print(f"| capture | model | {cols} |\n|---|---|" + "---:|" * len(trees))
         for data, m, seeds in (("nm_0.csv", "gpi", (0, 1, 2, 3)), ("nm_5e6.csv", "gpi", (0, 1, 2, 3)),
                                ("rc.csv", "pi", (0,)), ("um_1e8.csv", "pi", (0,))):
-            vals = ", ".join(rmse(ROOT, d / data, d, "--model", m, "--seed", s) for s in seeds)
+            vals = " | ".join(", ".join(rmse(tree, d / data, d, "--model", m, "--seed", s) for s in seeds)
+                              for _, tree in trees)
             print(f"| {data} | {m} (seeds {', '.join(map(str, seeds))}) | {vals} |")
 
         print("\n## 4. diagnose on a 500 Hz drive at 5 kHz (10 samples per cycle)\n")
