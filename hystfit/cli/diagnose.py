@@ -136,13 +136,19 @@ def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
     if quiet:
         return
     u = d.unit  # the columns' names, as identify's (rmse_um); the title in words (µm)
-    table = new_table(title=f"{d.base_model}: held-out gap per added effect (noise floor {d.noise['sigma']:.3g} "
-                            f"{display_unit(u)}) — verdict: {d.verdict}")
-    for col in ("effect", f"before_{u}", f"after_{u}", "reduction", f"placebo_{u}", "passes"):
-        table.add_column(col, justify="right")
-    for r in d.effects:
-        table.add_row(r.effect, f"{r.heldout_rmse_before:.4g}", f"{r.heldout_rmse_after:.4g}", f"{r.reduction:.2f}",
-                      f"{r.placebo_improvement:.3g}", "yes" if r.eligible else "no")
+    named = ", ".join(d.explained_by) or "none"
+    table = new_table(title=f"{d.base_model}: held-out gap per added effect, step by step (noise floor "
+                            f"{d.noise['sigma']:.3g} {display_unit(u)}) — explained by: {named}")
+    for col in ("step", "effect", f"before_{u}", f"after_{u}", "reduction", f"placebo_{u}", "passes"):
+        table.add_column(col, justify="right", no_wrap=True)
+    # every step of the selection: step k tests each remaining effect on top of the k − 1 named before
+    # it (a table of step 1 alone contradicted a second named effect: "passes no" beside its name)
+    for k, results in enumerate(d.steps or (d.effects,), start=1):
+        pick = d.explained_by[k - 1] if k <= len(d.explained_by) else None
+        for r in results:
+            table.add_row(str(k), r.effect, f"{r.heldout_rmse_before:.4g}", f"{r.heldout_rmse_after:.4g}",
+                          f"{r.reduction:.2f}", f"{r.placebo_improvement:.3g}",
+                          "named" if r.effect == pick else "yes" if r.eligible else "no", end_section=r is results[-1])
     stdout.print(table)
     for p in pointers_text(d.findings, d.unit):
         stdout.print(f"where: {p}")

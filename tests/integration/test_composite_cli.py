@@ -71,6 +71,12 @@ def test_diagnose_hands_over_a_params_file_that_invert_accepts(tmp_path):
     rec = diag["recommended_model"]
     assert rec.startswith("pi+") and set(rec.split("+")[1:]) == set(diag["explained_by"])
     assert "next:" in r.output and rec in r.output
+    # the console's table has every step, and each named effect is marked named in its own step (a blind
+    # test's find: a table of step 1 alone said "passes no" beside the second named effect)
+    rows = [[c.strip() for c in ln.split("│")[1:-1]] for ln in r.stdout.splitlines() if ln.startswith("│")]
+    named = [(int(row[0]), row[1]) for row in rows if row[-1] == "named"]
+    assert named == [(k + 1, e) for k, e in enumerate(diag["explained_by"])], rows
+    assert {int(row[0]) for row in rows} == set(range(1, len(diag["steps"]) + 1))
     params = json.loads((d / "params.json").read_text())
     assert params["model"]["name"] == rec
     assert (d / "diagnosis.md").read_text().rstrip().splitlines()[-1].startswith("next:")
