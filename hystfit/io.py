@@ -1099,8 +1099,9 @@ def _nonfinite(table: _Table, arrays: dict[str, tuple[int, np.ndarray]], drop: b
         arrays = repaired
         i0 = int(np.flatnonzero(inner)[0])
         share = float(inner.sum()) / inner.size
-        line = (f"interpolated {int(inner.sum())} isolated row(s) with NaN/inf/empty cells inside the data "
-                f"linearly between their neighbours (first: row {table.rows[i0]})")
+        runs = f"in {starts.size} run(s) of at most {int(np.max(stops - starts))}, " if starts.size < inner.sum() else ""
+        line = (f"interpolated {int(inner.sum())} row(s) with NaN/inf/empty cells inside the data ({runs}first: "
+                f"row {table.rows[i0]}) linearly between their neighbours")
         if share > MAX_INTERPOLATED_SHARE:  # made-up samples: smooth, noiseless, not measured
             line = (f"warning: {line}: {100 * share:.0f} % of the capture is interpolated, not measured; fits, "
                     "metrics and diagnose's noise floor treat those rows as data (the floor comes out too low); "
