@@ -1293,7 +1293,7 @@ def _linearize(state: _State, captures, views) -> tuple[list[np.ndarray], Linear
         sl = slice(g_off[gi], g_off[gi] + g.theta.size)
         lower[sl] = g.lower - g.theta
         upper[sl] = g.upper - g.theta
-        J = _group_objective(g, captures, lengths).jacobian(g.theta)
+        J = _group_objective(g, captures, lengths).jacobian(g.theta, upper=g.upper, lower=g.lower)
         start = 0
         for i in g.indices:
             jac_rows[i] = J[start:start + lengths[i]]

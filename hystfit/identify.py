@@ -299,7 +299,7 @@ def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: n
     Jacobian gives large errors — an honest sign that a parameter is poorly determined.
     """
     try:
-        JtJ, rr, m = objective.normal_matrix(theta)
+        JtJ, rr, m = objective.normal_matrix(theta, upper=upper, lower=lower)
     except Exception:  # pragma: no cover - defensive: a model that cannot be differentiated
         return np.full(theta.shape, np.nan)
     d = JtJ.shape[0]

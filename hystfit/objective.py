@@ -58,8 +58,10 @@ class ObjectiveFunction(ABC):
 
     - ``model`` / ``series``: the model simulated and the captures scored (``auto`` uses the model's
       separable structure and composition);
-    - ``residuals(θ (d,)) → (m,)`` with ``n_total`` = m, and ``jacobian(θ, upper=…)``: least squares;
-    - ``normal_equations(θ, upper=…)``: the fused JᵀJ, Jᵀr of long captures (the normal-equation LM).
+    - ``residuals(θ (d,)) → (m,)`` with ``n_total`` = m, and ``jacobian(θ, upper=…, lower=…)``: least
+      squares (the box sets each parameter's finite-difference step: :meth:`Objective._fd_population`);
+    - ``normal_equations(θ, upper=…, lower=…)``: the fused JᵀJ, Jᵀr of long captures (the
+      normal-equation LM).
 
     A plain callable is accepted wherever an objective is: :func:`as_objective` wraps it.
     """
@@ -198,8 +200,11 @@ class Objective(ObjectiveFunction):
                        lower: np.ndarray | None = None):
         """θ (d,) → (steps h (d,), population (d+1, d): θ and θ + h_j e_j).
 
-        Step h_j = rel_step·max(|θ_j|, 1e-3·max|θ|); with ``upper`` given, a step that would leave
-        the box is taken backwards instead (a model need not be defined outside its bounds).
+        Step h_j = rel_step·max(|θ_j|, floor_j): with the box given (``lower`` and ``upper``) the floor
+        is 1e-3 of each parameter's own width, else 1e-3·max|θ| — which lets the largest parameter
+        set every step (an output offset of 5e6 nm made a step of 5e-3 for a parameter of 0.05: the
+        Jacobian was wrong). With ``upper`` given, a step that would leave the box is taken
+        backwards instead (a model need not be defined outside its bounds).
         """
         theta = np.asarray(theta, dtype=np.float64).ravel()
         d = theta.size
@@ -265,11 +270,11 @@ class Objective(ObjectiveFunction):
         self.nfev += d + 1
         return JtJ, Jtr, rr, self.n_total
 
-    def normal_matrix(self, theta: np.ndarray, rel_step: float = 1e-6,
-                      upper: np.ndarray | None = None) -> tuple[np.ndarray, float, int]:
+    def normal_matrix(self, theta: np.ndarray, rel_step: float = 1e-6, upper: np.ndarray | None = None,
+                      lower: np.ndarray | None = None) -> tuple[np.ndarray, float, int]:
         """(JᵀJ (d, d), rᵀr, M) at θ without forming the (M, d) Jacobian: one capture at a time,
         differences taken in place, so the working memory is one capture's (d+1, N) simulation
         (what parameter standard errors need on a 10⁶-sample capture). The first, third and fourth
         entries of :meth:`normal_equations`."""
-        JtJ, _, rr, m = self.normal_equations(theta, rel_step, upper)
+        JtJ, _, rr, m = self.normal_equations(theta, rel_step, upper, lower)
         return JtJ, rr, m

@@ -237,7 +237,7 @@ class Auto(IteratedSearch):
             th_p = theta[:start]
             yhats = raw_obj.predict(th_p)
             views = _views(series, yhats, base_model)
-            J = raw_obj.jacobian(th_p, upper=upper[:start])
+            J = raw_obj.jacobian(th_p, upper=upper[:start], lower=lower[:start])
             nfev += start + 1
             # the step moves every parameter before the block but those of the blocks left at the identity
             free = np.setdiff1d(np.arange(start), np.r_[tuple(np.arange(a, z) for _, a, z in deferred)]
@@ -357,7 +357,7 @@ def _fit_in_place(objective, base_model, base, blocks, sizes, k: int, s0: int, s
     # made a compromise the block's coefficients alone would only follow)
     keep = np.r_[0:s0, s1:theta.size]
     chain = Composite(base, tuple(b for b in blocks if not b.nuisance))
-    jacs = _per_capture(Obj(chain, series).jacobian(theta, upper=upper)[:, keep], series)
+    jacs = _per_capture(Obj(chain, series).jacobian(theta, upper=upper, lower=lower)[:, keep], series)
     nfev = theta.size + 1
     lin = Linearization(jacs, tuple(np.arange(keep.size) for _ in series),
                         lower[keep] - theta[keep], upper[keep] - theta[keep])

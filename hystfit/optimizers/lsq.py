@@ -37,7 +37,7 @@ class LSQ(Optimizer):
     residual. Start point: ``x0`` if given, else the box centre. Also the *polish* after every
     global optimizer (:func:`polisher`: ``max_evals`` = 300, tolerances 1e-9). ``x_scale='jac'``
     makes the steps invariant to parameter units. When the objective offers
-    ``jacobian(theta, upper=...)`` (hystfit's do), the forward-difference Jacobian is one
+    ``jacobian(theta, upper=..., lower=...)`` (hystfit's do), the forward-difference Jacobian is one
     population call of d + 1 candidates instead of d single simulations; each counts as d + 1
     evaluations.
 
@@ -46,7 +46,7 @@ class LSQ(Optimizer):
     * *scipy* (small problems): ``least_squares`` needs the residual vector (M,) and the Jacobian
       (M, d) in memory and keeps ≈ 8 copies of the Jacobian.
     * *normal equations* (large problems: M·d > :data:`NORMAL_EQUATIONS_ABOVE` = 4·10⁶
-      elements, a 32 MB Jacobian, and the objective offers ``normal_equations(theta, upper=...)
+      elements, a 32 MB Jacobian, and the objective offers ``normal_equations(theta, upper=..., lower=...)
       → (JᵀJ, Jᵀr, rᵀr, M)`` and ``n_total`` = M, as hystfit's identification objectives do): a
       bounded Levenberg–Marquardt that never forms J nor r, only the d×d sums (computed capture by
       capture in time chunks), so a 10⁶-sample capture polishes in O(d·N) memory for one

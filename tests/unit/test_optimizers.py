@@ -258,10 +258,10 @@ def _recording_objective(model, series):
             self.seen.append(np.atleast_2d(theta).copy())
             return super().__call__(theta)
 
-        def normal_equations(self, theta, rel_step=1e-6, upper=None):
-            h, pop = self._fd_population(theta, rel_step, upper)
+        def normal_equations(self, theta, rel_step=1e-6, upper=None, lower=None):
+            h, pop = self._fd_population(theta, rel_step, upper, lower)
             self.seen.append(pop)
-            return super().normal_equations(theta, rel_step, upper)
+            return super().normal_equations(theta, rel_step, upper, lower)
 
     obj = Recording(model, series)
     obj.seen = []
@@ -541,7 +541,7 @@ def test_lsq_normal_equation_route_stops_when_nothing_is_left_to_gain(monkeypatc
             f = np.einsum("ij,ij->i", r, r) / m
             return np.round(f / QUANTUM) * QUANTUM  # a cost known to QUANTUM only, as rounding does
 
-        def normal_equations(self, theta, upper=None):
+        def normal_equations(self, theta, upper=None, lower=None):
             r = A @ theta - b
             return A.T @ A, A.T @ r, float(r @ r), m
 
