@@ -25,7 +25,7 @@ from .objective import Objective, Series
 from .optimizers.base import OptimizeResult, Optimizer
 from .optimizers.lsq import polisher
 from .parallel import CellFailed, CellStats, Executor, LocalExecutor, default_jobs, one_blas_thread, run_cells
-from .params import DataScale, Param, apply_bound_overrides, bound_side, with_output_unit
+from .params import OUTPUT_OFFSET_NAMES, DataScale, Param, apply_bound_overrides, bound_side, with_output_unit
 
 #: progress(event, info) — events: "start" (total units), "advance" (one run done), "note" (text).
 Progress = Optional[Callable[[str, dict], None]]
@@ -200,8 +200,40 @@ def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int
         pol = final.minimize(objective, problem.lower, problem.upper, rng=rng, x0=res.x)
         if pol.fun <= fun:
             x, fun = pol.x, pol.fun
+    x = centered_offset(objective, problem.params, np.asarray(x, float), float(fun))
     return RunRecord(run, s, res, pol, np.asarray(x, float), float(fun), float(np.sqrt(max(fun, 0.0))),
                      time.perf_counter() - t_run)
+
+
+def centered_offset(objective: Objective, params: Sequence[Param], theta: np.ndarray, fun: float) -> np.ndarray:
+    """``theta`` with the base's output offset (``y0`` and kin, :data:`OUTPUT_OFFSET_NAMES`) moved by
+    the captures' mean drift offset, when that leaves the fit's cost as it is.
+
+    A ``drift`` block's offset per capture is projected out of the objective (every candidate gets
+    each capture's least-squares offset): a constant the base adds then changes nothing, the base's
+    offset is free, and a search leaves it anywhere in its box — a blind test's fit ended with
+    y0 = −20.7 µm at its bound and +20.9 µm in the drift. The fit is the same, but the model a
+    feedforward inverts (without the drift, which it cannot know) was 20 µm off. Moved here, the base
+    carries the captures' common level (the sample-weighted mean of their drift offsets, within its
+    box) and the drift only their differences: one capture's drift offset becomes 0. Unchanged where
+    the offset is not free (a base offset that passes through creep's filter from rest), where the
+    model has no drift, or no offset parameter."""
+    model = objective.model
+    if model is None or model.nuisance_basis(4, 1.0) is None or not np.isfinite(fun):
+        return theta
+    k = next((i for i, p in enumerate(params) if p.name in OUTPUT_OFFSET_NAMES), None)
+    coefs = objective.nuisance_coefficients(theta)
+    if k is None or any(c is None or not c.size for c in coefs):
+        return theta
+    w = np.array([max(s.y.size - s.skip, 0) for s in objective.series], float)
+    shift = float(np.dot(w, [c[0] for c in coefs]) / w.sum()) if w.sum() > 0 else 0.0
+    moved = theta.copy()
+    moved[k] = min(max(theta[k] + shift, params[k].lower), params[k].upper)
+    if not np.isfinite(shift) or moved[k] == theta[k]:
+        return theta
+    with np.errstate(all="ignore"):
+        f = float(objective(moved[None, :])[0])
+    return moved if np.isfinite(f) and f <= fun * (1.0 + 1e-9) + 1e-300 else theta
 
 
 def _run_job(shared: tuple, job: tuple[int, int]) -> RunRecord:

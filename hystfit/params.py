@@ -48,6 +48,11 @@ class Param:
             object.__setattr__(self, "default", float(min(max(self.default, self.lower), self.upper)))
 
 
+#: names of a model's output offset parameter (the one :meth:`DataScale.offset_bounds` boxes): the
+#: level a per-capture drift offset is measured from (:func:`hystfit.identify.centered_offset`)
+OUTPUT_OFFSET_NAMES = ("y0", "d0", "A6")
+
+
 @dataclass(frozen=True)
 class DataScale:
     """Scales of the identification data, from which default bounds are derived.

@@ -84,6 +84,33 @@ def test_diagnose_hands_over_a_params_file_that_invert_accepts(tmp_path):
     assert r.exit_code == 0, r.output
 
 
+def test_a_drift_leaves_the_common_offset_to_the_base_model(tmp_path):
+    """A blind test's find: ``drift``'s per-capture offsets are projected out of the fit, so the base's
+    y0 was free and ended at its bound (−20.7 µm) with +20.9 µm in the drift: the same fit, but the
+    model a feedforward inverts (without the drift) was 20 µm off. The base now carries the captures'
+    common level and the drift only their differences."""
+    data = [SAMPLE / "a20V_f10Hz.csv", SAMPLE / "a40V_f10Hz.csv"]
+    params = {}
+    for model in ("pi", "pi+drift"):
+        r = _run("identify", *data, "--model", model, "--global", "--out", tmp_path / model, "--no-figures", "--quiet")
+        assert r.exit_code == 0, r.output
+        params[model] = json.loads((tmp_path / model / "params.json").read_text())["conditions"][0]
+    y0 = {m: next(p["value"] for p in c["parameters"] if p["name"] == "y0") for m, c in params.items()}
+    pcs = params["pi+drift"]["per_capture"]
+    offsets = np.array([pc["drift_offset_um"] for pc in pcs])
+    weights = np.array([pc["n_samples"] for pc in pcs], float)
+    assert abs(float(offsets @ weights) / weights.sum()) < 1e-9, offsets  # the common level is the base's
+    assert abs(y0["pi+drift"] - y0["pi"]) < 0.05, y0  # where the base alone puts it (µm; 20 µm off before)
+    # the feedforward of the table with the drift asks for about the plain table's voltages
+    volts = {}
+    for model in ("pi", "pi+drift"):
+        r = _run("invert", tmp_path / model / "params.json", "--sine", "10,10", "--offset", "2", "--out",
+                 tmp_path / f"v_{model}.csv", "--quiet")
+        assert r.exit_code == 0, r.output
+        volts[model] = pd.read_csv(tmp_path / f"v_{model}.csv")["voltage_V"].to_numpy()
+    assert np.max(np.abs(volts["pi+drift"] - volts["pi"])) < 1.0, np.max(np.abs(volts["pi+drift"] - volts["pi"]))
+
+
 def test_models_lists_the_blocks():
     r = _run("models", "--json")
     assert r.exit_code == 0
