@@ -75,7 +75,8 @@ def predict_capture(pf: ParamsFile, capture: Capture, method: str = "interpolate
     notes = []
     if clamped:
         notes.append(clamp_note(capture.condition, query))
-    notes += [extrapolation_note(x) for x in extrapolated_cells(pf, ((c.index, capture.u) for c in cells))]
+    extrapolated = [extrapolation_note(x) for x in extrapolated_cells(pf, ((c.index, capture.u) for c in cells))]
+    notes += extrapolated
     offset = None
     if align_offset and capture.y is not None:
         offset = float(np.mean(capture.y - y))
@@ -91,10 +92,31 @@ def predict_capture(pf: ParamsFile, capture: Capture, method: str = "interpolate
                      "output column, or identify on captures of this sign")
     elif constant is not None:
         bias, rmse = constant
-        notes.append(f"the error is mostly a constant (bias {bias:+.4g} {pf.unit} of RMSE {rmse:.4g} {pf.unit}): "
-                         "a sensor zero that moved since the identification? --align-offset fits it per capture")
+        notes.append(_constant_note(pf, bias, rmse, outside=bool(clamped or extrapolated)))
     return Prediction(capture, y, tuple((c.label, c.weight) for c in cells), metrics, offset, tuple(notes))
 
+
+
+def _constant_note(pf: ParamsFile, bias: float, rmse: float, *, outside: bool) -> str:
+    """The note on an error that is mostly a constant: a sensor zero that moved since the
+    identification is one cause (``--align-offset`` fits it); a table used outside its cells'
+    range (``outside``: clamped or extrapolated, said above) and a model with slow states that start
+    from rest at the capture's first sample (creep: a capture cut from a longer recording starts
+    with them unknown) shift the prediction as much, and aligning the offset would hide that model
+    error (two blind-test cases: an extrapolated cell, and pi+creep on the second half of a
+    recording)."""
+    u = pf.unit
+    head = f"the error is mostly a constant (bias {bias:+.4g} {u} of RMSE {rmse:.4g} {u})"
+    slow = any("creep" in [b.name for b in getattr(c.model, "blocks", ())] for c in pf.cells)
+    if outside:
+        return (f"{head}: the table is used outside its cells' range here (see above), which shifts a prediction "
+                "as much; check inside the identified range before blaming a sensor zero (--align-offset fits a "
+                "constant per capture)")
+    if slow:
+        return (f"{head}: the model's creep starts from rest at the capture's first sample (a capture cut from a "
+                "longer recording starts with it unknown), which shifts a prediction for its slowest time constant; "
+                "or a sensor zero moved since the identification (--align-offset fits it per capture)")
+    return f"{head}: a sensor zero that moved since the identification? --align-offset fits it per capture"
 
 
 def _has_condition(capture: Capture) -> bool:

@@ -237,8 +237,18 @@ def test_simulate_reports_bias_and_aligns_an_offset_on_request(grid_params, tmp_
     assert m["bias_um"] == pytest.approx(-3.0, abs=0.05) and m["rmse_um"] > 2.9
     notes = json.loads(r.stdout)["captures"][0]["notes"]  # a blind test's find: no hint of --align-offset
     assert any("the error is mostly a constant" in n and "--align-offset" in n for n in notes), notes
+    assert any("a sensor zero that moved" in n for n in notes)
     r0 = run("simulate", grid_params, SAMPLE / "a20V_f20Hz.csv", "--out", tmp_path / "c", "--no-plots", "--json")
     assert not any("mostly a constant" in n for n in json.loads(r0.stdout)["captures"][0]["notes"])
+    # a blind test's find: outside the table's range (clamped, extrapolated) the same note blamed the
+    # sensor; the extrapolation shifts the prediction as much, and --align-offset would hide it
+    df60 = pd.read_csv(SAMPLE / "a60V_f20Hz.csv")
+    df60[ycol] += 3.0
+    df60.to_csv(tmp_path / "shifted_60V_20Hz.csv", index=False)
+    r60 = run("simulate", grid_params, tmp_path / "shifted_60V_20Hz.csv", "--out", tmp_path / "d", "--no-plots",
+              "--json")
+    n60 = json.loads(r60.stdout)["captures"][0]["notes"]
+    assert any("mostly a constant" in n and "outside its cells' range" in n for n in n60), n60
     r = run("simulate", grid_params, shifted, "--out", tmp_path / "b", "--no-plots", "--json", "--align-offset",
             "--condition", "20,20")
     assert r.exit_code == 0, r.output
