@@ -11,6 +11,8 @@ cell that fails is recorded with its error and the comparison goes on.
 
 from __future__ import annotations
 
+import math
+
 import time
 import warnings
 from dataclasses import dataclass, field, replace
@@ -542,9 +544,10 @@ class NeighbourTest:
     condition): ``consistently_below`` / ``not_consistently_below`` (Wilcoxon signed-rank over
     conditions, ``p_value``) or ``lower_count`` (too few conditions for the test: only
     ``lower_at`` of ``n_conditions``); unpaired samples (values over runs): ``better`` /
-    ``not_distinguishable`` (two-sided Mann–Whitney U, ``p_value``), with two runs
-    ``within_spread`` / ``beyond_spread`` (``gap`` against ``two_sigma``, twice the larger
-    standard deviation), with one run ``unknown_spread``. ``gap`` and ``two_sigma`` are in the
+    ``not_distinguishable`` (two-sided Mann–Whitney U, ``p_value``) where enough runs let it reach
+    the level (:func:`mann_whitney_can_pass`), else, from two runs, ``within_spread`` /
+    ``beyond_spread`` (``gap`` against ``two_sigma``, twice the larger standard deviation), with one
+    run ``unknown_spread``. ``gap`` and ``two_sigma`` are in the
     ranking's unit; NaN/None where they do not apply.
     """
 
@@ -622,6 +625,14 @@ class CompareRanking:
         return {"alpha": self.alpha, "groups": [g.to_dict() for g in self.groups]}
 
 
+def mann_whitney_can_pass(n1: int, n2: int, alpha: float = RANK_ALPHA) -> bool:
+    """Whether a two-sided Mann–Whitney U test of ``n1`` against ``n2`` runs can give p < ``alpha`` at
+    all: its smallest p, for two groups that do not overlap, is 2 / C(n1 + n2, n1) — 0.1 for 3 runs
+    against 3, so with ``--runs 3`` every pair was "not distinguishable", even runs that all gave
+    the same RMSE 27 % apart (a blind test's compare). 4 against 4 can (0.029)."""
+    return 2.0 / math.comb(int(n1) + int(n2), int(n1)) < alpha
+
+
 def neighbour_test(a: np.ndarray, b: np.ndarray, paired: bool, other: str,
                    alpha: float = RANK_ALPHA) -> NeighbourTest:
     """Compare group ``a`` (the lower mean) with the next one ``b`` (see :class:`NeighbourTest`)."""
@@ -638,10 +649,10 @@ def neighbour_test(a: np.ndarray, b: np.ndarray, paired: bool, other: str,
             verdict = "consistently_below" if p < alpha else "not_consistently_below"
             return NeighbourTest(other, verdict, gap, "wilcoxon", p, lower, int(d.size))
         return NeighbourTest(other, "lower_count", gap, lower_at=lower, n_conditions=int(d.size))
-    if min(a.size, b.size) >= MANN_WHITNEY_MIN_RUNS:
+    if min(a.size, b.size) >= MANN_WHITNEY_MIN_RUNS and mann_whitney_can_pass(a.size, b.size, alpha):
         p = float(mannwhitneyu(a, b, alternative="two-sided").pvalue)
         return NeighbourTest(other, "better" if p < alpha else "not_distinguishable", gap, "mann_whitney", p)
-    if min(a.size, b.size) == 2:
+    if min(a.size, b.size) >= 2:  # too few runs for the test to reach alpha at all: the spread decides
         two_sigma = 2 * max(np.std(a, ddof=1), np.std(b, ddof=1))
         return NeighbourTest(other, "within_spread" if gap <= two_sigma else "beyond_spread", gap,
                              two_sigma=float(two_sigma))

@@ -65,11 +65,18 @@ def test_optimizers_ranked_over_runs_mann_whitney_spread_and_json():
     assert [r.name for r in g.rows] == ["o2", "o3", "o1"]
     assert g.rows[0].versus_next.verdict == "tied"
     t = g.rows[1].versus_next
-    assert (t.test, t.verdict) == ("mann_whitney", "not_distinguishable") and t.p_value == pytest.approx(0.1)
+    # 3 runs against 3: a Mann–Whitney U test cannot reach p < 0.05 (its least p is 0.1), so the
+    # spread decides: 1.0–1.2 against 5.0–5.2 is far beyond it (a blind test's find: "not distinguishable")
+    assert (t.test, t.verdict) == ("", "beyond_spread") and t.gap == pytest.approx(4.0)
     assert g.final_j_spread_pct == pytest.approx(0.0)
     d = json.loads(json.dumps(out.to_dict(), allow_nan=False))
-    assert d["alpha"] == 0.05 and d["groups"][0]["rows"][1]["versus_next"]["p_value"] == pytest.approx(0.1)
+    assert d["alpha"] == 0.05 and d["groups"][0]["rows"][1]["versus_next"]["verdict"] == "beyond_spread"
     assert d["groups"][0]["rows"][0]["versus_next"]["p_value"] is None
+    # four runs against four can pass (least p 0.029): the test decides
+    t = neighbour_test(np.array([1.0, 1.1, 1.2, 1.3]), np.array([5.0, 5.1, 5.2, 5.3]), False, "x")
+    assert (t.test, t.verdict) == ("mann_whitney", "better") and t.p_value == pytest.approx(2 / 70)
+    t = neighbour_test(np.array([1.0, 1.1, 1.2]), np.array([1.05, 1.15, 1.25]), False, "x")
+    assert t.verdict == "within_spread"
 
 
 def test_two_runs_compare_the_gap_with_twice_the_spread():
