@@ -420,3 +420,17 @@ def test_a_step_through_a_resonant_stage_is_said_to_be_too_fast_for_it():
     # clipping without a stage (a static PI asked for more than its limits) is another matter
     inv = invert_target(pi_table(), steps_target((10.0,), hold_s=0.02, fs=1e4, offset=2.0), vmax=30.0)
     assert inv.clip_spans and not any("faster than" in n for n in inv.notes)
+
+
+def test_a_target_outside_the_identified_outputs_is_said_to_be_so():
+    """A blind test's find: a 0…10 µm target against a table identified on −21…−1.2 µm gave only a
+    clipping warning and a 51 % error. The inversion now says where the target lies and how far to
+    move it (the table here: 0.25…18.85 µm)."""
+    pf = pi_table()
+    out = invert_target(pf, sine_target(10.0, 10.0, cycles=2, offset=15.0))  # 15…25 µm
+    said = [n for n in out.notes if "outside the outputs the table was identified on" in n]
+    assert said and "move it by -6.15 um (--offset for a built-in target)" in said[0], out.notes
+    inside = invert_target(pf, sine_target(10.0, 10.0, cycles=2, offset=2.0))
+    assert not any("outside the outputs" in n for n in inside.notes)
+    wide = invert_target(pf, sine_target(30.0, 10.0, cycles=2, offset=0.0), vmax=80.0)
+    assert any("stroke is larger than the identified one" in n for n in wide.notes)
