@@ -760,6 +760,8 @@ def choose_condition(pf: ParamsFile, target: Target, segment: Segment, cache: "_
                              "forced")
     if len(pf.cells) == 1 or not _usable(pf):
         cells, query, clamped = select_cells(pf, (1.0, f), method)
+        if len(cells) == 1:  # the lookup is that cell's own condition, not the placeholder amplitude asked
+            query = (float(cells[0].amplitude_V), float(cells[0].frequency_Hz))
         return SegmentChoice(segment, (float("nan"), f), query, False, cells, (), True, "single cell")
     y = cache.target.y[sl]
     stroke = float(y.max() - y.min())

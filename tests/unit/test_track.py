@@ -432,5 +432,7 @@ def test_a_target_outside_the_identified_outputs_is_said_to_be_so():
     assert said and "move it by -6.15 um (--offset for a built-in target)" in said[0], out.notes
     inside = invert_target(pf, sine_target(10.0, 10.0, cycles=2, offset=2.0))
     assert not any("outside the outputs" in n for n in inside.notes)
+    # a one-cell table's lookup is that cell's condition (report.json said 1 V, a placeholder)
+    assert inside.choices[0].how == "single cell" and inside.choices[0].query == (60.0, 10.0)
     wide = invert_target(pf, sine_target(30.0, 10.0, cycles=2, offset=0.0), vmax=80.0)
     assert any("stroke is larger than the identified one" in n for n in wide.notes)
