@@ -205,6 +205,26 @@ def _run(problem: _Problem, optimizer: Optimizer, seed: int, cell: int, run: int
                      time.perf_counter() - t_run)
 
 
+#: a stage identified from the captures (pi2's two-step route) whose f_n exceeds the fastest drive
+#: frequency by more than this factor is hardly excited by them: :func:`slow_drive_note`
+SLOW_DRIVE_RATIO = 50.0
+
+
+def slow_drive_note(model: Model, captures: Sequence[Capture]) -> str | None:
+    """A caveat when the shared structure holds a stage (``pi2``'s f_n, identified before the fit)
+    far above every capture's drive frequency: a 1 Hz sine excites a 900 Hz stage only through the
+    tiny lag it causes, so f_n and ζ are poorly determined (a blind test's pi2 on a 1 Hz capture
+    printed "f_n 889.8 Hz" without a word). None otherwise."""
+    base = model.composition[0] if model.composition is not None else model
+    fn = getattr(base, "fn_Hz", None)
+    drives = [c.frequency_Hz for c in captures if np.isfinite(c.frequency_Hz) and c.frequency_Hz > 0]
+    if fn is None or not drives or not np.isfinite(fn) or fn <= SLOW_DRIVE_RATIO * max(drives):
+        return None
+    return (f"the stage's f_n {fn:.4g} Hz is {fn / max(drives):.0f}× the fastest drive ({max(drives):.4g} Hz): so slow "
+            "a drive hardly excites it, and f_n and ζ are poorly determined; a faster or broadband capture (a "
+            "PRBS, a multisine) determines them")
+
+
 def centered_offset(objective: Objective, params: Sequence[Param], theta: np.ndarray, fun: float) -> np.ndarray:
     """``theta`` with the base's output offset (``y0`` and kin, :data:`OUTPUT_OFFSET_NAMES`) moved by
     the captures' mean drift offset, when that leaves the fit's cost as it is.
@@ -392,6 +412,9 @@ def identify(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
     summary = model.structure_summary()
     if progress and summary is not None:  # say how the shared structure was found (e.g. which route)
         progress("note", {"text": f"{model.name}: {summary}"})
+    slow = slow_drive_note(model, captures)
+    if progress and slow is not None:
+        progress("note", {"text": f"{model.name}: {slow}"})
     cells = _cells(groups, model, optimizer, bounds, global_fit, starts)
     work = [(cell, r) for cell in range(len(cells)) for r in range(runs)]
     keys = None if store is None else _store_keys(cells, work, model, optimizer, bounds, seed, polish)

@@ -198,3 +198,18 @@ def test_stage_coefficients_are_the_discretization_of_each_stage():
     got = pi2_module._stage_coefficients(fns, np.array([0.1, 0.5, 1.0]), 1e-4, 3)
     for g, e in zip(got, bilinear_biquad(fns, np.array([0.1, 0.5, 1.0]), 1e-4)):
         assert np.array_equal(g, e)
+
+
+def test_a_stage_far_above_the_drive_gets_a_caveat():
+    """A blind test's find: pi2 on a 1 Hz capture printed "f_n 889.8 Hz" without a word on how
+    little so slow a drive determines it."""
+    from types import SimpleNamespace
+
+    from hystfit.identify import slow_drive_note
+
+    model = SimpleNamespace(composition=None, fn_Hz=889.8)
+    note = slow_drive_note(model, [SimpleNamespace(frequency_Hz=1.0)])
+    assert note is not None and "890× the fastest drive (1 Hz)" in note and "poorly determined" in note
+    assert slow_drive_note(model, [SimpleNamespace(frequency_Hz=1.0), SimpleNamespace(frequency_Hz=80.0)]) is None
+    assert slow_drive_note(SimpleNamespace(composition=None, fn_Hz=None), [SimpleNamespace(frequency_Hz=1.0)]) is None
+    assert slow_drive_note(SimpleNamespace(composition=None), [SimpleNamespace(frequency_Hz=1.0)]) is None
