@@ -123,13 +123,15 @@ def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
     """The console's part of a diagnosis: a caution on a doubtful noise floor (stderr), then the JSON
     summary (``--json``) or the effects' table, the where-pointers and the next step (stdout)."""
     from ..diagnose import noise_floor_doubtful
-    from ..report.diagnose_report import diagnosis_document, next_step_line
+    from ..report.diagnose_report import diagnosis_document, next_step_line, not_tested_text
     from ..report.diagnose_wording import doubtful_floor_text, pointers_text
     from ..report.plots import display_unit
 
     if noise_floor_doubtful(d.noise) and not quiet:  # the verdict rests on the floor: said before it
         stderr.print(f"warning: {doubtful_floor_text(d.noise, display_unit(d.unit))}", markup=False, highlight=False,
                      soft_wrap=True)
+    if d.split.get("not_tested") and not quiet:  # an effect the hold-out could not test: never silently
+        stderr.print(f"note: {not_tested_text(d)}", markup=False, highlight=False, soft_wrap=True)
     if json_out:
         print_json({**diagnosis_document(d), "params": str(out / "params.json") if d.explained_by else None})
         return

@@ -912,9 +912,25 @@ def split_why_text(d: Diagnosis) -> str:
     """Why the hold-out scheme was chosen (``split.why``), from the diagnosis' :class:`SplitChoice`."""
     why = split_why(d.split_choice.reason, d.split_choice.swept_sources)
     if d.split.get("not_tested"):
-        why += ("; " + ", ".join(d.split["not_tested"]) + " is not tested: its trend in time is also a trend in "
-                "amplitude on these captures, and no held-out sample tells the two apart")
+        why += "; " + not_tested_text(d)
     return why
+
+
+def not_tested_text(d: Diagnosis) -> str:
+    """Why the effects of ``split.not_tested`` were not tested by this hold-out, and what the temporal
+    split beside it says of them (:func:`hystfit.diagnose.untestable_effects`)."""
+    names = ", ".join(d.split["not_tested"])
+    if d.split["kind"] == "capture":
+        other = d.split.get("other_scheme") or {}
+        named = [e for e in other.get("explained_by", ()) if e in d.split["not_tested"]]
+        every = list(other.get("explained_by", ()))
+        there = f" (with {', '.join(e for e in every if e not in named)})" if len(every) > len(named) else ""
+        said = (f"; the temporal split, which fits the first part of every capture, names {', '.join(named)}{there}: "
+                f"identify with --model {d.base_model}+drift to check" if named else "")
+        return (f"{names} is not tested: a held-out capture's own offset and rate cannot be fitted from the other "
+                f"captures{said}")
+    return (f"{names} is not tested: its trend in time is also a trend in amplitude on these captures, and no "
+            "held-out sample tells the two apart")
 
 
 def split_document(d: Diagnosis) -> dict:
