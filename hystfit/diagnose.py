@@ -92,6 +92,10 @@ SELECTION_WORKERS: int | None = None
 SPLITS = ("auto", "temporal", "capture", "cycles")
 
 
+#: the command-line flags of the settings ``diagnose`` has one for (its errors name the flag)
+SETTING_FLAGS = {"fit_fraction": "--fit-fraction", "threshold": "--threshold", "max_effects": "--max-effects"}
+
+
 @dataclass(frozen=True)
 class DiagnoseSettings:
     """The knobs of the diagnosis, with the reasons for their defaults.
@@ -185,8 +189,9 @@ class DiagnoseSettings:
                   ("placebo_margin", 0.0 <= self.placebo_margin < 1.0, "in [0, 1)"),
                   ("split", self.split in SPLITS, f"one of {', '.join(SPLITS)}")]
         for name, ok, rule in checks:
-            if not ok:
-                raise ConfigError(f"diagnose: {name} must be {rule}. Got {getattr(self, name)!r} instead.")
+            if not ok:  # named as the command line has it where it has it (a blind test's find)
+                shown = SETTING_FLAGS.get(name, name)
+                raise ConfigError(f"diagnose: {shown} must be {rule}. Got {getattr(self, name)!r} instead.")
 
 
 @dataclass(frozen=True)

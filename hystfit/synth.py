@@ -698,9 +698,10 @@ def simulate_plant_components(
     if e.dynamics:
         fn, zeta = float(e.dynamics_fn_Hz), float(e.dynamics_zeta)
         if not fn * dt < 0.5:
-            raise ConfigError(f"the plant's dynamics (stage resonance f_n = {fn:g} Hz, one of the default effects) needs "
-                              f"a sample rate above {2 * fn:g} Hz, got {1 / dt:g} Hz; raise --fs, or leave dynamics out "
-                              "(--effects creep,noise,quantization)")
+            raise ConfigError(f"the plant's dynamics (stage resonance f_n = {fn:g} Hz) needs a sample rate above "
+                              f"{2 * fn:g} Hz, got {1 / dt:g} Hz; raise --fs, or leave dynamics out of --effects (it "
+                              "is one of the default effects: --effects creep,noise,quantization leaves it out; a "
+                              "weaker --strength raises f_n)")
         z = Dynamics().apply_population(z[None, :], np.array([[fn, zeta]]), dt)[0]
     comps["dynamics"] = out(z)
 

@@ -135,8 +135,8 @@ def batch(
             table.add_row(j.name, j.command, str(c), s, f"{t:.1f}", str(j.out))
         stdout.print(table)
     failed = [r for r in rows if r[1] != 0]
-    if interrupted:
-        raise interrupted
+    if interrupted:  # the job said so in its own error line: the batch stops with its code, not a second line
+        raise typer.Exit(stop_code(interrupted))
     if failed and len(failed) == len(rows):
         raise NoResultError(f"every job of {jobs_file} failed (exit codes {', '.join(str(r[1]) for r in failed)})")
     if failed:

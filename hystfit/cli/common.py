@@ -118,7 +118,7 @@ Jobs = jobs_option("Parallel processes (the numbers do not depend on it).")
 ExecutorOpt = Annotated[str, typer.Option("--executor", help="Where the cells run: local (a process pool of --jobs "
                                                            "processes) or dask (a Dask LocalCluster of --jobs "
                                                            "workers, or the cluster at --scheduler; needs "
-                                                           "pip install \"hystfit[dask]\"). The numbers do not "
+                                                           "pip install \"hystfit\\[dask]\"). The numbers do not "
                                                            "depend on it.")]
 Scheduler = Annotated[Optional[str], typer.Option("--scheduler", help="Address of a running Dask scheduler, e.g. "
                                                                       "tcp://host:8786 (with --executor dask).")]

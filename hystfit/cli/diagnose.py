@@ -46,7 +46,7 @@ def diagnose(
     effects: Annotated[Optional[str], typer.Option("--effects", help="Candidate effects, comma-separated (default: dynamics,creep,asymmetry,drift,delay).")] = None,
     seed: Seed = 0,
     execution: DiagnoseExecutorArgs = DiagnoseExecutorArgs(),
-    fit_fraction: Annotated[float, typer.Option("--fit-fraction", help="Share of every capture used to fit; the rest is held out.")] = 0.6,
+    fit_fraction: Annotated[float, typer.Option("--fit-fraction", help="Share of every capture used to fit, 0.1–0.9; the rest is held out (where whole captures are held out — rising sines at three or more frequencies — it applies to the captures split in time and to the temporal check).")] = 0.6,
     threshold: Annotated[float, typer.Option("--threshold", help="Minimum held-out reduction for naming an effect.")] = 0.3,
     max_effects: Annotated[int, typer.Option("--max-effects", help="How many effects may be named, in order (>= 1).")] = 3,
     model_option: Annotated[Optional[list[str]], typer.Option("--model-option", help="Model structure option KEY=VALUE (repeatable).")] = None,
@@ -122,7 +122,7 @@ def diagnose(
 def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
     """The console's part of a diagnosis: a caution on a doubtful noise floor (stderr), then the JSON
     summary (``--json``) or the effects' table, the where-pointers and the next step (stdout)."""
-    from ..diagnose import noise_floor_doubtful
+    from ..diagnose import DiagnoseSettings, noise_floor_doubtful
     from ..report.diagnose_report import diagnosis_document, next_step_line, not_tested_text
     from ..report.diagnose_wording import doubtful_floor_text, pointers_text
     from ..report.plots import display_unit
@@ -130,6 +130,10 @@ def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
     if noise_floor_doubtful(d.noise) and not quiet:  # the verdict rests on the floor: said before it
         stderr.print(f"warning: {doubtful_floor_text(d.noise, display_unit(d.unit))}", markup=False, highlight=False,
                      soft_wrap=True)
+    if d.split["kind"] == "capture" and d.settings.fit_fraction != DiagnoseSettings().fit_fraction and not quiet:
+        stderr.print(f"note: --fit-fraction {d.settings.fit_fraction:g} applies to the captures split in time and to "
+                     "the temporal check; the verdict's hold-out is whole captures (those at interior frequencies)",
+                     markup=False, highlight=False, soft_wrap=True)
     if d.split.get("not_tested") and not quiet:  # an effect the hold-out could not test: never silently
         stderr.print(f"note: {not_tested_text(d)}", markup=False, highlight=False, soft_wrap=True)
     if json_out:

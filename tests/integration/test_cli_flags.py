@@ -99,3 +99,11 @@ def test_identify_a_million_samples_peaks_under_1_GB_resident(tmp_path, peak_rss
     assert peak_kB < 1_000_000, f"peak RSS {peak_kB / 1e3:.0f} MB"
     cond = json.loads(r.stdout)["conditions"][0]
     assert cond["metrics"]["n_samples"] == 1_000_001 and cond["metrics"]["r2"] > 0.999
+
+
+@pytest.mark.parametrize("command", ["identify", "compare", "diagnose", "batch"])
+def test_help_shows_the_dask_extra_in_its_install_command(command):
+    """A blind test's find: rich took ``[dask]`` in the help for markup and printed pip install "hystfit"."""
+    r = runner.invoke(app, [command, "--help"], env={"COLUMNS": "250"})
+    assert r.exit_code == 0, r.output
+    assert 'pip install "hystfit[dask]"' in " ".join(r.output.split()), r.output

@@ -251,3 +251,19 @@ def test_drift_is_not_tested_when_the_middle_cycles_of_rising_sines_are_held_out
     assert "drift is not tested: a held-out capture's own offset and rate cannot be fitted" in why
     assert d.split["other_scheme"]["explained_by"] == ["drift"]  # the temporal split tests it, and names it
     assert "the temporal split, which fits the first part of every capture, names drift" in why, why
+
+
+def test_fit_fraction_under_the_capture_split_is_said_to_apply_to_the_time_split_parts(tmp_path):
+    """A blind test's find: --fit-fraction 0.1 and 0.9 gave the same verdict under the capture split,
+    without a word (whole captures are held out there)."""
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from hystfit.cli import app
+
+    for c in _rising(synth.Effects(noise=True, noise_sigma_um=0.01), cycles=8):
+        pd.DataFrame({"time_s": c.t, "voltage_V": c.u, "displacement_um": c.y}).to_csv(tmp_path / c.source, index=False)
+    r = CliRunner().invoke(app, ["diagnose", str(tmp_path), "--out", str(tmp_path / "d"), "--no-plots",
+                                 "--fit-fraction", "0.3", "--max-effects", "1"])
+    assert r.exit_code == 0, r.output
+    assert "note: --fit-fraction 0.3 applies to the captures split in time" in " ".join(r.stderr.split())

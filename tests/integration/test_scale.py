@@ -389,6 +389,38 @@ out = "res/check"
     assert rows["lut"]["status"] == "done before (skipped)" and rows["typo"]["exit_code"] == 2
 
 
+def test_a_job_stopped_by_ctrl_c_stops_the_batch_with_one_line(tmp_path, monkeypatch):
+    """A blind test's find: Ctrl-C during a batch's job printed "hystfit: error: interrupted" twice
+    (the job's line, then the batch's). The job's own line is the one; the batch exits 130."""
+    import hystfit.cli.batch as cli_batch
+
+    jobs = _write(tmp_path / "jobs.toml", f"""
+[[job]]
+name = "a"
+command = "identify"
+data = "{FILES[0]}"
+out = "res/a"
+
+[[job]]
+name = "b"
+command = "identify"
+data = "{FILES[1]}"
+out = "res/b"
+""")
+    ran = []
+
+    def stopped(root, argv):  # the job as Ctrl-C leaves it: its line printed, exit code 130
+        ran.append(argv[0])
+        cli_batch.error_line("interrupted")
+        return 130
+
+    monkeypatch.setattr(cli_batch, "_run", stopped)
+    r = run("batch", jobs)
+    assert r.exit_code == 130, r.output
+    assert ran == ["identify"]  # the second job is not started
+    assert r.stderr.count("interrupted") == 1, r.stderr
+
+
 @pytest.mark.parametrize("text, words", [
     ("", "no jobs"),
     ("[[job]]\ncommand = 'fit'\ndata = 'x.csv'\nout = 'o'\n", "command 'fit' is not one of"),

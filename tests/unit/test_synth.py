@@ -322,9 +322,11 @@ def test_noise_has_the_requested_sigma():
 def test_dynamics_above_nyquist_is_refused():
     t, u = S.raised_cosine(10, 10, fs_Hz=2000)
     # named as the command line has it (a blind test's find: `dynamics_fn_Hz … must lie below the Nyquist …`)
-    with pytest.raises(ConfigError, match=r"the plant's dynamics \(stage resonance f_n = 1200 Hz, one of the default "
-                                          r"effects\) needs a sample rate above 2400 Hz, got 2000 Hz; raise --fs, or "
-                                          r"leave dynamics out"):
+    # and true whether the user chose dynamics or took the defaults (a blind test's --effects dynamics
+    # --strength 0.2 was told it was "one of the default effects" and to leave it out for creep and noise)
+    with pytest.raises(ConfigError, match=r"the plant's dynamics \(stage resonance f_n = 1200 Hz\) needs a sample "
+                                          r"rate above 2400 Hz, got 2000 Hz; raise --fs, or leave dynamics out of "
+                                          r"--effects \(it is one of the default effects.*a weaker --strength raises f_n"):
         S.simulate_plant(S.Plant.default(), t, u)
 
 
