@@ -10,7 +10,7 @@ import typer
 
 from ..errors import ConfigError, OutputError
 from .app import app, command
-from .common import seed_callback
+from .common import seed_callback, stderr
 
 synth_app = typer.Typer(
     help="Write synthetic captures of a virtual piezo stage (PI hysteresis + switchable effects).",
@@ -52,6 +52,9 @@ def _plant(effects: str, strength: float, noise_um: float | None = None):
 
     _positive("--strength", strength)
     eff = synth.Effects.parse(effects, strength)
+    if eff.noise and noise_um is None and strength != 1.0:  # a blind test's floor 20× its intent
+        stderr.print(f"note: --strength {strength:g} scales the sensor noise too (σ = {eff.noise_sigma_um:.3g} µm); "
+                     "--noise SIGMA sets it apart", markup=False, highlight=False, soft_wrap=True)
     if noise_um is not None:
         if not noise_um >= 0:
             raise ConfigError(f"--noise {noise_um:g}: the noise σ must be >= 0 (µm).")

@@ -107,3 +107,14 @@ def test_help_shows_the_dask_extra_in_its_install_command(command):
     r = runner.invoke(app, [command, "--help"], env={"COLUMNS": "250"})
     assert r.exit_code == 0, r.output
     assert 'pip install "hystfit[dask]"' in " ".join(r.output.split()), r.output
+
+
+def test_synth_says_that_strength_scales_the_noise_too(tmp_path):
+    """A blind test's find: --strength 20 made the sensor noise 20× as large, without a word."""
+    args = ["synth", "capture", str(tmp_path / "s.csv"), "-e", "rising-sine", "-a", "60", "-f", "20", "--cycles", "5",
+            "--effects", "drift,noise", "--strength", "5", "--force"]
+    r = runner.invoke(app, args)
+    assert r.exit_code == 0, r.output
+    assert "note: --strength 5 scales the sensor noise too" in r.stderr and "--noise SIGMA" in r.stderr
+    r = runner.invoke(app, args + ["--noise", "0.008"])
+    assert r.exit_code == 0 and "scales the sensor noise" not in r.stderr
