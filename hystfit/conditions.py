@@ -301,18 +301,37 @@ def broadband_cell_warnings(captures: Sequence[Capture]) -> list[str]:
     groups = group_by_condition(captures)
     if len(groups) < 2:
         return []
+    return [f"{c.source}: the input is broadband (its strongest line, {c.frequency_Hz:g} Hz, carries "
+            f"{100 * share:.2g} % of its power: a PRBS, a multisine, noise), so its look-up-table cell "
+            f"{condition_label((c.amplitude_V, c.frequency_Hz))} stands for no drive frequency, and simulate and "
+            "invert interpolate across it as if it did; fit it on its own, or name its condition with --condition"
+            for c, share in _broadband(captures)]
+
+
+def _broadband(captures: Sequence[Capture]) -> list[tuple[Capture, float]]:
+    """(capture, tonal share) of the captures whose detected condition is a broadband input's
+    (:func:`tonal_share` below :data:`TONAL_SHARE_MIN`; not a step-and-hold input, not a condition the
+    user gave)."""
     out = []
     for c in captures:
         if c.condition_source != "detected" or is_step_and_hold(c.u):
             continue
         share = tonal_share(c.u)
         if share < TONAL_SHARE_MIN:
-            label = condition_label((c.amplitude_V, c.frequency_Hz))
-            out.append(f"{c.source}: the input is broadband (its strongest line, {c.frequency_Hz:g} Hz, carries "
-                       f"{100 * share:.0f} % of its power: a PRBS, a multisine, noise), so its look-up-table cell "
-                       f"{label} stands for no drive frequency, and simulate and invert interpolate across it as if "
-                       "it did; fit it on its own, or name its condition with --condition")
+            out.append((c, share))
     return out
+
+
+def broadband_label_notes(captures: Sequence[Capture]) -> list[str]:
+    """For a table of one condition (where :func:`broadband_cell_warnings` has nothing to warn of): a
+    note per broadband capture that its condition label names its strongest spectral line, not a
+    drive frequency (a blind test's lone PRBS was labelled ``60V_210Hz`` without a word)."""
+    if len(group_by_condition(captures)) != 1:
+        return []
+    return [f"{c.source}: the input is broadband (its strongest line, {c.frequency_Hz:g} Hz, carries "
+            f"{100 * share:.2g} % of its power), so its label {condition_label((c.amplitude_V, c.frequency_Hz))} "
+            "names that line, not a drive frequency; name the condition with --condition if it has one"
+            for c, share in _broadband(captures)]
 
 
 def count_cycles(u: np.ndarray, dt: float, frequency_Hz: float) -> float:

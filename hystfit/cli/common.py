@@ -510,10 +510,12 @@ def print_table_warnings(captures, per_condition: bool, output: OutputArgs) -> N
     would be one of its cells (:func:`hystfit.conditions.broadband_cell_warnings`)."""
     if not per_condition or output.quiet:
         return
-    from ..conditions import broadband_cell_warnings
+    from ..conditions import broadband_cell_warnings, broadband_label_notes
 
     for line in broadband_cell_warnings(captures):
         stderr.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
+    for line in broadband_label_notes(captures):
+        stderr.print(f"note: {line}", markup=False, highlight=False, soft_wrap=True, style="dim")
 
 
 def start_figures(output: FigureOutputArgs, *, behind: bool = False) -> None:

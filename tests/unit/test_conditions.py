@@ -261,3 +261,10 @@ def test_a_broadband_capture_in_a_look_up_table_is_warned_about():
     assert broadband_cell_warnings(sines) == []  # tonal cells only
     assert broadband_cell_warnings([ms]) == []  # no table to interpolate in
     assert broadband_cell_warnings(sines + [replace(ms, condition_source="option")]) == []  # named by the user
+    # a lone broadband capture: no warning, but its label is said to name a spectral line (a blind test's
+    # lone PRBS was labelled 60V_210Hz without a word)
+    from hystfit.conditions import broadband_label_notes
+
+    (note,) = broadband_label_notes([ms])
+    assert note.startswith("ms.csv: the input is broadband") and "not a drive frequency" in note and " 0 %" not in note
+    assert broadband_label_notes(sines[:1]) == [] and broadband_label_notes(sines + [ms]) == []
