@@ -785,7 +785,8 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
     u = _u(d.unit)
     L = ["## 3. Which effect: every candidate tested", ""]
     if d.resolution_before_effects is not None:
-        L += [converged_text(d.resolution_before_effects, d.unit), ""]
+        final = d.base_resolution["final"] if d.base_resolution else None
+        L += [converged_text(d.resolution_before_effects, d.unit, final), ""]
     for i, step in enumerate(d.steps):
         title = "Step 1 — on top of the base model" if i == 0 else \
             f"Step {i + 1} — on top of the base model + {' + '.join(d.explained_by[:i])}"

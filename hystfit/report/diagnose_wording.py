@@ -395,9 +395,11 @@ def resolution_text(r: dict, unit: str) -> str:
     return head + " The base's resolution is not what limits the model; it is kept."
 
 
-def converged_text(r: dict, unit: str) -> str:
+def converged_text(r: dict, unit: str, final: int | None = None) -> str:
     """The base's resolution converged before any effect was tested
-    (:func:`hystfit.diagnose.converge_resolution`) in one paragraph."""
+    (:func:`hystfit.diagnose.converge_resolution`) in one paragraph; ``final``: the resolution the
+    diagnosis ended on (a check after a named effect may refine it further: then the recommended
+    model uses that one — a blind test's report said 20 here and 80 in its last line)."""
     u = "µm" if unit == "um" else unit
     tried = "; ".join(f"{x['from']} → {x['to']}: held-out RMSE {x['heldout_rmse_before_out']:.4g} → "
                       f"{x['heldout_rmse_after_out']:.4g} {u}, {100 * x['reduction_mean_square']:.0f} %"
@@ -406,6 +408,10 @@ def converged_text(r: dict, unit: str) -> str:
             f"at least {100 * r['threshold']:.0f} % of the held-out mean square above the noise): {tried}.")
     if r["to"] == r["from"]:
         return head + f" The base's {r['option']} = {r['from']} is kept."
+    if final is not None and final != r["to"]:
+        return (head + f" The first effects are tested on the base with {r['option']} = {r['to']}; a later check "
+                f"refined it to {final} (below), which the recommended model uses (--model-option "
+                f"{r['option']}={final}).")
     return (head + f" The effects are tested on the base with {r['option']} = {r['to']}, and the recommended model "
             f"uses --model-option {r['option']}={r['to']}.")
 

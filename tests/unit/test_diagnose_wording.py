@@ -190,3 +190,18 @@ def test_a_noise_floor_from_a_coarsely_sampled_drive_is_flagged_and_worded():
     assert "samples per cycle" in text and "overestimated" in text and "higher sample rate" in text
     assert not noise_floor_doubtful(fine[0])  # 500 samples per cycle: no caution whatever the ratio
     assert not noise_floor_doubtful({**n, "repeatability_out": n["sigma"]})  # coarse, but the two agree
+
+
+def test_the_resolution_before_the_effects_names_the_one_the_recommended_model_uses():
+    """A blind test's find: diagnosis.md said the recommended model uses n_operators=20 where a check
+    after a named effect had refined it to 80 (its last line, the JSON and params.json said 80)."""
+    from hystfit.report.diagnose_wording import converged_text
+
+    r = {"option": "n_operators", "from": 10, "to": 20, "threshold": 0.2,
+         "steps": [{"from": 10, "to": 20, "heldout_rmse_before_out": 0.07, "heldout_rmse_after_out": 0.055,
+                    "reduction_mean_square": 0.4, "adopted": True}]}
+    later = converged_text(r, "um", final=80)
+    assert "a later check refined it to 80" in later and "--model-option n_operators=80" in later
+    assert "n_operators=20" not in later
+    same = converged_text(r, "um", final=20)
+    assert "the recommended model uses --model-option n_operators=20" in same
