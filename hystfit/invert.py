@@ -229,18 +229,23 @@ MIN_SAMPLES_PER_CYCLE = 4
 #: error). The limit is checked on the sample count before anything is allocated.
 MAX_TARGET_SAMPLES = 10_000_000
 #: Peak memory of ``hystfit invert`` per target sample (bytes), beyond the ≈ 0.3 GB of imported
-#: libraries: a PI table's 2·10⁶-sample sine peaks at 0.63 GB resident (``/usr/bin/time -v``),
-#: ≈ 165 B per sample. Used to say in the error what a limit-sized target costs.
-TARGET_BYTES_PER_SAMPLE = 165
+#: libraries: a PI table's 10⁷-sample sine (``--sine 10,10,10000 --no-plots``) peaks at 2.31 GB
+#: resident (``/usr/bin/time -v``, 2026-11-28; a 2·10⁶-sample one at 0.63 GB, 165 B per sample),
+#: ≈ 200 B per sample. Used to say in the error what a limit-sized target costs.
+TARGET_BYTES_PER_SAMPLE = 200
 
 
 def check_target_samples(n: float, fs: float, source: str, fix: str) -> int:
     """``n`` (the sample count of a built-in trajectory, computed in floating point so a huge one
     cannot overflow) as an int, or a one-line ConfigError naming ``source`` (what the user asked
     for, e.g. ``--sine 10,20,1e7``) and ``fix`` when it exceeds :data:`MAX_TARGET_SAMPLES`."""
-    if not (math.isfinite(n) and n <= MAX_TARGET_SAMPLES):
+    # the closing sample of a whole number of cycles (t = duration) rides on top: 1000 s at 10 kHz is
+    # 10⁷ + 1 samples, and the limit says 10⁷ samples = 1000 s (a blind test's exactly-1000-s sine was
+    # refused as "1e+07 samples … exceed the limit of 1e+07")
+    if not (math.isfinite(n) and n <= MAX_TARGET_SAMPLES + 1):
         gb = MAX_TARGET_SAMPLES * TARGET_BYTES_PER_SAMPLE / 1e9
-        raise ConfigError(f"{source}: {n:.3g} samples at {fs:g} Hz exceed the limit of {MAX_TARGET_SAMPLES:.0e} "
+        count = f"{n:.0f}" if math.isfinite(n) and n < 1e15 else f"{n:.3g}"
+        raise ConfigError(f"{source}: {count} samples at {fs:g} Hz exceed the limit of {MAX_TARGET_SAMPLES:.0e} "
                           f"samples (≈ {gb:.1f} GB of memory for invert); {fix}")
     return int(n)
 

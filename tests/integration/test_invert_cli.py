@@ -159,8 +159,8 @@ def test_invert_refuses_to_overwrite_without_force(tables, tmp_path):
     (("--sine", "10,5000"), "samples per cycle"),
     # a built-in target over the sample limit is refused before anything is allocated (the 1e7-cycle typo
     # asked for 10⁹ samples and was OOM-killed; the 1e300 ones overflowed the count into a traceback)
-    (("--sine", "10,20,1e7", "--offset", "2"), "--sine 10,20,1e7: 5e+09 samples at 10000 Hz exceed the limit of "
-                                               "1e+07 samples"),
+    (("--sine", "10,20,1e7", "--offset", "2"), "--sine 10,20,1e7: 5000000001 samples at 10000 Hz exceed the limit "
+                                               "of 1e+07 samples"),
     (("--triangle", "10,10,1e300"), "--triangle 10,10,1e300: 1e+303 samples"),
     (("--steps", "10,4@1e300"), "use a shorter hold, fewer levels or a lower sample rate (--fs)"),
     (("--multi", "--fs", "1e300"), "--multi: "),

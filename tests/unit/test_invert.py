@@ -93,8 +93,10 @@ def test_built_in_targets_over_the_sample_limit_are_refused_before_allocating(ca
 
 def test_the_sample_limit_admits_exactly_its_count():
     assert check_target_samples(float(MAX_TARGET_SAMPLES), 1e4, "x", "fix") == MAX_TARGET_SAMPLES
-    with pytest.raises(ConfigError, match="^--sine 1,2: 1e\\+07 samples at 10000 Hz exceed .*; fix$"):
-        check_target_samples(MAX_TARGET_SAMPLES + 1.0, 1e4, "--sine 1,2", "fix")
+    # 1000 s at 10 kHz with its closing sample (a blind test's --sine 10,10,10000 was refused)
+    assert sine_target(10, 10, cycles=10_000).n == MAX_TARGET_SAMPLES + 1
+    with pytest.raises(ConfigError, match="^--sine 1,2: 10000002 samples at 10000 Hz exceed .*; fix$"):
+        check_target_samples(MAX_TARGET_SAMPLES + 2.0, 1e4, "--sine 1,2", "fix")
 
 
 def test_load_target_columns_units_and_errors(tmp_path):
