@@ -1041,9 +1041,11 @@ def _check_reach(pf: ParamsFile, target: Target) -> None:
     t_lo, t_hi = float(np.min(target.y)), float(np.max(target.y))
     if span > 0 and (t_hi > hi + TARGET_REACH_SPANS * span or t_lo < lo - TARGET_REACH_SPANS * span):
         u = pf.unit
+        shift = (" or, for a built-in target, move it there with --offset (e.g. --offset "
+                 f"{lo + 0.1 * span:.6g}), or" if target.kind != "file" and t_hi - t_lo <= span else " or")
         raise ConfigError(f"the target spans {t_lo:.4g}…{t_hi:.4g} {u}, far beyond the outputs the table was identified "
                           f"on ({lo:.4g}…{hi:.4g} {u}): no voltage reaches it. Targets are in the table's output unit "
-                          f"({u}); convert the target, or identify the model on data that covers it")
+                          f"({u}); convert the target,{shift} identify the model on data that covers it")
 
 
 def reach_note(pf: ParamsFile, target: Target, margin: float = 0.05) -> str | None:

@@ -86,3 +86,11 @@ def test_identify_gpi_in_nm_with_a_5_mm_sensor_offset_fits_as_without(tmp_path):
         assert r.exit_code == 0, r.output
         rmse[shift] = json.loads(r.stdout)["conditions"][0]["metrics"]["rmse_nm"]
     assert rmse[OFFSET] <= 1.1 * rmse[0.0], rmse
+
+
+def test_the_report_shows_a_large_offset_to_its_standard_error():
+    """A blind test's find: report.md showed y0 = 5000247.85 nm (± 1.7) as 5.000e+06."""
+    from hystfit.report.identify_report import _value_text
+
+    assert _value_text(5000247.85, 1.707) == "5000247.85"
+    assert _value_text(0.2495, 1e-4) == "0.2495" and _value_text(0.3, float("nan")) == "0.3"

@@ -407,6 +407,9 @@ def test_a_target_far_beyond_the_identified_outputs_is_refused_naming_the_unit()
         invert_target(pf, sine_target(2000.0, 20.0, 1, 10_000.0, offset=2.0, unit="m"))
     res = invert_target(pf, sine_target(25.0, 20.0, 1, 10_000.0, offset=2.0, unit="m"))  # beyond, but within reach
     assert res.voltage_V.size > 0
+    # a stroke that fits, only far off (a sensor offset of 5e6 nm, a blind test's find): --offset is named
+    with pytest.raises(ConfigError, match=r"move it there with --offset \(e\.g\. --offset 2\.11\)"):
+        invert_target(pf, sine_target(10.0, 20.0, 1, 10_000.0, offset=5e6, unit="m"))
 
 
 def test_a_steps_target_starting_at_its_rest_level_is_explained():
