@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import struct
+import textwrap
 import threading
 import zlib
 from pathlib import Path
@@ -1308,13 +1309,15 @@ def boxplot_figure(path, groups: Mapping[str, Sequence[float]], *, title: str = 
     ax.set_xlim(0.4, n + 0.6)
     if n > 6 or max(len(s) for s in names) > 10:
         ax.tick_params(axis="x", labelrotation=30)
-    if log and nonempty:
+    values = np.concatenate([data[i] for i in nonempty]) if nonempty else np.empty(0)
+    # a log axis over less than a decade labels every tick alike (a blind test's nine "7.43e-05"): linear
+    if log and nonempty and values.max() > 10.0 * values.min():
         ax.set_yscale("log")
-        _plain_log_labels(ax.yaxis, np.concatenate([data[i] for i in nonempty]))
+        _plain_log_labels(ax.yaxis, values)
     ax.set_ylabel(ylabel)
     ax.grid(True, axis="y", which="both", alpha=0.3)
-    if title:
-        ax.set_title(title, y=1.0)  # a fixed y skips a tight-bbox pass per draw
+    if title:  # wrapped to the figure's width (a long one ran off its right edge); a fixed y skips a bbox pass
+        ax.set_title(textwrap.fill(title, max(30, int(9 * fig.get_figwidth()))), y=1.0, fontsize="medium")
     return _save(fig, path, dpi)
 
 

@@ -373,3 +373,25 @@ def test_template_backgrounds_left_out_only_where_they_repaint_the_figures(tmp_p
     alone.add_subplot()
     plots._unpainted_backgrounds(alone)
     assert not alone.axes[0].patch.get_visible()
+
+
+def test_a_box_plot_over_less_than_a_decade_is_linear_and_its_title_wraps(tmp_path, monkeypatch):
+    """A blind test's find: nine y labels all "7.43e-05" (a log axis over a 1e-5 relative spread), and
+    a title cut off at the figure's right edge."""
+    from hystfit.report import plots
+
+    from matplotlib.axes import Axes
+
+    logged, titles = [], []
+    monkeypatch.setattr(plots, "_plain_log_labels", lambda axis, values: logged.append(values.size))
+    set_title = Axes.set_title
+    monkeypatch.setattr(Axes, "set_title", lambda self, text, *a, **k: (titles.append(text), set_title(self, text, *a,
+                                                                                                           **k))[1])
+    title = "J of the search (before the polish) over 2 runs: pi at 60V_80Hz"
+    plots.boxplot_figure(tmp_path / "narrow.png", {"auto": [7.4301e-05, 7.4302e-05]}, log=True, title=title)
+    assert logged == []
+    plots.boxplot_figure(tmp_path / "wide.png", {"pso": [1e-5, 3e-4, 2e-3], "de": [2e-5, 5e-5]}, log=True,
+                         title=title)
+    assert logged == [5]
+    assert titles and all("\n" in t and t.replace("\n", " ") == title for t in titles)  # wrapped, whole
+    assert (tmp_path / "narrow.png").stat().st_size > 0 and (tmp_path / "wide.png").stat().st_size > 0
