@@ -970,13 +970,17 @@ def _plain_log_labels(axis, values: np.ndarray) -> None:
     figure's instructions (150 → 111 M warm, 400 → 299 M drawn first: ``python
     benchmarks/figure_work.py --other TREE``).
     """
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
+    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullLocator
 
     plain = FuncFormatter(lambda v, _: f"{v:.3g}")
     axis.set_major_formatter(plain)
     v = values[np.isfinite(values) & (values > 0)]
     if v.size > 0 and v.max() < 10.0 * v.min():
-        axis.set_minor_formatter(FuncFormatter(lambda x, _: f"{x:.3g}"))
+        # within a decade: four ticks spread over the values, at two significant digits (the minor
+        # ticks 6, 7, 8, 9 × 10ᵏ all labelled crowded a short colour bar: a blind test's overlapping labels)
+        ticks = np.unique([float(f"{x:.2g}") for x in np.geomspace(v.min(), v.max(), 4)])
+        axis.set_major_locator(FixedLocator(ticks))
+        axis.set_minor_locator(NullLocator())
         return
     decades = math.log10(v.max() / v.min()) if v.size else math.inf
     axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0) if decades <= 3.0 else (1.0,)))

@@ -395,3 +395,23 @@ def test_a_box_plot_over_less_than_a_decade_is_linear_and_its_title_wraps(tmp_pa
     assert logged == [5]
     assert titles and all("\n" in t and t.replace("\n", " ") == title for t in titles)  # wrapped, whole
     assert (tmp_path / "narrow.png").stat().st_size > 0 and (tmp_path / "wide.png").stat().st_size > 0
+
+
+def test_a_log_axis_within_a_decade_gets_four_spread_labels():
+    """A blind test's find: a colour bar over 6e-5…1e-4 labelled 6, 7, 8, 9e-05 and 1e-4 on top of each
+    other (every minor tick). Four ticks spread over the values, two significant digits."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hystfit.report.plots import _plain_log_labels
+
+    fig, ax = plt.subplots()
+    ax.set_yscale("log")
+    ax.set_ylim(6e-5, 1e-4)
+    _plain_log_labels(ax.yaxis, np.array([6e-5, 7.1e-5, 1e-4]))
+    ticks = ax.yaxis.get_major_locator()()
+    assert len(ticks) <= 4 and min(ticks) == pytest.approx(6e-5) and max(ticks) == pytest.approx(1e-4)
+    assert list(ax.yaxis.get_minor_locator()()) == []
+    plt.close(fig)
