@@ -167,6 +167,8 @@ def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> st
     if res.failed:
         lines += ["## Failed runs (left out)", "", *[f"- {f}" for f in res.failed], ""]
     lines += ["## Metrics per condition", "", markdown_table(frame(summary_rows(res))), ""]
+    if plot_files:  # the overview of every condition, drawn with the figures (a blind test found it unlinked)
+        lines += ["![overview of every condition](plots/overview.png)", ""]
     if _warmup(res):
         lines += ["`samples`: the samples the metrics score (`n_samples` in params.json); `samples_total`: with "
                   "the warm-up samples (--warmup), simulated but not scored.", ""]

@@ -50,6 +50,7 @@ def test_readme_quickstart_identify(tmp_path):
     assert len(csv) == 25 and "rmse_um" in csv[0]
     plots = {p.name for p in (out / "plots").iterdir()}
     assert "overview.png" in plots and "loop_40V_10Hz.png" in plots
+    assert "](plots/overview.png)" in report  # linked (a blind test found it drawn but not linked)
     # pi with auto is an exact linear solve: one objective value, no convergence figure, and the report says why
     assert not any(n.startswith("convergence_") for n in plots)
     assert "No convergence figure" in report
