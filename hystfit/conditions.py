@@ -224,7 +224,11 @@ def amplitude_changes(u: np.ndarray) -> bool:
     third (:func:`amplitude_thirds`) differ by more than :data:`STATIONARY_RATIO`. The one test behind
     the loader's warning (:func:`nonstationary_notes`) and diagnose's split (a capture whose fitted
     part would not reach the amplitudes of its held-out part)."""
-    pp = amplitude_thirds(u)
+    return _thirds_differ(amplitude_thirds(u))
+
+
+def _thirds_differ(pp: tuple[float, float] | None) -> bool:
+    """Whether two peak-to-peaks (:func:`amplitude_thirds`) differ by more than :data:`STATIONARY_RATIO`."""
     if pp is None:
         return False
     lo, hi = min(pp), max(pp)
@@ -254,7 +258,7 @@ def nonstationary_notes(u: np.ndarray, dt: float, key: ConditionKey) -> list[str
     thirds = (u[: n // 3], u[n - n // 3:])
     out = []
     label = condition_label(key)
-    if amplitude_changes(u):
+    if _thirds_differ(pp):  # amplitude_changes(u), its thirds measured once
         out.append(f"the amplitude changes along the capture (peak-to-peak {pp[0]:.3g} V in the first third, "
                    f"{pp[1]:.3g} V in the last): it is not one operating condition, and its label {label} (the full "
                    "range) holds only where the drive is largest; cut a stationary part with --start/--stop or name "
