@@ -269,6 +269,7 @@ class NominalPlant:
     kind: str
     fit_nrmse_pct: float
     description: str
+    unit: str = ""  # the output unit K is per volt of (its words: :func:`_per_volt`)
 
     @property
     def order(self) -> int:
@@ -288,11 +289,17 @@ def _realize(num: np.ndarray, den: np.ndarray):
     return A, B[:, 0], C[0]
 
 
-def _static(gain: float, dt: float, note: str = "") -> NominalPlant:
+def _per_volt(unit: str) -> str:
+    """The unit of a gain K: ``µm/V`` for a table in um (``per V`` without a unit; a blind test read
+    "static gain 0.3178 per V" in a report whose every other number had its unit)."""
+    return f"{'µm' if unit == 'um' else unit}/V" if unit else "per V"
+
+
+def _static(gain: float, dt: float, note: str = "", unit: str = "") -> NominalPlant:
     num, den = np.array([gain]), np.array([1.0, 0.0])
     A, B, C = _realize(num, den)
-    desc = f"static gain {gain:.4g} per V with one sample of delay (K·z⁻¹){note}"
-    return NominalPlant(num, den, A, B, C, dt, gain, "static", 0.0, desc)
+    desc = f"static gain {gain:.4g} {_per_volt(unit)} with one sample of delay (K·z⁻¹){note}"
+    return NominalPlant(num, den, A, B, C, dt, gain, "static", 0.0, desc, unit)
 
 
 def _weighted_cells(pf: ParamsFile, choices: Sequence[SegmentChoice]) -> list[tuple[Cell, float]]:
@@ -324,7 +331,7 @@ def nominal_plant(pf: ParamsFile, choices: Sequence[SegmentChoice], dt: float) -
                           "needs a stage whose displacement follows the voltage")
     cell = cells[0][0]
     if not cell.model.rate_dependent:
-        return _static(gain, dt)
+        return _static(gain, dt, unit=pf.unit)
     s = cell.scale
     n_rest = max(20, int(round(0.01 / dt)))
     n_step = max(64, int(round(0.05 / dt)))
@@ -333,7 +340,7 @@ def nominal_plant(pf: ParamsFile, choices: Sequence[SegmentChoice], dt: float) -
     u = np.concatenate([pre, np.full(n_rest, lo), np.full(n_step, hi)])
     y = cell.model.simulate_one(cell.theta, u, dt)[pre.size:]
     if not np.all(np.isfinite(y)) or abs(y[-1] - y[0]) <= 1e-12:
-        return _static(gain, dt, "; the step response of the model was unusable, static form used")
+        return _static(gain, dt, "; the step response of the model was unusable, static form used", pf.unit)
     v = np.r_[np.zeros(n_rest), np.ones(n_step)]
     yn = (y - y[0]) / (np.mean(y[-max(4, n_step // 10):]) - y[0])
     k = np.arange(3, yn.size)
@@ -350,13 +357,14 @@ def nominal_plant(pf: ParamsFile, choices: Sequence[SegmentChoice], dt: float) -
         nrmse = float("inf")
     if not stable or nrmse > 10.0:
         return _static(gain, dt, f"; the second-order fit of the model's step response was "
-                                 f"{'unstable' if not stable else f'poor ({nrmse:.3g} % NRMSE)'}, static form used")
+                                 f"{'unstable' if not stable else f'poor ({nrmse:.3g} % NRMSE)'}, static form used",
+                       pf.unit)
     num = np.array([b0, b1, b2]) * (gain / dc)
     den = np.array([1.0, a1, a2, 0.0])
     A, B, C = _realize(num, den)
     desc = (f"second-order fit of the {cell.model.name} model's step response (cell {cell.label}, "
-            f"NRMSE {nrmse:.2g} %), gain {gain:.4g} per V, one sample of delay")
-    return NominalPlant(num, den, A, B, C, dt, gain, "second-order", nrmse, desc)
+            f"NRMSE {nrmse:.2g} %), gain {gain:.4g} {_per_volt(pf.unit)}, one sample of delay")
+    return NominalPlant(num, den, A, B, C, dt, gain, "second-order", nrmse, desc, pf.unit)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -474,12 +482,12 @@ def auto_pid(nominal: NominalPlant, bandwidth_Hz: float | None = None, anti_wind
             hint = (f"at most {best:.3g} Hz keeps GM ≥ {MIN_GAIN_MARGIN:g} and PM ≥ {MIN_PHASE_MARGIN_DEG:g}° "
                     "(leave --bandwidth out to get it)" if best > 0 else "give --kp/--ki instead")
             raise ConfigError(f"--bandwidth {bw:g} Hz makes the nominal loop unstable ({margins_text(gm, pm)}); {hint}")
-        rule = (f"Ki = 2π·{bw:g} Hz / K, Kp = 0.25/K·({bw:g}/{f_max:g}), K = {K:.4g} per V (given bandwidth)")
+        rule = (f"Ki = 2π·{bw:g} Hz / K, Kp = 0.25/K·({bw:g}/{f_max:g}), K = {K:.4g} {_per_volt(nominal.unit)} (given bandwidth)")
     else:
         s = largest_ok()
         if s <= 0:
             raise ConfigError("automatic PID tuning found no stable gains for the nominal plant; give --kp/--ki")
-        rule = (f"integral-dominant PI: Ki = s·2π·{f_max:g} Hz / K, Kp = s·0.25/K, Kd = 0, K = {K:.4g} per V, "
+        rule = (f"integral-dominant PI: Ki = s·2π·{f_max:g} Hz / K, Kp = s·0.25/K, Kd = 0, K = {K:.4g} {_per_volt(nominal.unit)}, "
                 f"s = {s:.3g} (largest ≤ 1 with nominal GM ≥ {MIN_GAIN_MARGIN:g} and PM ≥ {MIN_PHASE_MARGIN_DEG:g}°)")
     kp, ki = gains(s)
     gm, pm, _ = loop_margins(nominal, kp, ki)

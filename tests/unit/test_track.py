@@ -436,3 +436,14 @@ def test_a_target_outside_the_identified_outputs_is_said_to_be_so():
     assert inside.choices[0].how == "single cell" and inside.choices[0].query == (60.0, 10.0)
     wide = invert_target(pf, sine_target(30.0, 10.0, cycles=2, offset=0.0), vmax=80.0)
     assert any("stroke is larger than the identified one" in n for n in wide.notes)
+
+
+def test_the_nominal_gain_carries_the_tables_unit():
+    """A blind test's find: the track report read "static gain 0.3178 per V"; every other number had
+    its unit."""
+    pf = pi_table()
+    inv = invert_target(pf, sine_target(5.0, 10.0, cycles=1))
+    nom = nominal_plant(pf, inv.choices, 1e-4)
+    assert " µm/V with one sample of delay" in nom.description and nom.unit == "um"
+    assert "µm/V" in auto_pid(nom).rule
+    assert "per V" in _static(0.3, 1e-4).description  # no unit given: words without one
