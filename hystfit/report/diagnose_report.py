@@ -619,7 +619,8 @@ def _verdict_paragraph(d: Diagnosis) -> list[str]:
     lines.append("")
     lines.append(f"With {', '.join(f'`{e}`' for e in d.explained_by)} added, the held-out RMSE is "
                  f"{g['heldout_rmse_after_explained_out']:.4g} {u} against a noise floor of {sigma:.3g} {u} "
-                 f"({100 * g['heldout_reduction_explained']:.0f} % of the gap above noise explained).")
+                 f"(a reduction of {100 * g['heldout_reduction_explained']:.0f} %: held-out RMSE before − after over "
+                 "before − noise floor, as every reduction here).")
     lines += ["", "*What to do:*", ""] + [f"- `{e}`: {NEXT[e]}." for e in d.explained_by if e in NEXT]
     return lines
 

@@ -236,8 +236,14 @@ def _dynamics(ev: "Evidence", sig: str, u: str) -> list[str]:
     p = ev.params
     lag = (f" ({p['phase_lag_at_highest_excitation_deg']:.2f}° lag at {p['at_highest_excitation_Hz']:g} Hz)"
            if "phase_lag_at_highest_excitation_deg" in p else "")
+    lo, hi = (p.get("search_fn_Hz") or [None, None])[:2]
+    edge = ""  # a fit that ends on its search range's edge found no interior optimum (a blind test's 4500 Hz)
+    if hi is not None and p["fn_Hz"] >= hi * (1 - 1e-6):
+        edge = f", at the top of its search range ({lo:.4g}…{hi:.4g} Hz): the data show no resonance inside it"
+    elif lo is not None and p["fn_Hz"] <= lo * (1 + 1e-6):
+        edge = f", at the bottom of its search range ({lo:.4g}…{hi:.4g} Hz)"
     return [f"{sig} (lag ∝ dŷ/dt plus gain rise ∝ d²ŷ/dt²)", *_with_frequency(ev),
-            f"fitted stage: f_n = {p['fn_Hz']:.4g} Hz, ζ = {p['zeta']:.3g}{lag}"]
+            f"fitted stage: f_n = {p['fn_Hz']:.4g} Hz, ζ = {p['zeta']:.3g}{lag}{edge}"]
 
 
 def _delay(ev: "Evidence", sig: str, u: str) -> list[str]:

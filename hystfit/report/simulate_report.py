@@ -50,8 +50,9 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
                          FigureJob("timeseries_figure", out_dir / "plots" / f"timeseries_{stem}.png",
                                    (c.t, c.y, p.y_model), {"unit": u, "title": title})]
         summary.append(json_safe(entry))
+    made = []
     if jobs:  # by the figure server the command line forked at its start (matplotlib loaded there), else here
-        render_figures(jobs)
+        made = render_figures(jobs)
     rows = []
     names = distinct_names([s["capture"] for s in summary])
     for s, name in zip(summary, names):
@@ -70,6 +71,8 @@ def write_simulate_outputs(pf: ParamsFile, preds: Sequence[Prediction], out_dir:
     noted = [(name, n) for s, name in zip(summary, names) for n in s["notes"]]
     if noted:
         lines += ["## Notes", ""] + [f"- {name}: {n}" for name, n in noted] + [""]
+    if made:  # every figure drawn, linked (a blind test found none linked)
+        lines += ["## Figures", ""] + [f"![{Path(f).stem}](plots/{Path(f).name})" for f in made] + [""]
     text = "\n".join(lines + ["Formulas:", "", metric_legend(u), ""])
     atomic_write_text(out_dir / "report.md", text)
     return summary

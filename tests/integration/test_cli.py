@@ -166,6 +166,8 @@ def test_simulate_out_of_sample(small_data, tmp_path):
     m = json.loads((sim / "a20V_f80Hz_metrics.json").read_text())
     assert np.isclose(m["metrics"]["rmse_um"], s["metrics"]["rmse_um"])
     assert (sim / "plots" / "loop_a20V_f80Hz.png").exists() and (sim / "report.md").exists()
+    report = (sim / "report.md").read_text()  # its figures linked (a blind test found none)
+    assert "](plots/loop_a20V_f80Hz.png)" in report and "](plots/timeseries_a20V_f80Hz.png)" in report
     # interpolation between the 20 V and 40 V cells at 30 V would need a complete grid: falls back to nearest
     r = run("simulate", fit / "params.json", small_data / "a20V_f80Hz.csv", "--out", tmp_path / "sim2",
             "--method", "interpolate", "--quiet", "--no-plots")

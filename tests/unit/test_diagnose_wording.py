@@ -205,3 +205,19 @@ def test_the_resolution_before_the_effects_names_the_one_the_recommended_model_u
     assert "n_operators=20" not in later
     same = converged_text(r, "um", final=20)
     assert "the recommended model uses --model-option n_operators=20" in same
+
+
+def test_a_stage_fitted_on_the_edge_of_its_search_range_is_said_to_be_there():
+    """A blind test's find: dynamics fitted at f_n = 4500 Hz, the top of its search range, without a word."""
+    from types import SimpleNamespace
+
+    from hystfit.report.diagnose_wording import _dynamics
+
+    def line(fn):
+        ev = SimpleNamespace(params={"fn_Hz": fn, "zeta": 0.2, "search_fn_Hz": [160.0, 4500.0]},
+                             frequency_exponent=None)
+        return _dynamics(ev, "sig", "um")[-1]
+
+    assert "at the top of its search range (160…4500 Hz)" in line(4500.0)
+    assert "at the bottom of its search range" in line(160.0)
+    assert "search range" not in line(1336.0)
