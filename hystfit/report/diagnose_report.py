@@ -880,7 +880,7 @@ def _short_of_the_rule(d: Diagnosis) -> str | None:
     left_out = [e for e in EFFECTS if e not in tested and e not in d.split.get("not_tested", ())]
     best = max((r for r in d.effects if r.passes.get("gap_above_noise", False)), key=lambda r: r.reduction,
                default=None)
-    u, s = d.unit, d.settings
+    u, s = _u(d.unit), d.settings
     why = []
     if best is not None and best.reduction >= NOTABLE_REDUCTION:
         rule = ("below --threshold " f"{s.threshold:g}" if best.reduction < s.threshold
@@ -898,7 +898,7 @@ def _short_of_the_rule(d: Diagnosis) -> str | None:
 def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
     """The report's last line: the effects named, the held-out error of the base with all of
     them, and what to run next."""
-    u = d.unit
+    u = _u(d.unit)  # in words: µm (the JSON's names keep um)
     opts = "".join(f" --model-option {k}={v}" for k, v in d.recommended_options.items())
     if not d.explained_by:
         short = _short_of_the_rule(d)
@@ -1082,7 +1082,7 @@ def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = 
     if recommended is not None:
         paths["params"] = out_dir / "params.json"
         atomic_write_text(paths["params"], dumps(identify_to_dict(recommended)))
-        rms = ", ".join(f"{f.label}: {f.metrics[f'rmse_{d.unit}']:.4g} {d.unit}" for f in recommended.fits)
+        rms = ", ".join(f"{f.label}: {f.metrics[f'rmse_{d.unit}']:.4g} {_u(d.unit)}" for f in recommended.fits)
         md += (f"\n## The model to use next\n\n`{d.recommended_model}` (the base followed by the named effects, "
                f"in the order a signal meets them) was identified on all the data and written to `params.json` "
                f"(fit RMSE {rms}).\n")
