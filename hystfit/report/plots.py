@@ -864,6 +864,10 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
     ax, axr = fig.axes
     _plot_series(ax, t, ym, _MEAS_STYLE, "measured")
     _plot_series(ax, t, yp, _MODEL_STYLE, "model")
+    both = np.concatenate([ym[np.isfinite(ym)], yp[np.isfinite(yp)]])
+    if both.size and np.ptp(both) > 0:  # headroom for the legend (it covered the last peak: a blind test)
+        lo, hi = float(both.min()), float(both.max())
+        ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.3 * (hi - lo))
     ax.set_ylabel(_output_label(unit))
     _corner_legend(ax, "upper right")
     if title:
@@ -875,6 +879,9 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
         axr.axhspan(-rmse, rmse, color="tab:blue", alpha=0.15, lw=0, label=f"±RMSE{which} = {rmse:.3g} {u}")
     axr.axhline(0.0, color="0.5", lw=0.6)
     _plot_series(axr, t, resid, {"color": "tab:blue", "lw": 0.7}, "model − measured")
+    if finite.any() and np.ptp(resid[finite]) > 0:  # the legend's headroom, as above
+        lo, hi = min(float(resid[finite].min()), -rmse), max(float(resid[finite].max()), rmse)
+        axr.set_ylim(lo - 0.05 * (hi - lo), hi + 0.65 * (hi - lo))
     axr.set_ylabel(f"Residual ({u})")
     axr.set_xlabel("Time (s)" if t_s is not None else "Sample")
     _corner_legend(axr, "upper right", fontsize="small")

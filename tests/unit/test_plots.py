@@ -415,3 +415,20 @@ def test_a_log_axis_within_a_decade_gets_four_spread_labels():
     assert len(ticks) <= 4 and min(ticks) == pytest.approx(6e-5) and max(ticks) == pytest.approx(1e-4)
     assert list(ax.yaxis.get_minor_locator()()) == []
     plt.close(fig)
+
+
+def test_the_time_series_leaves_room_for_its_legends(tmp_path, monkeypatch):
+    """A blind test's find: the upper-right legend hid the last peak of a time series."""
+    from hystfit.report import plots
+
+    seen = {}
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path, dpi, *a, **k: (seen.setdefault(
+        "lims", [ax.get_ylim() for ax in fig.axes]), save(fig, path, dpi, *a, **k))[1])
+    t = np.arange(2000) * 1e-4
+    y = 9.0 * (1 - np.cos(2 * np.pi * 20 * t))
+    e = 0.02 * np.sin(2 * np.pi * 40 * t)
+    plots.timeseries_figure(tmp_path / "ts.png", t, y, y + e, unit="um", title="t")
+    (lo, hi), (rlo, rhi) = seen["lims"][:2]
+    assert hi >= 18.0 + 0.25 * 18.0 and lo <= 0.0  # the data's top stays below the legend
+    assert rhi >= 0.02 + 0.5 * 0.04 and rlo <= -0.02
