@@ -19,7 +19,7 @@ from ..invert import InversionResult, Span, condition_text
 from ..io import atomic_write_text
 from ..results import dumps, json_safe, schema_fields
 from . import plots
-from .plots import MAX_POINTS, _decimate_minmax, display_unit
+from .plots import MAX_POINTS, _decimate_minmax, display_unit, legend_headroom
 from .tables import fmt, notes_and_figures
 
 #: Spans listed in the Markdown report (all are in the JSON up to :data:`MAX_SPANS_JSON`).
@@ -62,6 +62,9 @@ def _draw_tracking(axes, t, r, y, v, *, unit: str, output_label: str, vmin: floa
     axe.plot(*_decimate_minmax(t, e), color="tab:blue", lw=0.7, label=f"{output_label} − target")
     axe.set_ylabel(f"Error ({u})")
     axe.grid(True, alpha=0.3)
+    if legends:  # room above the curves for the upper-right legends
+        legend_headroom(ax, (r, y), 0.3)
+    legend_headroom(axe, (e, np.array([-rmse, rmse])), 0.65)
     axv.plot(*_decimate_minmax(t, v), color="tab:green", lw=0.9, label="voltage")
     label = "voltage limits"
     for lim in (vmin, vmax):

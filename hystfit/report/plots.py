@@ -826,6 +826,17 @@ def loop_figure(path, u_V, y_meas, y_model=None, *, unit: str = "um", title: str
     return _save(fig, path, dpi)
 
 
+def legend_headroom(ax, series, top: float) -> None:
+    """Set ``ax``'s y-limits to the finite values of ``series`` (arrays) with ``top`` × their range of
+    room above them for an upper legend (a blind test found the legend over a curve's last peak) and
+    5 % below; nothing when they have no range."""
+    vals = np.concatenate([np.asarray(a, float).ravel() for a in series])
+    vals = vals[np.isfinite(vals)]
+    if vals.size and np.ptp(vals) > 0:
+        lo, hi = float(vals.min()), float(vals.max())
+        ax.set_ylim(lo - 0.05 * (hi - lo), hi + top * (hi - lo))
+
+
 def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: str = "",
                       dpi: int = DPI) -> Path:
     """Measured and model output over time, with the residual below.
@@ -864,10 +875,7 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
     ax, axr = fig.axes
     _plot_series(ax, t, ym, _MEAS_STYLE, "measured")
     _plot_series(ax, t, yp, _MODEL_STYLE, "model")
-    both = np.concatenate([ym[np.isfinite(ym)], yp[np.isfinite(yp)]])
-    if both.size and np.ptp(both) > 0:  # headroom for the legend (it covered the last peak: a blind test)
-        lo, hi = float(both.min()), float(both.max())
-        ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.3 * (hi - lo))
+    legend_headroom(ax, (ym, yp), 0.3)
     ax.set_ylabel(_output_label(unit))
     _corner_legend(ax, "upper right")
     if title:
@@ -879,9 +887,7 @@ def timeseries_figure(path, t_s, y_meas, y_model, *, unit: str = "um", title: st
         axr.axhspan(-rmse, rmse, color="tab:blue", alpha=0.15, lw=0, label=f"±RMSE{which} = {rmse:.3g} {u}")
     axr.axhline(0.0, color="0.5", lw=0.6)
     _plot_series(axr, t, resid, {"color": "tab:blue", "lw": 0.7}, "model − measured")
-    if finite.any() and np.ptp(resid[finite]) > 0:  # the legend's headroom, as above
-        lo, hi = min(float(resid[finite].min()), -rmse), max(float(resid[finite].max()), rmse)
-        axr.set_ylim(lo - 0.05 * (hi - lo), hi + 0.65 * (hi - lo))
+    legend_headroom(axr, (resid, np.array([-rmse, rmse])), 0.65)
     axr.set_ylabel(f"Residual ({u})")
     axr.set_xlabel("Time (s)" if t_s is not None else "Sample")
     _corner_legend(axr, "upper right", fontsize="small")
