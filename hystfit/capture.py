@@ -9,6 +9,17 @@ from typing import ClassVar
 import numpy as np
 
 
+#: how an output unit is written in words, on axes and in reports (the JSON's names keep the code:
+#: ``rmse_um``); the one table every module uses (:func:`display_unit`)
+UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m", "urad": "µrad", "mrad": "mrad", "rad": "rad",
+                "deg": "°"}
+
+
+def display_unit(unit: str) -> str:
+    """A unit as written in words: ``"um"`` → ``"µm"``, ``"nm"`` → ``"nm"``, unknown units unchanged."""
+    return UNIT_DISPLAY.get(unit, unit)
+
+
 class UniformSamples:
     """The sample count and rate of a uniformly sampled record (a :class:`Capture`, a feedforward
     target): ``dt`` is its sample period (s), ``samples_field`` names the (N,) array that counts."""

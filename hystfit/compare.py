@@ -12,7 +12,6 @@ cell that fails is recorded with its error and the comparison goes on.
 from __future__ import annotations
 
 import math
-
 import time
 import warnings
 from dataclasses import dataclass, field, replace

@@ -86,7 +86,7 @@ from typing import Callable, ClassVar, Sequence
 import numpy as np
 from ._jit import njit
 
-from .capture import UniformSamples
+from .capture import UniformSamples, display_unit
 from .conditions import LookupTable, detect_condition
 from .errors import ConfigError, InputError
 from .io import TARGET_NAMES, Columns, load_table
@@ -235,11 +235,6 @@ MAX_TARGET_SAMPLES = 10_000_000
 TARGET_BYTES_PER_SAMPLE = 200
 
 
-def _shown(unit: str) -> str:
-    """A unit in a description's words: µm for um (the JSON's names keep um)."""
-    return "µm" if unit == "um" else unit
-
-
 def check_target_samples(n: float, fs: float, source: str, fix: str) -> int:
     """``n`` (the sample count of a built-in trajectory, computed in floating point so a huge one
     cannot overflow) as an int, or a one-line ConfigError naming ``source`` (what the user asked
@@ -298,7 +293,7 @@ def sine_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 10_00
     n = _periodic_n(freq_Hz, cycles, fs, source)
     t = np.arange(n, dtype=np.float64) / fs
     y = offset + 0.5 * amp * np.sin(2.0 * np.pi * freq_Hz * t - 0.5 * np.pi) + 0.5 * amp
-    u = _shown(unit)
+    u = display_unit(unit)
     desc = f"sine {_fmt(amp)} {u} p-p, {_fmt(freq_Hz)} Hz, {_fmt(cycles)} cycles, offset {_fmt(offset)} {u}"
     return Target(t, y, 1.0 / fs, unit, desc, "sine", (Segment(0, n, freq_Hz, f"{_fmt(amp)} {unit}, {_fmt(freq_Hz)} Hz"),))
 
@@ -316,7 +311,7 @@ def triangle_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 1
     t = np.arange(n, dtype=np.float64) / fs
     phase = np.mod(freq_Hz * t, 1.0)
     y = offset + amp * (1.0 - np.abs(2.0 * phase - 1.0))
-    u = _shown(unit)
+    u = display_unit(unit)
     desc = f"triangle {_fmt(amp)} {u} p-p, {_fmt(freq_Hz)} Hz, {_fmt(cycles)} cycles, offset {_fmt(offset)} {u}"
     return Target(t, y, 1.0 / fs, unit, desc, "triangle",
                   (Segment(0, n, freq_Hz, f"{_fmt(amp)} {unit}, {_fmt(freq_Hz)} Hz"),))
@@ -378,7 +373,7 @@ def steps_target(levels: Sequence[float] = (10.0,), hold_s: float = 0.2, fs: flo
         steps.append(Step(k, k + n_hold, offset + seq[i], offset + lev))
     t = np.arange(n, dtype=np.float64) / fs
     f = 1.0 / (2.0 * hold_s)
-    desc = (f"steps {', '.join(_fmt(v) for v in levels)} {_shown(unit)} (relative to {_fmt(offset)} {_shown(unit)}), "
+    desc = (f"steps {', '.join(_fmt(v) for v in levels)} {display_unit(unit)} (relative to {_fmt(offset)} {display_unit(unit)}), "
             f"hold {_fmt(hold_s)} s")
     return Target(t, y, 1.0 / fs, unit, desc, "steps", (Segment(0, n, f, f"steps, hold {_fmt(hold_s)} s"),),
                   tuple(steps))
@@ -412,8 +407,8 @@ def multi_target(amps: Sequence[float] = MULTI_AMPLITUDES_UM, freqs_Hz: Sequence
         start += y.size
     y = np.concatenate(parts)
     t = np.arange(y.size, dtype=np.float64) / fs
-    desc = (f"multi: {', '.join(f'{_fmt(a)} {_shown(unit)} at {_fmt(f)} Hz' for a, f in zip(amps, freqs_Hz))}; "
-            f"{_fmt(cycles)} cycle(s) each, offset {_fmt(offset)} {_shown(unit)}")
+    desc = (f"multi: {', '.join(f'{_fmt(a)} {display_unit(unit)} at {_fmt(f)} Hz' for a, f in zip(amps, freqs_Hz))}; "
+            f"{_fmt(cycles)} cycle(s) each, offset {_fmt(offset)} {display_unit(unit)}")
     return Target(t, y, 1.0 / fs, unit, desc, "multi", tuple(segs))
 
 

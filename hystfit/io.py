@@ -44,7 +44,7 @@ from typing import Callable, ContextManager, Iterable, Iterator, Mapping, Sequen
 import numpy as np
 
 from ._process import alive
-from .capture import Capture
+from .capture import Capture, display_unit
 from .conditions import (CONDITION_RULE, count_cycles, detect_condition, is_valid_condition, nonstationary_notes,
                          white_noise_sigma)
 from .errors import ConfigError, InputError, OutputError
@@ -1425,7 +1425,7 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
         raise InputError(f"{label}: {table.col_label(chosen['input'])}: the input is constant{within} ({u[0]:g} V), "
                          "there is no excitation; check the input column (--input-col)")
     if y is not None and y.size and float(np.ptp(y)) <= CONSTANT_OUTPUT_FRACTION * float(np.max(np.abs(y))):
-        unit = "µm" if y_unit == "um" else y_unit
+        unit = display_unit(y_unit)
         raise InputError(f"{label}: {table.col_label(chosen['output'])}: the output is constant ({y[0]:g} {unit}) "
                          "while the input moves: the sensor recorded nothing to identify from; check the output "
                          "column (--output-col) or the sensor")
@@ -1447,11 +1447,11 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     elif windowed and not start:
         notes.append(f"starts mid-loop: the --start window begins while the input moves ({u[0]:.4g} V), so the "
                      "actuator's hysteresis state at the start is unknown; start the window at a rest or turning point")
-    for what, x, unit in (("input", u, "V"), ("output", y, "µm" if y_unit == "um" else y_unit)):
+    for what, x, unit in (("input", u, "V"), ("output", y, display_unit(y_unit))):
         if x is not None:
             notes += _glitch_notes(what, x, unit, rows, start)
     if y is not None:
-        notes += _saturation_notes(u, y, "µm" if y_unit == "um" else y_unit)
+        notes += _saturation_notes(u, y, display_unit(y_unit))
     amp, freq, source = _condition(table, chosen, opts, notes, u, dt)
     cycles = count_cycles(u, dt, freq)
     if cycles < opts.min_cycles:

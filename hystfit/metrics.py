@@ -52,6 +52,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from .capture import display_unit
 from .errors import ConfigError
 
 __all__ = [
@@ -112,7 +113,6 @@ METRICS: tuple[MetricSpec, ...] = (
 )
 
 _BY_NAME = {m.name: m for m in METRICS}
-_UNIT_DISPLAY = {"um": "µm"}
 
 
 #: an error whose mean (bias) is at least this share of its RMSE is mostly a constant (the mean's
@@ -191,7 +191,7 @@ def describe_metrics(unit: str, names: Sequence[str] | None = None) -> list[tupl
     -------
     list of (str, str)
     """
-    shown = _UNIT_DISPLAY.get(unit, unit)
+    shown = display_unit(unit)
     specs = METRICS if names is None else [_spec(n) for n in names]
     suffix = {"output": f" [{shown}]", "%": " [%]", "fraction": " [fraction]", "1": "", "count": ""}
     return [(metric_key(s.name, unit), s.formula + suffix[s.unit_kind]) for s in specs]

@@ -96,7 +96,6 @@ def predict_capture(pf: ParamsFile, capture: Capture, method: str = "interpolate
     return Prediction(capture, y, tuple((c.label, c.weight) for c in cells), metrics, offset, tuple(notes))
 
 
-
 def _constant_note(pf: ParamsFile, bias: float, rmse: float, *, outside: bool) -> str:
     """The note on an error that is mostly a constant: a sensor zero that moved since the
     identification is one cause (``--align-offset`` fits it); a table used outside its cells'

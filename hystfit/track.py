@@ -95,6 +95,7 @@ from typing import Sequence
 
 import numpy as np
 from ._lazy import lazy_module
+from .capture import display_unit
 from .errors import ConfigError
 from .seeds import check_seed
 from .invert import (CellUse, InversionResult, SegmentChoice, Span, Target, blend_segments, find_spans,
@@ -292,7 +293,7 @@ def _realize(num: np.ndarray, den: np.ndarray):
 def _per_volt(unit: str) -> str:
     """The unit of a gain K: ``µm/V`` for a table in um (``per V`` without a unit; a blind test read
     "static gain 0.3178 per V" in a report whose every other number had its unit)."""
-    return f"{'µm' if unit == 'um' else unit}/V" if unit else "per V"
+    return f"{display_unit(unit)}/V" if unit else "per V"
 
 
 def _static(gain: float, dt: float, note: str = "", unit: str = "") -> NominalPlant:

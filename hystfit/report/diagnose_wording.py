@@ -382,7 +382,7 @@ def loop_position_text(near: dict, mid: dict, unit: str) -> str:
 
 def resolution_text(r: dict, unit: str) -> str:
     """The base-resolution check (:func:`hystfit.diagnose.resolution_check`) in one paragraph."""
-    u = "µm" if unit == "um" else unit
+    u = display_unit(unit)
     before, after = r["heldout_rmse_before_out"], r["heldout_rmse_after_out"]
     with_effects = f" with {' + '.join(r['effects'])}" if r["effects"] else ""
     head = (f"Resolution of the base: {r['option']} {r['from']} → {r['to']}{with_effects} takes the held-out RMSE "
@@ -406,7 +406,7 @@ def converged_text(r: dict, unit: str, final: int | None = None) -> str:
     (:func:`hystfit.diagnose.converge_resolution`) in one paragraph; ``final``: the resolution the
     diagnosis ended on (a check after a named effect may refine it further: then the recommended
     model uses that one — a blind test's report said 20 here and 80 in its last line)."""
-    u = "µm" if unit == "um" else unit
+    u = display_unit(unit)
     tried = "; ".join(f"{x['from']} → {x['to']}: held-out RMSE {x['heldout_rmse_before_out']:.4g} → "
                       f"{x['heldout_rmse_after_out']:.4g} {u}, {100 * x['reduction_mean_square']:.0f} %"
                       + (" (adopted)" if x["adopted"] else " (kept the coarser)") for x in r["steps"])
@@ -425,7 +425,7 @@ def converged_text(r: dict, unit: str, final: int | None = None) -> str:
 def joint_text(effect: str, joint: dict, unit: str) -> str:
     """Why ``effect`` was named although it removes less than the threshold alone (the two-effect
     look-ahead, :func:`hystfit.diagnose._look_ahead`)."""
-    u = "µm" if unit == "um" else unit
+    u = display_unit(unit)
     return (f" Named together with `{joint['with']}`: alone it removes less than the threshold, but each of the two "
             f"passes the rule on top of the other — `{joint['with']}` in the next step, and this one removes "
             f"{joint['reduction_on_top_of_other']:.2f} of the gap `{joint['with']}` leaves alone (threshold "
@@ -438,7 +438,7 @@ def during_text(checks, unit: str) -> str:
     paragraph; empty when none ran."""
     if not checks:
         return ""
-    u = "µm" if unit == "um" else unit
+    u = display_unit(unit)
     parts = [f"after {' + '.join(x['effects'])}: {x['option']} {x['from']} → {x['to']}, held-out "
              f"{x['heldout_rmse_before_out']:.4g} → {x['heldout_rmse_after_out']:.4g} {u} "
              f"({100 * x['reduction_mean_square']:.0f} %, {'adopted' if x['adopted'] else 'kept the coarser'})"

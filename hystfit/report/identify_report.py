@@ -17,7 +17,6 @@ from ..params import AT_BOUND_RTOL
 from .render import FigureJob, FigureStream
 from .tables import fmt, frame, markdown_table, metric_columns, metric_legend
 
-UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m"}
 
 
 def _warmup(res: IdentifyResult) -> bool:
@@ -136,7 +135,7 @@ class ConditionFigures:
             rmse = f.metrics.get(f"rmse_{res.unit}", np.nan)
             panels.append({"title": f.label, "u": [c.u for c in f.captures], "y_meas": [c.y for c in f.captures],
                            "y_model": list(f.predictions),
-                           "subtitle": f"R²={fmt(r2)} RMSE={fmt(rmse, 3)} {UNIT_DISPLAY.get(res.unit, res.unit)}"})
+                           "subtitle": f"R²={fmt(r2)} RMSE={fmt(rmse, 3)} {plots.display_unit(res.unit)}"})
         self._stream.add([FigureJob("overview_figure", self.plot_dir / "overview.png", (panels,),
                                     {"unit": res.unit, "title": f"{res.model_name} identified with {res.optimizer_name}"})])
         self._stream.result()

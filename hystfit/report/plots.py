@@ -43,6 +43,8 @@ from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..capture import display_unit  # noqa: F401  (re-exported: the report modules import it from here)
+
 from ..io import atomic_write_bytes
 
 if TYPE_CHECKING:  # matplotlib is imported when the first figure is drawn (≈ 0.4 s saved when no plot is made)
@@ -79,8 +81,6 @@ TICK_BINS = 5
 #: zlib level of written PNGs (:func:`png_bytes`): 1 encodes ≈ 2.5× faster than 6, files ≈ 15 % larger
 PNG_COMPRESS_LEVEL = 1
 
-_UNIT_DISPLAY = {"um": "µm", "nm": "nm", "mm": "mm", "m": "m", "urad": "µrad", "mrad": "mrad",
-                 "rad": "rad", "deg": "°"}
 _QUANTITY = {"um": "Displacement", "nm": "Displacement", "mm": "Displacement", "m": "Displacement",
              "urad": "Angle", "mrad": "Angle", "rad": "Angle", "deg": "Angle"}
 # The measurement is drawn wide and the model thin on top of it, half transparent: on a 50-cycle
@@ -92,10 +92,6 @@ _MODEL_STYLE = {"color": "tab:red", "lw": 0.8, "alpha": 0.75, "solid_capstyle": 
 # ----------------------------------------------------------------------------------------------
 # helpers
 
-
-def display_unit(unit: str) -> str:
-    """Unit as printed on axes: ``"um"`` → ``"µm"``, ``"nm"`` → ``"nm"``, unknown units unchanged."""
-    return _UNIT_DISPLAY.get(unit, unit)
 
 
 def _output_label(unit: str, what: str | None = None) -> str:
