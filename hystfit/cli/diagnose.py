@@ -122,20 +122,18 @@ def diagnose(
 def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
     """The console's part of a diagnosis: a caution on a doubtful noise floor (stderr), then the JSON
     summary (``--json``) or the effects' table, the where-pointers and the next step (stdout)."""
-    from ..diagnose import DiagnoseSettings, noise_floor_doubtful
-    from ..report.diagnose_report import diagnosis_document, next_step_line, not_tested_text
+    from ..diagnose import noise_floor_doubtful
+    from ..report.diagnose_report import diagnosis_document, fit_fraction_text, next_step_line, not_tested_text
     from ..report.diagnose_wording import doubtful_floor_text, pointers_text
     from ..report.plots import display_unit
 
     if noise_floor_doubtful(d.noise) and not quiet:  # the verdict rests on the floor: said before it
         stderr.print(f"warning: {doubtful_floor_text(d.noise, display_unit(d.unit))}", markup=False, highlight=False,
                      soft_wrap=True)
-    if d.split["kind"] == "capture" and d.settings.fit_fraction != DiagnoseSettings().fit_fraction and not quiet:
-        stderr.print(f"note: --fit-fraction {d.settings.fit_fraction:g} applies to the captures split in time and to "
-                     "the temporal check; the verdict's hold-out is whole captures (those at interior frequencies)",
-                     markup=False, highlight=False, soft_wrap=True)
-    if d.split.get("not_tested") and not quiet:  # an effect the hold-out could not test: never silently
-        stderr.print(f"note: {not_tested_text(d)}", markup=False, highlight=False, soft_wrap=True)
+    if not quiet:  # what the hold-out could not test, what --fit-fraction applied to: never silently
+        for text in (fit_fraction_text(d), not_tested_text(d) if d.split.get("not_tested") else None):
+            if text is not None:
+                stderr.print(f"note: {text}", markup=False, highlight=False, soft_wrap=True)
     if json_out:
         print_json({**diagnosis_document(d), "params": str(out / "params.json") if d.explained_by else None})
         return

@@ -947,7 +947,21 @@ def split_why_text(d: Diagnosis) -> str:
     why = split_why(d.split_choice.reason, d.split_choice.swept_sources)
     if d.split.get("not_tested"):
         why += "; " + not_tested_text(d)
+    ff = fit_fraction_text(d)
+    if ff is not None:
+        why += "; " + ff
     return why
+
+
+def fit_fraction_text(d: Diagnosis) -> str | None:
+    """Under the capture split, what a ``--fit-fraction`` other than the default applies to (a blind
+    test's 0.1 and 0.9 gave the same verdict without a word); None otherwise."""
+    from ..diagnose import DiagnoseSettings
+
+    if d.split["kind"] != "capture" or d.settings.fit_fraction == DiagnoseSettings().fit_fraction:
+        return None
+    return (f"--fit-fraction {d.settings.fit_fraction:g} applies to the captures split in time and to the temporal "
+            "check; the verdict's hold-out is whole captures (those at interior frequencies)")
 
 
 def not_tested_text(d: Diagnosis) -> str:

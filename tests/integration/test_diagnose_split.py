@@ -267,3 +267,7 @@ def test_fit_fraction_under_the_capture_split_is_said_to_apply_to_the_time_split
                                  "--fit-fraction", "0.3", "--max-effects", "1"])
     assert r.exit_code == 0, r.output
     assert "note: --fit-fraction 0.3 applies to the captures split in time" in " ".join(r.stderr.split())
+    import json
+
+    why = json.loads((tmp_path / "d" / "diagnosis.json").read_text())["split"]["why"]
+    assert "--fit-fraction 0.3 applies to the captures split in time" in why  # the report says it too
