@@ -176,6 +176,11 @@ class Delay(Block):
     def knot_operator(self, x, view, key):
         return shift_rows(x, key)
 
+    def knot_shift(self, key) -> int:
+        """The knot ``key`` as a whole-sample delay: :meth:`knot_operator` is ``shift_rows(x, key)``, whose
+        Gram products :class:`hystfit.effects._ShiftedRuns` takes from one Gram of the fit rows."""
+        return int(key)
+
     def signature(self, yhat, view):
         """One sample of delay, ŷ(t − dt) − ŷ(t): first order in T_d for smooth inputs, and the
         right shape at steps (a derivative would be a spike there)."""

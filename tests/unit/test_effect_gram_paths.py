@@ -199,3 +199,28 @@ def test_designs_of_one_column_layout_share_their_solve_indices():
     alone = solve_coefficients(eff, np.empty(0), design=prepare_design([y + 1.0 for y in yhats], views, lin))
     for x, y in zip(shared, alone):
         np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("mask_kind", ["all", "prefix", "hole", "short_runs"])
+def test_delayed_grams_from_the_fit_runs_equal_the_delayed_rows_products(mask_kind):
+    """:class:`hystfit.effects._ShiftedRuns`: the Gram products of X delayed by n whole samples over the
+    fit samples, from one Gram per run of fit samples plus O(n) boundary rows, equal the products of
+    the delayed rows (``shift_rows``) for every mask a split makes, and delays longer than a run."""
+    from hystfit.blocks.delay import shift_rows
+    from hystfit.effects import _ShiftedRuns
+
+    rng = np.random.default_rng(3)
+    N, w = 400, 5
+    X, y_all = rng.standard_normal((N, w)), rng.standard_normal(N)
+    k = np.arange(N)
+    mask = {"all": None, "prefix": k < 240, "hole": (k < 150) | (k >= 250),
+            "short_runs": ((k >= 10) & (k < 13)) | (k >= 300)}[mask_kind]
+    y = y_all if mask is None else y_all[mask]
+    runs = _ShiftedRuns(X, mask, y)
+    for n in (0, 1, 2, 5, 37, 60):
+        B = shift_rows(X, n) if mask is None else shift_rows(X, n)[mask]
+        B1 = shift_rows(X, n + 1) if mask is None else shift_rows(X, n + 1)[mask]
+        Q, v = runs.gram(n)
+        np.testing.assert_allclose(Q, B.T @ B, rtol=1e-11, atol=1e-9)
+        np.testing.assert_allclose(v, B.T @ y, rtol=1e-11, atol=1e-9)
+        np.testing.assert_allclose(runs.lag_one(n), B.T @ B1, rtol=1e-11, atol=1e-9)
