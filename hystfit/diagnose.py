@@ -507,7 +507,7 @@ def fit_recommended(captures: Sequence[Capture], d: "Diagnosis", model: Model, o
     if optimizer.name == "auto":
         rec = prepare_shared(rec, captures, store, resume)
         starts = recommended_starts(captures, d, rec)
-    res = identify(captures, rec, optimizer if starts is None else polisher(), seed=seed,
+    res = identify(captures, rec, optimizer if starts is None else polisher(close_start=True), seed=seed,
                    global_fit=d.mode != "per-condition", model_options=opts, progress=progress, executor=executor,
                    store=store, resume=resume, starts=starts)
     return res if starts is None else replace(res, start=HANDED_OVER_START)
