@@ -1717,6 +1717,20 @@ def _reduction(before: float, after: float, sigma: float) -> float:
     return float(np.clip((before - after) / (before - sigma), 0.0, 1.0)) if before > sigma else 0.0
 
 
+#: a candidate whose held-out reduction reaches this share of ``threshold`` contends: it can be named
+#: (alone at the threshold, or as the first of a look-ahead pair, :func:`_look_ahead`); only the
+#: contenders' placebos are fitted (:func:`_run_candidates`), since no other candidate's verdict
+#: depends on its placebo
+CONTENDER_SHARE = 0.5
+
+
+def _contends(reduction: float, before: float, sigma: float, settings: "DiagnoseSettings") -> bool:
+    """Whether a candidate with this held-out ``reduction`` of the gap ``before`` (over the floor
+    ``sigma``) can be named at all, so that its placebo decides (see :data:`CONTENDER_SHARE`)."""
+    return reduction >= CONTENDER_SHARE * settings.threshold and \
+        _excess(before, sigma) >= settings.min_excess_ratio * sigma
+
+
 def _placebo_layout(eff: Effect) -> tuple[int, int]:
     """The parameter layout of ``eff``'s placebos: (searched + shared, per capture)."""
     ks, kl = eff.layout()
@@ -1774,18 +1788,19 @@ def _refit_effect(ctx: _StepContext, eff: Effect, caps, views, settings: "Diagno
     return _Refit(st_e, efit, preds_e, _rmse(preds_e, views, "test"), _rmse(preds_e, views, "fit"), share, r2)
 
 
-def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[float, float], step: int, caps,
+def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[float, float] | None, step: int, caps,
                  views, settings: "DiagnoseSettings") -> EffectResult:
     """The :class:`EffectResult` of ``eff`` refitted on top of the current model, judged against the
-    (best, mean) held-out improvement of its placebos."""
-    pl_best, pl_mean = placebo
+    (best, mean) held-out improvement of its placebos; ``placebo`` None: not fitted (``eff`` does
+    not contend, :func:`_contends`): its placebo numbers are NaN and ``beats_placebo`` None."""
+    pl_best, pl_mean = placebo if placebo is not None else (math.nan, math.nan)
     before, sigma, after = ctx.before, ctx.sigma, refit.after
     denom = before - sigma
     red = _reduction(before, after, sigma)
-    pl_red = float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
+    pl_red = math.nan if placebo is None else float(np.clip(pl_best / denom, 0.0, 1.0)) if denom > 0 else 0.0
     params = refit.fit.params(views, [c.source for c in caps])
     passes = {"reduction_at_least_threshold": red >= settings.threshold,
-              "beats_placebo": (before - after) - pl_best > settings.placebo_margin * denom,
+              "beats_placebo": None if placebo is None else (before - after) - pl_best > settings.placebo_margin * denom,
               "gap_above_noise": _excess(before, sigma) >= settings.min_excess_ratio * sigma}
     ev = Evidence.from_summary(eff.name, ctx.summary, signature_share=refit.share, params=params,
                                heldout_before=before, heldout_after=after, reduction=red, placebo=pl_best)
@@ -1883,37 +1898,41 @@ def _grid_scores(effects: Sequence[Effect], scoring, exact_later: bool = False) 
 
 def _run_candidates(ctx: _StepContext, remaining: Sequence[Effect], step: int, caps, views,
                     settings: "DiagnoseSettings", rng) -> tuple[list[EffectResult], dict]:
-    """Every remaining candidate refitted and judged against its placebos. The refits and the placebo
-    fits are independent: they run on :data:`SELECTION_WORKERS` processes and give the same numbers
-    on any number. First the search grids of the effects with searched parameters are scored
-    (:func:`_grid_scores`, split over the processes); then, longest first, the searches of those
-    effects go on from their grid scores (:meth:`hystfit.effects.Effect.fit`'s ``grid_scores``: a
-    Nelder–Mead polish, one evaluation after the other) while the other processes refit the
-    effects without searched parameters and fit the placebos. The results in the order of
-    ``remaining``, and per effect the (state, predictions) of the model with it."""
+    """Every remaining candidate refitted and judged against its placebos. The refits, then the
+    placebo fits are independent: each round runs on :data:`SELECTION_WORKERS` processes and gives
+    the same numbers on any number. First the search grids of the effects with searched parameters
+    are scored (:func:`_grid_scores`, split over the processes); then, longest first, the searches
+    of those effects go on from their grid scores (:meth:`hystfit.effects.Effect.fit`'s
+    ``grid_scores``: a Nelder–Mead polish, one evaluation after the other) while the other
+    processes refit the effects without searched parameters. Then the placebos of the layouts of
+    the candidates that contend (:func:`_contends`) are fitted; a layout no contender has gets none
+    (its candidates' placebo numbers are NaN: no verdict depends on them). Each placebo is drawn
+    from its own copy of ``rng`` (:func:`_placebo_draws`), so one left out changes no other. The
+    results in the order of ``remaining``, and per effect the (state, predictions) of the model
+    with it."""
     draws = _placebo_draws(ctx, remaining, settings, rng)
     searched = sorted((e for e in remaining if e.searched_bounds()[0].size), key=lambda e: -e.searched_bounds()[0].size)
     others = [e for e in remaining if not e.searched_bounds()[0].size]
     scoring = scoring_design(ctx.lin_cache[2])  # every worker shares it
     grids = _grid_scores(searched, scoring, exact_later=True) if searched else {}
 
-    def run(i: int):
+    def refit(i: int) -> _Refit:
         if i < len(searched):
             eff = searched[i]
             return _refit_effect(ctx, eff, caps, views, settings, _exact_grid_scores(eff, scoring, grids[eff.name]))
-        if i < len(searched) + len(others):
-            return _refit_effect(ctx, others[i - len(searched)], caps, views, settings)
-        key, start = draws[i - len(searched) - len(others)]
-        return _placebo_gain(ctx, key, start, caps, views)
+        return _refit_effect(ctx, others[i - len(searched)], caps, views, settings)
 
-    out = fork_map(run, len(searched) + len(others) + len(draws), SELECTION_WORKERS)
-    k = len(searched) + len(others)
-    refits = {e.name: r for e, r in zip(searched + others, out[:k])}
+    refits = dict(zip((e.name for e in searched + others), fork_map(refit, len(searched) + len(others),
+                                                                      SELECTION_WORKERS)))
+    contending = {_placebo_layout(e) for e in remaining
+                  if _contends(_reduction(ctx.before, refits[e.name].after, ctx.sigma), ctx.before, ctx.sigma, settings)}
+    draws = [d for d in draws if d[0] in contending]
+    out = fork_map(lambda i: _placebo_gain(ctx, draws[i][0], draws[i][1], caps, views), len(draws), SELECTION_WORKERS)
     gains: dict[tuple[int, int], list[float]] = {}
-    for (key, _), g in zip(draws, out[k:]):
+    for (key, _), g in zip(draws, out):
         gains.setdefault(key, []).append(g)
     placebo = {key: (max(g), float(np.mean(g))) for key, g in gains.items()}
-    results = [_test_effect(ctx, e, refits[e.name], placebo[_placebo_layout(e)], step, caps, views, settings)
+    results = [_test_effect(ctx, e, refits[e.name], placebo.get(_placebo_layout(e)), step, caps, views, settings)
                for e in remaining]
     return results, {e.name: (refits[e.name].state, refits[e.name].preds) for e in remaining}
 
@@ -1964,7 +1983,7 @@ def _look_ahead(results: list[EffectResult], states: dict, before: float, sigma:
     thr = run_step.settings.threshold
     alone = {r.effect: r for r in results}
     firsts = [r for r in results if r.passes["beats_placebo"] and r.passes["gap_above_noise"]
-              and r.reduction >= 0.5 * thr][:2]
+              and r.reduction >= CONTENDER_SHARE * thr][:2]
     for r in firsts:
         nxt, nxt_states, _ = run_step(states[r.effect], r.effect)
         pick = choose_effect(nxt, run_step.settings)

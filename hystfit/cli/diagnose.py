@@ -124,7 +124,7 @@ def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
     summary (``--json``) or the effects' table, the where-pointers and the next step (stdout)."""
     from ..diagnose import noise_floor_doubtful
     from ..report.diagnose_report import diagnosis_document, fit_fraction_text, next_step_line, not_tested_text
-    from ..report.diagnose_wording import doubtful_floor_text, pointers_text
+    from ..report.diagnose_wording import doubtful_floor_text, placebo_text, pointers_text
     from ..report.plots import display_unit
 
     if noise_floor_doubtful(d.noise) and not quiet:  # the verdict rests on the floor: said before it
@@ -151,7 +151,7 @@ def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
         pick = d.explained_by[k - 1] if k <= len(d.explained_by) else None
         for r in results:
             table.add_row(str(k), r.effect, f"{r.heldout_rmse_before:.4g}", f"{r.heldout_rmse_after:.4g}",
-                          f"{r.reduction:.2f}", f"{r.placebo_improvement:.3g}",
+                          f"{r.reduction:.2f}", placebo_text(r.placebo_improvement),
                           "named" if r.effect == pick else "yes" if r.eligible else "no", end_section=r is results[-1])
     stdout.print(table)
     for p in pointers_text(d.findings, d.unit):

@@ -27,7 +27,7 @@ from .tables import fmt
 from .diagnose_wording import (DEFINITIONS, doubtful_floor_text, evidence_text, noise_method_text, pointers_text, reconciliation_why,
                                resolution_text, split_description, split_why,
                                converged_text, during_text, joint_text, best_not_named_text, loop_position_text,
-                               not_named_reasons)
+                               not_named_reasons, placebo_text, NO_PLACEBO_WHY)
 
 #: What each candidate effect means, in one plain sentence.
 PLAIN = {
@@ -795,7 +795,7 @@ def _md_effects(d: Diagnosis, figs: dict[str, str]) -> list[str]:
         rows = []
         for r in step:
             rows.append([f"`{r.effect}`", r.heldout_rmse_before, r.heldout_rmse_after, f"{r.reduction:.2f}",
-                         r.placebo_improvement, str(r.n_parameters), _params_text(r, d.unit),
+                         placebo_text(r.placebo_improvement), str(r.n_parameters), _params_text(r, d.unit),
                          "**yes**" if r.eligible else "no"])
         L += _table(["effect", f"held-out before ({u})", f"after ({u})", "reduction", f"placebo gain ({u})",
                      "parameters", "fitted values", "passes the rule"], rows) + [""]
@@ -853,7 +853,8 @@ def _md_definitions(d: Diagnosis, figs: dict[str, str]) -> list[str]:
           "- Gap above noise = √(RMSE² − σ²): the part of the RMSE that is not sensor noise.",
           "- reduction = (before − after)/(before − σ), clipped to [0, 1]; placebo gain = the largest held-out "
           "improvement among random corrections with the same number of parameters (random mixtures of the "
-          "effects' shapes with their timing scrambled: same smoothness, no relation to the input).",
+          "effects' shapes with their timing scrambled: same smoothness, no relation to the input); – where "
+          f"none was fitted: {NO_PLACEBO_WHY}.",
           "- Parameters: the number of numbers fitted for the effect (a per-capture effect such as drift has two per "
           "capture).",
           f"- Runtime {d.runtime_s:.1f} s. Machine-readable results: `diagnosis.json`.", ""]

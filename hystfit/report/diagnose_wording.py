@@ -12,6 +12,8 @@ numbers only and imports nothing from :mod:`hystfit.diagnose`.
 
 from __future__ import annotations
 
+import math
+
 from typing import TYPE_CHECKING, Iterable, Sequence
 
 import numpy as np
@@ -285,9 +287,21 @@ def evidence_text(ev: "Evidence", unit: str) -> str:
     u = display_unit(unit)
     sig = f"its signature explains {100 * ev.signature_share:.0f} % of the residual above noise"
     parts = _EVIDENCE[ev.effect](ev, sig, u) if ev.effect in _EVIDENCE else []
+    placebo = (f"best placebo of the same size improves by {ev.placebo:.3g} {u}" if math.isfinite(ev.placebo)
+               else f"no placebo fitted: {NO_PLACEBO_WHY}")
     parts.append(f"held out: RMSE {ev.heldout_before:.4g} → {ev.heldout_after:.4g} {u} (reduction "
-                 f"{ev.reduction:.2f}; best placebo of the same size improves by {ev.placebo:.3g} {u})")
+                 f"{ev.reduction:.2f}; {placebo})")
     return "; ".join(parts)
+
+
+#: why a candidate has no placebo (:data:`hystfit.diagnose.CONTENDER_SHARE`)
+NO_PLACEBO_WHY = ("it removes less than half the threshold of the gap (or the gap is within the noise), so it "
+                  "cannot be named and no placebo could change its verdict")
+
+
+def placebo_text(gain: float) -> str:
+    """A placebo's held-out gain in a table cell: its value, or "–" where none was fitted."""
+    return f"{gain:.3g}" if math.isfinite(gain) else "–"
 
 
 def reconciliation_why(reason: str, reduction: float, threshold: float) -> str:
@@ -326,7 +340,7 @@ def not_named_reasons(passes: dict, reduction: float, improvement: float, placeb
         got, need = _pct_pair(reduction, threshold)
         out.append(f"it removes only {got} of the gap above the noise on held-out data, less than the {need} the "
                    "rule asks for")
-    if not passes.get("beats_placebo", True):
+    if passes.get("beats_placebo") is False:  # None: not fitted (the candidate does not contend)
         if improvement > 0:
             than = "smaller than" if improvement <= placebo else "not clearly more than"
             out.append(f"its held-out improvement ({improvement:.3g} {u}) is {than} what random corrections with as "

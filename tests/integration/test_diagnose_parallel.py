@@ -54,3 +54,40 @@ def test_a_resolution_refit_computed_ahead_gives_the_same_diagnosis(monkeypatch)
     assert sum(s["adopted"] for s in checks) >= 2  # two doublings in a row: the case computed ahead
     assert document(2) == one
     assert used  # the refit computed ahead was used
+
+
+def test_placebos_are_fitted_for_the_contenders_only_and_change_no_verdict(monkeypatch):
+    """A candidate whose held-out reduction is below half the threshold cannot be named (alone or in a
+    look-ahead pair), so its placebo is not fitted: its placebo numbers are NaN, ``beats_placebo`` is
+    None (JSON null), the report's cell is "–". Every other number, and the verdict, are those of a
+    diagnosis that fits every layout's placebos (each placebo is drawn from its own generator). A
+    candidate whose layout (parameter count) a contender shares keeps that layout's placebo."""
+    import math
+
+    from hystfit.diagnose import CONTENDER_SHARE
+
+    caps = withheld_effect_captures("delay", 1.0, 3, amplitudes_V=(30.0, 60.0), frequencies_Hz=(10.0, 80.0),
+                                    steps_s=0)
+    settings = DiagnoseSettings(max_effects=2)
+    lazy = diagnose(caps, PI(), Auto(), seed=3, settings=settings)
+    monkeypatch.setattr(diagnose_module, "_contends", lambda *args: True)
+    full = diagnose(caps, PI(), Auto(), seed=3, settings=settings)
+    assert lazy.explained_by == full.explained_by == ("delay",)
+    skipped = 0
+    for mine, every in zip(lazy.steps, full.steps):
+        assert [r.effect for r in mine] == [r.effect for r in every]
+        for a, b in zip(mine, every):
+            assert (a.heldout_rmse_after, a.reduction, a.eligible) == (b.heldout_rmse_after, b.reduction, b.eligible)
+            if a.reduction >= CONTENDER_SHARE * settings.threshold or not math.isnan(a.placebo_improvement):
+                # a contender, or a candidate whose placebo layout a contender shares: the same placebo
+                assert a.placebo_improvement == b.placebo_improvement and a.passes == b.passes
+            else:
+                skipped += 1
+                assert math.isnan(a.placebo_reduction) and a.passes["beats_placebo"] is None
+                assert math.isfinite(b.placebo_improvement)
+    assert skipped >= 2
+    doc = diagnosis_document(lazy)
+    cold = [e for e in doc["effects"] if math.isnan(next(r for r in lazy.effects if r.effect == e["effect"])
+                                                    .placebo_improvement)]
+    assert cold and all(e["placebo_improvement_um"] is None and e["placebo_reduction"] is None for e in cold)
+    assert all("no placebo fitted" in e["evidence"] for e in cold)

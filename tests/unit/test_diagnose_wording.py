@@ -221,3 +221,22 @@ def test_a_stage_fitted_on_the_edge_of_its_search_range_is_said_to_be_there():
     assert "at the top of its search range (160…4500 Hz)" in line(4500.0)
     assert "at the bottom of its search range" in line(160.0)
     assert "search range" not in line(1336.0)
+
+
+def test_a_candidate_without_a_placebo_is_worded_as_such_and_never_blamed_on_one():
+    """A non-contender has no placebo (``beats_placebo`` None, NaN gain): its evidence says why, its
+    table cell is "–", and the reasons it was not named never mention a placebo."""
+    import math
+
+    from hystfit.report.diagnose_wording import NO_PLACEBO_WHY, not_named_reasons, placebo_text
+
+    ev = Evidence.from_summary("delay", _summary(frequency_exponent=1.0), signature_share=0.1,
+                               params={"delay_ms": 0.05, "delay_samples": 0.5}, heldout_before=0.1,
+                               heldout_after=0.095, reduction=0.05, placebo=math.nan)
+    assert evidence_text(ev, "um").endswith(f"(reduction 0.05; no placebo fitted: {NO_PLACEBO_WHY})")
+    assert placebo_text(math.nan) == "–" and placebo_text(0.00123456) == "0.00123"
+    passes = {"reduction_at_least_threshold": False, "beats_placebo": None, "gap_above_noise": True}
+    reasons = not_named_reasons(passes, 0.05, 0.005, math.nan, 0.3, "um")
+    assert len(reasons) == 1 and "placebo" not in reasons[0] and "random" not in reasons[0]
+    failed = not_named_reasons({**passes, "beats_placebo": False}, 0.05, 0.005, 0.01, 0.3, "um")
+    assert any("random corrections" in r for r in failed)
