@@ -1887,7 +1887,7 @@ def _refuse_dangerous(out: Path) -> None:
                           "it, the home or the root directory); choose another --out")
 
 
-def _check_out(out: Path, force: bool) -> bool:
+def _check_out(out: Path, force: bool, inputs: Sequence[str | os.PathLike] = ()) -> bool:
     """Validate ``out`` before work; returns True when it exists (and may be replaced)."""
     if not out.exists():
         return False
@@ -1897,17 +1897,32 @@ def _check_out(out: Path, force: bool) -> bool:
         raise OutputError(f"{out}: output directory exists and is not empty; pass --force to replace it "
                           "or choose another --out")
     _refuse_dangerous(out)
+    _refuse_inputs(out, inputs)
     return True
 
 
+def _refuse_inputs(out: Path, inputs: Sequence[str | os.PathLike]) -> None:
+    """Refuse to replace ``out`` when it is, or holds, one of the command's ``inputs`` (captures, a
+    parameter or target file): ``--force`` replaces the whole directory, and a blind test's
+    ``identify d --out d --force`` deleted the captures it had just fitted."""
+    target = out.resolve()
+    for p in inputs:
+        q = Path(p).resolve()
+        if q == target or target in q.parents:
+            raise OutputError(f"{out}: holds the input {p}; replacing it (--force) would delete it; choose another "
+                              "--out")
+
+
 @contextmanager
-def staged_output_dir(out: str | os.PathLike, force: bool) -> Iterator[Path]:
+def staged_output_dir(out: str | os.PathLike, force: bool, inputs: Sequence[str | os.PathLike] = ()) -> Iterator[Path]:
     """Stage an output directory and publish it only if the block succeeds.
 
     Parameters
     ----------
     out : final output directory.
     force : allow replacing an existing non-empty ``out``.
+    inputs : the command's input files and folders: an ``out`` that is or holds one is never
+        replaced (:class:`OutputError` on entry).
 
     Yields
     ------
@@ -1922,12 +1937,12 @@ def staged_output_dir(out: str | os.PathLike, force: bool) -> Iterator[Path]:
     ------
     OutputError
         On entry, before any work: ``out`` exists and is non-empty without ``force``, is not a
-        directory, or cannot be created; on exit if publishing fails.
+        directory, holds an input, or cannot be created; on exit if publishing fails.
     """
     out = Path(out)
     if not out.name or out.name in (".", ".."):
         out = out.resolve()
-    _check_out(out, force)
+    _check_out(out, force, inputs)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_stages(out)

@@ -179,7 +179,7 @@ def invert(
                        vmin=vmin, vmax=vmax, max_slew=max_slew, report_dir=report_dir, time_col=time_col,
                        target_col=target_col, output_unit=output_unit)
     existed = rdir.exists()
-    with staged_output_dir(rdir, output.force) as stage:
+    with staged_output_dir(rdir, output.force, inputs=[p for p in (params, target) if p is not None]) as stage:
         with progress_bar(output.chatty, "invert") as cb:
             res = invert_target(pf, tgt, method=method, condition=cond, initial_voltage=initial_voltage, vmin=vmin,
                                 vmax=vmax, max_slew=max_slew, progress=cb)

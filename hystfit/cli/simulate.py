@@ -45,7 +45,7 @@ def simulate(
         raise ConfigError(f"--format {fmt!r}: choose csv or parquet")
     pf = load_params(params)
     options = capture.load_options(require_output=False)
-    with staged_output_dir(out, output.force) as stage:
+    with staged_output_dir(out, output.force, inputs=[params, *data]) as stage:
         with phase(output.chatty, "loading the captures"):
             captures = load_captures(data, options, recursive=capture.recursive)
         with phase(output.chatty, f"predicting {len(captures)} capture(s)"):

@@ -84,7 +84,7 @@ def track(
                        method=method, initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,
                        time_col=time_col, target_col=target_col, output_unit=output_unit, out=out,
                        smc_option=" ".join(smc_option or []) or None, measure_bandwidth=measure_bandwidth)
-    with staged_output_dir(out, output.force) as stage:
+    with staged_output_dir(out, output.force, inputs=[p for p in (params, target, plant) if p is not None]) as stage:
         with progress_bar(output.chatty, "track") as cb:
             res = run_track(pf, tgt, names, plant_pf=plant_pf, method=method, condition=cond,
                             initial_voltage=initial_voltage, vmin=vmin, vmax=vmax, max_slew=max_slew,

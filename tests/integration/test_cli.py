@@ -113,6 +113,27 @@ def test_existing_output_refused_without_force(small_data, tmp_path):
     assert r.exit_code == 0 and (out / "params.json").exists() and not (out / "keep.txt").exists()
 
 
+def test_force_never_replaces_a_folder_that_holds_the_inputs(small_data, tmp_path):
+    """A blind test's find: ``identify d --out d --force`` and ``compare e/raw --out e --force`` deleted the
+    captures they had just read (--force replaces the whole folder). Refused before any work, in one
+    line, exit 2; the captures stay."""
+    import shutil
+
+    d = tmp_path / "d"
+    shutil.copytree(small_data, d)
+    before = sorted(p.name for p in d.iterdir())
+    for command in (("identify", d, "--out", d), ("compare", d, "--models", "pi", "--out", tmp_path),
+                    ("diagnose", d, "--out", d)):
+        r = run(*command, "--force", "--quiet")
+        assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+        assert "holds the input" in r.stderr and "choose another --out" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+        assert sorted(p.name for p in d.iterdir()) == before
+    out = tmp_path / "o"
+    assert run("identify", d, "--out", out, "--no-plots", "--quiet").exit_code == 0
+    r = run("simulate", out / "params.json", d, "--out", out, "--force", "--quiet")  # the parameters are inside
+    assert r.exit_code == 2 and "holds the input" in r.stderr and (out / "params.json").exists()
+
+
 @pytest.mark.parametrize("args, needle", [
     (("--model", "nosuch"), "unknown model 'nosuch'"),
     (("--opt", "nosuch"), "unknown optimizer 'nosuch'"),
