@@ -274,6 +274,10 @@ def _summarize(problem: _Problem, records: Sequence[RunRecord], label: str | Non
     objective = problem.objective() if objective is None else objective
     best = int(np.argmin([rec.fun for rec in records]))
     theta = records[best].x
+    if theta.size != len(problem.params) or not np.isfinite(records[best].fun):
+        # every candidate overflowed (a blind test's --bounds w1=1e300:1e301): one line, not a shape error
+        raise NoResultError(f"{label or 'global'}: no run found a finite cost anywhere in the parameter box: the "
+                            "model's output overflows there; narrow the --bounds (or check the data's scale)")
     preds = objective.predict(theta)
     unit = problem.unit
     # metrics over the scored samples, as the objective (a --warmup is left out)

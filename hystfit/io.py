@@ -1367,8 +1367,10 @@ def _window(table: _Table, opts: LoadOptions, notes: list[str], u: np.ndarray, y
         return u, y, rows, False
     n = u.size
     duration = n * dt
-    i0 = 0 if opts.start_s is None else int(math.ceil(opts.start_s / dt - 1e-9))
-    i1 = n if opts.stop_s is None else min(n, int(math.ceil(opts.stop_s / dt - 1e-9)))
+    # in floats, clipped to the capture before rounding: a huge --start/--stop would overflow an int
+    i0 = 0 if opts.start_s is None else int(math.ceil(min(opts.start_s / dt, n + 1.0) - 1e-9))
+    i1 = n if opts.stop_s is None else int(math.ceil(min(opts.stop_s / dt, n + 1.0) - 1e-9))
+    i1 = min(n, i1)
     if i1 - i0 < 4:
         stop = opts.stop_s if opts.stop_s is not None else duration
         raise InputError(f"{table.label}: --start/--stop keep {max(i1 - i0, 0)} samples of this {duration:.6g} s "

@@ -63,10 +63,15 @@ def _run(root, argv: list[str]) -> int:
     except click_exceptions.ClickException as exc:
         error_line(f"{exc.format_message()} (see 'hystfit {argv[0]} --help')")
         return exc.exit_code
-    except click_exceptions.Abort as exc:  # Ctrl-C or SIGTERM while the job's command line was parsed
+    except typer.Abort as exc:  # Ctrl-C or SIGTERM while the job's command line was parsed
+        # (typer's own Abort: recent typer vendors click, whose exceptions module has none — the
+        # clause raised AttributeError on every exception it was asked about, a blind test's find)
         return stop_code(exc.__context__) if isinstance(exc.__context__, KeyboardInterrupt) else 130
     except SystemExit as exc:
         return exc.code if isinstance(exc.code, int) else 1
+    except Exception as exc:  # a defect of one job: said in one line, the batch goes on with the next
+        error_line(f"job {argv[0]}: internal error {type(exc).__name__}: {exc} (please report it)")
+        return 1
 
 
 @command()

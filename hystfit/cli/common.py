@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import json
 import sys
 import threading
@@ -272,12 +274,17 @@ class CaptureArgs(OptionGroup):
         from ..io import LoadOptions
 
         start, stop, fs = self.start, self.stop, self.fs
-        if start is not None and not start >= 0:
-            raise ConfigError(f"--start {start:g}: must be >= 0 s (time from the capture's first row)")
-        if stop is not None and not stop > (start or 0.0):
-            raise ConfigError(f"--stop {stop:g}: must be after --start ({start or 0:g} s)")
-        if fs is not None and not fs > 0:
-            raise ConfigError(f"--fs {fs:g}: the sample rate must be positive (Hz)")
+        # finite: inf and nan passed the comparisons below (or typer's min=0) and overflowed in the
+        # loader with a traceback (a blind test's find)
+        if start is not None and not (math.isfinite(start) and start >= 0):
+            raise ConfigError(f"--start {start:g}: must be a finite number >= 0 s (time from the capture's first row)")
+        if stop is not None and not (math.isfinite(stop) and stop > (start or 0.0)):
+            raise ConfigError(f"--stop {stop:g}: must be a finite time after --start ({start or 0:g} s); leave it out "
+                              "to keep the capture to its end")
+        if fs is not None and not (math.isfinite(fs) and fs > 0):
+            raise ConfigError(f"--fs {fs:g}: the sample rate must be a finite number > 0 (Hz)")
+        if not (math.isfinite(self.warmup_s) and self.warmup_s >= 0):
+            raise ConfigError(f"--warmup {self.warmup_s:g}: must be a finite number >= 0 s")
         if self.output_unit is not None and self.output_unit not in ("nm", "um", "mm", "m"):
             raise ConfigError(f"--output-unit {self.output_unit!r}: choose one of nm, um, mm, m")
         return LoadOptions(time_col=parse_col(self.time_col), input_col=parse_col(self.input_col),

@@ -149,6 +149,12 @@ def test_force_never_replaces_a_folder_that_holds_the_inputs(small_data, tmp_pat
     (("--condition", "60,nan"), "must be finite numbers > 0"),
     (("--condition", "0,10"), "must be finite numbers > 0"),
     (("--opt", "lsq", "--pop", "5"), "--pop does not apply"),
+    # inf and nan passed the comparisons (and typer's min=0) and overflowed in the loader (a blind test)
+    (("--start", "inf"), "--start inf: must be a finite number >= 0 s"),
+    (("--stop", "inf"), "--stop inf: must be a finite time after --start"),
+    (("--warmup", "nan"), "--warmup nan: must be a finite number >= 0 s"),
+    (("--warmup", "inf"), "--warmup inf: must be a finite number >= 0 s"),
+    (("--start", "1e308"), "keep 0 samples"),
 ])
 def test_bad_options_exit_2_one_line(small_data, tmp_path, args, needle):
     out = tmp_path / "o"
@@ -157,6 +163,15 @@ def test_bad_options_exit_2_one_line(small_data, tmp_path, args, needle):
     assert needle in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.output
     assert not out.exists()
+
+
+def test_a_box_where_the_model_overflows_is_one_line_exit_3(small_data, tmp_path):
+    """A blind test's ``--bounds w1=1e300:1e301``: every candidate overflowed and the summary met an
+    empty parameter vector (a traceback). Now one line naming the cell and the fix, exit 3."""
+    r = run("identify", small_data, "--out", tmp_path / "o", "--no-plots", "--bounds", "w1=1e300:1e301", "--quiet")
+    assert r.exit_code == 3 and "Traceback" not in r.output, r.output
+    assert "no run found a finite cost anywhere in the parameter box" in r.stderr and "--bounds" in r.stderr
+    assert not (tmp_path / "o").exists()
 
 
 def test_bad_data_exit_2_nothing_written(tmp_path):

@@ -389,6 +389,48 @@ out = "res/check"
     assert rows["lut"]["status"] == "done before (skipped)" and rows["typo"]["exit_code"] == 2
 
 
+def test_a_job_with_an_unexpected_error_fails_alone_and_the_batch_goes_on(tmp_path, monkeypatch):
+    """A blind test's find: any exception other than a usage error met the clause
+    ``except click_exceptions.Abort`` — which recent typer's vendored click lacks — and the batch died
+    with an AttributeError traceback, the later jobs never run. Now the job fails with one line, exit
+    1, and the next job runs."""
+    import hystfit.identify as identify_module
+
+    real, calls = identify_module.identify, []
+
+    def flaky(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("a defect of this job")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(identify_module, "identify", flaky)
+    jobs = _write(tmp_path / "jobs.toml", f"""
+[defaults]
+plots = false
+jobs = 1
+
+[[job]]
+name = "bad"
+command = "identify"
+data = "{FILES[0]}"
+out = "res/bad"
+
+[[job]]
+name = "good"
+command = "identify"
+data = "{FILES[0]}"
+out = "res/good"
+""")
+    r = run("batch", jobs, "--json")
+    assert r.exit_code == 4, r.output
+    assert "Traceback" not in r.output
+    rows = {j["name"]: j for j in json.loads(r.stdout)["jobs"]}
+    assert (rows["bad"]["exit_code"], rows["good"]["exit_code"]) == (1, 0)
+    assert "internal error RuntimeError: a defect of this job" in r.stderr
+    assert (tmp_path / "res" / "good" / "params.json").exists() and not (tmp_path / "res" / "bad").exists()
+
+
 def test_a_job_stopped_by_ctrl_c_stops_the_batch_with_one_line(tmp_path, monkeypatch):
     """A blind test's find: Ctrl-C during a batch's job printed "hystfit: error: interrupted" twice
     (the job's line, then the batch's). The job's own line is the one; the batch exits 130."""
