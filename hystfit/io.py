@@ -96,6 +96,8 @@ _MISSING_CELLS = frozenset({"", "nan", "-nan", "+nan", "na", "n/a", "#n/a", "nul
 _DECIMAL_COMMA_RE = r"[-+]?\d*,\d+(?:[eE][-+]?\d+)?"
 _BRACKET_RE = re.compile(r"^(.*?)\s*[\[\(\{]\s*([^\]\)\}]*?)\s*[\]\)\}]\s*$")
 _SUFFIX_RE = re.compile(r"^(.*?)[_\s]+([A-Za-zµμ]+)$")
+#: the quantity/unit form of DIN 1313 and ISO 80000-1 (``Weg/mm``, ``U / mV``, ``t/s``)
+_SLASH_RE = re.compile(r"^(.*?\S)\s*/\s*([A-Za-zµμ]+)$")
 
 
 def _norm(text: str) -> str:
@@ -110,6 +112,9 @@ def _interpretations(name: str) -> list[tuple[str, str | None]]:
     if m:
         out.append((_norm(m.group(1)), m.group(2).strip().lower()))
     m = _SUFFIX_RE.match(str(name).strip())
+    if m:
+        out.append((_norm(m.group(1)), m.group(2).lower()))
+    m = _SLASH_RE.match(str(name).strip())
     if m:
         out.append((_norm(m.group(1)), m.group(2).lower()))
     return out
@@ -852,13 +857,14 @@ def _auto_column(table: _Table, role: str, taken: set[int]) -> list[int]:
 
 def _unit_column(table: _Table, role: str, taken: set[int]) -> list[int]:
     """Indices of non-empty, not-yet-taken columns whose name gives a unit of ``role`` in brackets
-    (``Spannung [V]``, ``Ch1 (mV)``, ``Weg [µm]``, ``Zeit [s]``) but reads as no role's alias: the
-    columns a name in another language, or a channel name, leaves to their unit."""
+    (``Spannung [V]``, ``Ch1 (mV)``, ``Weg [µm]``, ``Zeit [s]``) or after a slash (DIN 1313:
+    ``Weg/mm``, ``U/mV``) but reads as no role's alias: the columns a name in another language, or a
+    channel name, leaves to their unit."""
     if table.names is None:
         return []
     out = []
     for i, n in enumerate(table.names):
-        m = _BRACKET_RE.match(str(n).strip())
+        m = _BRACKET_RE.match(str(n).strip()) or _SLASH_RE.match(str(n).strip())
         if i in taken or m is None or m.group(2).strip().lower() not in _UNITS[role] or table.is_empty(i):
             continue
         if any(_is_candidate(n, other) for other in _ALIASES):

@@ -964,6 +964,21 @@ def test_columns_named_in_another_language_are_found_by_their_unit(tmp_path):
     assert "column 'Spannung [V]', by the unit in its name" in said and "--input-col" in said
 
 
+def test_quantity_slash_unit_headers_are_read_as_din_1313_writes_them(tmp_path):
+    """``Weg/mm``, ``U/mV``, ``Zeit/s`` (DIN 1313, ISO 80000-1): a blind test's capture was read as µm
+    and V (1000× off) when its columns were chosen by index, and not found at all by name."""
+    t, u, y = sine()
+    path = write_csv(tmp_path / "din.csv", ("Zeit/s", "U/mV", "Weg/mm"), [t, u * 1e3, y / 1e3])
+    for opts in (LoadOptions(), LoadOptions(time_col=0, input_col=1, output_col=2)):
+        cap = load_capture(path, opts)
+        np.testing.assert_allclose(cap.u, u, atol=1e-9)
+        assert cap.y_unit == "mm" and cap.dt == pytest.approx(1 / FS)
+        np.testing.assert_allclose(cap.y, y / 1e3)
+    path = write_csv(tmp_path / "iso.csv", ("t / s", "voltage / V", "x / nm"), [t, u, y])
+    cap = load_capture(path)
+    assert cap.y_unit == "nm" and cap.dt == pytest.approx(1 / FS)
+
+
 def test_a_capture_whose_output_is_optional_finds_it_by_its_unit_as_identify_does(tmp_path):
     """``simulate`` reads its captures with the output optional: a 'Weg [um]' column was then not
     looked for by its unit, and the validation compared nothing (metrics null, exit 0) where
