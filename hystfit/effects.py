@@ -971,11 +971,6 @@ def signature_share(effect: Effect, yhats: Sequence[np.ndarray], views: Sequence
 # ----------------------------------------------------------------------------------------------
 
 
-def periodic_fmax(views: Sequence[CaptureView]) -> float:
-    fs = [v.frequency_Hz for v in views if v.periodic and np.isfinite(v.frequency_Hz) and v.frequency_Hz > 0]
-    return max(fs) if fs else float("nan")
-
-
 def fmt_list(x) -> list[float]:
     return [float(v) for v in np.asarray(x, float).ravel()]
 

@@ -10,11 +10,11 @@ from typing import ClassVar
 import numpy as np
 
 from .._jit import njit, readonly
-from ..effects import EffectParam, periodic_fmax
+from ..effects import EffectParam
 from ..errors import ConfigError
 from ..params import DataScale, Param
 from ..registry import blocks
-from .base import Block, frequency_of_excitation
+from .base import Block, frequency_of_excitation, scale_of_views
 
 
 @njit(cache=True)
@@ -181,8 +181,8 @@ def invert_second_order(y: np.ndarray, fn_Hz: float, zeta: float, dt: float) -> 
 def fn_search_range_of(scale: DataScale) -> tuple[float, float]:
     """:func:`fn_search_range` for identification data: from twice the smooth drives' frequency
     (:func:`~hystfit.blocks.base.frequency_of_excitation`), or with none of them (broadband, steps)
-    from 10 / the longest capture's duration, as ``diagnose`` does without periodic captures
-    (:meth:`Dynamics.configure`)."""
+    from 10 / the longest capture's duration; ``diagnose`` sets the same range
+    (:meth:`Dynamics.configure`, :func:`~hystfit.blocks.base.scale_of_views`)."""
     f = frequency_of_excitation(scale)
     if not np.isfinite(f) and scale.duration_s:
         f = 10.0 / scale.duration_s
@@ -244,12 +244,7 @@ class Dynamics(Block):
 
     # ------------------------------------------------------------------ structure
     def configure(self, views, yhats):
-        fs_min = min(1.0 / v.dt for v in views)
-        fmax = periodic_fmax(views)
-        if not np.isfinite(fmax):
-            dur = min(v.t[-1] - v.t[0] + v.dt for v in views)
-            fmax = 10.0 / dur
-        lo, hi = fn_search_range(1.0 / fs_min, fmax)
+        lo, hi = fn_search_range_of(scale_of_views(views))  # as identify sets it (Dynamics.adapt)
         return replace(self, fn_min_Hz=lo, fn_max_Hz=hi)
 
     def adapt(self, scale: DataScale) -> "Dynamics":
@@ -294,7 +289,7 @@ class Dynamics(Block):
 
     def describe(self, phi, shared, local, views, sources=None):
         fn, z = float(phi[0]), float(phi[1])
-        fmax = periodic_fmax(views)
+        fmax = frequency_of_excitation(scale_of_views(views))
         out = {"fn_Hz": fn, "zeta": z,
                "group_delay_low_frequency_us": 1e6 * z / (math.pi * fn),
                "search_fn_Hz": list(self.fn_range)}

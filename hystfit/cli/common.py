@@ -278,9 +278,11 @@ class CaptureArgs(OptionGroup):
         # loader with a traceback (a blind test's find)
         if start is not None and not (math.isfinite(start) and start >= 0):
             raise ConfigError(f"--start {start:g}: must be a finite number >= 0 s (time from the capture's first row)")
-        if stop is not None and not (math.isfinite(stop) and stop > (start or 0.0)):
-            raise ConfigError(f"--stop {stop:g}: must be a finite time after --start ({start or 0:g} s); leave it out "
-                              "to keep the capture to its end")
+        if stop is not None and not math.isfinite(stop):
+            raise ConfigError(f"--stop {stop:g}: must be a finite time after --start; leave it out to keep the capture "
+                              "to its end")
+        if stop is not None and not stop > (start or 0.0):
+            raise ConfigError(f"--stop {stop:g}: must be after --start ({start or 0:g} s)")
         if fs is not None and not (math.isfinite(fs) and fs > 0):
             raise ConfigError(f"--fs {fs:g}: the sample rate must be a finite number > 0 (Hz)")
         if not (math.isfinite(self.warmup_s) and self.warmup_s >= 0):

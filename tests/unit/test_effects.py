@@ -99,7 +99,7 @@ def test_dynamics_recovers_natural_frequency_and_damping(rng):
     ys = _noisy([second_order_at_rest(b, 900.0, 0.25, DT) for b in base], rng)
     views = _views(ys)
     eff = Dynamics().configure(views, base)
-    assert eff.fn_min_Hz == pytest.approx(160.0) and eff.fn_max_Hz == pytest.approx(0.45 * FS)
+    assert eff.fn_min_Hz == pytest.approx(160.0, rel=1e-3) and eff.fn_max_Hz == pytest.approx(0.45 * FS)  # as identify: the sampled drive rate
     fit = eff.fit(base, views)
     assert fit.phi[0] == pytest.approx(900.0, rel=0.01)
     assert fit.phi[1] == pytest.approx(0.25, rel=0.03)
