@@ -103,7 +103,7 @@ def diagnose(
         # the other figures are drawn by the figure server while the recommended model is fitted here
         figures = start_diagnose_figures(d, stage / "figures", early=early[0] if early else None) if output.plots else None
         try:
-            with progress_bar(output.chatty and bool(d.explained_by),
+            with progress_bar(output.chatty and d.hands_over,
                               f"identify {d.recommended_model} on all the data") as cb:
                 rec = fit_recommended(captures, d, m, o, seed=seed, model_options=mopts, progress=cb,
                                       executor=cr.executor, store=cr.store, resume=resume)
@@ -135,7 +135,7 @@ def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
             if text is not None:
                 stderr.print(f"note: {text}", markup=False, highlight=False, soft_wrap=True)
     if json_out:
-        print_json({**diagnosis_document(d), "params": str(out / "params.json") if d.explained_by else None})
+        print_json({**diagnosis_document(d), "params": str(out / "params.json") if d.hands_over else None})
         return
     if quiet:
         return

@@ -906,8 +906,11 @@ def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
         if short is not None:
             return short
         if opts:
+            params = f"{out_dir}/params.json" if out_dir is not None else "params.json"
             return (f"next: no effect named; the base's resolution limits it (held-out RMSE "
-                    f"{d.heldout_rmse_named:.4g} {u} with{opts}): identify with --model {d.base_model}{opts}")
+                    f"{d.heldout_rmse_named:.4g} {u} with{opts}). {d.base_model}{opts} fitted on all the data is in "
+                    f"{params}: hystfit invert {params} --sine AMPLITUDE,FREQUENCY --out v.csv, or identify it anew "
+                    f"with --model {d.base_model}{opts}")
         return (f"next: no effect named; {d.base_model} is as good as any augmentation on held-out data "
                 f"(held-out RMSE {d.heldout_rmse_named:.4g} {u}).")
     params = f"{out_dir}/params.json" if out_dir is not None else "params.json"
@@ -1098,9 +1101,11 @@ def write_diagnose_outputs(d: Diagnosis, out_dir: Path, *, make_figures: bool = 
         paths["params"] = out_dir / "params.json"
         atomic_write_text(paths["params"], dumps(identify_to_dict(recommended)))
         rms = ", ".join(f"{f.label}: {f.metrics[f'rmse_{d.unit}']:.4g} {_u(d.unit)}" for f in recommended.fits)
-        md += (f"\n## The model to use next\n\n`{d.recommended_model}` (the base followed by the named effects, "
-               f"in the order a signal meets them) was identified on all the data and written to `params.json` "
-               f"(fit RMSE {rms}).\n")
+        what = ("the base followed by the named effects, in the order a signal meets them" if d.explained_by else
+                "the base at the resolution the held-out data support: "
+                + ", ".join(f"{k} = {v}" for k, v in d.recommended_options.items()))
+        md += (f"\n## The model to use next\n\n`{d.recommended_model}` ({what}) was identified on all the data and "
+               f"written to `params.json` (fit RMSE {rms}).\n")
     md += f"\n{next_step_line(d)}\n"
     atomic_write_text(paths["md"], md)
     return paths

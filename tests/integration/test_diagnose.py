@@ -346,3 +346,26 @@ def test_cli_refuses_a_non_empty_output_dir(small_dataset, tmp_path):
     (tmp_path / "full" / "f").write_text("x")
     r = CliRunner().invoke(app, ["diagnose", str(small_dataset), "--out", str(tmp_path / "full"), "--quiet"])
     assert r.exit_code == 2 and "not empty" in r.stderr
+
+
+def test_a_finer_base_with_no_effect_named_is_handed_over(tmp_path):
+    """A blind test's find: nothing named, but the resolution checks adopted 20 operators over the
+    given 10 (held-out error halved) — and no params.json was written, so the hand-over broke. The
+    recommended model (the base at the adopted resolution) is now fitted on all the data and
+    written, as for a named effect."""
+    caps = withheld_effect_captures("none", 1.0, 0)
+    data = tmp_path / "data"
+    for c in caps:
+        write_capture(data / f"{c.source}.csv", c.t, c.u, c.y)
+    out = tmp_path / "dg"
+    r = CliRunner().invoke(app, ["diagnose", str(data), "--model", "pi", "--out", str(out), "--json",
+                                 "--max-effects", "1", "--no-plots"])
+    assert r.exit_code == 0, r.output
+    printed = json.loads(r.stdout)
+    assert printed["explained_by"] == [] and printed["recommended_model_options"] == {"n_operators": 20}
+    assert printed["params"] == str(out / "params.json")
+    params = json.loads((out / "params.json").read_text())
+    assert params["model"]["name"] == "pi" and params["model"]["options"] == {"n_operators": 20}
+    md = (out / "diagnosis.md").read_text()
+    assert "the base at the resolution the held-out data support: n_operators = 20" in md
+    assert "fitted on all the data is in" in md.splitlines()[-1]
