@@ -1810,7 +1810,8 @@ def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[f
     params = refit.fit.params(views, [c.source for c in caps])
     passes = {"reduction_at_least_threshold": red >= settings.threshold,
               "beats_placebo": None if placebo is None else (before - after) - pl_best > settings.placebo_margin * denom,
-              "gap_above_noise": _excess(before, sigma) >= settings.min_excess_ratio * sigma}
+              "gap_above_noise": _excess(before, sigma) >= settings.min_excess_ratio * sigma,
+              "inside_search_range": not eff.absent_at(refit.fit.phi)}
     ev = Evidence.from_summary(eff.name, ctx.summary, signature_share=refit.share, params=params,
                                heldout_before=before, heldout_after=after, reduction=red, placebo=pl_best)
     return EffectResult(eff.name, eff.title, step + 1, before, after, ctx.fit_before, refit.fit_after, red, pl_best,
@@ -1992,7 +1993,7 @@ def _look_ahead(results: list[EffectResult], states: dict, before: float, sigma:
     thr = run_step.settings.threshold
     alone = {r.effect: r for r in results}
     firsts = [r for r in results if r.passes["beats_placebo"] and r.passes["gap_above_noise"]
-              and r.reduction >= CONTENDER_SHARE * thr][:2]
+              and r.passes.get("inside_search_range", True) and r.reduction >= CONTENDER_SHARE * thr][:2]
     for r in firsts:
         nxt, nxt_states, _ = run_step(states[r.effect], r.effect)
         pick = choose_effect(nxt, run_step.settings)

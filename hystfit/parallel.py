@@ -489,8 +489,9 @@ class LocalExecutor(Executor):
         self._release()
 
 
-#: the module the pools' fork server imports before it forks any worker
-POOL_PRELOAD = "hystfit._pool_preload"
+#: the modules the pools' fork server imports, in order, before it forks any worker: Ctrl-C ignored
+#: first (:mod:`hystfit._pool_signals`), then what every worker needs
+POOL_PRELOAD = ("hystfit._pool_signals", "hystfit._pool_preload")
 
 
 def pool_context():
@@ -514,7 +515,7 @@ def pool_context():
     if not sys.platform.startswith("linux") or "forkserver" not in mp.get_all_start_methods():
         return mp.get_context("spawn")
     ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload([POOL_PRELOAD])
+    ctx.set_forkserver_preload(list(POOL_PRELOAD))
     return ctx if _fork_server_running() else mp.get_context("spawn")
 
 

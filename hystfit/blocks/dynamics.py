@@ -282,6 +282,10 @@ class Dynamics(Block):
     def operator(self, x, view, phi):
         return second_order_at_rest(x, float(phi[0]), float(phi[1]), view.dt)
 
+    def absent_at(self, phi):
+        """f_n at the top of its search range (0.45 f_s or the range set): no resonance inside it."""
+        return float(phi[0]) >= self.fn_range[1] * (1.0 - 1e-6)
+
     def signature(self, yhat, view):
         d1 = np.gradient(np.asarray(yhat, dtype=np.float64), view.dt)
         d2 = np.gradient(d1, view.dt)

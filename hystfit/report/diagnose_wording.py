@@ -351,6 +351,9 @@ def not_named_reasons(passes: dict, reduction: float, improvement: float, placeb
                        f"with as many adjustable parameters: {placebo:+.3g} {u})")
     if not passes.get("gap_above_noise", True):
         out.append("the gap it was tested on is too close to the sensor noise to tell any effect from noise")
+    if passes.get("inside_search_range") is False:
+        out.append("its fit ends on the edge of its search range where the effect is absent (a stage: f_n at the top, "
+                   "no resonance inside the range); what it gains there is another shape's, e.g. a small lag")
     return out
 
 

@@ -400,3 +400,17 @@ def test_a_pool_stopped_at_once_has_no_manager_thread_left_for_pythons_exit_to_r
     parallel._stop_now(ex)
     assert not manager.is_alive()
     assert time.monotonic() - t0 < 10.0
+
+
+def test_the_pool_fork_server_ignores_ctrl_c_from_its_first_import():
+    """A blind test's find: a Ctrl-C in the first seconds of a pooled run printed the fork server's
+    KeyboardInterrupt traceback (from its preload's ``import numba``): multiprocessing's server
+    ignores SIGINT only after its preload. Its first preload module ignores it; importing the
+    workers' preload elsewhere (this test process) leaves Ctrl-C alone."""
+    from hystfit import _pool_preload  # noqa: F401
+    from hystfit.parallel import POOL_PRELOAD
+
+    assert POOL_PRELOAD[0] == "hystfit._pool_signals" and "hystfit._pool_preload" in POOL_PRELOAD[1:]
+    assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
+    code = "import signal, sys, hystfit._pool_signals; sys.exit(0 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN else 1)"
+    assert subprocess.run([sys.executable, "-c", code], timeout=60).returncode == 0
