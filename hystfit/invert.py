@@ -36,7 +36,8 @@ Pipeline (every step is reported in :class:`InversionResult`, nothing is silent)
 4. **Model memory.** Every model's forward simulation starts from its reset state; the
    stage's history before the target is taken to be: at rest at 0 V in that state, then brought
    monotonically to the initial voltage v0 and held (:func:`preroll_voltage`; for PI this is
-   exactly its virgin initial state, paper 003 eq. 1–3). Each cell is inverted with that
+   exactly its virgin initial state, paper 003 eq. 1–3; a PI or GPI base with blocks rests at v0,
+   settled, from the first sample on). Each cell is inverted with that
    pre-roll prepended to the target (the model's output for it) and the pre-roll dropped, and
    the forward preview is simulated with the same pre-roll, so inverse and preview share one
    memory whatever a model's reset convention. Default v0: the voltage at which the model
@@ -618,8 +619,21 @@ def preroll_voltage(cell: Cell, voltage: float, dt: float) -> np.ndarray:
     monotonically to the initial voltage, which is what a virgin PI state means (paper 003
     eq. 1–3 initial state) and what identification captures starting at 0 V show. 16 + 4
     samples for a rate-independent model; 50 ms + 50 ms (at least 16 + 4 samples) for a
-    rate-dependent one, so its dynamics are at rest when the target starts.
+    rate-dependent one.
+
+    A base whose first sample from the virgin state is its state after a monotone ramp (PI,
+    GPI: :attr:`~hystfit.models.base.Model.first_sample_is_a_ramp`) followed by blocks with memory
+    (creep, a stage, a delay) rests at ``voltage`` from the first sample on (4 samples): the
+    blocks start at rest at the base's output there, as a stage that rested at the initial
+    voltage is — settled. The 50 ms ramp and rest left a creep with time constants of seconds far
+    from it: a blind test's feedforward, fed to a plant resting at the initial voltage, tracked
+    with a 0.047 µm bias (0.0044 µm from a settled start).
     """
+    model = cell.model
+    comp = model.composition
+    if (model.rate_dependent and comp is not None and not comp[0].rate_dependent
+            and comp[0].first_sample_is_a_ramp):
+        return np.full(4, float(voltage))
     if cell.model.rate_dependent:
         n_ramp, n_hold = max(16, int(round(0.05 / dt))), max(4, int(round(0.05 / dt)))
     else:

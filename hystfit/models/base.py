@@ -34,6 +34,9 @@ class Model(ABC):
     reference: ClassVar[str] = ""
     equation: ClassVar[str] = ""
     rate_dependent: ClassVar[bool] = False
+    #: the state after a first sample u0 from the virgin state is the state after any monotone ramp
+    #: 0 → u0 (play and stop operators: PI, GPI), so a pre-roll need not ramp (:func:`hystfit.invert.preroll_voltage`)
+    first_sample_is_a_ramp: ClassVar[bool] = False
     #: the structure option that sets the model's resolution (e.g. the number of play operators),
     #: or None; :meth:`refined` doubles it
     resolution_option: ClassVar[str | None] = None

@@ -407,6 +407,7 @@ class GPI(Model):
     equation = ("y = Σ_j ρ e^{−τ r_j} s_{r_j}[u] + y0,  s_r = max(γ_l(u) − r, min(γ_r(u) + r, s_r(k−1))),  "
                 "γ_l = a1 tanh(a2 u + a3) + a4,  γ_r = b1 tanh(b2 u + b3) + b4,  r_j = α_r j")
     rate_dependent = False
+    first_sample_is_a_ramp = True  # initial_state: the play states after u0 from the virgin state
     resolution_option = "n_operators"
 
     n_operators: int = 10

@@ -80,6 +80,7 @@ class PI(Model, PlayOperators):
     reference = "paper 003 eq. 1–3 (forward), eq. 17–20 (analytic inverse)"
     equation = "y = Σ_j w_j·F_{r_j}[u] + y0,  F_r[u](k) = max(u_k − r, min(u_k + r, F_r[u](k−1)))"
     rate_dependent = False
+    first_sample_is_a_ramp = True  # initial_state: the play states after u0 from the virgin state
     resolution_option = "n_operators"
 
 

@@ -255,3 +255,35 @@ def test_natural_frequency_of_a_stage_is_read_from_theta_or_the_structure():
     with pytest.raises(ConfigError, match="^x: the stage's natural frequency f_n = 1234 Hz is not below the Nyquist "
                                           "frequency 500 Hz of data sampled at 1000 Hz; use data sampled above 2468 Hz"):
         check_below_nyquist(1234.0, 1e-3, "x")
+
+
+def test_feedforward_of_a_creep_model_starts_settled_at_the_initial_voltage():
+    """A PI base with creep (time constants of seconds) rests at the initial voltage from the first
+    pre-roll sample on: its play operators as after a monotone ramp, the creep at rest at their
+    output — the stage settled there, as an identification capture starts settled at its first
+    voltage. Driven from rest at its first voltage, the model itself then follows the target
+    (a blind test: a plant resting at v0 tracked with a 0.047 µm bias after the 50 ms ramp and rest
+    assumed before, 0.0055 µm now). A plain PI keeps its 16 + 4-sample ramp."""
+    from hystfit.invert import invert_target, preroll_voltage, sine_target
+    from hystfit.results import Cell, ParamsFile
+
+    model = make_model("pi+creep", {"thresholds_V": TRUE_R, "creep.tau_s": [0.1, 1.0, 10.0]})
+    scale = DataScale(0.0, 60.0, 0.25, 14.25, DT, 2e3, 1.0, 2.0)
+    model = model.adapt(scale)
+    ps = model.params(scale)
+    th = np.array([p.default for p in ps])
+    names = [p.name for p in ps]
+    th[:model.base.n_operators] = np.array(synth.DEFAULT_WEIGHTS_UM_PER_V)[:model.base.n_operators]
+    for k, v in {"y0": 0.25, "creep.c0": 0.01, "creep.c1": 0.01, "creep.c2": 0.01}.items():
+        th[names.index(k)] = v
+    cell = Cell("60V_10Hz", 60.0, 10.0, model, th, scale)
+    pre = preroll_voltage(cell, 12.0, DT)
+    assert pre.size == 4 and np.all(pre == 12.0)
+    pi_only = Cell("60V_10Hz", 60.0, 10.0, model.base, th[:model.base.n_operators + 1], scale)
+    assert preroll_voltage(pi_only, 12.0, DT)[0] == 0.0  # the ramp from 0 V stays for a plain PI
+    target = sine_target(6.0, 30.0, 10, 1 / DT, offset=1.5)
+    res = invert_target(ParamsFile("t.json", model.name, "um", "per-condition", (cell,), {}), target)
+    assert res.voltage_V.min() > 0.0 and not res.clip_spans
+    y = model.simulate_one(th, res.voltage_V, DT)  # the stage at rest at the first voltage
+    err = y - target.y
+    assert np.sqrt(np.mean(err ** 2)) < 1e-3 * np.ptp(target.y), np.sqrt(np.mean(err ** 2))
