@@ -1421,6 +1421,13 @@ CONSTANT_INPUT_FRACTION = 1e-5
 CONSTANT_OUTPUT_FRACTION = 1e-9
 
 
+#: the largest |input| (V) a capture may hold: piezo drives stay within a few kV; 10⁶ V is a wrong
+#: column or unit (a blind test's 1e20 V capture ran into LAPACK errors written on stdout)
+MAX_PLAUSIBLE_INPUT_V = 1e6
+#: the largest |output| a capture may hold, in its own unit: 10⁹ nm is a metre; more is a wrong column
+MAX_PLAUSIBLE_OUTPUT = 1e9
+
+
 def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u: np.ndarray,
             y: np.ndarray | None, dt: float, y_unit: str, rows: np.ndarray | None = None,
             windowed: bool = False) -> Capture:
@@ -1428,6 +1435,15 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     label = table.label
     ptp = float(u.max() - u.min()) if u.size else 0.0
     level = float(np.max(np.abs(u))) if u.size else 0.0
+    if level > MAX_PLAUSIBLE_INPUT_V:
+        raise InputError(f"{label}: {table.col_label(chosen['input'])}: input up to {level:.3g} V, beyond any actuator "
+                         f"drive (the limit is {MAX_PLAUSIBLE_INPUT_V:g} V); check the input column (--input-col) and its "
+                         "unit (a name such as voltage_mV says it)")
+    y_level = float(np.max(np.abs(y))) if y is not None and y.size else 0.0
+    if y_level > MAX_PLAUSIBLE_OUTPUT:
+        raise InputError(f"{label}: {table.col_label(chosen['output'])}: output up to {y_level:.3g} "
+                         f"{display_unit(y_unit)}, beyond any stage's stroke in any unit (the limit is "
+                         f"{MAX_PLAUSIBLE_OUTPUT:g}); check the output column (--output-col) and its unit")
     if ptp <= max(1e-9, CONSTANT_INPUT_FRACTION * level):
         within = f" within {ptp:.3g} V" if ptp > 0 else ""
         raise InputError(f"{label}: {table.col_label(chosen['input'])}: the input is constant{within} ({u[0]:g} V), "

@@ -964,6 +964,20 @@ def test_columns_named_in_another_language_are_found_by_their_unit(tmp_path):
     assert "column 'Spannung [V]', by the unit in its name" in said and "--input-col" in said
 
 
+def test_implausible_magnitudes_are_one_line_errors_naming_the_column(tmp_path):
+    """A blind test's 1e20-scaled voltages ran into LAPACK errors written on stdout (the --json
+    output was not JSON) and a 1e21 V condition; beyond 1e6 V or an output of 1e9 in its unit, the
+    column or its unit is wrong: said before any fit."""
+    t, u, y = sine()
+    for cols, vals, words in ((("time_s", "voltage_V", "displacement_um"), [t, u * 1e20, y], "input up to"),
+                              (("time_s", "voltage_V", "displacement_nm"), [t, u, y * 1e12], "output up to")):
+        path = write_csv(tmp_path / f"{words[:5]}.csv", cols, vals)
+        msg = error_of(path)
+        assert words in msg and "check the" in msg and cols[1 if "input" in words else 2] in msg
+    assert load_capture(write_csv(tmp_path / "ok.csv", ("time_s", "voltage_mV", "displacement_nm"),
+                                  [t, u * 1e3, y * 1e6])).y_unit == "nm"  # a large but plausible capture
+
+
 def test_quantity_slash_unit_headers_are_read_as_din_1313_writes_them(tmp_path):
     """``Weg/mm``, ``U/mV``, ``Zeit/s`` (DIN 1313, ISO 80000-1): a blind test's capture was read as µm
     and V (1000× off) when its columns were chosen by index, and not found at all by name."""
