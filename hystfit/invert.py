@@ -208,17 +208,19 @@ class Target(UniformSamples):
         return float(self.y.max() - self.y.min())
 
 
-def _positive(name: str, value: float) -> float:
+def _positive(name: str, value: float, source: str = "") -> float:
+    """``value`` when finite and > 0; else a one-line error naming it (``source``: the option as the
+    user gave it, e.g. ``--sine 5,inf``, said first)."""
     value = float(value)
     if not (math.isfinite(value) and value > 0):
-        raise ConfigError(f"{name} must be a finite number > 0. Got {value!r} instead.")
+        raise ConfigError(f"{source + ': ' if source else ''}{name} must be a finite number > 0. Got {value!r} instead.")
     return value
 
 
-def _finite(name: str, value: float) -> float:
+def _finite(name: str, value: float, source: str = "") -> float:
     value = float(value)
     if not math.isfinite(value):
-        raise ConfigError(f"{name} must be a finite number. Got {value!r} instead.")
+        raise ConfigError(f"{source + ': ' if source else ''}{name} must be a finite number. Got {value!r} instead.")
     return value
 
 
@@ -288,9 +290,10 @@ def sine_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 10_00
     source : what the user asked for (e.g. ``--sine 10,20,5``), named when the trajectory would
         exceed :data:`MAX_TARGET_SAMPLES`.
     """
-    amp, freq_Hz, cycles, fs = (_positive(n, v) for n, v in
-                                (("amplitude", amp), ("frequency_Hz", freq_Hz), ("cycles", cycles), ("fs", fs)))
-    offset = _finite("offset", offset)
+    amp, freq_Hz, cycles, fs = (_positive(n, v, source) for n, v in
+                                (("amplitude", amp), ("frequency (Hz)", freq_Hz), ("cycles", cycles),
+                                 ("the sample rate (--fs, Hz)", fs)))
+    offset = _finite("--offset", offset, source)
     n = _periodic_n(freq_Hz, cycles, fs, source)
     t = np.arange(n, dtype=np.float64) / fs
     y = offset + 0.5 * amp * np.sin(2.0 * np.pi * freq_Hz * t - 0.5 * np.pi) + 0.5 * amp
@@ -305,9 +308,10 @@ def triangle_target(amp: float, freq_Hz: float, cycles: float = 5, fs: float = 1
 
     Parameters as :func:`sine_target`.
     """
-    amp, freq_Hz, cycles, fs = (_positive(n, v) for n, v in
-                                (("amplitude", amp), ("frequency_Hz", freq_Hz), ("cycles", cycles), ("fs", fs)))
-    offset = _finite("offset", offset)
+    amp, freq_Hz, cycles, fs = (_positive(n, v, source) for n, v in
+                                (("amplitude", amp), ("frequency (Hz)", freq_Hz), ("cycles", cycles),
+                                 ("the sample rate (--fs, Hz)", fs)))
+    offset = _finite("--offset", offset, source)
     n = _periodic_n(freq_Hz, cycles, fs, source)
     t = np.arange(n, dtype=np.float64) / fs
     phase = np.mod(freq_Hz * t, 1.0)
@@ -1096,14 +1100,14 @@ def check_invert_options(pf: ParamsFile, target: Target, method: str, condition,
     if method not in ("interpolate", "nearest"):
         raise ConfigError(f"method {method!r}: choose interpolate or nearest")
     dlo, dhi = default_voltage_limits(pf)
-    lo = dlo if vmin is None else _finite("vmin", vmin)
-    hi = dhi if vmax is None else _finite("vmax", vmax)
+    lo = dlo if vmin is None else _finite("--vmin", vmin)
+    hi = dhi if vmax is None else _finite("--vmax", vmax)
     if not lo < hi:
         raise ConfigError(f"the voltage limits must satisfy vmin < vmax; got vmin = {lo:g} V, vmax = {hi:g} V")
     if max_slew is not None:
-        max_slew = _positive("the slew-rate limit (V/s)", max_slew)
+        max_slew = _positive("the slew-rate limit --max-slew (V/s)", max_slew)
     if initial_voltage is not None:
-        initial_voltage = _finite("initial voltage", initial_voltage)
+        initial_voltage = _finite("--initial-voltage", initial_voltage)
         if not lo <= initial_voltage <= hi:
             raise ConfigError(f"the initial voltage {initial_voltage:g} V lies outside the voltage limits "
                               f"[{lo:g}, {hi:g}] V; change --initial-voltage or the limits")

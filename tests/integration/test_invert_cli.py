@@ -339,3 +339,15 @@ def test_invert_track_and_simulate_load_neither_pandas_nor_matplotlib_in_the_com
         assert proc.returncode == 0, proc.stderr
         assert "LOADED False False" in proc.stdout.splitlines(), (args[0], proc.stdout[-300:])
         assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("args, words", [
+    (("--sine", "5,inf"), "--sine 5,inf: frequency (Hz) must be a finite number > 0"),
+    (("--sine", "5,10", "--vmin", "nan"), "--vmin must be a finite number"),
+    (("--sine", "5,10", "--fs", "inf"), "--sine 5,10: the sample rate (--fs, Hz) must be a finite number > 0"),
+])
+def test_invert_bad_numbers_name_their_option(tables, tmp_path, args, words):
+    """A blind test's find: "vmin must be a finite number", "frequency_Hz must be …": the option the
+    user typed is named now."""
+    r = run("invert", tables["pi"], "--out", tmp_path / "v.csv", *args)
+    assert r.exit_code == 2 and words in r.stderr and "Traceback" not in r.output, r.output
