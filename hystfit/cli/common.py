@@ -505,6 +505,15 @@ def print_capture_notes(captures) -> None:
             print_note(name, note)
 
 
+def capture_notes_json(captures) -> list[dict]:
+    """The loader's notes for ``--json`` (a script reads no stderr, and ``--quiet`` silences it):
+    ``[{"source": NAME, "notes": [...]}]`` for the captures that have any, named as on stderr."""
+    from ..report.tables import distinct_names
+
+    return [{"source": name, "notes": list(c.notes)}
+            for c, name in zip(captures, distinct_names([c.source for c in captures])) if c.notes]
+
+
 def print_note(name: str, note: str) -> None:
     """One note about the capture ``name`` on stderr: ``warning: NAME: …`` for a note that is a
     warning (starts with ``warning: ``), else ``note: NAME: …``."""

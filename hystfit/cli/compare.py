@@ -101,7 +101,7 @@ def compare(
     print_cell_summary(res.cell_stats, cr.describe(), quiet or json_out)
     some_failed = _failures(res, out)
     if json_out:
-        _print_summary_json(res, out, model_names, opt_names, runs)
+        _print_summary_json(res, out, model_names, opt_names, runs, captures)
     elif not quiet:
         _print_summary_table(res, out)
     if some_failed:
@@ -123,8 +123,9 @@ def _failures(res, out):
                             f"are in {out}, every error in {out}/compare.csv")
 
 
-def _print_summary_json(res, out, model_names, opt_names, runs: int) -> None:
+def _print_summary_json(res, out, model_names, opt_names, runs: int, captures=()) -> None:
     from ..report.compare_report import compare_frame
+    from .common import capture_notes_json
 
     df = compare_frame(res)
     u = res.unit
@@ -138,7 +139,8 @@ def _print_summary_json(res, out, model_names, opt_names, runs: int) -> None:
                 "failed": [{"model": c.model, "optimizer": c.optimizer, "condition": c.label, "error": c.error}
                            for c in res.cells if not c.ok],
                 "cell_counts": {"computed": st.computed, "reused": st.reused, "failed": st.failed,
-                                "wall_time_s": st.wall_time_s, "executor": res.executor}})
+                                "wall_time_s": st.wall_time_s, "executor": res.executor},
+                "capture_notes": capture_notes_json(captures)})
 
 
 def _print_summary_table(res, out) -> None:

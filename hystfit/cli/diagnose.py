@@ -116,10 +116,10 @@ def diagnose(
     if rec is not None:
         stats.add(rec.cell_stats)
     print_cell_summary(stats, cr.describe(), quiet or json_out)
-    _print_diagnosis(d, out, quiet, json_out)
+    _print_diagnosis(d, out, quiet, json_out, captures)
 
 
-def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
+def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool, captures=()) -> None:
     """The console's part of a diagnosis: a caution on a doubtful noise floor (stderr), then the JSON
     summary (``--json``) or the effects' table, the where-pointers and the next step (stdout)."""
     from ..diagnose import noise_floor_doubtful
@@ -135,7 +135,10 @@ def _print_diagnosis(d, out: Path, quiet: bool, json_out: bool) -> None:
             if text is not None:
                 stderr.print(f"note: {text}", markup=False, highlight=False, soft_wrap=True)
     if json_out:
-        print_json({**diagnosis_document(d), "params": str(out / "params.json") if d.hands_over else None})
+        from .common import capture_notes_json
+
+        print_json({**diagnosis_document(d), "params": str(out / "params.json") if d.hands_over else None,
+                    "capture_notes": capture_notes_json(captures)})
         return
     if quiet:
         return

@@ -116,8 +116,10 @@ def _print_offset_notes(res) -> None:
 
 def _print_summary_json(res, out, seed: int) -> None:
     from ..results import identify_to_dict
+    from .common import capture_notes_json
 
     d = identify_to_dict(res)
+    captures = list({id(c): c for f in res.fits for c in f.captures}.values())
     print_json({"out": str(out), "model": d["model"]["name"], "optimizer": d["optimizer"]["name"],
                 "seed": seed, "units": d["units"],
                 "conditions": [{"label": c["label"], "amplitude_V": c["amplitude_V"],
@@ -126,7 +128,8 @@ def _print_summary_json(res, out, seed: int) -> None:
                                for c in d["conditions"]],
                 "failed": list(res.failed),
                 "cell_counts": {"computed": res.cell_stats.computed, "reused": res.cell_stats.reused,
-                                "failed": res.cell_stats.failed, "wall_time_s": res.cell_stats.wall_time_s}})
+                                "failed": res.cell_stats.failed, "wall_time_s": res.cell_stats.wall_time_s},
+                "capture_notes": capture_notes_json(captures)})
 
 
 def _print_summary_table(res, title: str) -> None:

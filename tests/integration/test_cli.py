@@ -5,6 +5,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -276,3 +277,20 @@ def test_nm_and_mV_capture_gives_the_same_fit_and_bounds_override_applies(tmp_pa
     p = next(p for p in out["conditions"][0]["parameters"] if p["name"] == "Kv")
     assert (p["lower"], p["upper"]) == pytest.approx((lo, hi))
     assert lo <= p["value"] <= hi and out["bounds_overrides"] == {"Kv": [lo, hi]}
+
+
+def test_json_output_carries_the_loaders_notes(tmp_path):
+    """A blind test's find: a time column in ms without its unit (read as 10 Hz) said so on stderr
+    only — silenced by --quiet, unseen by a script reading --json. The notes are in the JSON."""
+    t = np.arange(1001) / 10_000.0
+    u = 30 * (1 - np.cos(2 * np.pi * 20 * t))
+    data = tmp_path / "ms.csv"
+    pd.DataFrame({"time": t * 1e3, "voltage_V": u, "x": 0.3 * u}).to_csv(data, index=False)
+    r = run("identify", data, "--out", tmp_path / "o", "--quiet", "--json", "--no-plots")
+    assert r.exit_code == 0, r.output
+    notes = json.loads(r.stdout)["capture_notes"]
+    assert [n["source"] for n in notes] == ["ms.csv"]
+    said = " ".join(notes[0]["notes"])
+    assert "assumed um" in said and "time_ms" in said
+    r = run("compare", data, "--models", "pi", "--out", tmp_path / "c", "--quiet", "--json", "--no-plots")
+    assert r.exit_code == 0 and json.loads(r.stdout)["capture_notes"] == notes, r.output
