@@ -37,7 +37,7 @@ import secrets
 import shutil
 import tempfile
 from contextlib import contextmanager, nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, ContextManager, Iterable, Iterator, Mapping, Sequence
 
@@ -51,6 +51,10 @@ from .errors import ConfigError, InputError, OutputError
 
 CAPTURE_SUFFIXES = (".csv", ".txt", ".tsv", ".dat", ".parquet", ".pq")
 PARQUET_SUFFIXES = (".parquet", ".pq")
+#: files a folder may hold that look like measurements hystfit cannot read: skipped, with a note
+#: (a blind test's folder with an .xlsx and a .gz beside its CSVs said nothing about them)
+UNREADABLE_DATA_SUFFIXES = (".xlsx", ".xls", ".ods", ".gz", ".zip", ".bz2", ".xz", ".7z", ".mat", ".h5", ".hdf5",
+                            ".npy", ".npz", ".feather", ".tdms")
 SIDECAR_SUFFIX = ".hystfit.json"
 OUTPUT_UNITS = ("nm", "um", "mm", "m")
 
@@ -1639,7 +1643,27 @@ def load_captures(paths: Sequence[str | os.PathLike], options: LoadOptions = Loa
     for c, names in zip(captures, read_only):  # as read here: a pickled array comes back writeable
         for name in names:
             getattr(c, name).flags.writeable = False
-    return captures
+    return _note_unreadable(paths, recursive, files, captures)
+
+
+def _note_unreadable(paths, recursive: bool, files: Sequence[Path], captures: list) -> list:
+    """``captures`` with a note on the first one read from each folder of ``paths`` that also holds
+    files that look like measurements hystfit cannot read (:data:`UNREADABLE_DATA_SUFFIXES`)."""
+    out = list(captures)
+    for raw in paths:
+        d = Path(raw)
+        if not d.is_dir():
+            continue
+        found = d.rglob("*") if recursive else d.iterdir()
+        odd = sorted(p.name for p in found if p.is_file() and not p.name.startswith(".")
+                     and any(p.name.lower().endswith(s) for s in UNREADABLE_DATA_SUFFIXES))
+        first = next((i for i, f in enumerate(files) if d.resolve() in f.resolve().parents), None)
+        if odd and first is not None and first < len(out):
+            shown = ", ".join(odd[:5]) + (f" and {len(odd) - 5} more" if len(odd) > 5 else "")
+            note = (f"{d} also holds {shown}, not read (captures are {', '.join(CAPTURE_SUFFIXES)}); convert them "
+                    "to CSV or Parquet to use them")
+            out[first] = replace(out[first], notes=tuple(out[first].notes) + (note,))
+    return out
 
 
 def _read_aside(aside, ahead: Sequence, abandon: bool):

@@ -1104,3 +1104,19 @@ def test_names_over_units_make_one_header(tmp_path, preamble):
     # a row of text that is not units stays the error it was
     path.write_text(preamble + "Time;Spannung;Weg\nfoo;bar;baz\n" + body)
     assert "foo" in error_of(path) or "bar" in error_of(path)
+
+
+def test_a_folder_notes_the_measurements_it_cannot_read(tmp_path):
+    """A blind test's folder held an .xlsx and a .gz beside its CSVs: skipped without a word. The
+    first capture read from the folder now says which files were not read and what to do."""
+    from hystfit.io import load_captures
+
+    t, u, y = sine()
+    write_csv(tmp_path / "a.csv", ("time_s", "voltage_V", "displacement_um"), [t, u, y])
+    (tmp_path / "run2.xlsx").write_bytes(b"PK")
+    (tmp_path / "old.csv.gz").write_bytes(b"\\x1f\\x8b")
+    (tmp_path / "notes.md").write_text("lab notes")  # not a measurement: no note
+    caps = load_captures([tmp_path])
+    said = " ".join(caps[0].notes)
+    assert "old.csv.gz, run2.xlsx, not read" in said and "convert them to CSV or Parquet" in said
+    assert "notes.md" not in said
