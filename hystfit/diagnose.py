@@ -1469,7 +1469,60 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
         phi_start = best_fit.phi
     new = best_state.copy()
     new.chain.insert(pos, best_fit)
+    if any(v.local is not None for v in views):
+        new = _fill_local(new, captures, views)
+        best_fit = new.chain[pos]
     return new, best_fit
+
+
+def _predict_capture(state: _State, captures, views, i: int) -> np.ndarray:
+    """``_predictions(state, ...)[i]``, capture ``i`` alone."""
+    g = state.groups[state.group_of[i]]
+    c = captures[i]
+    with np.errstate(all="ignore"):
+        u, sim = g.simulators.get(i, (None, None))
+        if u is not c.u:
+            sim = g.model.head_simulator(c.u, c.dt)
+            g.simulators[i] = (c.u, sim)
+        x = sim(g.theta, c.n)
+    for link in state.chain:
+        x = link.apply(x, views[i], i)
+    return x
+
+
+def _fill_local(state: _State, captures, views) -> _State:
+    """``state`` with the per-capture coefficients of the captures held out whole solved on their
+    own first part (``CaptureView.local``), link by link in chain order, everything else fixed: the
+    model is affine in them (additive regressors, passed through linear later links), so the
+    columns are the predictions' differences for unit coefficients, exactly. Their held-out
+    samples then see, e.g., their own drift offset and rate — as a temporal split gives every
+    capture — while nothing shared is fitted on them. Coefficients are clipped to their bounds."""
+    out = state.copy()
+    for li, link in enumerate(out.chain):
+        kl = link.effect.layout()[1]
+        if not kl:
+            continue
+        local = link.local.copy()
+        for i, v in enumerate(views):
+            if v.local is None or not v.local.any():
+                continue
+            local[i] = 0.0
+            out.chain[li] = replace(link, local=local.copy())
+            p0 = _predict_capture(out, captures, views, i)
+            cols = []
+            for j in range(kl):
+                unit = local.copy()
+                unit[i, j] = 1.0
+                out.chain[li] = replace(link, local=unit)
+                cols.append(_predict_capture(out, captures, views, i) - p0)
+            m = v.local[: p0.shape[0]]
+            A = np.column_stack(cols)[m]
+            a = np.linalg.lstsq(A, (v.y[: p0.shape[0]] - p0)[m], rcond=None)[0]
+            _, _, lo, hi = link.effect.coefficient_bounds()
+            local[i] = np.clip(a, lo, hi)
+            link = replace(link, local=local.copy())
+            out.chain[li] = link
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1601,17 +1654,13 @@ def untestable_effects(d: "_Design", names: Sequence[str]) -> tuple[str, ...]:
     There time and amplitude rise together, so a per-capture trend in time is also a trend in
     amplitude: it would take the amplitude dependence of the level that the base and the other
     effects leave (measured: named third after asymmetry and delay on rising sines with no drift),
-    and no held-out sample can tell the two apart. And ``drift`` when the capture split holds out
-    whole captures: a held-out capture's own offset and rate are fitted on none of its samples, so
-    the effect is scored as if absent there — a blind test's drift at 5–100× was never named, and
-    creep, whose shared time constants follow part of a drift, was named in its place. The temporal
-    split beside it (``split.other_scheme``) tests it: the first part of every capture fitted, its
-    trend extrapolated."""
+    and no held-out sample can tell the two apart. (The capture split tests it: a capture held out
+    whole fits its own offset and rate on its first part, :func:`_fill_local`; before, they were
+    fitted on none of its samples, and a blind test's drift at 5–100× was never named, creep in
+    its place.)"""
     if "drift" not in names:
         return ()
     if d.split.kind == "cycles" and d.swept and all(d.swept):
-        return ("drift",)
-    if d.split.kind == "capture" and any(d.split.held_out):
         return ("drift",)
     return ()
 
@@ -1621,6 +1670,7 @@ def _split_info(split: SplitChoice, caps, views, swept, settings) -> dict:
     was held out (``why`` and ``description`` are worded from :class:`SplitChoice` by the report)."""
     per_cap = [{"source": c.source, "fit_samples": int(v.fit.sum()), "heldout_samples": int((~v.fit).sum()),
                 "amplitude_changes": bool(sw), "heldout_whole": bool(h),
+                "own_coefficients_samples": int(v.local.sum()) if v.local is not None else 0,
                 "split_time_s": float(c.t[v.fit_end - 1]) if v.fit_end else None}
                for c, v, sw, h in zip(caps, views, swept, split.held_out)]
     out = {"kind": split.kind}
@@ -2122,17 +2172,22 @@ def _design(caps: Sequence[Capture], settings: "DiagnoseSettings", per_condition
     # whose "cycles" at its strongest spectral line can look swept on a long capture
     tonal = [(p or s) and not is_step_and_hold(c.u) for c, p, s in zip(caps, periodic, swept)]
     split = split_choice(caps, swept, settings, per_condition, tonal)
+    local = [None] * len(caps)
     if split.kind == "capture":
         # the tonal captures are fitted or held out whole; a broadband one (PRBS, steps) is split in
-        # time as in the temporal scheme: its first part fitted, the rest held out
+        # time as in the temporal scheme: its first part fitted, the rest held out. A capture held
+        # out whole fits its own per-capture coefficients (drift's offset and rate) on its first
+        # part and nothing else there (_fill_local): fitted on none of its samples, a drift was
+        # never named under this split
         temporal = fit_masks(caps, periodic, settings.fit_fraction)
         masks = [np.full(c.n, not h) if t else m for c, h, t, m in zip(caps, split.held_out, tonal, temporal)]
+        local = [m if h and t else None for h, t, m in zip(split.held_out, tonal, temporal)]
     elif split.kind == "cycles":
         masks = interior_masks(caps, periodic, settings.fit_fraction)
     else:
         masks = fit_masks(caps, periodic, settings.fit_fraction)
-    views = [CaptureView(c.t, c.dt, c.y, m, float(c.frequency_Hz), p, i, c.u)
-             for i, (c, m, p) in enumerate(zip(caps, masks, periodic))]
+    views = [CaptureView(c.t, c.dt, c.y, m, float(c.frequency_Hz), p, i, c.u, loc)
+             for i, (c, m, p, loc) in enumerate(zip(caps, masks, periodic, local))]
     group_idx, labels, conds, group_of = _groups(caps, per_condition)
     return _Design(tuple(periodic), tuple(swept), split, tuple(views), tuple(group_idx), tuple(labels),
                    tuple(conds), tuple(group_of))

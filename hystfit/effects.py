@@ -80,6 +80,9 @@ class CaptureView:
     index : position of the capture in the data set (per-capture coefficients use it).
     u : (N,) the input (V), or None where the caller did not give it (an effect whose structure
         needs it then falls back, see :meth:`hystfit.blocks.asymmetry.Asymmetry.configure`).
+    local : (N,) bool or None: samples that fit only this capture's own coefficients (an effect's
+        per-capture ones, e.g. drift's offset and rate) while nothing shared is fitted on them —
+        the first part of a capture the ``capture`` split holds out (``hystfit.diagnose``).
     """
 
     t: np.ndarray
@@ -90,6 +93,7 @@ class CaptureView:
     periodic: bool = False
     index: int = 0
     u: np.ndarray | None = None
+    local: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -103,7 +107,8 @@ class CaptureView:
 
     def head(self, n: int) -> "CaptureView":
         """The first ``n`` samples (same sample period and flags)."""
-        return replace(self, t=self.t[:n], y=self.y[:n], fit=self.fit[:n], u=None if self.u is None else self.u[:n])
+        return replace(self, t=self.t[:n], y=self.y[:n], fit=self.fit[:n], u=None if self.u is None else self.u[:n],
+                       local=None if self.local is None else self.local[:n])
 
 
 @dataclass(frozen=True)

@@ -964,23 +964,15 @@ def fit_fraction_text(d: Diagnosis) -> str | None:
 
     if d.split["kind"] != "capture" or d.settings.fit_fraction == DiagnoseSettings().fit_fraction:
         return None
-    return (f"--fit-fraction {d.settings.fit_fraction:g} applies to the captures split in time and to the temporal "
+    return (f"--fit-fraction {d.settings.fit_fraction:g} applies to the captures split in time, to the part of the "
+            "captures held out whole on which their own per-capture coefficients are fitted, and to the temporal "
             "check; the verdict's hold-out is whole captures (those at interior frequencies)")
 
 
 def not_tested_text(d: Diagnosis) -> str:
-    """Why the effects of ``split.not_tested`` were not tested by this hold-out, and what the temporal
-    split beside it says of them (:func:`hystfit.diagnose.untestable_effects`)."""
+    """Why the effects of ``split.not_tested`` were not tested by this hold-out
+    (:func:`hystfit.diagnose.untestable_effects`)."""
     names = ", ".join(d.split["not_tested"])
-    if d.split["kind"] == "capture":
-        other = d.split.get("other_scheme") or {}
-        named = [e for e in other.get("explained_by", ()) if e in d.split["not_tested"]]
-        every = list(other.get("explained_by", ()))
-        there = f" (with {', '.join(e for e in every if e not in named)})" if len(every) > len(named) else ""
-        said = (f"; the temporal split, which fits the first part of every capture, names {', '.join(named)}{there}: "
-                f"identify with --model {d.base_model}+drift to check" if named else "")
-        return (f"{names} is not tested: a held-out capture's own offset and rate cannot be fitted from the other "
-                f"captures{said}")
     return (f"{names} is not tested: its trend in time is also a trend in amplitude on these captures, and no "
             "held-out sample tells the two apart")
 

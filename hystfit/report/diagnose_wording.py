@@ -110,7 +110,8 @@ def split_description(kind: str, fit_fraction: float, in_time: Sequence[str] = (
         text = ("every fit (base, base + effect, placebo) uses the captures at the lowest and highest drive "
                 "frequencies; the captures at the frequencies in between are held out whole and "
                 + ("" if in_time else "only they ") + "score 'heldout_*' (an interpolation in frequency, at every "
-                "amplitude)")
+                f"amplitude); only their own per-capture coefficients (a drift's offset and rate) are fitted, on "
+                f"their first {100 * fit_fraction:.0f} %")
         if in_time:
             text += ("; " + ", ".join(in_time) + (" has" if len(in_time) == 1 else " have") + " no one drive "
                      f"frequency (broadband) and {'is' if len(in_time) == 1 else 'are'} split in time: the first "
