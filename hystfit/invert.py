@@ -17,6 +17,12 @@ Pipeline (every step is reported in :class:`InversionResult`, nothing is silent)
    (:func:`choose_condition`): guess A₀ = target stroke / table gain, pick the cell(s) for
    (A₀, f), invert, measure the peak-to-peak of the resulting voltage A₁, re-pick, … until the
    amplitude is self-consistent (|A_{i+1} − A_i| ≤ 0.1 % of A) and the cells no longer change.
+   A voltage that leaves the identification range of the cells its peak-to-peak picks (a target
+   up the stroke: 10…40 V is 30 V peak-to-peak, but the 20 V and 40 V cells of a campaign that
+   starts every capture at 0 V saw 0…20 and 0…40 V) asks for the smallest amplitude of a cell
+   whose range covers it instead (:func:`_covering_amplitude`): a blind test's 5 → 13 µm sine
+   blended the 20 V and 40 V cells and missed the plant by 0.25–0.38 µm where 0.035–0.045 µm
+   were reachable.
    ``condition=`` forces the condition instead. Segments are settled in time order: a later
    segment's cells continue from the voltage already chosen for the earlier ones (step 4).
 3. **Bilinear interpolation** between the (up to four) surrounding cells, linear in amplitude
@@ -81,7 +87,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, ClassVar, Sequence
 
 import numpy as np
@@ -791,11 +797,30 @@ def choose_condition(pf: ParamsFile, target: Target, segment: Segment, cache: "_
     y = cache.target.y[sl]
     stroke = float(y.max() - y.min())
     a = stroke / table_gain(pf) if stroke > 0 else min(c.amplitude_V for c in pf.cells if math.isfinite(c.amplitude_V))
+    choice = _iterate(pf, cache, segment, f, a, method, max_iterations, lambda u: float(np.ptp(u)))
+    u = cache.blend(choice.cells, sl)
+    cover = _covering_amplitude(pf, u)
+    if cover is None or _cells_cover(pf, choice.cells, u):
+        return choice
+    # the voltage leaves the range a chosen cell was identified on (a target up the stroke): the
+    # iteration again, each voltage asking at least for the smallest cell that covers it
+    again = _iterate(pf, cache, segment, f, max(cover, choice.condition[0]), method, max_iterations,
+                     lambda v: _amplitude_asked(pf, v))
+    note = (f"the voltage of {'+'.join(c.label for c in choice.cells)} ({float(np.min(u)):.4g}…{float(np.max(u)):.4g} V) "
+            "leaves the range they were identified on; the cells that cover it were looked up instead")
+    return replace(again, iterations=choice.iterations + again.iterations, note="; ".join(x for x in (again.note, note) if x))
+
+
+def _iterate(pf: ParamsFile, cache: "_CellCache", segment: Segment, f: float, a: float, method: str,
+             max_iterations: int, asked) -> SegmentChoice:
+    """The amplitude iteration of :func:`choose_condition` from ``a``: ``asked(u)`` is the table
+    amplitude a voltage ``u`` asks for (its peak-to-peak, or at least a covering cell's)."""
+    sl = slice(segment.start, segment.stop)
     steps: list[IterationStep] = []
     seen: dict[tuple, int] = {}
     for _ in range(max_iterations):
         cells, query, clamped = select_cells(pf, (a, f), method)
-        pp = float(np.ptp(cache.blend(cells, sl)))
+        pp = asked(cache.blend(cells, sl))
         steps.append(IterationStep(a, cells, pp))
         key = tuple((c.index, round(c.weight, 9)) for c in cells)
         if abs(pp - a) <= AMPLITUDE_RTOL * max(pp, 1e-12) or (len(steps) > 1 and key == _key(steps[-2].cells)):
@@ -826,6 +851,49 @@ def _key(cells: Sequence[CellUse]) -> tuple:
 
 def _cells_amplitude(cells: Sequence[CellUse]) -> float:
     return float(sum(c.weight * c.amplitude_V for c in cells))
+
+
+def _cells_cover(pf: ParamsFile, cells: Sequence[CellUse], u: np.ndarray) -> bool:
+    """Whether the voltage ``u`` stays within the input range of the cells used, interpolated as
+    their amplitudes are (Σ w·u_min … Σ w·u_max, to 2 % of it): a target between two cells'
+    amplitudes from the bottom of the stroke is the table's interpolation; one shifted up the
+    stroke leaves it. Cells without a known range count as covering."""
+    if any(pf.cells[c.index].scale is None for c in cells if c.weight > 0):
+        return True
+    w = np.array([c.weight for c in cells], float)
+    lo_c = float(np.dot(w, [pf.cells[c.index].scale.u_min for c in cells])) / max(float(w.sum()), 1e-300)
+    hi_c = float(np.dot(w, [pf.cells[c.index].scale.u_max for c in cells])) / max(float(w.sum()), 1e-300)
+    tol = 0.02 * (hi_c - lo_c)
+    return float(np.min(u)) >= lo_c - tol and float(np.max(u)) <= hi_c + tol
+
+
+def _amplitude_asked(pf: ParamsFile, u: np.ndarray) -> float:
+    """The table amplitude (V peak-to-peak) the voltage ``u`` asks for: its peak-to-peak, or, when
+    that is below it, the smallest amplitude of a cell whose identification range covers ``u``
+    (:func:`_covering_amplitude`)."""
+    pp = float(np.ptp(u)) if u.size else 0.0
+    cover = _covering_amplitude(pf, u)
+    return pp if cover is None else max(pp, cover)
+
+
+def _covering_amplitude(pf: ParamsFile, u: np.ndarray) -> float | None:
+    """The smallest amplitude among the cells whose identification input range covers the voltage
+    ``u`` (to 2 % of their range), or None when none does or the cells' ranges are unknown: a cell
+    identified on 0…20 V extrapolates on 10…40 V, whatever the peak-to-peak says."""
+    if not u.size:
+        return None
+    lo, hi = float(np.min(u)), float(np.max(u))
+    amps = []
+    for c in pf.cells:
+        s = c.scale
+        if s is None or not math.isfinite(c.amplitude_V):
+            continue
+        tol = 0.02 * float(s.u_max - s.u_min)
+        if s.u_min <= lo + tol and s.u_max >= hi - tol:
+            amps.append(float(c.amplitude_V))
+    return min(amps) if amps else None
+
+
 
 
 # ----------------------------------------------------------------------------------------------

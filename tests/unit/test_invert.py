@@ -239,7 +239,10 @@ def test_amplitude_iteration_converges_and_picks_the_right_cell():
 
 def test_amplitude_iteration_reports_alternating_cells():
     # the 20 V cell asks for 35 V (→ 40 V cell), the 40 V cell for 25 V (→ 20 V cell): no fixed point
-    pf = table([linear_cell(20, 10, 10 / 35), linear_cell(40, 10, 10 / 25)])
+    # (both identified on 0…100 V, so both cover every voltage and only the amplitudes decide)
+    from dataclasses import replace
+
+    pf = table([replace(c, scale=scale(100.0, 0.3)) for c in (linear_cell(20, 10, 10 / 35), linear_cell(40, 10, 10 / 25))])
     res = invert_target(pf, sine_target(10.0, 10.0, cycles=1), method="nearest")
     (ch,) = res.choices
     assert not ch.converged and "alternated" in ch.note
@@ -422,3 +425,20 @@ def test_a_steps_target_starting_at_its_rest_level_is_explained():
         steps_target([0.0, 5.0, 10.0], 0.05)
     with pytest.raises(ConfigError, match=r"two consecutive levels are 5"):
         steps_target([5.0, 5.0, 10.0], 0.05)
+
+
+def test_a_target_up_the_stroke_uses_the_cells_that_cover_its_voltage():
+    """A blind test's find: a 5 → 13 µm sine needs 10…40 V, 30 V peak-to-peak, and blended the 20 V
+    and 40 V cells of a campaign whose captures all start at 0 V (identified on 0…20 and 0…40 V):
+    extrapolated, 20–30× the predicted error on the plant. The voltage leaving a chosen cell's
+    range asks for the smallest cell that covers it; a target from the bottom is unchanged."""
+    pf = table([linear_cell(a, 10, 0.25) for a in (20, 40, 60)])
+    up = invert_target(pf, sine_target(7.5, 10.0, cycles=2, offset=2.5), method="interpolate")
+    (ch,) = up.choices
+    u = up.voltage_V
+    assert 9.0 < u.min() and u.max() < 41.0 and np.ptp(u) == pytest.approx(30.0, rel=1e-3)
+    assert [c.label for c in ch.cells] == ["40V_10Hz"] and "cover it" in ch.note
+    assert not any("extrapolated" in n for n in up.notes)
+    low = invert_target(pf, sine_target(7.5, 10.0, cycles=2), method="interpolate")
+    (ch0,) = low.choices
+    assert "cover" not in ch0.note and ch0.condition[0] == pytest.approx(30.0, rel=2e-3)
