@@ -1161,6 +1161,8 @@ def _trend_findings(summary: dict) -> list[Finding]:
     if ratio is not None and ratio > 1.15 and summary.get("split", "temporal") == "temporal":
         out.append(Finding("later_time_swept" if summary.get("amplitude_changes_within_capture") else "later_time",
                            {"ratio": ratio}))
+    elif ratio is not None and ratio > 1.15 and summary.get("split") == "cycles":
+        out.append(Finding("heldout_cycles", {"ratio": ratio}))
     elif ratio is not None and ratio > 1.15:
         out.append(Finding("heldout_captures", {"ratio": ratio}))
     if summary["low_frequency_share"] > 0.25:

@@ -312,7 +312,8 @@ def load_params(path: str | Path) -> ParamsFile:
     try:
         data = json.loads(p.read_text())
     except FileNotFoundError:
-        raise InputError(f"{p}: no such parameter file; pass the params.json written by 'hystfit identify'") from None
+        raise InputError(f"{p}: no such parameter file; pass the params.json written by 'hystfit identify' (or by "
+                         "'hystfit diagnose', when it hands a model over)") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{p}: cannot read ({exc.__class__.__name__}); check the path and permissions") from None
     except json.JSONDecodeError as exc:

@@ -660,7 +660,11 @@ def _md_intro(d: Diagnosis, figs: dict[str, str]) -> list[str]:
           f"improves the held-out RMSE more than the best of {s.placebo_draws} *placebos* — corrections with the "
           "same number of adjustable parameters but random shapes that have nothing to do with the input, which "
           "shows what that many extra parameters gain by chance; and (c) the gap is meaningfully above the noise "
-          f"(√(before² − floor²) ≥ {s.min_excess_ratio:g} × floor). Among the effects that pass, the largest "
+          f"(√(before² − floor²) ≥ {s.min_excess_ratio:g} × floor); and (d) its fit does not end on the edge of "
+          "its search range where the effect is absent (a stage at the top of its f_n range). An effect short of "
+          "(a) alone is named *together with* another when each, on top of the other, passes the rule (the "
+          "two-effect look-ahead: their parts of the gap add in quadrature, so each alone can stay below the "
+          "threshold). Among the effects that pass, the largest "
           f"reduction wins, unless one with fewer parameters comes within {s.occam_tolerance:g} of it (the simpler "
           "explanation). The winner is added to the model and the others are tested again on top of it, up to "
           f"{s.max_effects} effects: that is the order in which the effects are named.", ""]
@@ -901,6 +905,9 @@ def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
     them, and what to run next."""
     u = _u(d.unit)  # in words: µm (the JSON's names keep um)
     opts = "".join(f" --model-option {k}={v}" for k, v in d.recommended_options.items())
+    # identify fits per condition by default; the hand-over is global unless the diagnosis was not
+    # (a blind test's "identify it anew" built a look-up table where params.json held one set)
+    opts += "" if d.mode == "per-condition" else " --global"
     if not d.explained_by:
         short = _short_of_the_rule(d)
         if short is not None:

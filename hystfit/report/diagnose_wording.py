@@ -161,6 +161,8 @@ _FINDINGS = {
                                       "so this compares small loops with large ones; it is not by itself evidence of "
                                       "creep or drift"),
     "later_time": _later_time,
+    "heldout_cycles": lambda v, u: (f"held-out cycles: fitted on the cycles before and after them, the model misses "
+                                    f"{v['ratio']:.2f}× more (above noise) on the middle cycles of each capture"),
     "heldout_captures": lambda v, u: (f"held-out captures: fitted on the other drive frequencies, the model misses "
                                       f"{v['ratio']:.2f}× more (above noise) on the interior frequencies it did not "
                                       "see"),

@@ -368,4 +368,13 @@ def test_a_finer_base_with_no_effect_named_is_handed_over(tmp_path):
     assert params["model"]["name"] == "pi" and params["model"]["options"] == {"n_operators": 20}
     md = (out / "diagnosis.md").read_text()
     assert "the base at the resolution the held-out data support: n_operators = 20" in md
-    assert "fitted on all the data is in" in md.splitlines()[-1]
+    last = md.splitlines()[-1]
+    assert "fitted on all the data is in" in last
+    # the command to identify it anew builds the same model: global, as the hand-over (a blind test:
+    # without --global identify built a look-up table)
+    assert last.endswith("identify it anew with --model pi --model-option n_operators=20 --global"), last
+    again = CliRunner().invoke(app, ["identify", str(data), "--model", "pi", "--model-option", "n_operators=20",
+                                     "--global", "--out", str(tmp_path / "again"), "--no-plots", "--quiet"])
+    assert again.exit_code == 0, again.output
+    twin = json.loads((tmp_path / "again" / "params.json").read_text())
+    assert twin["mode"] == params["mode"] and len(twin["conditions"]) == len(params["conditions"]) == 1

@@ -240,3 +240,16 @@ def test_a_candidate_without_a_placebo_is_worded_as_such_and_never_blamed_on_one
     assert len(reasons) == 1 and "placebo" not in reasons[0] and "random" not in reasons[0]
     failed = not_named_reasons({**passes, "beats_placebo": False}, 0.05, 0.005, 0.01, 0.3, "um")
     assert any("random corrections" in r for r in failed)
+
+
+def test_the_cycles_split_finding_speaks_of_cycles_not_captures():
+    """A blind test's find: under the cycles split the later-part ratio was worded as held-out captures
+    "at the interior frequencies"."""
+    from hystfit.diagnose import _trend_findings
+
+    summary = {"heldout_to_fit_ratio": 1.37, "split": "cycles", "low_frequency_share": 0.0,
+               "high_frequency_share": 0.0, "long_capture_ratio": None}
+    kinds = [f.kind for f in _trend_findings(summary)]
+    assert "heldout_cycles" in kinds and "heldout_captures" not in kinds
+    text = pointer_text(next(f for f in _trend_findings(summary) if f.kind == "heldout_cycles"), "um")
+    assert "middle cycles" in text and "1.37" in text
