@@ -1095,6 +1095,10 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
                               max_slew=max_slew, noise=noise, disturbance=disturbance, unit=pf.unit)
         if not np.all(np.isfinite(run.output)):
             notes.append(f"{name}: the closed loop diverged (non-finite output)")
+        else:
+            lost = lost_loop_note(run, target, design.nominal)
+            if lost is not None:
+                notes.append(lost)
         runs.append(run)
         if progress:
             progress("advance", {"label": name})
@@ -1102,6 +1106,31 @@ def track(pf: ParamsFile, target: Target, controllers: Sequence[str] = ("ff+pid"
     return TrackResult(pf.path, plant_pf.path, pf.model_name, plant_pf.model_name, pf.unit, target, inv, plant_cells,
                        design.nominal, design.pid, design.smc, tuple(runs), float(noise_std), int(seed),
                        dict(inv.limits, max_slew_V_per_s=max_slew), tuple(notes))
+
+
+#: a feedback loop whose error exceeds this share of the target's stroke (RMS) does not hold it
+LOST_LOOP_RMS_SHARE = 0.5
+
+
+def lost_loop_note(run: ControllerRun, target, nominal) -> str | None:
+    """A note when a feedback controller's simulated loop does not hold the target — its RMS error
+    above :data:`LOST_LOOP_RMS_SHARE` of the stroke, or pinned at the voltage limits most of the
+    time — with the likely cause: the loop is unstable on this plant, the automatic tuning's nominal
+    plant missing its dynamics. A blind test's ``pid`` and ``ff+pid`` on a stage with a lightly
+    damped resonance ran to 1030 % of the stroke, and the report said only that the voltage limits
+    had acted, beside the nominal design's margins (GM 2.5, PM 94°). None for ``ff`` (no loop)."""
+    if run.controller == "ff":
+        return None
+    stroke = float(np.ptp(target.y)) or 1.0
+    rms = float(np.sqrt(np.mean(run.error ** 2)))
+    limited = 100.0 * sum(s.n for s in run.limit_spans) / max(1, target.n - 1)
+    if rms <= LOST_LOOP_RMS_SHARE * stroke and limited <= 50.0:
+        return None
+    what = getattr(nominal, "description", None)
+    return (f"warning: {run.controller}: the closed loop does not hold the target (RMS error {100 * rms / stroke:.0f} % of the "
+            f"stroke, at the voltage limits {limited:.0f} % of the time): it is unstable on this plant — the "
+            f"tuning's margins hold for its nominal plant{f' ({what})' if what else ''}, not for the plant's own "
+            "dynamics; lower --bandwidth or give --kp/--ki, or use -c smc")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -107,6 +107,9 @@ def track(
             n = sum(s.n for s in run.limit_spans)
             stderr.print(f"warning: {run.controller}: the voltage limits acted on {n} sample(s) in "
                          f"{len(run.limit_spans)} span(s); see the report", markup=False, highlight=False)
+    for note in res.notes:  # a loop that does not hold the target: said even with --json or --quiet
+        if note.startswith("warning: "):
+            stderr.print(note, markup=False, highlight=False, soft_wrap=True)
     if output.json_out:
         print_json(dict(summary, out=str(out)))
         return
@@ -114,7 +117,8 @@ def track(
         return
     _print_tables(res, bw, out)
     for note in res.notes:
-        stderr.print(f"note: {note}", markup=False, highlight=False, style="dim")
+        if not note.startswith("warning: "):
+            stderr.print(f"note: {note}", markup=False, highlight=False, style="dim")
 
 
 def _check_options(names, fmt: str, anti_windup: str, method: str, noise: float, bandwidth, gains) -> None:

@@ -447,3 +447,27 @@ def test_the_nominal_gain_carries_the_tables_unit():
     assert " µm/V with one sample of delay" in nom.description and nom.unit == "um"
     assert "µm/V" in auto_pid(nom).rule
     assert "per V" in _static(0.3, 1e-4).description  # no unit given: words without one
+
+
+def test_a_loop_that_does_not_hold_the_target_is_a_warning_naming_the_cause():
+    """A blind test's find: pid on a stage with a lightly damped resonance ran to 1030 % of the
+    stroke, and only "the voltage limits acted" was said. A feedback loop whose RMS error exceeds
+    half the stroke, or that sits at the limits most of the time, is now a warning; ff never is."""
+    from types import SimpleNamespace
+
+    from hystfit.track import lost_loop_note
+
+    n = 1000
+    target = SimpleNamespace(y=np.sin(np.linspace(0, 6.28, n)) * 5 + 5, n=n)
+    nominal = SimpleNamespace(description="second-order fit (NRMSE 3.6 %)")
+
+    def run(name, err, limited=0):
+        return SimpleNamespace(controller=name, error=err, limit_spans=(SimpleNamespace(n=limited),) if limited else ())
+
+    wild = np.sin(np.linspace(0, 600, n)) * 80
+    note = lost_loop_note(run("pid", wild, 740), target, nominal)
+    assert note.startswith("warning: pid: the closed loop does not hold the target") and "unstable" in note
+    assert "--bandwidth" in note and "NRMSE 3.6 %" in note
+    assert lost_loop_note(run("ff", wild), target, nominal) is None
+    assert lost_loop_note(run("ff+pid", np.full(n, 0.05)), target, nominal) is None
+    assert "limits 60 %" in lost_loop_note(run("smc", np.full(n, 0.05), 600), target, nominal)
