@@ -133,7 +133,7 @@ def test_effects_constructors():
     assert S.Effects.only("creep", 3.0).creep_gain == pytest.approx([0.03] * 4)
     assert S.Effects.only("dynamics", 2.0).dynamics_fn_Hz == pytest.approx(600.0)
     with pytest.raises(ConfigError, match="'none' stands alone; it cannot be combined"):  # a blind test's
-        Effects.from_names(["none", "noise"])  # "unknown effect 'none' … (or 'none', …)" contradicted itself
+        S.Effects.from_names(["none", "noise"])  # "unknown effect 'none' … (or 'none', …)" contradicted itself
     with pytest.raises(ConfigError, match="unknown effect 'wobble'"):
         S.Effects.parse("creep,wobble")
     with pytest.raises(ConfigError):
