@@ -660,7 +660,8 @@ def _md_intro(d: Diagnosis, figs: dict[str, str]) -> list[str]:
           f"improves the held-out RMSE more than the best of {s.placebo_draws} *placebos* — corrections with the "
           "same number of adjustable parameters but random shapes that have nothing to do with the input, which "
           "shows what that many extra parameters gain by chance; and (c) the gap is meaningfully above the noise "
-          f"(√(before² − floor²) ≥ {s.min_excess_ratio:g} × floor); and (d) its fit does not end on the edge of "
+          f"(√(before² − floor²) ≥ {s.min_excess_ratio:g} × floor); (d) what it adds to the held-out prediction is "
+          f"itself at least {s.min_excess_ratio:g} × floor (RMS); and (e) its fit does not end on the edge of "
           "its search range where the effect is absent (a stage at the top of its f_n range). An effect short of "
           "(a) alone is named *together with* another when each, on top of the other, passes the rule (the "
           "two-effect look-ahead: their parts of the gap add in quadrature, so each alone can stay below the "
@@ -1016,6 +1017,7 @@ def effect_document(r: EffectResult, unit: str) -> dict:
             "reduction": _num(r.reduction),
             f"improvement_{u}": _num(r.improvement),
             f"placebo_improvement_{u}": _num(r.placebo_improvement),
+            f"own_rms_heldout_{u}": _num(r.own_rms),
             "placebo_reduction": _num(r.placebo_reduction),
             f"fit_rmse_before_{u}": _num(r.fit_rmse_before),
             f"fit_rmse_after_{u}": _num(r.fit_rmse_after),

@@ -354,6 +354,9 @@ def not_named_reasons(passes: dict, reduction: float, improvement: float, placeb
                        f"with as many adjustable parameters: {placebo:+.3g} {u})")
     if not passes.get("gap_above_noise", True):
         out.append("the gap it was tested on is too close to the sensor noise to tell any effect from noise")
+    if passes.get("effect_above_noise") is False:
+        out.append("what it adds to the prediction on held-out data is below a quarter of the noise floor: too small "
+                   "to tell from the sensor noise, as a gap that small would be (whatever share of the gap it removes)")
     if passes.get("inside_search_range") is False:
         out.append("its fit ends on the edge of its search range where the effect is absent (a stage: f_n at the top, "
                    "no resonance inside the range); what it gains there is another shape's, e.g. a small lag")

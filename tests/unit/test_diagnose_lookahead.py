@@ -116,3 +116,29 @@ def test_a_stage_at_the_top_of_its_search_range_is_never_named():
     assert not edge.eligible and edge.passes["inside_search_range"] is False
     assert any("edge of its search range" in r for r in not_named_reasons(edge.passes, edge.reduction,
                                                                             edge.improvement, 0.001, 0.3, "um"))
+
+
+def test_an_effect_whose_own_output_is_below_a_quarter_of_the_noise_is_not_named():
+    """A blind test's find: on a plant with no asymmetry, a 1.3 nm bow (a 20 µm stroke, 8 nm noise)
+    removed 36 % of a small held-out gap and was named. What an effect adds to the held-out
+    prediction must reach a quarter of the noise floor, as the gap itself must (``min_excess_ratio``)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from hystfit.diagnose import _test_effect
+    from hystfit.report.diagnose_wording import not_named_reasons
+
+    ctx = SimpleNamespace(before=10.2, sigma=7.96, fit_before=10.0, summary={})
+    eff = SimpleNamespace(name="asymmetry", title="asymmetry", absent_at=lambda phi: False)
+    fit = SimpleNamespace(params=lambda views, sources: {}, n_parameters=2, phi=np.empty(0))
+
+    def judged(own):
+        refit = SimpleNamespace(after=9.395, fit_after=9.3, fit=fit, share=0.0, r2=0.0, own_rms=own)
+        return _test_effect(ctx, eff, refit, (0.01, 0.01), 1, [], [], DiagnoseSettings())
+
+    small, large = judged(1.37), judged(2.5)
+    assert small.reduction > 0.3 and not small.eligible and small.passes["effect_above_noise"] is False
+    assert small.own_rms == 1.37 and large.eligible and large.passes["effect_above_noise"]
+    reasons = not_named_reasons(small.passes, small.reduction, small.improvement, 0.01, 0.3, "nm")
+    assert any("below a quarter of the noise floor" in r for r in reasons)
