@@ -1799,6 +1799,12 @@ def _contends(reduction: float, before: float, sigma: float, settings: "Diagnose
         _excess(before, sigma) >= settings.min_excess_ratio * sigma
 
 
+def _above_noise(own_rms: float, sigma: float, settings: "DiagnoseSettings") -> bool | None:
+    """Whether what an effect adds to the held-out prediction (RMS) reaches ``min_excess_ratio`` ×
+    the floor; None where it was not computed (a candidate that does not contend)."""
+    return None if math.isnan(own_rms) else bool(own_rms >= settings.min_excess_ratio * sigma)
+
+
 def _placebo_layout(eff: Effect) -> tuple[int, int]:
     """The parameter layout of ``eff``'s placebos: (searched + shared, per capture)."""
     ks, kl = eff.layout()
@@ -1842,7 +1848,7 @@ class _Refit:
     fit_after: float
     share: float
     r2: float
-    own_rms: float = math.inf  # RMS of the effect's own part of the prediction on held-out samples
+    own_rms: float = math.inf  # RMS of the effect's own part of the held-out prediction (NaN: not computed)
 
 
 def _own_rms(state: _State, fit: EffectFit, preds: list, caps, views) -> float:
@@ -1868,8 +1874,11 @@ def _refit_effect(ctx: _StepContext, eff: Effect, caps, views, settings: "Diagno
     fitted = [i for i, v in enumerate(views) if v.fit_end >= 3]
     share, r2 = signature_share(eff, [ctx.preds[i][: views[i].fit_end] for i in fitted],
                                 [views[i].head(views[i].fit_end) for i in fitted], ctx.sigma * ctx.sigma)
-    return _Refit(st_e, efit, preds_e, _rmse(preds_e, views, "test"), _rmse(preds_e, views, "fit"), share, r2,
-                  _own_rms(st_e, efit, preds_e, caps, views))
+    after = _rmse(preds_e, views, "test")
+    # what it adds to the prediction: only where a verdict can depend on it (a contender), as its placebos
+    own = (_own_rms(st_e, efit, preds_e, caps, views)
+           if _contends(_reduction(ctx.before, after, ctx.sigma), ctx.before, ctx.sigma, settings) else math.nan)
+    return _Refit(st_e, efit, preds_e, after, _rmse(preds_e, views, "fit"), share, r2, own)
 
 
 def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[float, float] | None, step: int, caps,
@@ -1887,7 +1896,7 @@ def _test_effect(ctx: _StepContext, eff: Effect, refit: _Refit, placebo: tuple[f
               "beats_placebo": None if placebo is None else (before - after) - pl_best > settings.placebo_margin * denom,
               "gap_above_noise": _excess(before, sigma) >= settings.min_excess_ratio * sigma,
               "inside_search_range": not eff.absent_at(refit.fit.phi),
-              "effect_above_noise": getattr(refit, "own_rms", math.inf) >= settings.min_excess_ratio * sigma}
+              "effect_above_noise": _above_noise(getattr(refit, "own_rms", math.inf), sigma, settings)}
     ev = Evidence.from_summary(eff.name, ctx.summary, signature_share=refit.share, params=params,
                                heldout_before=before, heldout_after=after, reduction=red, placebo=pl_best)
     return EffectResult(eff.name, eff.title, step + 1, before, after, ctx.fit_before, refit.fit_after, red, pl_best,
