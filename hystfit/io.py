@@ -941,7 +941,7 @@ def _select_roles(table: _Table, roles: Sequence[str], specs: Mapping[str, str |
             continue
         if table.names is None and role != "time":
             raise _headerless_error(table, role, roles)
-        raise _missing_column_error(table, role)
+        raise _missing_column_error(table, role, seen)
     return chosen
 
 
@@ -961,7 +961,14 @@ def _select_columns(table: _Table, opts: LoadOptions, notes: list[str] | None = 
     return chosen
 
 
-def _missing_column_error(table: _Table, role: str) -> InputError:
+def _missing_column_error(table: _Table, role: str, seen: Mapping[int, str] | None = None) -> InputError:
+    """The one-line error for a required column not found; ``seen``: column → the role already given
+    to it (a column named for this role but taken by another's flag is said to be taken)."""
+    for i, other in (seen or {}).items():
+        if table.names is not None and other != role and _is_candidate(table.names[i], role):
+            return InputError(f"{table.label}: column {i} {table.names[i]!r} reads as the {_WHAT[role]}, but it is "
+                              f"taken as the {_WHAT[other]} ({_FLAGS[other]}); check {_FLAGS[other]}, or pass "
+                              f"{_FLAGS[role]} for the {_WHAT[role]}")
     if role == "time":
         if table.names is None:
             return InputError(f"{table.label}: the file has no header row and no time column was given: pass "

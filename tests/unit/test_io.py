@@ -1120,3 +1120,13 @@ def test_a_folder_notes_the_measurements_it_cannot_read(tmp_path):
     said = " ".join(caps[0].notes)
     assert "old.csv.gz, run2.xlsx, not read" in said and "convert them to CSV or Parquet" in said
     assert "notes.md" not in said
+
+
+def test_a_column_taken_by_another_flag_is_said_to_be_taken(tmp_path):
+    """A blind test's ``--input-col 2`` pointed at ``displacement_um``; the error said that no output
+    column was found, though the file has one. It now says the column is taken, and by which flag."""
+    t, u, y = sine()
+    path = write_csv(tmp_path / "c.csv", ("time_s", "voltage_V", "displacement_um"), [t, u, y])
+    msg = error_of(path, LoadOptions(input_col=2))
+    assert "column 2 'displacement_um' reads as the output" in msg and "taken as the input" in msg
+    assert "--input-col" in msg and "--output-col" in msg
