@@ -1942,13 +1942,17 @@ def _refuse_dangerous(out: Path) -> None:
                           "it, the home or the root directory); choose another --out")
 
 
-def _check_out(out: Path, force: bool, inputs: Sequence[str | os.PathLike] = ()) -> bool:
+def _check_out(out: Path, force: bool, inputs: Sequence[str | os.PathLike] = (), resume: bool = False) -> bool:
     """Validate ``out`` before work; returns True when it exists (and may be replaced)."""
     if not out.exists():
         return False
     if not out.is_dir():
         raise OutputError(f"{out}: exists and is not a directory; choose another --out")
     if any(out.iterdir()) and not force:
+        if resume:  # a finished run: --resume continues an interrupted one only (a blind test's confusion)
+            raise OutputError(f"{out}: exists and is not empty: a finished output has nothing to resume (--resume "
+                              f"continues an interrupted run from its cells in {out.name}.partial); pass --force to "
+                              "compute it again, or choose another --out")
         raise OutputError(f"{out}: output directory exists and is not empty; pass --force to replace it "
                           "or choose another --out")
     _refuse_dangerous(out)
@@ -1969,7 +1973,8 @@ def _refuse_inputs(out: Path, inputs: Sequence[str | os.PathLike]) -> None:
 
 
 @contextmanager
-def staged_output_dir(out: str | os.PathLike, force: bool, inputs: Sequence[str | os.PathLike] = ()) -> Iterator[Path]:
+def staged_output_dir(out: str | os.PathLike, force: bool, inputs: Sequence[str | os.PathLike] = (),
+                      resume: bool = False) -> Iterator[Path]:
     """Stage an output directory and publish it only if the block succeeds.
 
     Parameters
@@ -1978,6 +1983,7 @@ def staged_output_dir(out: str | os.PathLike, force: bool, inputs: Sequence[str 
     force : allow replacing an existing non-empty ``out``.
     inputs : the command's input files and folders: an ``out`` that is or holds one is never
         replaced (:class:`OutputError` on entry).
+    resume : the command was asked to resume: a finished ``out`` is said to be finished.
 
     Yields
     ------
@@ -1997,7 +2003,7 @@ def staged_output_dir(out: str | os.PathLike, force: bool, inputs: Sequence[str 
     out = Path(out)
     if not out.name or out.name in (".", ".."):
         out = out.resolve()
-    _check_out(out, force, inputs)
+    _check_out(out, force, inputs, resume)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_stages(out)

@@ -85,7 +85,7 @@ def compare(
     bnds = scoped_options(fit.bound_overrides(), {m: model_param_names(m) for m in model_names}, "--bounds")
     options = capture.load_options()
     quiet, json_out = output.quiet, output.json_out
-    with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force, inputs=data) as stage:
+    with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force, inputs=data, resume=execution.resume) as stage:
         from ..compare import startup_steps
 
         captures = load_for_command(data, options, output, recursive=capture.recursive,

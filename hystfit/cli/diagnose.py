@@ -81,7 +81,7 @@ def diagnose(
     options = capture.load_options()
     quiet, json_out, resume = output.quiet, output.json_out, execution.resume
     stats = CellStats()
-    with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force, inputs=data) as stage:
+    with cell_run(out, execution, not quiet) as cr, staged_output_dir(out, output.force, inputs=data, resume=execution.resume) as stage:
         from .._warm import STEPS
 
         # the base fits and the effects' kernels run here: numba and scipy.optimize load meanwhile

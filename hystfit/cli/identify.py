@@ -51,7 +51,7 @@ def identify(
     options = capture.load_options()
     quiet, json_out = output.quiet, output.json_out
     with cell_run(out, execution, not quiet) as cr, \
-            staged_output_dir(out, output.force, inputs=data) as stage:
+            staged_output_dir(out, output.force, inputs=data, resume=execution.resume) as stage:
         one_cell = not fit.per_condition or (len(data) == 1 and Path(data[0]).is_file())  # × runs
         captures = load_for_command(data, options, output, recursive=capture.recursive,
                                     ahead=startup_steps(m, o, jobs=execution.jobs, executor=cr.executor,

@@ -294,3 +294,11 @@ def test_json_output_carries_the_loaders_notes(tmp_path):
     assert "assumed um" in said and "time_ms" in said
     r = run("compare", data, "--models", "pi", "--out", tmp_path / "c", "--quiet", "--json", "--no-plots")
     assert r.exit_code == 0 and json.loads(r.stdout)["capture_notes"] == notes, r.output
+
+
+def test_resume_on_a_finished_output_says_there_is_nothing_to_resume(small_data, tmp_path):
+    """A blind test's find: --resume on a finished output answered "pass --force" only."""
+    out = tmp_path / "o"
+    assert run("identify", small_data, "--out", out, "--no-plots", "--quiet").exit_code == 0
+    r = run("identify", small_data, "--out", out, "--no-plots", "--quiet", "--resume")
+    assert r.exit_code == 2 and "a finished output has nothing to resume" in r.stderr and "--force" in r.stderr
