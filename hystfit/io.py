@@ -805,11 +805,21 @@ def _numeric(table: _Table, col: int) -> np.ndarray:
     text = s.astype(str).str.strip()
     num = pd.to_numeric(text, errors="coerce")
     bad = np.flatnonzero((num.isna() & ~text.str.lower().isin(_MISSING_CELLS) & s.notna()).to_numpy())
-    if bad.size and table.comma_decimal_ok and text.str.fullmatch(_DECIMAL_COMMA_RE).iloc[bad].all():
+    decimal = text.str.fullmatch(_DECIMAL_COMMA_RE).iloc[bad].to_numpy() if bad.size else np.zeros(0, bool)
+    if bad.size and table.comma_decimal_ok and decimal.all():
         # a ';'/tab/space-separated export with decimal commas (e.g. "0,25"): read ',' as the decimal mark
         text = text.str.replace(",", ".", regex=False)
         num = pd.to_numeric(text, errors="coerce")
         bad = np.flatnonzero((num.isna() & ~text.str.lower().isin(_MISSING_CELLS) & s.notna()).to_numpy())
+    elif bad.size and table.comma_decimal_ok and decimal.any():
+        # decimal commas, but some cells are not read so (a blind test's "5.261,0": a '.' thousands
+        # separator): name the first of those, not the first decimal-comma cell
+        k = int(bad[~decimal][0])
+        cell = str(text.iloc[k])
+        hint = (" (the column's other cells use decimal commas; a '.' thousands separator is not read: remove it)"
+                if re.fullmatch(r"[-+]?\d{1,3}(\.\d{3})+,\d+", cell) else " (the column's other cells use decimal commas)")
+        raise InputError(f"{table.label}: row {table.rows[k]}, {table.col_label(col)}: {_cell_text(table, col, k)} "
+                         f"is not a number{hint}; fix the cell or remove the row")
     if bad.size:
         k = int(bad[0])
         cell = str(text.iloc[k])

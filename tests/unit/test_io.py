@@ -1130,3 +1130,14 @@ def test_a_column_taken_by_another_flag_is_said_to_be_taken(tmp_path):
     msg = error_of(path, LoadOptions(input_col=2))
     assert "column 2 'displacement_um' reads as the output" in msg and "taken as the input" in msg
     assert "--input-col" in msg and "--output-col" in msg
+
+
+def test_decimal_commas_with_a_thousands_separator_name_the_cell_that_has_it(tmp_path):
+    """A blind test's semicolon export with decimal commas and '.' thousands separators ("5.261,0")
+    was refused at row 2's "250,0" — a good cell — with a hint about comma delimiters. The error now
+    names the first cell that is not a decimal-comma number, and the separator."""
+    rows = ["0,0000;0,0000;250,0", "0,0001;1,0000;251,5", "0,0002;2,0000;1.020,0", "0,0003;3,0000;260,0"]
+    path = tmp_path / "t.csv"
+    path.write_text("time_s;voltage_V;displacement_nm\n" + "\n".join(rows) + "\n")
+    msg = error_of(path)
+    assert "row 4" in msg and "'1.020,0'" in msg and "thousands separator" in msg
