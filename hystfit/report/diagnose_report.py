@@ -908,7 +908,7 @@ def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
     opts = "".join(f" --model-option {k}={v}" for k, v in d.recommended_options.items())
     # identify fits per condition by default; the hand-over is global unless the diagnosis was not
     # (a blind test's "identify it anew" built a look-up table where params.json held one set)
-    opts += "" if d.mode == "per-condition" else " --global"
+    scope = "" if d.mode == "per-condition" else " --global"
     if not d.explained_by:
         short = _short_of_the_rule(d)
         if short is not None:
@@ -918,14 +918,14 @@ def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
             return (f"next: no effect named; the base's resolution limits it (held-out RMSE "
                     f"{d.heldout_rmse_named:.4g} {u} with{opts}). {d.base_model}{opts} fitted on all the data is in "
                     f"{params}: hystfit invert {params} --sine AMPLITUDE,FREQUENCY --out v.csv, or identify it anew "
-                    f"with --model {d.base_model}{opts}")
+                    f"with --model {d.base_model}{opts}{scope}")
         return (f"next: no effect named; {d.base_model} is as good as any augmentation on held-out data "
                 f"(held-out RMSE {d.heldout_rmse_named:.4g} {u}).")
     params = f"{out_dir}/params.json" if out_dir is not None else "params.json"
     return (f"next: named {', '.join(d.explained_by)}; held-out RMSE of {d.recommended_model}{opts} "
             f"{d.heldout_rmse_named:.4g} {u}. {d.recommended_model} fitted on all the data is in {params}: "
             f"hystfit invert {params} --sine AMPLITUDE,FREQUENCY --out v.csv, or identify it anew with "
-            f"--model {d.recommended_model}{opts}")
+            f"--model {d.recommended_model}{opts}{scope}")
 
 
 # ----------------------------------------------------------------------------------------------
