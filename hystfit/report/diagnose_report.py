@@ -893,6 +893,11 @@ def _short_of_the_rule(d: Diagnosis) -> str | None:
                 else "no better than a placebo of its size")
         why.append(f"the best, {best.effect}, removes {best.reduction:.0%} of the held-out gap above the noise, "
                    f"{rule}")
+        if s.max_effects < 2 and best.reduction < s.threshold:
+            # the two-effect look-ahead needs a second step (a blind test's strong creep + asymmetry plant
+            # got nothing named with --max-effects 1, the gap 40× the noise)
+            why.append("two effects may share the gap, each alone below the threshold: --max-effects 2 or more lets "
+                       "the look-ahead test them together")
     if left_out:
         why.append(f"not tested (--effects): {', '.join(left_out)}")
     if not why:

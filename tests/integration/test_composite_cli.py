@@ -125,6 +125,14 @@ def test_diagnose_says_why_nothing_was_named(tmp_path):
                key=lambda e: e["reduction"])
     assert f"the best, {best['effect']}, removes" in line and "below --threshold 0.99" in line, line
     assert "not tested (--effects): asymmetry, drift" in line and "resolution limits" not in line, line
+    assert "--max-effects 2" not in line  # the default runs the look-ahead
+    # with --max-effects 1 no look-ahead runs: the line says what would let two effects share the gap (a
+    # blind test's creep + asymmetry plant, 40× the noise, got nothing named and no word why)
+    r = _run("diagnose", *data, "--model", "pi", "--out", tmp_path / "d1", "--no-figures", "--threshold", "0.99",
+             "--max-effects", "1")
+    assert r.exit_code == 0, r.output
+    line = " ".join(r.stdout.split("next:")[1].split())
+    assert "--max-effects 2 or more lets the look-ahead test them together" in line, line
 
 
 def test_models_lists_the_blocks():
