@@ -326,7 +326,7 @@ class Dynamics(Block):
         t = np.ravel(theta)
         x_new = np.atleast_1d(np.asarray(x_new, dtype=np.float64))
         d1, d2, e1, e2, x0 = np.asarray(state, dtype=np.float64)
-        b0, b1, b2, a1, a2 = (float(c[0]) for c in bilinear_biquad(t[0], t[1], dt))
+        b0, b1, b2, a1, a2 = _stage_coefficients(float(t[0]), float(t[1]), float(dt))  # cached: the same numbers
         d = x_new - x0
         e = b0 * d + b1 * d1 + b2 * d2 - a1 * e1 - a2 * e2
         C = x_new.size

@@ -133,7 +133,12 @@ class Composite(Model):
 
     # ------------------------------------------------------------------ parameters
     def _sizes(self, scale: DataScale | None = None) -> list[int]:
-        return [b.n_theta for b in self.blocks]
+        # per instance, once (the blocks are frozen): split() runs twice per sample when a loop is
+        # stepped (track), and each block's n_theta builds its search bounds
+        cache = self.__dict__.setdefault("_cache", {})
+        if "sizes" not in cache:
+            cache["sizes"] = [b.n_theta for b in self.blocks]
+        return cache["sizes"]
 
     def split(self, theta: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
         """θ (P, d) → base part (P, d_b) and one (P, k_i) part per block."""
@@ -224,8 +229,17 @@ class Composite(Model):
         return np.concatenate(states)
 
     def _state_sizes(self, theta: np.ndarray, dt: float) -> list[int]:
-        tb, parts = self.split(np.asarray(theta, dtype=np.float64).ravel()[None, :])
-        return [b.step_init(th[0], 0.0, dt).size for b, th in zip(self.blocks, parts)]
+        """Each block's state size for θ (a delay's depends on it): per θ and dt, computed once (the
+        stepping of a loop asks once per sample)."""
+        theta = np.asarray(theta, dtype=np.float64).ravel()
+        cache = self.__dict__.setdefault("_cache", {})
+        key = ("state_sizes", theta.tobytes(), float(dt))
+        if key not in cache:
+            if len(cache) > 64:
+                cache.clear()
+            tb, parts = self.split(theta[None, :])
+            cache[key] = [b.step_init(th[0], 0.0, dt).size for b, th in zip(self.blocks, parts)]
+        return cache[key]
 
     def step(self, theta, state, u_prev, u_new, dt):
         theta = np.asarray(theta, dtype=np.float64).ravel()
