@@ -1260,18 +1260,22 @@ class _State:
                       [replace(f, shared=f.shared.copy(), local=f.local.copy()) for f in self.chain], self.group_of)
 
 
+def _base_prediction(state: _State, captures: Sequence[Capture], i: int, n: int) -> np.ndarray:
+    """The base's prediction of capture ``i`` over its first ``n`` samples (its group's simulator of
+    that capture made once and kept on the group)."""
+    g = state.groups[state.group_of[i]]
+    c = captures[i]
+    with np.errstate(all="ignore"):
+        u, sim = g.simulators.get(i, (None, None))
+        if u is not c.u:
+            sim = g.model.head_simulator(c.u, c.dt)
+            g.simulators[i] = (c.u, sim)
+        return sim(g.theta, n)
+
+
 def _base_predictions(state: _State, captures: Sequence[Capture], lengths: Sequence[int] | None = None) -> list:
-    out = []
-    for i, c in enumerate(captures):
-        g = state.groups[state.group_of[i]]
-        n = c.n if lengths is None else lengths[i]
-        with np.errstate(all="ignore"):
-            u, sim = g.simulators.get(i, (None, None))
-            if u is not c.u:
-                sim = g.model.head_simulator(c.u, c.dt)
-                g.simulators[i] = (c.u, sim)
-            out.append(sim(g.theta, n))
-    return out
+    return [_base_prediction(state, captures, i, c.n if lengths is None else lengths[i])
+            for i, c in enumerate(captures)]
 
 
 def _predictions(state: _State, captures, views, lengths=None) -> list:
@@ -1486,14 +1490,7 @@ def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, i
 
 def _predict_capture(state: _State, captures, views, i: int) -> np.ndarray:
     """``_predictions(state, ...)[i]``, capture ``i`` alone."""
-    g = state.groups[state.group_of[i]]
-    c = captures[i]
-    with np.errstate(all="ignore"):
-        u, sim = g.simulators.get(i, (None, None))
-        if u is not c.u:
-            sim = g.model.head_simulator(c.u, c.dt)
-            g.simulators[i] = (c.u, sim)
-        x = sim(g.theta, c.n)
+    x = _base_prediction(state, captures, i, captures[i].n)
     for link in state.chain:
         x = link.apply(x, views[i], i)
     return x
