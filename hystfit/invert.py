@@ -20,9 +20,9 @@ Pipeline (every step is reported in :class:`InversionResult`, nothing is silent)
    A voltage that leaves the identification range of the cells its peak-to-peak picks (a target
    up the stroke: 10…40 V is 30 V peak-to-peak, but the 20 V and 40 V cells of a campaign that
    starts every capture at 0 V saw 0…20 and 0…40 V) asks for the smallest amplitude of a cell
-   whose range covers it instead (:func:`_covering_amplitude`): a blind test's 5 → 13 µm sine
-   blended the 20 V and 40 V cells and missed the plant by 0.25–0.38 µm where 0.035–0.045 µm
-   were reachable.
+   whose range covers it instead (:func:`_covering_amplitude`): a 5 → 13 µm sine through a creep
+   plant's ``pi+creep`` table blended the 20 V and 40 V cells and missed the plant by 0.42 µm; the
+   40 V cell alone, 0.043 µm (``python benchmarks/feedforward_plant.py``).
    ``condition=`` forces the condition instead. Segments are settled in time order: a later
    segment's cells continue from the voltage already chosen for the earlier ones (step 4).
 3. **Bilinear interpolation** between the (up to four) surrounding cells, linear in amplitude
@@ -636,8 +636,9 @@ def preroll_voltage(cell: Cell, voltage: float, dt: float) -> np.ndarray:
     (creep, a stage, a delay) rests at ``voltage`` from the first sample on (4 samples): the
     blocks start at rest at the base's output there, as a stage that rested at the initial
     voltage is — settled. The 50 ms ramp and rest left a creep with time constants of seconds far
-    from it: a blind test's feedforward, fed to a plant resting at the initial voltage, tracked
-    with a 0.047 µm bias (0.0044 µm from a settled start).
+    from it: diagnose's ``pi+creep`` of a creep ×2 plant, its feedforward fed to the plant resting at
+    the initial voltage, tracked at 0.046 µm; settled, 0.0078 µm (``python
+    benchmarks/feedforward_plant.py``).
     """
     model = cell.model
     comp = model.composition
