@@ -351,6 +351,12 @@ def _write(path: Path, text: str) -> Path:
     return path
 
 
+def _batch_rows(jobs: Path, *flags: str):
+    """``hystfit batch JOBS --json FLAGS``: the result and its jobs by name."""
+    r = run("batch", jobs, "--json", *flags)
+    return r, {j["name"]: j for j in json.loads(r.stdout)["jobs"]} if r.stdout.strip() else {}
+
+
 def test_batch_runs_every_job_and_reports_per_job_exit_codes(tmp_path):
     jobs = _write(tmp_path / "jobs.toml", f"""
 [defaults]
@@ -378,14 +384,12 @@ params = "res/lut/params.json"
 data = "{FILES[1]}"
 out = "res/check"
 """)
-    r = run("batch", jobs, "--json")
+    r, rows = _batch_rows(jobs)
     assert r.exit_code == 4, r.output
-    rows = {j["name"]: j for j in json.loads(r.stdout)["jobs"]}
     assert (rows["lut"]["exit_code"], rows["typo"]["exit_code"], rows["check"]["exit_code"]) == (0, 2, 0)
     assert (tmp_path / "res" / "lut" / "params.json").exists() and (tmp_path / "res" / "check").is_dir()
     # --resume: the finished jobs are skipped, the failed one runs again
-    r = run("batch", jobs, "--resume", "--json")
-    rows = {j["name"]: j for j in json.loads(r.stdout)["jobs"]}
+    r, rows = _batch_rows(jobs, "--resume")
     assert rows["lut"]["status"] == "done before (skipped)" and rows["typo"]["exit_code"] == 2
 
 
@@ -422,10 +426,8 @@ command = "identify"
 data = "{FILES[0]}"
 out = "res/good"
 """)
-    r = run("batch", jobs, "--json")
-    assert r.exit_code == 4, r.output
-    assert "Traceback" not in r.output
-    rows = {j["name"]: j for j in json.loads(r.stdout)["jobs"]}
+    r, rows = _batch_rows(jobs)
+    assert r.exit_code == 4 and "Traceback" not in r.output, r.output
     assert (rows["bad"]["exit_code"], rows["good"]["exit_code"]) == (1, 0)
     assert "internal error RuntimeError: a defect of this job" in r.stderr
     assert (tmp_path / "res" / "good" / "params.json").exists() and not (tmp_path / "res" / "bad").exists()
