@@ -31,6 +31,7 @@ The machine is shared: compare numbers of one run, and alternate runs (``ahead``
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import os
 import statistics
@@ -214,6 +215,7 @@ def figures(data: str, model_name: str) -> None:
     d = D.diagnose(caps, make_model(model_name, {}), make_optimizer(optimizers.get("auto"), {}), seed=0)
     render._import_plotting()
     render._warm_up()
+    gc.freeze()  # as the figure server does after its warm-up (render._serve)
     with tempfile.TemporaryDirectory() as tmp:
         jobs = diagnose_report.start_figures(d, Path(tmp) / "figures", n_jobs=1).stream.jobs
         print("| figure | first drawing, CPU (s) | second, CPU (s) |\n|---|---:|---:|")

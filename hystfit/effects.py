@@ -27,6 +27,7 @@ This module never prints and holds no state between calls.
 from __future__ import annotations
 
 import math
+import threading
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from typing import ClassVar, Sequence
@@ -332,6 +333,15 @@ class Effect(ABC):
         """T_φ applied to the columns of ``x`` (N, m) (identity by default)."""
         return x
 
+    def operator_rows(self, x: np.ndarray, view: CaptureView, phi: np.ndarray, rows: np.ndarray, out: np.ndarray,
+                      offset: int) -> None:
+        """:meth:`operator` of ``x`` at the sorted ``rows`` only, written into
+        ``out[offset : offset + len(rows)]``: what :func:`solve_coefficients` forms its Gram products
+        from. By default the whole output, then those rows; an operator that need not form the
+        other rows overrides it with the same numbers (the stage's filter). ``out`` may have more
+        columns than ``x``: those after the first ``x.shape[1]`` are left as they are."""
+        out[offset:offset + rows.shape[0], :x.shape[1]] = self.operator(x, view, phi)[rows]
+
     def operator_knots(self, phi: np.ndarray, view: CaptureView) -> tuple | None:
         """T_φ as an interpolation between two operators that many φ share: (a, b, f) with
         T_φ = (1 − f)·B_a + f·B_b, f in [0, 1), B_key = :meth:`knot_operator` — or None (the default)
@@ -559,6 +569,7 @@ class _Design:
     plain: dict = field(default_factory=dict)  # capture → (X, XᵀX, Xᵀy) on its fit samples (:func:`_plain_gram`)
     derived: dict = field(default_factory=dict)  # designs made from this one (:func:`scoring_design`)
     compact: tuple = ()  # per capture None or (Z, W) with X = Z·W (empty: None for every capture)
+    batches: dict = field(default_factory=dict)  # the captures summed in one Gram product (:func:`_batches`)
 
 
 def _plain_gram(design: _Design, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -590,16 +601,9 @@ def _regressor_gram(effect: "Effect", design: _Design, c: int, T: np.ndarray | N
     return P, np.concatenate([R.T @ y, Xy])
 
 
-def _knot_gram(effect: "Effect", design: _Design, c: int, knots: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """(TᵀT, Tᵀy) over the fit samples of capture ``c``, T = T_φ[X] = (1 − f)·B_a[X] + f·B_b[X] for the
-    ``knots`` (a, b, f) of :meth:`Effect.operator_knots`:
-
-        TᵀT = (1 − f)²·Q_a + f(1 − f)·M_ab + f²·Q_b,  Tᵀy = (1 − f)·B_a[X]ᵀy + f·B_b[X]ᵀy
-
-    with Q_k = B_k[X]ᵀB_k[X] and M_ab = B_a[X]ᵀB_b[X] + B_b[X]ᵀB_a[X] = 4·Q_½ − Q_a − Q_b, Q_½ the Gram
-    matrix of the midpoint ½(B_a[X] + B_b[X]). Each is computed once per design and capture (the
-    same numbers as TᵀT up to rounding: a delay search visits a few whole-sample knots only)."""
-    a, b, f = knots
+def _knot_products(effect: "Effect", design: _Design, c: int, a, b) -> tuple:
+    """(Q_a, B_a[X]ᵀy) and, for ``b`` not None, (Q_b, B_b[X]ᵀy, M_ab) of :func:`_knot_gram` over the
+    fit samples of capture ``c``: each computed once per design and capture."""
     _, mask, y = design.fitted[design.index[c]]
     vv, X = design.views[c], design.X[c]
     cache = design.knots
@@ -621,7 +625,7 @@ def _knot_gram(effect: "Effect", design: _Design, c: int, knots: tuple) -> tuple
         return cache[(c, key)]
 
     Qa, ya = gram(a)
-    if f == 0.0:
+    if b is None:
         return Qa, ya
     Qb, yb = gram(b)
     if (c, a, b) not in cache:
@@ -631,8 +635,35 @@ def _knot_gram(effect: "Effect", design: _Design, c: int, knots: tuple) -> tuple
         else:
             mid = 0.5 * (rows(a) + rows(b))
             cache[(c, a, b)] = 4.0 * (mid.T @ mid) - Qa - Qb
+    return Qa, ya, Qb, yb, cache[(c, a, b)]
+
+
+def _knot_gram(effect: "Effect", design: _Design, members: Sequence[int], knots: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """(TᵀT, Tᵀy) summed over the fit samples of the captures ``members`` (whose knots are ``knots``),
+    T = T_φ[X] = (1 − f)·B_a[X] + f·B_b[X] for the ``knots`` (a, b, f) of :meth:`Effect.operator_knots`:
+
+        TᵀT = (1 − f)²·Q_a + f(1 − f)·M_ab + f²·Q_b,  Tᵀy = (1 − f)·B_a[X]ᵀy + f·B_b[X]ᵀy
+
+    with Q_k = B_k[X]ᵀB_k[X] and M_ab = B_a[X]ᵀB_b[X] + B_b[X]ᵀB_a[X] = 4·Q_½ − Q_a − Q_b, Q_½ the Gram
+    matrix of the midpoint ½(B_a[X] + B_b[X]). Each is computed once per design and capture
+    (:func:`_knot_products`), and their sums over ``members`` once per design (a search then combines
+    one set of products per φ, not one per capture). The same numbers as TᵀT up to rounding: a delay
+    search visits a few whole-sample knots only."""
+    a, b, f = knots
+    members = tuple(members)
+    if len(members) == 1:
+        parts = _knot_products(effect, design, members[0], a, None if f == 0.0 else b)
+    else:
+        key = ("sum", members, a, None if f == 0.0 else b)
+        if key not in design.knots:
+            each = [_knot_products(effect, design, c, a, None if f == 0.0 else b) for c in members]
+            design.knots[key] = tuple(sum(p[i] for p in each) for i in range(len(each[0])))
+        parts = design.knots[key]
+    if f == 0.0:
+        return parts
+    Qa, ya, Qb, yb, M = parts
     g = 1.0 - f
-    return (g * g) * Qa + (f * g) * cache[(c, a, b)] + (f * f) * Qb, g * ya + f * yb
+    return (g * g) * Qa + (f * g) * M + (f * f) * Qb, g * ya + f * yb
 
 
 class _ShiftedRuns:
@@ -858,6 +889,115 @@ def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
                    index={f[0]: i for i, f in enumerate(fitted)})
 
 
+#: at most this many bytes of filtered columns in one Gram product of :func:`_batch_gram` (a capture
+#: larger than that is one batch on its own, as it was before captures were batched)
+BATCH_BYTES = 32 * 2**20
+
+
+@dataclass(frozen=True, eq=False)
+class _Batch:
+    """Captures whose Gram products :func:`solve_coefficients` sums in one product: their blocks
+    of the normal equations are the same (``mesh``, ``ix``), their compacted columns have the same
+    transform ``W`` (None: they use X). ``rows``: per member its fit rows (indices into its
+    columns); ``y``: the members' fit outputs one after the other; ``yy``: the sum of their y·y;
+    ``n_rows``: the rows of the product."""
+
+    members: tuple
+    rows: tuple
+    y: np.ndarray
+    yy: float
+    mesh: tuple
+    ix: object
+    W: np.ndarray | None
+    n_rows: int
+    buffers: dict = field(default_factory=dict)
+
+    def scratch(self, r: int) -> np.ndarray:
+        """An (n_rows, r + 1) array whose last column is ``y``: the operator writes its r columns,
+        and one Gram product of it holds TᵀT and Tᵀy. Made once per batch, width and thread (a
+        fresh array of this size costs its page faults at every φ) — unless it is larger than
+        :data:`BATCH_BYTES` (a batch of one long capture): that one is made anew each time, so that
+        a design holds no more than one such array at a time, as before batches."""
+        key = (threading.get_ident(), r)
+        if key in self.buffers:
+            return self.buffers[key]
+        A = np.empty((self.n_rows, r + 1))
+        A[:, r] = self.y
+        if self.n_rows * (r + 1) * 8 <= BATCH_BYTES:
+            self.buffers[key] = A
+        return A
+
+
+def _batches(design: _Design, indices: list) -> list[_Batch]:
+    """The captures of ``design`` (fitted by an effect without regressors, ``indices`` from
+    :func:`_solve_indices`) in batches whose Gram products are summed in one product: ΣTᵀT over
+    captures of the same block of the normal equations is the Gram product of their rows stacked.
+    One product of many rows instead of one per capture (24 on sample_data, each a Python round
+    trip and a small matrix product), the same numbers up to rounding. A batch holds at most
+    :data:`BATCH_BYTES` of columns. Made once per design."""
+    if "batches" not in design.batches:
+        groups: dict = {}
+        for c, mask, y in design.fitted:
+            mesh, ix, _, _ = indices[c]
+            comp = design.compact[c] if design.compact else None
+            W = None if comp is None else comp[1]
+            key = (_index_key(ix), None if W is None else (W.shape, W.tobytes()))
+            groups.setdefault(key, []).append((c, mask, y, W))
+        out = []
+        for members in groups.values():
+            part: list = []
+            size = 0
+            for c, mask, y, W in members:
+                n = design.X[c].shape[0] if mask is None else int(np.count_nonzero(mask))
+                width = design.X[c].shape[1] if W is None else W.shape[0]
+                if part and size + n * width * 8 > BATCH_BYTES:
+                    out.append(_make_batch(design, indices, part))
+                    part, size = [], 0
+                part.append((c, mask, y, W))
+                size += n * width * 8
+            if part:
+                out.append(_make_batch(design, indices, part))
+        design.batches["batches"] = out
+    return design.batches["batches"]
+
+
+def _index_key(ix) -> tuple:
+    return ("slice", ix.start, ix.stop) if isinstance(ix, slice) else ("index", np.asarray(ix).tobytes())
+
+
+def _make_batch(design: _Design, indices: list, part: list) -> _Batch:
+    rows = tuple(np.arange(design.X[c].shape[0]) if mask is None else np.flatnonzero(mask) for c, mask, _, _ in part)
+    y = part[0][2] if len(part) == 1 else np.concatenate([y for _, _, y, _ in part])
+    mesh, ix, _, _ = indices[part[0][0]]
+    return _Batch(tuple(c for c, _, _, _ in part), rows, np.ascontiguousarray(y),
+                  float(sum(design.yy[c] for c, _, _, _ in part)), mesh, ix, part[0][3],
+                  int(sum(r.size for r in rows)))
+
+
+def _batch_gram(effect: Effect, design: _Design, batch: _Batch, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(TᵀT, Tᵀy) of T = T_φ[X] over the fit rows of every capture of ``batch``, X = [ŷ | J]: from
+    the knots' Gram products where T_φ interpolates between knots the members share
+    (:func:`_knot_gram`), else from the operator's rows stacked (:meth:`Effect.operator_rows`) —
+    on the compacted columns Z with X = Z·W where the batch has them (:func:`_in_basis`)."""
+    knots = [effect.operator_knots(phi, design.views[c]) for c in batch.members]
+    if knots[0] is not None:
+        if all(k == knots[0] for k in knots):
+            return _knot_gram(effect, design, batch.members, knots[0])
+        parts = [_knot_gram(effect, design, (c,), k) for c, k in zip(batch.members, knots)]
+        return sum(p[0] for p in parts), sum(p[1] for p in parts)
+    W = batch.W
+    Zs = [design.X[c] if W is None else design.compact[c][0] for c in batch.members]
+    r = Zs[0].shape[1]
+    A = batch.scratch(r)
+    at = 0
+    for c, Z, rows in zip(batch.members, Zs, batch.rows):
+        effect.operator_rows(Z, design.views[c], phi, rows, A, at)
+        at += rows.size
+    Q = A.T @ A  # [[TᵀT, Tᵀy], [yᵀT, yᵀy]]: one symmetric product
+    P, Ty = Q[:r, :r], Q[:r, r]
+    return (P, Ty) if W is None else _in_basis(P, Ty, W)
+
+
 def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarray] | None = None,
                        views: Sequence[CaptureView] | None = None, lin: Linearization | None = None, *,
                        bounded: bool = True, design: _Design | None = None
@@ -889,20 +1029,16 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
     b = np.zeros(n)
     s0 = 0.0
     indices = _solve_indices(design, ks, kl)
-    plain = type(effect).operator is Effect.operator  # the identity: its Gram block is the design's
-    for c, mask, y in design.fitted:
-        vv, X, yy = design.views[c], design.X[c], design.yy[c]
-        mesh, ix, sel_mesh, sel = indices[c]
-        knots = None if ks + kl else effect.operator_knots(phi, vv)
-        Z, W = X, None  # the operator's columns: X = Z·W (W None: Z = X)
-        if design.compact and design.compact[c] is not None and knots is None and not ks + kl:
-            Z, W = design.compact[c]
-        T = None
-        if knots is None and not (plain and ks + kl):
-            T = effect.operator(Z, vv, phi)
-            if mask is not None:
-                T = T[mask]
-        if ks + kl:
+    if ks + kl:
+        plain = type(effect).operator is Effect.operator  # the identity: its Gram block is the design's
+        for c, mask, y in design.fitted:
+            vv, X = design.views[c], design.X[c]
+            mesh, ix, sel_mesh, sel = indices[c]
+            T = None
+            if not plain:
+                T = effect.operator(X, vv, phi)
+                if mask is not None:
+                    T = T[mask]
             Rs, Rl = effect.regressors(X[:, 0], vv, phi)
             if mask is not None:
                 Rs, Rl = Rs[mask], Rl[mask]
@@ -911,18 +1047,19 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
             t0A = P[k]  # t0 against every column
             Gc = P[sel_mesh]
             bc = Ay[sel] - t0A[sel]
-            t0y, t0t0 = Ay[k], P[k, k]
-        else:
-            P, Ty = (T.T @ T, T.T @ y) if knots is None else _knot_gram(effect, design, c, knots)
-            if W is not None:
-                P, Ty = _in_basis(P, Ty, W)
+            if bc.size:
+                G[mesh] += Gc
+                b[ix] += bc
+            s0 += design.yy[c] - 2.0 * float(Ay[k]) + float(P[k, k])
+    else:
+        for batch in _batches(design, indices):
+            P, Ty = _batch_gram(effect, design, batch, phi)
             Gc = P[1:, 1:]
             bc = Ty[1:] - P[1:, 0]
-            t0y, t0t0 = Ty[0], P[0, 0]
-        if bc.size:
-            G[mesh] += Gc
-            b[ix] += bc
-        s0 += yy - 2.0 * float(t0y) + float(t0t0)
+            if bc.size:
+                G[batch.mesh] += Gc
+                b[batch.ix] += bc
+            s0 += batch.yy - 2.0 * float(Ty[0]) + float(P[0, 0])
     if bounded:
         sl, sh, ll, lh = effect.coefficient_bounds()
         lo = np.concatenate([sl, np.tile(ll, C), lin.lower if lin is not None else np.empty(0)])

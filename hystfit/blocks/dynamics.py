@@ -114,6 +114,49 @@ def biquad_shared(x, b0, b1, b2, a1, a2):
     return out
 
 
+@njit(cache=True)
+def biquad_shared_rows(x, rows, out, offset, b0, b1, b2, a1, a2):
+    """:func:`biquad_shared` of x (N, M) at the sorted ``rows`` only, written into
+    ``out[offset + i, :M]`` for ``rows[i]`` (``out`` may have more columns): the same operations in the same order (so the same numbers
+    in those rows), without an (N, M) output. The recurrence runs up to the last row asked for.
+
+    Why: a search scores a stage on a design's fit rows, or every fourth of them when it ranks
+    its grid (:func:`hystfit.effects.coarse_design`), and forms their Gram product. Writing every
+    row and then copying the rows asked for moved the columns through memory three times; the
+    columns of a capture are larger than a core's cache, so the filter was bound by memory."""
+    N, M = x.shape
+    n = rows.shape[0]
+    if N == 0 or n == 0:
+        return
+    x0 = x[0].copy()
+    d1 = np.zeros(M)
+    d2 = np.zeros(M)
+    e1 = np.zeros(M)
+    e2 = np.zeros(M)
+    p = 0
+    last = rows[n - 1]
+    for k in range(last + 1):
+        if rows[p] == k:
+            o = offset + p
+            for m in range(M):
+                d = x[k, m] - x0[m]
+                e = b0 * d + b1 * d1[m] + b2 * d2[m] - a1 * e1[m] - a2 * e2[m]
+                d2[m] = d1[m]
+                d1[m] = d
+                e2[m] = e1[m]
+                e1[m] = e
+                out[o, m] = e + x0[m]
+            p += 1
+        else:
+            for m in range(M):
+                d = x[k, m] - x0[m]
+                e = b0 * d + b1 * d1[m] + b2 * d2[m] - a1 * e1[m] - a2 * e2[m]
+                d2[m] = d1[m]
+                d1[m] = d
+                e2[m] = e1[m]
+                e1[m] = e
+
+
 @functools.lru_cache(maxsize=4096)
 def _stage_coefficients(fn_Hz: float, zeta: float, dt: float) -> tuple[float, ...]:
     """(b0, b1, b2, a1, a2) of :func:`bilinear_biquad` for one (f_n, ζ, dt): a search scores one
@@ -281,6 +324,13 @@ class Dynamics(Block):
 
     def operator(self, x, view, phi):
         return second_order_at_rest(x, float(phi[0]), float(phi[1]), view.dt)
+
+    def operator_rows(self, x, view, phi, rows, out, offset):
+        fn, zeta = float(phi[0]), float(phi[1])
+        if not (0.0 < fn * view.dt < 0.5 and zeta >= 0.0):
+            second_order_at_rest(x[:1], fn, zeta, view.dt)  # its one-line error
+        biquad_shared_rows(readonly(x), readonly(rows, np.int64), out, int(offset),
+                           *_stage_coefficients(fn, zeta, float(view.dt)))
 
     def absent_at(self, phi):
         """f_n at the top of its search range (0.45 f_s or the range set): no resonance inside it."""

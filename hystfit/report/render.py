@@ -28,6 +28,7 @@ and forks its pool only for the figures left when the stream is finished (:meth:
 from __future__ import annotations
 
 import atexit
+import gc
 import importlib
 import math
 import multiprocessing as mp
@@ -314,6 +315,10 @@ def _serve(conn) -> None:
     _import_plotting(lean=True)
     if not conn.poll():  # idle: warm up now; with jobs already waiting, their own first figures do it
         _warm_up()
+    # what is imported lives as long as the server: out of the garbage collector's walks. A figure
+    # makes thousands of small objects, and each full collection walked matplotlib's and numpy's
+    # modules too: ≈ 20 % of drawing a diagnosis' figures (benchmarks/diagnose_phases.py --mode figures)
+    gc.freeze()
     stream = _ServerStream()
     while True:
         if stream.waiting() and not conn.poll():

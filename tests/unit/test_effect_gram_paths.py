@@ -224,3 +224,102 @@ def test_delayed_grams_from_the_fit_runs_equal_the_delayed_rows_products(mask_ki
         np.testing.assert_allclose(Q, B.T @ B, rtol=1e-11, atol=1e-9)
         np.testing.assert_allclose(v, B.T @ y, rtol=1e-11, atol=1e-9)
         np.testing.assert_allclose(runs.lag_one(n), B.T @ B1, rtol=1e-11, atol=1e-9)
+
+
+def test_the_stage_filter_at_some_rows_equals_the_whole_filter_there():
+    """:func:`hystfit.blocks.dynamics.biquad_shared_rows`: the rows asked for, bit for bit those of the
+    whole filter, written at the offset into a wider array whose other entries it leaves alone."""
+    from hystfit._jit import readonly
+    from hystfit.blocks.dynamics import _stage_coefficients, biquad_shared, biquad_shared_rows
+
+    rng = np.random.default_rng(11)
+    x = readonly(rng.standard_normal((500, 7)).cumsum(axis=0))
+    coef = _stage_coefficients(900.0, 0.07, 1e-4)
+    whole = biquad_shared(x, *coef)
+    for rows in (np.arange(500), np.arange(0, 500, 4), np.array([3, 4, 250, 499]), np.array([0]),
+                 np.empty(0, np.int64)):
+        out = np.full((rows.size + 5, 9), -7.0)
+        biquad_shared_rows(x, readonly(rows, np.int64), out, 2, *coef)
+        np.testing.assert_array_equal(out[2:2 + rows.size, :7], whole[rows])
+        assert (out[:2] == -7.0).all() and (out[2 + rows.size:] == -7.0).all() and (out[:, 7:] == -7.0).all()
+
+
+def _direct(effect, phi, design):
+    """The normal equations of an effect without regressors, capture by capture as their definition
+    reads (T = T_φ[X] on each capture's fit rows), solved as :func:`solve_coefficients` solves them."""
+    from hystfit.effects import _scaled_solve
+
+    n = design.lin.n
+    G, b, s0 = np.zeros((n, n)), np.zeros(n), 0.0
+    for c, mask, y in design.fitted:
+        T = effect.operator(design.X[c], design.views[c], phi)
+        T = T if mask is None else T[mask]
+        cols = np.asarray(design.cols[c], int)
+        G[np.ix_(cols, cols)] += T[:, 1:].T @ T[:, 1:]
+        b[cols] += T[:, 1:].T @ y - T[:, 1:].T @ T[:, 0]
+        s0 += float(y @ y) - 2.0 * float(T[:, 0] @ y) + float(T[:, 0] @ T[:, 0])
+    x = _scaled_solve(G, b)
+    return x, max(s0 - 2.0 * float(x @ b) + float(x @ G @ x), 0.0)
+
+
+@pytest.mark.parametrize("batch_bytes", [None, 1])  # one batch per block, and one capture per batch
+def test_captures_batched_into_one_gram_product_give_the_per_capture_normal_equations(monkeypatch, batch_bytes):
+    """:func:`hystfit.effects._batches`: captures of the same block of the normal equations (two
+    groups of base columns here, as two conditions fitted apart), of the same compaction and — for a
+    delay — the same knots are summed in one Gram product; captures of another sample period (other
+    knots) or compaction are not mixed in. The solve equals the capture-by-capture one up to rounding."""
+    import hystfit.effects as eff
+    from hystfit.blocks.dynamics import Dynamics
+    from hystfit.effects import _batches, _solve_indices, scoring_design
+
+    if batch_bytes is not None:
+        monkeypatch.setattr(eff, "BATCH_BYTES", batch_bytes)
+    rng = np.random.default_rng(12)
+    k = 6
+    views, yhats, jac, cols = [], [], [], []
+    for i, (N, dt) in enumerate([(300, 1e-4), (351, 1e-4), (420, 2e-4), (280, 1e-4), (333, 1e-4), (290, 1e-4)]):
+        t = np.arange(N) * dt
+        fit = np.ones(N, bool)
+        fit[int(0.6 * N):] = False
+        y = np.sin(2 * np.pi * 40 * t - 0.05) + 0.01 * rng.standard_normal(N)
+        views.append(CaptureView(t=t, dt=dt, y=y, fit=fit, frequency_Hz=40.0, periodic=True, index=i))
+        yhats.append(np.sin(2 * np.pi * 40 * t))
+        J = rng.standard_normal((N, k))
+        if i in (1, 4):
+            J[:, k - 2:] = 0.0  # parameters these captures do not reach: compacted columns
+        jac.append(J)
+        cols.append(np.arange(k) + (k if i >= 3 else 0))  # two groups of base parameters
+    lin = Linearization(tuple(jac), tuple(cols), np.full(2 * k, -np.inf), np.full(2 * k, np.inf))
+    design = prepare_design(yhats, views, lin)
+    for effect, des in ((Dynamics().configure(views, yhats), scoring_design(design)),
+                        (Delay().configure(views, yhats), design)):
+        batches = _batches(des, _solve_indices(des, 0, 0))
+        assert sorted(c for bt in batches for c in bt.members) == list(range(6))
+        if batch_bytes is None:
+            assert len(batches) < 6 and all(len({des.cols[c].tobytes() for c in bt.members}) == 1 for bt in batches)
+        else:
+            assert len(batches) == 6
+        plain = eff._Design(des.views, des.X, des.yy, des.cols, des.lin, fitted=des.fitted, index=des.index)
+        for phi in effect.search_grid()[::7]:
+            if effect.name == "dynamics" and phi[0] * 2e-4 >= 0.5:
+                continue  # above the Nyquist frequency of the slower capture
+            got = solve_coefficients(effect, phi, design=des, bounded=False)
+            x, sse = _direct(effect, phi, plain)
+            np.testing.assert_allclose(got[2], x, rtol=1e-7, atol=1e-9)
+            assert got[3] == pytest.approx(sse, rel=1e-9, abs=1e-9)
+            again = solve_coefficients(effect, phi, design=des, bounded=False)  # the cached products and buffers
+            np.testing.assert_array_equal(again[2], got[2])
+
+
+def test_the_default_operator_rows_are_the_operator_at_those_rows():
+    """:meth:`hystfit.effects.Effect.operator_rows` (an operator without its own): the rows asked for of
+    :meth:`~hystfit.effects.Effect.operator`, into the first columns of a wider array."""
+    rng = np.random.default_rng(13)
+    views, yhats, lin = _problem(rng)
+    d = _DirectDelay().configure(views, yhats)
+    x = rng.standard_normal((300, 4))
+    rows = np.array([0, 5, 6, 299])
+    out = np.zeros((6, 6))
+    d.operator_rows(x, views[0], np.array([2.5e-4]), rows, out, 1)
+    np.testing.assert_array_equal(out[1:5, :4], d.operator(x, views[0], np.array([2.5e-4]))[rows])
+    assert not out[0].any() and not out[5].any() and not out[:, 4:].any()
