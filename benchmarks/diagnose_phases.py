@@ -23,7 +23,9 @@ Run:  python benchmarks/diagnose_phases.py [DATA] [--model pi] [--mode timeline|
   start-up and the parent's waits are not in the serial run).
 - ``figures``: the CPU seconds of each figure of the diagnosis, drawn twice in this process (the
   first as a freshly forked worker would, the second with its caches filled), and, in a fresh
-  process, the figure server's matplotlib import and warm-up.
+  process, the figure server's matplotlib import and warm-up; then all of them ``--repeat`` times,
+  alternately with the garbage collector walking every object of this process and with the
+  objects imported so far frozen out of it (:func:`gc.freeze`), as the figure server does.
 
 The machine is shared: compare numbers of one run, and alternate runs (``ahead`` does).
 """
@@ -198,7 +200,7 @@ def forks(data: str, model_name: str, repeat: int) -> None:
         print(f"| {i + 1} | {1e3 * whole:.1f} | {1e3 * (t1 - t0):.1f} | {1e3 * (t2 - t1):.1f} | {1e3 * (t3 - t2):.1f} |")
 
 
-def figures(data: str, model_name: str) -> None:
+def figures(data: str, model_name: str, repeat: int) -> None:
     import hystfit.diagnose as D
     from hystfit.factory import make_model, make_optimizer
     from hystfit.io import LoadOptions, load_captures
@@ -215,7 +217,6 @@ def figures(data: str, model_name: str) -> None:
     d = D.diagnose(caps, make_model(model_name, {}), make_optimizer(optimizers.get("auto"), {}), seed=0)
     render._import_plotting()
     render._warm_up()
-    gc.freeze()  # as the figure server does after its warm-up (render._serve)
     with tempfile.TemporaryDirectory() as tmp:
         jobs = diagnose_report.start_figures(d, Path(tmp) / "figures", n_jobs=1).stream.jobs
         print("| figure | first drawing, CPU (s) | second, CPU (s) |\n|---|---:|---:|")
@@ -226,6 +227,20 @@ def figures(data: str, model_name: str) -> None:
                 render._render(job)
                 cpu.append(time.process_time() - t)
             print(f"| {job.function.rpartition(':')[2]} | {cpu[0]:.3f} | {cpu[1]:.3f} |")
+        # the garbage collector walking every object of this process at a full collection, against
+        # the objects imported so far frozen out of it as the figure server does (render._serve)
+        total = {}
+        for _ in range(repeat):
+            for frozen in (False, True):
+                gc.freeze() if frozen else gc.unfreeze()
+                t = time.process_time()
+                for job in jobs:
+                    render._render(job)
+                total.setdefault(frozen, []).append(time.process_time() - t)
+        gc.unfreeze()
+        print(f"\nevery figure, drawn {repeat} times each way alternately, CPU (s): collector walking every object "
+              f"{statistics.median(total[False]):.2f} (median), its imports frozen out of it "
+              f"{statistics.median(total[True]):.2f}")
 
 
 def parallel(data: str, model_name: str, repeat: int) -> None:
@@ -279,7 +294,7 @@ def main() -> None:
     elif args.mode == "parallel":
         parallel(args.data, args.model, args.repeat)
     else:
-        figures(args.data, args.model)
+        figures(args.data, args.model, args.repeat)
 
 
 if __name__ == "__main__":
