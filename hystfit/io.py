@@ -98,6 +98,8 @@ _WHAT = {"time": "time", "input": "input (voltage)", "output": "output (displace
 _MISSING_CELLS = frozenset({"", "nan", "-nan", "+nan", "na", "n/a", "#n/a", "null", "none"})
 
 _DECIMAL_COMMA_RE = r"[-+]?\d*,\d+(?:[eE][-+]?\d+)?"
+#: a number an English export writes with a thousands separator ("1,234", "-12,345,678")
+_THOUSANDS_COMMA_RE = r"[-+]?[1-9]\d{0,2}(?:,\d{3})+"
 _BRACKET_RE = re.compile(r"^(.*?)\s*[\[\(\{]\s*([^\]\)\}]*?)\s*[\]\)\}]\s*$")
 _SUFFIX_RE = re.compile(r"^(.*?)[_\s]+([A-Za-zµμ]+)$")
 #: the quantity/unit form of DIN 1313 and ISO 80000-1 (``Weg/mm``, ``U / mV``, ``t/s``)
@@ -352,8 +354,12 @@ class _Table:
     cols: list
     rows: np.ndarray
     header_auto: bool = False
-    #: the delimiter is not a comma, so "1,5" may be a decimal comma (European locale exports)
+    #: a cell "1,5" may be a decimal comma (European locale exports): the text reader's cells, where
+    #: the delimiter is not a comma or the cell was quoted in a comma-separated file
     comma_decimal_ok: bool = False
+    #: the delimiter is a comma: a cell with a comma was quoted, and "1,234" may also be an English
+    #: thousands separator (:func:`_numeric` then asks)
+    comma_delimited: bool = False
     #: what the reader did that the user should know (a preamble skipped), for the capture's notes
     notes: tuple[str, ...] = ()
 
@@ -468,10 +474,14 @@ def _preamble(lines: list[str]) -> int:
     delim = _sniff(head[-_PREAMBLE_TABLE_LINES:])
 
     def cells(line: str) -> list[str]:
-        return [c.strip().strip('"') for c in (line.split(delim) if delim is not None else line.split())]
+        if delim is None:
+            return [c.strip().strip('"') for c in line.split()]
+        # quotes respected: a comma-separated export quotes its decimal-comma cells ("0,25")
+        return [c.strip().strip('"') for c in next(csv.reader([line], delimiter=delim), [])]
 
     def number(cell: str) -> bool:
-        return bool(cell) and _is_number_or_empty(cell.replace(",", ".") if delim not in (None, ",") else cell)
+        # a decimal comma: where the delimiter is a comma, a cell holding one was quoted
+        return bool(cell) and _is_number_or_empty(cell.replace(",", ".") if delim is not None else cell)
 
     rows = [cells(ln) for ln in head]
     width = len(rows[-1])
@@ -667,7 +677,8 @@ def _read_text(path: Path, label: str, no_header: bool) -> _Table:
     if n_keep < len(empty):
         df, rows = df.iloc[:n_keep], rows[:n_keep]
     cols = [df[c].reset_index(drop=True) for c in df.columns]
-    return _Table(label, names, cols, rows, header_auto, comma_decimal_ok=delim != ",", notes=notes)
+    return _Table(label, names, cols, rows, header_auto, comma_decimal_ok=True, comma_delimited=delim == ",",
+                  notes=notes)
 
 
 def _preamble_note(first: int, last: int, header: int, headed: bool = True) -> str:
@@ -807,7 +818,16 @@ def _numeric(table: _Table, col: int) -> np.ndarray:
     bad = np.flatnonzero((num.isna() & ~text.str.lower().isin(_MISSING_CELLS) & s.notna()).to_numpy())
     decimal = text.str.fullmatch(_DECIMAL_COMMA_RE).iloc[bad].to_numpy() if bad.size else np.zeros(0, bool)
     if bad.size and table.comma_decimal_ok and decimal.all():
-        # a ';'/tab/space-separated export with decimal commas (e.g. "0,25"): read ',' as the decimal mark
+        # a ';'/tab/space-separated export with decimal commas (e.g. "0,25"), or a comma-separated one
+        # that quotes them ("0,25","1,5"): read ',' as the decimal mark — unless every such cell of a
+        # comma-separated file could be an English thousands separator ("1,234": 1.234 or 1234?)
+        if table.comma_delimited and text.iloc[bad].str.fullmatch(_THOUSANDS_COMMA_RE).all():
+            k = int(bad[0])
+            raise InputError(f"{table.label}: row {table.rows[k]}, {table.col_label(col)}: {_cell_text(table, col, k)} "
+                             "is ambiguous: a quoted number with a comma in a comma-separated file is read as a "
+                             "decimal comma, but every such cell of this column could also be an English thousands "
+                             "separator (1.234 or 1234?); write the numbers with '.' as the decimal mark and no "
+                             "thousands separator, or use ';' as the delimiter")
         text = text.str.replace(",", ".", regex=False)
         num = pd.to_numeric(text, errors="coerce")
         bad = np.flatnonzero((num.isna() & ~text.str.lower().isin(_MISSING_CELLS) & s.notna()).to_numpy())
@@ -1502,7 +1522,8 @@ def _finish(table: _Table, chosen: dict, opts: LoadOptions, notes: list[str], u:
     if cycles < opts.min_cycles:
         fix = ("widen the --start/--stop window" if windowed or opts.start_s is not None or opts.stop_s is not None
                else "record a longer capture")
-        raise InputError(f"{label}: only {cycles:.3g} input cycles of {freq:g} Hz after trimming, the minimum is "
+        shown = math.floor(cycles * 100.0) / 100.0  # never rounded up to the minimum it is short of (1.9996 → "2")
+        raise InputError(f"{label}: only {shown:g} input cycles of {freq:g} Hz after trimming, the minimum is "
                          f"{opts.min_cycles:g}; {fix}")
     warm = int(round(opts.warmup_s / dt)) if opts.warmup_s else 0
     if warm > u.size - max(4, u.size // 4):

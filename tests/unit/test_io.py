@@ -828,11 +828,49 @@ def test_decimal_commas_are_read_when_the_delimiter_is_not_a_comma(tmp_path, sep
     assert cap.y_unit == "nm" and cap.dt == pytest.approx(1 / FS)
 
 
-def test_decimal_commas_in_a_comma_separated_file_stay_an_error(tmp_path):
-    path = tmp_path / "bad.csv"
-    path.write_text('time_s,voltage_V,displacement_um\n0,0,"0,5"\n', encoding="utf-8")
+@pytest.mark.parametrize("quoted_header", [True, False])
+def test_quoted_decimal_commas_in_a_comma_separated_file_are_read_under_their_header(tmp_path, quoted_header):
+    """A comma-separated export in a decimal-comma locale quotes its numbers ("0,25"): a blind test's
+    such file lost its header (the first data row was taken for it, every column unnamed). The cells
+    are read with ',' as the decimal mark, under the header; an integral cell without a comma too."""
+    t, u, y = sine()
+    path = tmp_path / "quoted.csv"
+    names = ("time_s", "voltage_V", "displacement_um")
+    head = ",".join(f'"{n}"' for n in names) if quoted_header else ",".join(names)
+    def cell(v):
+        return '"' + f"{v:.9f}".replace(".", ",") + '"'
+
+    rows = [",".join(cell(v) for v in row) for row in zip(t, u, y)]
+    rows[5] = f'{cell(t[5])},"10",{cell(y[5])}'  # an integral value the export wrote without a comma
+    path.write_text("\n".join([head] + rows) + "\n", encoding="utf-8")
+    cap = load_capture(path)
+    assert cap.u.size == u.size and cap.y_unit == "um"
+    want_u = u.copy()
+    want_u[5] = 10.0
+    np.testing.assert_allclose(cap.u, want_u, atol=1e-8)
+    np.testing.assert_allclose(cap.y, y, atol=1e-8)
+
+
+def test_quoted_commas_that_could_be_thousands_separators_are_an_error(tmp_path):
+    """ "1,000" in a comma-separated file is 1.0 in a decimal-comma locale and 1000 in an English one:
+    when every comma cell of a column has the thousands form, the reader asks instead of guessing."""
+    t, u, y = sine()
+    path = tmp_path / "thousands.csv"
+    rows = [f'"{1000 + i:,}",{a:.9f},{b:.9f}' for i, (a, b) in enumerate(zip(u, y))]
+    path.write_text("\n".join(["time_ms,voltage_V,displacement_um"] + rows) + "\n", encoding="utf-8")
     msg = error_of(path)
-    assert "row 2" in msg and "decimal commas" in msg
+    assert "row 2" in msg and "'1,000' is ambiguous" in msg and "thousands separator" in msg
+
+
+def test_a_capture_short_of_the_minimum_cycles_is_not_said_to_have_them(tmp_path):
+    """1.9996 cycles against a minimum of 2 were reported as "only 2 input cycles … the minimum is 2"."""
+    t, u, y = sine(cycles=2.0, fs=10 * FS)  # 2000 samples: 1.999 periods from the first to the last
+    n = t.size
+    path = tmp_path / "short.csv"
+    path.write_text("time_s,voltage_V,displacement_um\n" + "\n".join(
+        f"{a:.9f},{b:.9f},{c:.9f}" for a, b, c in zip(t[:n], u[:n], y[:n])) + "\n", encoding="utf-8")
+    msg = error_of(path)
+    assert "only 1.99 input cycles" in msg and "the minimum is 2" in msg
 
 
 def test_trailing_empty_rows_are_not_data(tmp_path):
