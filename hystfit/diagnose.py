@@ -346,6 +346,9 @@ class Diagnosis:
     #: the final model fitted on the fit part (base parameters per group, the named effects):
     #: the start of :func:`fit_recommended`; None when nothing was named
     final_state: object = field(repr=False, compare=False, default=None)
+    #: ``--model-option`` values of the named effects' blocks (``dynamics.fn_min_Hz``): a search range
+    #: the diagnosis widened (:meth:`hystfit.effects.Effect.handover_options`)
+    block_options: dict = field(default_factory=dict)
 
     @property
     def where_figure_data(self) -> WhereFigureData:
@@ -384,9 +387,11 @@ class Diagnosis:
     def recommended_options(self) -> dict:
         """``--model-option`` values the recommended model needs beyond the caller's: the finer
         resolution the diagnosis ended on, when a resolution check adopted one (before the effects,
-        after an effect or after the last; e.g. ``{"n_operators": 20}``)."""
+        after an effect or after the last; e.g. ``{"n_operators": 20}``), and the named effects'
+        search ranges it widened (:attr:`block_options`, e.g. ``{"dynamics.fn_min_Hz": 40.0}``)."""
         r = self.base_resolution
-        return {r["option"]: r["final"]} if r is not None and r["final"] != r["given"] else {}
+        out = {r["option"]: r["final"]} if r is not None and r["final"] != r["given"] else {}
+        return {**out, **self.block_options}
 
     @property
     def hands_over(self) -> bool:
@@ -1425,8 +1430,32 @@ def _chain_signals(state: _State, captures, views, pos: int, lengths: Sequence[i
     return preds, tuple(signals)
 
 
+#: how many times :func:`_augment` widens a search range whose bound the fit ended on
+WIDENINGS = 2
+
+
 def _augment(state: _State, effect: Effect, captures, views, lin_cache: tuple, iterations: int,
              phi0: np.ndarray | None = None, grid_scores: np.ndarray | None = None) -> tuple[_State, EffectFit]:
+    """Fit ``effect`` on top of ``state`` jointly with the base and the earlier effects
+    (:func:`_augment_once`); when the fit ends on a bound of its search range that the data's scale
+    chose (:meth:`~hystfit.effects.Effect.widened`: a stage's lowest f_n), again on the wider range —
+    at most :data:`WIDENINGS` times, each kept when its fit-part SSE is not larger. The fit's
+    ``effect`` is then the widened one (its range is in its parameters and in the options of the
+    recommended model, :meth:`Diagnosis.recommended_options`)."""
+    new, fit = _augment_once(state, effect, captures, views, lin_cache, iterations, phi0, grid_scores)
+    for _ in range(WIDENINGS):
+        wider = fit.effect.widened(fit.phi)
+        if wider is None:
+            break
+        new_w, fit_w = _augment_once(state, wider, captures, views, lin_cache, iterations)
+        if not fit_w.sse <= fit.sse:
+            break
+        new, fit = new_w, fit_w
+    return new, fit
+
+
+def _augment_once(state: _State, effect: Effect, captures, views, lin_cache: tuple, iterations: int,
+                  phi0: np.ndarray | None = None, grid_scores: np.ndarray | None = None) -> tuple[_State, EffectFit]:
     """Fit ``effect`` on top of ``state`` jointly with the base and the earlier effects.
 
     Each iteration: search φ with the linear coefficients and a Gauss–Newton step δ of every
@@ -2601,6 +2630,19 @@ class _Refiner:
         return res.state, res.preds
 
 
+def _block_options(sel: _Selection, views: Sequence[CaptureView]) -> dict:
+    """``--model-option`` values the named effects' blocks need (their widened search ranges), as
+    ``block.option``: :attr:`Diagnosis.block_options`."""
+    if sel.state is None or not sel.chosen:
+        return {}
+    fitted = [v for v in views if v.fit_end >= 2]
+    out = {}
+    for link in sel.state.chain:
+        if link.effect.name in sel.chosen:
+            out.update({f"{link.effect.name}.{k}": float(v) for k, v in link.effect.handover_options(fitted).items()})
+    return out
+
+
 def _capture_info(caps, d: _Design, calib: Sequence[dict]) -> tuple[dict, ...]:
     """The ``captures`` section: condition, sampling, periodicity, sweep and calibration per capture."""
     return tuple({"source": c.source, "amplitude_V": c.amplitude_V, "frequency_Hz": c.frequency_Hz,
@@ -2729,7 +2771,8 @@ def diagnose(captures: Sequence[Capture], model: Model, optimizer: Optimizer, *,
                      runtime_s=time.perf_counter() - t_start, figures_data=figures_data, findings=tuple(found),
                      resolution=resolution, split_choice=d.split, resolution_before_effects=converged,
                      base_resolution=_base_resolution(given, final), resolution_during_selection=during,
-                     final_state=sel.state if sel.chosen else None)
+                     final_state=sel.state if sel.chosen else None,
+                     block_options=_block_options(sel, list(d.views)))
 
 
 # ----------------------------------------------------------------------------------------------

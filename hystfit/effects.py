@@ -453,6 +453,21 @@ class Effect(ABC):
         except (ConfigError, np.linalg.LinAlgError, ValueError):
             return math.inf
 
+    def widened(self, phi: np.ndarray) -> "Effect | None":
+        """This effect with its search range reaching past the bound at which ``phi`` ended, when
+        that bound is one the data's scale chose, not the physics (a stage's lowest f_n, twice the
+        fastest drive) and can move — or None (the default: no such bound, or not at it). A fit
+        that ends on such a bound did not find its optimum: :func:`hystfit.diagnose._augment`
+        searches the wider range."""
+        return None
+
+    def handover_options(self, views: Sequence[CaptureView]) -> dict:
+        """Structure options (``--model-option`` names of this block, without the block's prefix)
+        that a model identified with this effect as a block needs to search where this effect was
+        fitted: those of a range :meth:`widened` beyond what the block sets from ``views``'
+        scale (default: none)."""
+        return {}
+
     def absent_at(self, phi: np.ndarray) -> bool:
         """Whether searched parameters ``phi`` say the effect is not in the data although its refit
         gains (default: never). A stage whose f_n ends at the top of its search range has no

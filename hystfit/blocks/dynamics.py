@@ -221,6 +221,10 @@ def invert_second_order(y: np.ndarray, fn_Hz: float, zeta: float, dt: float) -> 
     return y + c
 
 
+#: the lowest f_n a search range is widened to (:meth:`Dynamics.widened`)
+FN_FLOOR_HZ = 1.0
+
+
 def fn_search_range_of(scale: DataScale) -> tuple[float, float]:
     """:func:`fn_search_range` for identification data: from twice the smooth drives' frequency
     (:func:`~hystfit.blocks.base.frequency_of_excitation`), or with none of them (broadband, steps)
@@ -331,6 +335,22 @@ class Dynamics(Block):
             second_order_at_rest(x[:1], fn, zeta, view.dt)  # its one-line error
         biquad_shared_rows(readonly(x), readonly(rows, np.int64), out, int(offset),
                            *_stage_coefficients(fn, zeta, float(view.dt)))
+
+    def widened(self, phi):
+        """With f_n's lower bound a quarter as high (not below :data:`FN_FLOOR_HZ`) when the fit ended on
+        it: that bound is twice the fastest drive (:func:`fn_search_range`), a guess that a slower
+        stage (a blind test's 400 Hz under a 300 Hz drive, fitted at the 600 Hz bound) proves wrong."""
+        lo, hi = self.fn_range
+        if float(phi[0]) > lo * (1.0 + 1e-6) or lo <= FN_FLOOR_HZ * (1.0 + 1e-9):
+            return None
+        step = 10.0 ** math.floor(math.log10(lo / 4.0) - 2.0)  # three significant digits, rounded down
+        return replace(self, fn_min_Hz=max(float(f"{math.floor(lo / 4.0 / step) * step:.3g}"), FN_FLOOR_HZ),
+                       fn_max_Hz=hi)
+
+    def handover_options(self, views):
+        lo = self.fn_range[0]
+        usual = fn_search_range_of(scale_of_views(views))[0]
+        return {"fn_min_Hz": lo} if lo < usual * (1.0 - 1e-9) else {}
 
     def absent_at(self, phi):
         """f_n at the top of its search range (0.45 f_s or the range set): no resonance inside it."""

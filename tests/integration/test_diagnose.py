@@ -378,3 +378,36 @@ def test_a_finer_base_with_no_effect_named_is_handed_over(tmp_path):
     assert again.exit_code == 0, again.output
     twin = json.loads((tmp_path / "again" / "params.json").read_text())
     assert twin["mode"] == params["mode"] and len(twin["conditions"]) == len(params["conditions"]) == 1
+
+
+def test_a_stage_below_the_usual_search_range_is_found_and_handed_over(tmp_path):
+    """A blind test's find: a 400 Hz stage under a 300 Hz drive was fitted at the bottom of f_n's
+    range (twice the fastest drive, 600 Hz) and named there. A fit that ends on that bound now
+    searches again with it a quarter as high (Dynamics.widened): here a 120 Hz stage (the virtual
+    actuator's 1200 Hz / 10) under drives up to 80 Hz, whose usual range starts at 160 Hz. The
+    recommended model carries the wider range (``dynamics.fn_min_Hz``), so the hand-over and the
+    command to identify it anew search where the diagnosis found the stage."""
+    caps = withheld_effect_captures("dynamics", 10.0, 0, amplitudes_V=(60.0,), frequencies_Hz=(20.0, 40.0, 80.0),
+                                    steps_s=0)
+    data = tmp_path / "data"
+    for c in caps:
+        write_capture(data / f"{c.source}.csv", c.t, c.u, c.y)
+    out = tmp_path / "dg"
+    r = CliRunner().invoke(app, ["diagnose", str(data), "--model", "pi", "--out", str(out), "--json",
+                                 "--max-effects", "1", "--no-plots"])
+    assert r.exit_code == 0, r.output
+    printed = json.loads(r.stdout)
+    assert printed["explained_by"] == ["dynamics"]
+    lo = printed["recommended_model_options"]["dynamics.fn_min_Hz"]
+    assert 30.0 < lo < 160.0 / 4.0 + 1e-9
+    d = json.loads((out / "diagnosis.json").read_text())
+    named = next(r for r in d["steps"][0]["effects"] if r["effect"] == "dynamics")
+    assert named["params"]["fn_Hz"] == pytest.approx(120.0, rel=0.03)
+    assert named["params"]["search_fn_Hz"][0] == lo
+    assert named["reduction"] > 0.9
+    params = json.loads((out / "params.json").read_text())
+    assert params["model"]["options"]["dynamics.fn_min_Hz"] == lo
+    block = params["conditions"][0]["blocks"][0]
+    assert block["structure"]["fn_min_Hz"] == lo and block["parameters"]["fn_Hz"] == pytest.approx(120.0, rel=0.03)
+    last = (out / "diagnosis.md").read_text().splitlines()[-1]
+    assert "--model pi+dynamics " in last and f" --model-option dynamics.fn_min_Hz={lo:g} " in last

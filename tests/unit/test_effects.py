@@ -312,3 +312,25 @@ def test_unit_phasors_are_the_complex_exponential():
 
     r = np.random.default_rng(2).random((777, 5))
     assert np.array_equal(_unit_phasors(r), np.exp(2j * np.pi * r))
+
+
+def test_a_stage_ending_on_its_lowest_f_n_widens_its_range_there_only():
+    """Dynamics.widened: f_n's lower bound (twice the fastest drive) a quarter as high, rounded down to
+    three digits, when the fit ended on it; not at an inner point, not at the top, not below 1 Hz.
+    handover_options names the widened bound only (what the block would not set itself)."""
+    from hystfit.blocks.dynamics import FN_FLOOR_HZ, Dynamics, fn_search_range_of
+    from hystfit.blocks.base import scale_of_views
+
+    t = np.arange(4000) * 1e-4
+    views = [CaptureView(t=t, dt=1e-4, y=np.sin(2 * np.pi * 80 * t), fit=t < 0.25, frequency_Hz=80.0, periodic=True)]
+    dyn = Dynamics().configure(views, [v.y for v in views])
+    lo, hi = dyn.fn_range
+    assert (lo, hi) == fn_search_range_of(scale_of_views(views)) and lo == pytest.approx(160.0, rel=0.01)
+    assert dyn.widened(np.array([lo * 1.2, 0.1])) is None and dyn.widened(np.array([hi, 0.1])) is None
+    wide = dyn.widened(np.array([lo, 0.1]))
+    assert wide.fn_range[1] == hi and wide.fn_range[0] <= lo / 4 and wide.fn_range[0] == pytest.approx(lo / 4, rel=1e-2)
+    assert f"{wide.fn_range[0]:g}" == f"{wide.fn_range[0]:.3g}"  # three digits: a readable --model-option
+    assert dyn.handover_options(views) == {} and wide.handover_options(views) == {"fn_min_Hz": wide.fn_range[0]}
+    floor = Dynamics(fn_min_Hz=FN_FLOOR_HZ, fn_max_Hz=hi)
+    assert floor.widened(np.array([FN_FLOOR_HZ, 0.1])) is None
+    assert Dynamics(fn_min_Hz=2.0, fn_max_Hz=hi).widened(np.array([2.0, 0.1])).fn_range[0] == FN_FLOOR_HZ
