@@ -348,12 +348,9 @@ def test_cli_refuses_a_non_empty_output_dir(small_dataset, tmp_path):
     assert r.exit_code == 2 and "not empty" in r.stderr
 
 
-def test_a_finer_base_with_no_effect_named_is_handed_over(tmp_path):
-    """A blind test's find: nothing named, but the resolution checks adopted 20 operators over the
-    given 10 (held-out error halved) — and no params.json was written, so the hand-over broke. The
-    recommended model (the base at the adopted resolution) is now fitted on all the data and
-    written, as for a named effect."""
-    caps = withheld_effect_captures("none", 1.0, 0)
+def _diagnosed_one_effect(caps, tmp_path):
+    """``caps`` written as CSV files into a folder, diagnosed through the command line with the pi
+    base and one effect at most: (the folder, the output folder, the printed --json)."""
     data = tmp_path / "data"
     for c in caps:
         write_capture(data / f"{c.source}.csv", c.t, c.u, c.y)
@@ -361,7 +358,16 @@ def test_a_finer_base_with_no_effect_named_is_handed_over(tmp_path):
     r = CliRunner().invoke(app, ["diagnose", str(data), "--model", "pi", "--out", str(out), "--json",
                                  "--max-effects", "1", "--no-plots"])
     assert r.exit_code == 0, r.output
-    printed = json.loads(r.stdout)
+    return data, out, json.loads(r.stdout)
+
+
+def test_a_finer_base_with_no_effect_named_is_handed_over(tmp_path):
+    """A blind test's find: nothing named, but the resolution checks adopted 20 operators over the
+    given 10 (held-out error halved) — and no params.json was written, so the hand-over broke. The
+    recommended model (the base at the adopted resolution) is now fitted on all the data and
+    written, as for a named effect."""
+    caps = withheld_effect_captures("none", 1.0, 0)
+    data, out, printed = _diagnosed_one_effect(caps, tmp_path)
     assert printed["explained_by"] == [] and printed["recommended_model_options"] == {"n_operators": 20}
     assert printed["params"] == str(out / "params.json")
     params = json.loads((out / "params.json").read_text())
@@ -389,14 +395,7 @@ def test_a_stage_below_the_usual_search_range_is_found_and_handed_over(tmp_path)
     command to identify it anew search where the diagnosis found the stage."""
     caps = withheld_effect_captures("dynamics", 10.0, 0, amplitudes_V=(60.0,), frequencies_Hz=(20.0, 40.0, 80.0),
                                     steps_s=0)
-    data = tmp_path / "data"
-    for c in caps:
-        write_capture(data / f"{c.source}.csv", c.t, c.u, c.y)
-    out = tmp_path / "dg"
-    r = CliRunner().invoke(app, ["diagnose", str(data), "--model", "pi", "--out", str(out), "--json",
-                                 "--max-effects", "1", "--no-plots"])
-    assert r.exit_code == 0, r.output
-    printed = json.loads(r.stdout)
+    data, out, printed = _diagnosed_one_effect(caps, tmp_path)
     assert printed["explained_by"] == ["dynamics"]
     lo = printed["recommended_model_options"]["dynamics.fn_min_Hz"]
     assert 30.0 < lo < 160.0 / 4.0 + 1e-9
