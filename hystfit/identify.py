@@ -348,11 +348,21 @@ def fit_captures(captures: Sequence[Capture], model: Model, optimizer: Optimizer
     return _summarize(problem, records, label, condition, check_mape_floor(mape_floor), objective)
 
 
-def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """Asymptotic standard errors sqrt(diag(σ² (JᵀJ)⁺)) of the parameters at the optimum.
+#: a direction of the Jacobi-scaled normal matrix whose eigenvalue is below this share of the largest
+#: is not determined by the data (the finite-difference Jacobian's own error is about 1e-6 relative)
+UNDETERMINED_RTOL = 1e-10
 
-    Parameters on a bound get NaN (the linearisation does not hold there); an ill-conditioned
-    Jacobian gives large errors — an honest sign that a parameter is poorly determined.
+
+def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Asymptotic standard errors sqrt(diag(σ² (JᵀJ)⁻¹)) of the parameters at the optimum.
+
+    Parameters on a bound get NaN (the linearisation does not hold there). A parameter the data do
+    not determine gets +inf: one whose Jacobian column is zero, or that has a share of a direction
+    of the Jacobi-scaled normal matrix (unit diagonal) with an eigenvalue below
+    :data:`UNDETERMINED_RTOL` of the largest; the others' errors are computed in the determined
+    directions. A poorly determined parameter gets a large error — the honest sign. (Before, a
+    pseudo-inverse of the unscaled matrix cut the smallest directions to zero *variance*: a blind
+    test's stage at 1601 Hz under a 1 Hz drive was reported ± 6·10⁻¹⁰ Hz.)
     """
     try:
         JtJ, rr, m = objective.normal_matrix(theta, upper=upper, lower=lower)
@@ -365,8 +375,25 @@ def _stderr(objective: Objective, theta: np.ndarray, lower: np.ndarray, upper: n
     free = np.array([bound_side(float(v), lo, hi) is None for v, lo, hi in zip(theta, lower, upper)], dtype=bool)
     out = np.full(theta.shape, np.nan)
     if free.any():
-        cov = np.linalg.pinv(JtJ[np.ix_(free, free)]) * sigma2
-        out[free] = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        out[free] = _free_stderr(JtJ[np.ix_(free, free)], sigma2)
+    return out
+
+
+def _free_stderr(A: np.ndarray, sigma2: float) -> np.ndarray:
+    """sqrt(σ² diag(A⁻¹)) for a normal matrix A of the free parameters, +inf where the data do not
+    determine a parameter (see :func:`_stderr`)."""
+    dg = np.sqrt(np.maximum(np.diag(A), 0.0))
+    zero = dg <= 1e-300
+    out = np.full(A.shape[0], np.inf)
+    live = ~zero
+    if not live.any():
+        return out
+    S = A[np.ix_(live, live)] / dg[live][:, None] / dg[live][None, :]
+    w, V = np.linalg.eigh(0.5 * (S + S.T))
+    keep = w > UNDETERMINED_RTOL * max(float(w.max()), 0.0)
+    var = ((V[:, keep] ** 2) / w[keep]).sum(axis=1) * sigma2 / dg[live] ** 2
+    lost = (V[:, ~keep] ** 2).sum(axis=1) > 1e-6  # a share of an undetermined direction
+    out[live] = np.where(lost, np.inf, np.sqrt(var))
     return out
 
 

@@ -17,7 +17,7 @@ Schema ``hystfit.params`` version 2 (version 1, before composite models, is stil
      "bounds_overrides": {name: [lo, hi]},
      "conditions": [{"label", "amplitude_V", "frequency_Hz", "sources", "model_structure",
                      "data_scale", "parameters": [{"name", "unit", "value", "stderr", "lower", "upper",
-                     "at_bound", "description"}], "metrics": {...}, "per_capture": [...], "runtime_s",
+                     "at_bound", "determined", "description"}], "metrics": {...}, "per_capture": [...], "runtime_s",
                      "evaluations", "best_run",
                      "runs": [{"run", "seed", "fun", "rmse_<unit>", "nfev", "iterations", "wall_time_s",
                                "stop", "polished"}],
@@ -122,16 +122,21 @@ class ParamRecord:
     upper: float
     at_bound: str | None
     description: str = ""
+    #: False when the data do not determine the parameter (its standard error is infinite, written
+    #: null: :func:`hystfit.identify._stderr`); True otherwise, at a bound too
+    determined: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "unit": self.unit, "value": self.value, "stderr": self.stderr,
-                "lower": self.lower, "upper": self.upper, "at_bound": self.at_bound, "description": self.description}
+                "lower": self.lower, "upper": self.upper, "at_bound": self.at_bound, "determined": self.determined,
+                "description": self.description}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ParamRecord":
         se = d.get("stderr")
         return cls(str(d["name"]), str(d.get("unit", "")), float(d["value"]), None if se is None else float(se),
-                   float(d["lower"]), float(d["upper"]), d.get("at_bound"), str(d.get("description", "")))
+                   float(d["lower"]), float(d["upper"]), d.get("at_bound"), str(d.get("description", "")),
+                   bool(d.get("determined", True)))
 
 
 @dataclass(frozen=True)
@@ -163,7 +168,8 @@ class Cell:
     @classmethod
     def from_fit(cls, fit: ConditionFit) -> "Cell":
         u = fit.unit
-        params = tuple(ParamRecord(p.name, unit_param(p, u), float(v), float(se), p.lower, p.upper, at, p.description)
+        params = tuple(ParamRecord(p.name, unit_param(p, u), float(v), float(se), p.lower, p.upper, at, p.description,
+                                   determined=not (se == math.inf))
                        for p, v, se, at in zip(fit.params, fit.theta, fit.stderr, fit.at_bound))
         runs = tuple({"run": r.run, "seed": r.seed, "fun": r.fun, f"rmse_{u}": r.rmse, "nfev": r.nfev,
                       "iterations": r.result.nit, "wall_time_s": r.wall_time_s, "stop": r.result.message,

@@ -77,6 +77,7 @@ def identify(
                                        f"the other runs are in {out}, every failure in {out}/report.md")
     if not quiet:
         _print_bound_notes(res)
+        _print_undetermined_notes(res)
         _print_offset_notes(res)
     if json_out:
         _print_summary_json(res, out, seed)
@@ -99,6 +100,21 @@ def _print_bound_notes(res) -> None:
         stderr.print(f"  {line}", markup=False, highlight=False, soft_wrap=True)
     if len(pinned) > 5:
         stderr.print(f"  … and {len(pinned) - 5} more in report.md", markup=False, highlight=False)
+
+
+def _print_undetermined_notes(res) -> None:
+    from ..report.identify_report import undetermined_notes
+
+    loose = undetermined_notes(res)
+    if not loose:
+        return
+    stderr.print(f"note: {len(loose)} parameter set(s) have parameters the data do not determine (any value fits "
+                 "as well: no standard error; read them as arbitrary, or capture data that excite them; "
+                 "see report.md):", markup=False, highlight=False, soft_wrap=True)
+    for line in loose[:5]:
+        stderr.print(f"  {line}", markup=False, highlight=False, soft_wrap=True)
+    if len(loose) > 5:
+        stderr.print(f"  … and {len(loose) - 5} more in report.md", markup=False, highlight=False)
 
 
 def _print_offset_notes(res) -> None:

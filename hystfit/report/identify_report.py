@@ -181,7 +181,8 @@ def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> st
         notes = [n for c in f.captures for n in c.notes]
         if notes:
             lines += ["Loading notes: " + "; ".join(notes), ""]
-        prow = [{"parameter": p.name, "unit": unit_param(p, u), "value": _value_text(v, se), "stderr": se,
+        prow = [{"parameter": p.name, "unit": unit_param(p, u), "value": _value_text(v, se),
+                 "stderr": "not determined" if se == np.inf else se,
                  "lower": p.lower, "upper": p.upper, "at bound": f"**{at}**" if at else ""}
                 for p, v, se, at in zip(f.params, f.theta, f.stderr, f.at_bound)]
         lines += [markdown_table(frame(prow)), ""]
@@ -198,7 +199,10 @@ def markdown_report(res: IdentifyResult, plot_files: dict[str, list[str]]) -> st
     lines += ["Standard errors are asymptotic (σ²(JᵀJ)⁻¹ at the optimum). A parameter \"at bound\" lies within "
               f"{AT_BOUND_RTOL:g} × its search width of that bound: the search stopped there, so it has no standard "
               "error (–); if the bound is not physical, widen it with --bounds NAME=LOWER:UPPER. "
-              "A large standard error means the data do not determine that parameter well.", ""]
+              "A large standard error means the data do not determine that parameter well; \"not determined\" "
+              "means they do not determine it at all (any value fits as well: its Jacobian column is zero or a "
+              "combination of the others', e.g. a stage's f_n far above every drive frequency): read its value as "
+              "arbitrary.", ""]
     return "\n".join(lines)
 
 
@@ -223,6 +227,18 @@ def bound_notes(res: IdentifyResult) -> list[str]:
                   for p, v, at in zip(f.params, f.theta, f.at_bound) if at]
         if pinned:
             out.append(f"{f.label}: at a search bound: {', '.join(pinned)}")
+    return out
+
+
+def undetermined_notes(res: IdentifyResult) -> list[str]:
+    """One line per parameter set with parameters the data do not determine (an infinite standard
+    error: a stage's f_n under drives far below it, a delay that a stage already gives) — any value
+    of them fits as well (for the console)."""
+    out = []
+    for f in res.fits:
+        loose = [f"{p.name}={fmt(float(v))}" for p, v, se in zip(f.params, f.theta, f.stderr) if se == np.inf]
+        if loose:
+            out.append(f"{f.label}: not determined by the data: {', '.join(loose)}")
     return out
 
 
