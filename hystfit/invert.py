@@ -1030,10 +1030,24 @@ class InversionResult:
     extrapolation: tuple[dict, ...]
     notes: tuple[str, ...] = field(default_factory=tuple)
     runtime_s: float = 0.0
+    #: per cell label, the RMSE of its model on its own identification data (``params.json``'s
+    #: metrics; NaN where a file lacks it): how closely the model reproduces the stage at all
+    cell_fit_rmse: dict = field(default_factory=dict)
 
     @property
     def limited(self) -> bool:
         return bool(self.clip_spans or self.slew_spans)
+
+    def fit_rmse(self, choice: SegmentChoice | None = None) -> float:
+        """The RMS of the fit RMSEs of the cells a segment uses (``choice``), weighted by their
+        blend weights, or of every segment's by its samples (None): the model's own error against
+        the measurements it was identified on. The predicted tracking error only checks that the
+        model follows its inverse (≈ 0 for an exact inverse such as PI's); a measured tracking error
+        is at least about this, and more where the target leaves the cells' identified range."""
+        if choice is not None:
+            return math.sqrt(sum(c.weight * self.cell_fit_rmse.get(c.label, math.nan) ** 2 for c in choice.cells))
+        n = self.target.n
+        return math.sqrt(sum((ch.segment.stop - ch.segment.start) / n * self.fit_rmse(ch) ** 2 for ch in self.choices))
 
     def to_table(self) -> Columns:
         """``time_s, voltage_V, predicted_displacement_<unit>``: the file for the amplifier
@@ -1295,7 +1309,7 @@ def _inversion_notes(pf: ParamsFile, target: Target, opts: InvertLimits, desired
         if ch.note:
             notes.append(f"segment {ch.segment.label}: {ch.note}")
         if ch.clamped:
-            notes.append(f"segment {ch.segment.label}: {clamp_note(ch.condition, ch.query)}")
+            notes.append(f"segment {ch.segment.label}: {clamp_note(ch.condition, ch.query, ch.cells)}")
     notes += [extrapolation_note(x) for x in extrap]
     return tuple(notes)
 
@@ -1369,13 +1383,25 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
     return InversionResult(pf.path, pf.model_name, pf.unit, target, method, pv.voltage, desired.voltage, pv.predicted,
                            pv.metrics, pv.metrics_unlimited, pv.segment_metrics, desired.choices, opts.record(pf),
                            desired.v0, v0_source, pv.clip_spans, pv.slew_spans, tuple(extrap), notes,
-                           time.perf_counter() - t0)
+                           time.perf_counter() - t0, cell_fit_rmse=cell_fit_rmses(pf))
 
 
-def clamp_note(condition: tuple[float, float], query: tuple[float, float]) -> str:
-    """The note for a condition outside the table's grid (shared by invert, track and simulate)."""
+def cell_fit_rmses(pf: ParamsFile) -> dict[str, float]:
+    """Per cell label, the RMSE of its model on its identification data (NaN where not recorded)."""
+    key = f"rmse_{pf.unit}"
+    return {c.label: float(c.metrics.get(key, math.nan)) if c.metrics.get(key) is not None else math.nan
+            for c in pf.cells}
+
+
+def clamp_note(condition: tuple[float, float], query: tuple[float, float], cells: Sequence[CellUse] = ()) -> str:
+    """The note for a condition outside the table's grid (shared by invert, track and simulate), with
+    the cells that point stands for (a blind test read "clamped to 80 V, 10 Hz" and wondered where
+    that cell was: the table's grid is the product of its amplitudes and frequencies, and the cell
+    used was 88V_10Hz)."""
+    used = (f" (cells used: {' + '.join(f'{c.label}×{c.weight:.2f}' for c in sorted(cells, key=lambda c: -c.weight))})"
+            if cells else "")
     return (f"condition {condition[0]:.4g} V, {condition[1]:.4g} Hz lies outside the table's grid; clamped to "
-            f"{query[0]:.4g} V, {query[1]:.4g} Hz")
+            f"{query[0]:.4g} V, {query[1]:.4g} Hz{used}")
 
 
 def extrapolation_note(x: dict) -> str:

@@ -74,7 +74,7 @@ def predict_capture(pf: ParamsFile, capture: Capture, method: str = "interpolate
     y = np.asarray(y, float)
     notes = []
     if clamped:
-        notes.append(clamp_note(capture.condition, query))
+        notes.append(clamp_note(capture.condition, query, cells))
     extrapolated = [extrapolation_note(x) for x in extrapolated_cells(pf, ((c.index, capture.u) for c in cells))]
     notes += extrapolated
     offset = None

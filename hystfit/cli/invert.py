@@ -216,6 +216,10 @@ def invert(
     stdout.print(t)
     stdout.print(f"voltage {res.voltage_V.min():.4g} … {res.voltage_V.max():.4g} V, initial {res.initial_voltage_V:.4g} V; "
                  "predicted error from the identified model (not a measurement)", markup=False, highlight=False)
+    floor = res.fit_rmse()
+    if floor == floor:  # not NaN: the cells record their fit
+        stdout.print(f"the cells used fit their identification data to {fmt(floor, 3)} {du} RMS: a tracking error "
+                     "measured on the stage is at least about that", markup=False, highlight=False)
     for note in res.notes:
         stderr.print(f"note: {note}", markup=False, highlight=False, style="dim")
 

@@ -204,7 +204,7 @@ def invert_summary(res: InversionResult) -> dict:
                                 "weight": c.weight} for c in ch.cells],
                      "iterations": [{"amplitude_V": it.amplitude_V, "cells": [[c.label, c.weight] for c in it.cells],
                                      "result_pp_V": it.result_pp_V} for it in ch.iterations],
-                     "metrics": m})
+                     "metrics": m, f"cells_fit_rmse_{u}": res.fit_rmse(ch)})
     v = res.voltage_V
     return json_safe({
         **schema_fields("invert"),
@@ -225,6 +225,8 @@ def invert_summary(res: InversionResult) -> dict:
         "segments": segs,
         "predicted_tracking": res.metrics,
         "predicted_tracking_without_limits": res.metrics_unlimited,
+        # the cells' own error on their identification data: the floor of a measured tracking error
+        f"cells_fit_rmse_{u}": res.fit_rmse(),
         "extrapolation": list(res.extrapolation),
         "notes": list(res.notes),
         "runtime_s": res.runtime_s,
@@ -274,16 +276,23 @@ def invert_markdown(res: InversionResult, figures: Sequence[str], command: str |
           "Forward model (the blend of the cells used) simulated on the applied voltage; e = predicted − target "
           "(paper 002 Table 4 figures; % of stroke = 100·x / (max target − min target)).", ""]
     L += _metric_lines(res.metrics, u)
+    floor = res.fit_rmse()
+    if math.isfinite(floor):
+        L += ["", f"This is the model following its own inverse: it checks the inversion, not the stage (an exact "
+              f"inverse, as PI's, gives ≈ 0). The cells used reproduce their identification data to "
+              f"**{fmt(floor)} {du} RMS** ({fmt(100.0 * floor / tg.stroke, 3) if tg.stroke > 0 else '–'} % of "
+              "stroke; weighted by the blend, column *cell fit RMSE* below): a tracking error measured on the stage is "
+              "at least about that, and more where the target leaves the cells' identified range or history."]
     if res.metrics_unlimited is not None:
         L += ["", "Without the voltage limits (what the limits cost):", ""] + _metric_lines(res.metrics_unlimited, u)
     L += ["", "## Table cells", "",
           "| segment | condition (V, Hz) | looked up (V, Hz) | cells × weight | how | iterations | converged | "
-          f"RMSE ({du}) | RMSE % |", "|---|---|---|---|---|---:|---|---:|---:|"]
+          f"RMSE ({du}) | RMSE % | cell fit RMSE ({du}) |", "|---|---|---|---|---|---:|---|---:|---:|---:|"]
     for ch, m in zip(res.choices, res.segment_metrics):
         cond = "–" if not math.isfinite(ch.condition[0]) else f"{ch.condition[0]:.4g}, {ch.condition[1]:.4g}"
         L.append(f"| {ch.segment.label} | {cond} | {ch.query[0]:.4g}, {ch.query[1]:.4g}{' (clamped)' if ch.clamped else ''}"
                  f" | {condition_text(ch)} | {ch.how} | {len(ch.iterations)} | {'yes' if ch.converged else 'no'} | "
-                 f"{fmt(m[f'rmse_{u}'])} | {fmt(m['rmse_pct_of_stroke'], 3)} |")
+                 f"{fmt(m[f'rmse_{u}'])} | {fmt(m['rmse_pct_of_stroke'], 3)} | {fmt(res.fit_rmse(ch))} |")
     L += ["", "The amplitude iteration: guess the drive's peak-to-peak voltage from the stroke and the table's gain, "
           "invert with the cells for it, measure the voltage's peak-to-peak, repeat until it is self-consistent "
           "(0.1 %). Bilinear interpolation blends the cells' inverted voltages (see `hystfit/invert.py`).", ""]
