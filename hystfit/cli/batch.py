@@ -38,10 +38,18 @@ def _argv(job, command, path: Path) -> list[str]:
         flag = f"--{key.replace('_', '-')}"
         if flag not in flags or flags[flag][1]:
             known = sorted(o[2:] for o, (p, second) in flags.items() if not second and o.startswith("--")
-                           and o not in ("--out", "--help"))
+                           and o not in ("--out", "--help") and o[2:] not in BATCH_OWNED)
             raise ConfigError(f"{path}: job {job.name!r}: {job.command} has no option {key!r}; one of: "
                               f"{', '.join(known)}")
         p = flags[flag][0]
+        if key in BATCH_OWNED:
+            raise ConfigError(f"{path}: job {job.name!r}: {key} is the batch's own option ({BATCH_OWNED[key]}); "
+                              "remove it from the job")
+        if p.is_flag and not isinstance(value, bool):
+            # a text on an on/off option became a second argument: an extra data file (a blind test's
+            # plots = "D/a60V_f80Hz.csv" added a condition to the job's table and exited 0)
+            raise ConfigError(f"{path}: job {job.name!r}: option {key!r} is on/off; write {key} = true or "
+                              f"{key} = false, not {value!r}")
         if value is False and p.is_flag and p.secondary_opts:
             args.append(max(p.secondary_opts, key=len))
         elif isinstance(value, bool) and p.is_flag:
@@ -53,6 +61,24 @@ def _argv(job, command, path: Path) -> list[str]:
         else:
             args += [flag, str(value).lower() if isinstance(value, bool) else str(value)]
     return args
+
+
+#: options a job cannot set, and why: the batch sets them for every job
+BATCH_OWNED = {"json": "hystfit batch --json prints every job's row as one JSON document; a job's own would "
+                       "print a second one beside it"}
+
+
+def _checked(command, argv: list[str], path: Path, name: str) -> None:
+    """Parse ``argv`` (a job's command line) as its command would, without running it: a value the
+    option does not take (``seed = -5``, ``runs = 2.7``, ``jobs = true``) is a ConfigError naming the
+    batch file, the job and the option before any job runs."""
+    from ..errors import ConfigError
+
+    try:
+        command.make_context(argv[0], list(argv[1:]), resilient_parsing=False)
+    except click_exceptions.ClickException as exc:
+        raise ConfigError(f"{path}: job {name!r}: {exc.format_message().rstrip('.')}; fix the job's option "
+                          f"(see 'hystfit {argv[0]} --help')") from None
 
 
 def _run(root, argv: list[str]) -> int:
@@ -113,7 +139,9 @@ def batch(
             opts["resume"] = True
         if (quiet or json_out) and "--quiet" in have:
             opts.setdefault("quiet", True)
-        runs.append((job, _argv(replace(job, options=opts), command, jobs_file)))
+        argv = _argv(replace(job, options=opts), command, jobs_file)
+        _checked(command, argv, jobs_file, job.name)
+        runs.append((job, argv))
     rows = []
     interrupted: KeyboardInterrupt | None = None
     for job, argv in runs:

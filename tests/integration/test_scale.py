@@ -474,14 +474,25 @@ out = "res/b"
     ("[[job]]\ncommand = 'simulate'\ndata = 'x.csv'\nout = 'o'\n", "simulate needs params"),
     ("[[job\ncommand = 'identify'\n", "not valid TOML"),
     ("[jobs]\n", "unknown top-level key"),
+    # a blind test's finds: a text on an on/off option was read as an extra data file (exit 0, one more
+    # condition in the table); a job's own --json printed a second JSON document; values the option
+    # does not take were found only when the job ran
+    ("[[job]]\ncommand = 'identify'\ndata = 'x.csv'\nout = 'o'\nplots = 'more.csv'\n", "'plots' is on/off"),
+    ("[[job]]\ncommand = 'identify'\ndata = 'x.csv'\nout = 'o'\nforce = 'yes'\n", "'force' is on/off"),
+    ("[[job]]\ncommand = 'identify'\ndata = 'x.csv'\nout = 'o'\njson = true\n", "json is the batch's own"),
+    ("[[job]]\ncommand = 'identify'\ndata = 'x.csv'\nout = 'o'\nseed = -5\n", "Invalid value for '--seed'"),
+    ("[[job]]\ncommand = 'identify'\ndata = 'x.csv'\nout = 'o'\nruns = 2.7\n", "Invalid value for '--runs'"),
+    ("[[job]]\ncommand = 'identify'\ndata = 'x.csv'\nout = 'o'\n[[job]]\nname = 'b'\ncommand = 'identify'\n"
+     "data = 'x.csv'\nout = 'p'\njobs = true\n", "job 'b': Invalid value for '--jobs'"),
 ])
 def test_a_bad_batch_file_is_one_line_exit_2_before_any_job(tmp_path, text, words):
+    _write(tmp_path / "x.csv", "time_s,voltage_V,displacement_um\n0,0,0\n")
     jobs = _write(tmp_path / "jobs.toml", text)
     r = run("batch", jobs)
     assert r.exit_code == 2
     line = one_error_line(r)
     assert str(jobs) in line and words in line
-    assert not (tmp_path / "o").exists()
+    assert not (tmp_path / "o").exists() and not (tmp_path / "p").exists()
 
 
 def test_a_missing_batch_file_is_exit_2(tmp_path):
