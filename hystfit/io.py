@@ -1988,7 +1988,25 @@ def _check_out(out: Path, force: bool, inputs: Sequence[str | os.PathLike] = (),
                           "or choose another --out")
     _refuse_dangerous(out)
     _refuse_inputs(out, inputs)
+    _refuse_foreign(out)
     return True
+
+
+#: files one of hystfit's commands writes at the top of its output folder (identify, simulate,
+#: track: report.md; identify, diagnose: params.json; diagnose: diagnosis.json; compare: compare.csv;
+#: invert's report folder: report.json; track: summary.json)
+OUTPUT_MARKERS = ("params.json", "report.md", "diagnosis.json", "compare.csv", "report.json", "summary.json")
+
+
+def _refuse_foreign(out: Path) -> None:
+    """Refuse to replace (``--force``) a non-empty folder that holds none of the files hystfit writes
+    (:data:`OUTPUT_MARKERS`): a blind test's ``--out keep --force`` deleted ``keep/file.txt``, a
+    folder hystfit had never written. Its output folders are replaced as before."""
+    entries = list(out.iterdir())
+    if entries and not any((out / m).is_file() for m in OUTPUT_MARKERS):
+        first = sorted(e.name for e in entries)[0]
+        raise OutputError(f"{out}: holds files hystfit did not write (e.g. {first}) and none of its outputs; --force "
+                          "replaces only a hystfit output folder: choose another --out, or empty the folder yourself")
 
 
 def _refuse_inputs(out: Path, inputs: Sequence[str | os.PathLike]) -> None:

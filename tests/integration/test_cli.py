@@ -111,6 +111,10 @@ def test_existing_output_refused_without_force(small_data, tmp_path):
     assert "--force" in r.stderr and "Traceback" not in r.output
     assert (out / "keep.txt").read_text() == "mine"
     r = run("identify", small_data, "--out", out, "--no-plots", "--force", "--quiet")
+    assert r.exit_code == 2 and "holds files hystfit did not write" in r.stderr  # not a hystfit output
+    assert (out / "keep.txt").read_text() == "mine"
+    (out / "report.md").write_text("an earlier output")
+    r = run("identify", small_data, "--out", out, "--no-plots", "--force", "--quiet")
     assert r.exit_code == 0 and (out / "params.json").exists() and not (out / "keep.txt").exists()
 
 

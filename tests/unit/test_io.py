@@ -762,12 +762,12 @@ def test_staged_output_dir_exception_leaves_nothing(tmp_path):
             raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
     out.mkdir()
-    (out / "old.txt").write_text("keep")
+    (out / "report.md").write_text("keep")  # an earlier output
     with pytest.raises(InputError):
         with staged_output_dir(out, force=True) as stage:
             (stage / "new.txt").write_text("x")
             raise InputError("bad data")
-    assert [p.name for p in out.iterdir()] == ["old.txt"]
+    assert [p.name for p in out.iterdir()] == ["report.md"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
 
 
@@ -783,6 +783,12 @@ def test_staged_output_dir_refuses_nonempty_without_force(tmp_path):
     assert "--force" in str(exc.value) and "--out" in str(exc.value) and str(out) in str(exc.value)
     assert [p.name for p in out.iterdir()] == ["old.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
+    # --force replaces only a folder hystfit wrote (a blind test's --out keep --force deleted keep/file.txt)
+    with pytest.raises(OutputError, match="holds files hystfit did not write .e.g. old.txt."):
+        with staged_output_dir(out, force=True):
+            entered.append(True)
+    assert not entered and [p.name for p in out.iterdir()] == ["old.txt"]
+    (out / "params.json").write_text("{}")  # an earlier output, with a file of the user's beside it
     with staged_output_dir(out, force=True) as stage:
         (stage / "new.txt").write_text("x")
     assert [p.name for p in out.iterdir()] == ["new.txt"]
