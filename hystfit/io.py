@@ -737,6 +737,16 @@ def _read_parquet(path: Path, label: str) -> _Table:
     import pandas as pd
 
     try:
+        import pyarrow.parquet as pq
+
+        names = pq.read_schema(path).names
+    except Exception:  # a corrupt file: read_parquet below says so
+        names = []
+    twice = sorted({n for n in names if names.count(n) > 1 and not n.startswith("__index_level_")})
+    if twice:  # pyarrow's own message was "Multiple matches for FieldRef.Name(…)", a blind test's find
+        raise InputError(f"{label}: the Parquet file has {len(twice)} column name(s) used twice ("
+                         f"{', '.join(map(repr, twice))}); give every column its own name")
+    try:
         df = pd.read_parquet(path)
     except Exception as exc:  # pyarrow raises many types for corrupt files
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
@@ -809,7 +819,10 @@ def _numeric(table: _Table, col: int) -> np.ndarray:
         view = s.view()
         view.flags.writeable = False
         return view
-    if s.dtype.kind in "fiub":
+    if s.dtype.kind == "b":  # true/false (a Parquet bool column): no measurement (a blind test's 0/1 V "voltage")
+        raise InputError(f"{table.label}: {table.col_label(col)} holds true/false values, not numbers; choose "
+                         "another column (--input-col, --output-col, --time-col) or write the values as numbers")
+    if s.dtype.kind in "fiu":
         return s.to_numpy(dtype=np.float64, na_value=np.nan)
     import pandas as pd
 

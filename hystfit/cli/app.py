@@ -71,8 +71,10 @@ app = typer.Typer(
 
 
 def error_line(message: str) -> None:
-    """Print one error line on stderr."""
-    typer.echo(f"hystfit: error: {message}", err=True)
+    """Print one error line on stderr: a line break inside the message (a file name holding one, a
+    blind test's ``x\nbad.csv``) is shown as ``\n``, so a script that reads the error's line reads all of it."""
+    one = str(message).replace("\r\n", "\\n").replace("\n", "\\n").replace("\r", "\\r")
+    typer.echo(f"hystfit: error: {one}", err=True)
 
 
 def guarded(fn: F) -> F:

@@ -1185,3 +1185,28 @@ def test_decimal_commas_with_a_thousands_separator_name_the_cell_that_has_it(tmp
     path.write_text("time_s;voltage_V;displacement_nm\n" + "\n".join(rows) + "\n")
     msg = error_of(path)
     assert "row 4" in msg and "'1.020,0'" in msg and "thousands separator" in msg
+
+
+def test_a_parquet_capture_with_a_column_name_twice_or_a_true_false_column_is_refused_by_name(tmp_path):
+    """Blind-test finds: a Parquet file with ``displacement_um`` twice said "Multiple matches for
+    FieldRef.Name(...)"; a bool ``voltage_V`` column was read as 0/1 V and fitted (condition 1V_10Hz)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    t, u, y = sine()
+    pq.write_table(pa.table([t, u, y, y], names=["time_s", "voltage_V", "displacement_um", "displacement_um"]),
+                   tmp_path / "dup.parquet")
+    msg = error_of(tmp_path / "dup.parquet")
+    assert "used twice ('displacement_um')" in msg and "its own name" in msg
+    pq.write_table(pa.table({"time_s": t, "voltage_V": u > 0, "displacement_um": y}), tmp_path / "bool.parquet")
+    msg = error_of(tmp_path / "bool.parquet")
+    assert "column 'voltage_V' holds true/false values, not numbers" in msg
+
+
+def test_an_error_about_a_file_name_with_a_line_break_stays_on_one_line(tmp_path, capsys):
+    """A blind test's find: a file named ``x\\nbad.csv`` split the error over two lines."""
+    from hystfit.cli.app import error_line
+
+    error_line(f"{tmp_path}/x\nbad.csv: row 2: 'nan' is not a finite number")
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "x\\nbad.csv: row 2" in err
