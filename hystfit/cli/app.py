@@ -70,10 +70,15 @@ app = typer.Typer(
 )
 
 
+#: the message of the last error line printed (``hystfit batch`` puts a failed job's in its JSON row)
+LAST_ERROR: list[str] = []
+
+
 def error_line(message: str) -> None:
     """Print one error line on stderr: a line break inside the message (a file name holding one, a
     blind test's ``x\nbad.csv``) is shown as ``\n``, so a script that reads the error's line reads all of it."""
     one = str(message).replace("\r\n", "\\n").replace("\n", "\\n").replace("\r", "\\r")
+    LAST_ERROR[:] = [one]
     typer.echo(f"hystfit: error: {one}", err=True)
 
 

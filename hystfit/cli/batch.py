@@ -10,7 +10,7 @@ from typing import Annotated
 import typer
 
 from ..errors import Terminated
-from .app import app, click_exceptions, command, error_line, stop_code
+from .app import LAST_ERROR, app, click_exceptions, command, error_line, stop_code
 from .common import (ExecutorOpt, JsonOut, Quiet, Resume, Scheduler, jobs_option, new_table, print_json, stderr,
                      stdout)
 
@@ -142,31 +142,37 @@ def batch(
         argv = _argv(replace(job, options=opts), command, jobs_file)
         _checked(command, argv, jobs_file, job.name)
         runs.append((job, argv))
-    rows = []
+    rows = []  # (job, exit code, status, seconds, its error line)
     interrupted: KeyboardInterrupt | None = None
     for job, argv in runs:
         t0 = time.perf_counter()
         if resume and job.out.is_dir() and any(job.out.iterdir()):
-            rows.append((job, 0, "done before (skipped)", 0.0))
+            rows.append((job, 0, "done before (skipped)", 0.0, None))
             continue
         if not quiet and not json_out:
             stderr.print(f"== batch: {job.name}: hystfit {' '.join(argv)}", markup=False, highlight=False,
                          soft_wrap=True)
+        LAST_ERROR.clear()
         code = _run(root, argv)
-        rows.append((job, code, JOB_STATUS.get(code, "error"), time.perf_counter() - t0))
+        rows.append((job, code, JOB_STATUS.get(code, "error"), time.perf_counter() - t0,
+                     LAST_ERROR[0] if code != 0 and LAST_ERROR else None))
         if code in (130, Terminated.exit_code):  # Ctrl-C or SIGTERM: the batch stops too
             interrupted = Terminated() if code == Terminated.exit_code else KeyboardInterrupt()
             break
+    ran = len(rows)
+    # the jobs a Ctrl-C or SIGTERM left unstarted are listed too (a blind test's script saw them vanish)
+    rows += [(job, None, "not started", 0.0, None) for job, _ in runs[ran:]]
     if json_out:
         print_json({"jobs": [{"name": j.name, "command": j.command, "out": str(j.out), "exit_code": c, "status": s,
-                              "wall_time_s": t} for j, c, s, t in rows]})
+                              "wall_time_s": t, "error": e} for j, c, s, t, e in rows]})
     elif not quiet:
-        table = new_table(title=f"batch {jobs_file}: {len(rows)} of {len(runs)} job(s) run")
+        table = new_table(title=f"batch {jobs_file}: {ran} of {len(runs)} job(s) run")
         for col in ("job", "command", "exit", "status", "time s", "out"):
             table.add_column(col, justify="right" if col in ("exit", "time s") else "left")
-        for j, c, s, t in rows:
-            table.add_row(j.name, j.command, str(c), s, f"{t:.1f}", str(j.out))
+        for j, c, s, t, _ in rows:
+            table.add_row(j.name, j.command, "–" if c is None else str(c), s, f"{t:.1f}", str(j.out))
         stdout.print(table)
+    rows = rows[:ran]
     failed = [r for r in rows if r[1] != 0]
     if interrupted:  # the job said so in its own error line: the batch stops with its code, not a second line
         raise typer.Exit(stop_code(interrupted))
@@ -174,4 +180,4 @@ def batch(
         raise NoResultError(f"every job of {jobs_file} failed (exit codes {', '.join(str(r[1]) for r in failed)})")
     if failed:
         raise CellsFailedError(f"{len(failed)} of {len(rows)} job(s) of {jobs_file} failed: "
-                               + ", ".join(f"{j.name} (exit {c})" for j, c, _, _ in failed))
+                               + ", ".join(f"{j.name} (exit {c})" for j, c, _, _, _ in failed))

@@ -387,6 +387,8 @@ out = "res/check"
     r, rows = _batch_rows(jobs)
     assert r.exit_code == 4, r.output
     assert (rows["lut"]["exit_code"], rows["typo"]["exit_code"], rows["check"]["exit_code"]) == (0, 2, 0)
+    # a failed job's row carries its error line (a blind test's script had only stderr to read it from)
+    assert "unknown model 'nosuchmodel'" in rows["typo"]["error"] and rows["lut"]["error"] is None
     assert (tmp_path / "res" / "lut" / "params.json").exists() and (tmp_path / "res" / "check").is_dir()
     # --resume: the finished jobs are skipped, the failed one runs again
     r, rows = _batch_rows(jobs, "--resume")
@@ -463,6 +465,11 @@ out = "res/b"
     assert r.exit_code == 130, r.output
     assert ran == ["identify"]  # the second job is not started
     assert r.stderr.count("interrupted") == 1, r.stderr
+    # --json lists the job that was not started (a blind test's script saw it vanish from the rows)
+    r, rows = _batch_rows(jobs)
+    assert r.exit_code == 130 and rows["a"]["exit_code"] == 130 and rows["a"]["error"] == "interrupted"
+    assert rows["b"] == {"name": "b", "command": "identify", "out": str(tmp_path / "res" / "b"), "exit_code": None,
+                         "status": "not started", "wall_time_s": 0.0, "error": None}
 
 
 @pytest.mark.parametrize("text, words", [
