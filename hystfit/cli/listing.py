@@ -30,7 +30,10 @@ def list_models(json_out: ListJson = False) -> None:
         stdout.print(f"  bounds shown for a reference stage (0–100 V → 0–30 µm); they scale with the data. "
                      f"Structure options: {m['structure'] or 'none'}\n")
     stdout.print("[bold]Blocks[/bold]: follow any model in an expression BASE+BLOCK+... (e.g. pi+creep+delay), "
-                 "in the written order; options as --model-option BLOCK.KEY=VALUE, bounds as --bounds BLOCK.NAME=LO:HI\n")
+                 "in the written order; options as --model-option BLOCK.KEY=VALUE, bounds as --bounds BLOCK.NAME=LO:HI. "
+                 "Parameters and bounds are shown for a reference capture (1 s at 10 kHz, 0–100 V → 0–30 µm): a "
+                 "structure option left None is set from the data, and with it the parameters (creep: one gain per "
+                 "decade of τ from 0.01 s to the longest capture, so a 5 s capture adds creep.c3)\n")
     for b in blk:
         empty = ("per-capture offset and rate, projected out of the residual" if b["nuisance"]
                  else "structure only, identified from the data")
