@@ -328,7 +328,8 @@ def test_sigterm_in_a_batch_job_stops_the_batch_with_143(tmp_path, monkeypatch):
     r = CliRunner().invoke(app, ["batch", str(jobs), "--json"])
     assert r.exit_code == 143, r.output
     rows = json.loads(r.stdout)["jobs"]
-    assert [(j["name"], j["exit_code"], j["status"]) for j in rows] == [("first", 143, "terminated")]
+    assert [(j["name"], j["exit_code"], j["status"]) for j in rows] == [("first", 143, "terminated"),
+                                                                        ("second", None, "not started")]
     assert "hystfit: error: terminated (SIGTERM)" in r.stderr
 
 
