@@ -402,6 +402,20 @@ class Diagnosis:
         return bool(self.explained_by or self.recommended_options)
 
     @property
+    def stopped_at_max_effects(self) -> dict | None:
+        """When the selection named ``settings.max_effects`` effects and, in its last step, another
+        candidate also passed every rule without being an equally good alternative to the one named
+        there: ``{"max_effects", "also_passing"}`` — a further effect may remain, and only a larger
+        ``--max-effects`` tests it (a blind test's plant with five effects stopped at three while a
+        real asymmetry passed, 12× the noise left, and nothing said so). None otherwise."""
+        if len(self.explained_by) < self.settings.max_effects or not self.steps:
+            return None
+        last = self.steps[-1]
+        twins = set(self.alternatives[-1]) if len(self.alternatives) >= len(self.steps) else set()
+        also = [r.effect for r in last if r.eligible and r.effect not in self.explained_by and r.effect not in twins]
+        return {"max_effects": self.settings.max_effects, "also_passing": also} if also else None
+
+    @property
     def heldout_rmse_named(self) -> float:
         """Held-out RMSE of the base with every named effect (the last named step); the base's own
         held-out RMSE when none is named."""

@@ -1043,7 +1043,7 @@ class InversionResult:
         blend weights, or of every segment's by its samples (None): the model's own error against
         the measurements it was identified on. The predicted tracking error only checks that the
         model follows its inverse (≈ 0 for an exact inverse such as PI's); a measured tracking error
-        is at least about this, and more where the target leaves the cells' identified range."""
+        is of this order, more where the target leaves the cells' identified range."""
         if choice is not None:
             return math.sqrt(sum(c.weight * self.cell_fit_rmse.get(c.label, math.nan) ** 2 for c in choice.cells))
         n = self.target.n

@@ -219,7 +219,7 @@ def invert(
     floor = res.fit_rmse()
     if floor == floor:  # not NaN: the cells record their fit
         stdout.print(f"the cells used fit their identification data to {fmt(floor, 3)} {du} RMS: a tracking error "
-                     "measured on the stage is at least about that", markup=False, highlight=False)
+                     "measured on the stage is of that order", markup=False, highlight=False)
     for note in res.notes:
         stderr.print(f"note: {note}", markup=False, highlight=False, style="dim")
 

@@ -927,8 +927,13 @@ def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
         return (f"next: no effect named; {d.base_model} is as good as any augmentation on held-out data "
                 f"(held-out RMSE {d.heldout_rmse_named:.4g} {u}).")
     params = f"{out_dir}/params.json" if out_dir is not None else "params.json"
+    capped = d.stopped_at_max_effects
+    more = ("" if capped is None else
+            f" The selection stopped at --max-effects {capped['max_effects']} while {', '.join(capped['also_passing'])} "
+            f"also passed the rule in its last step: rerun with --max-effects {capped['max_effects'] + 1} to test "
+            "it on top.")
     return (f"next: named {', '.join(d.explained_by)}; held-out RMSE of {d.recommended_model}{opts} "
-            f"{d.heldout_rmse_named:.4g} {u}. {d.recommended_model} fitted on all the data is in {params}: "
+            f"{d.heldout_rmse_named:.4g} {u}.{more} {d.recommended_model} fitted on all the data is in {params}: "
             f"hystfit invert {params} --sine AMPLITUDE,FREQUENCY --out v.csv, or identify it anew with "
             f"--model {d.recommended_model}{opts}{scope}")
 
@@ -1075,6 +1080,7 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "reconciliation": reconciliation_document(d),
         f"heldout_rmse_with_named_effects_{u}": _num(d.heldout_rmse_named),
         "recommended_model_options": d.recommended_options,
+        "stopped_at_max_effects": d.stopped_at_max_effects,
         "resolution": unit_keys(d.resolution, u) if d.resolution is not None else None,
         "resolution_before_effects": _converged_document(d.resolution_before_effects, u),
         "base_resolution": d.base_resolution,

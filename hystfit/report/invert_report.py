@@ -282,7 +282,8 @@ def invert_markdown(res: InversionResult, figures: Sequence[str], command: str |
               f"inverse, as PI's, gives ≈ 0). The cells used reproduce their identification data to "
               f"**{fmt(floor)} {du} RMS** ({fmt(100.0 * floor / tg.stroke, 3) if tg.stroke > 0 else '–'} % of "
               "stroke; weighted by the blend, column *cell fit RMSE* below): a tracking error measured on the stage is "
-              "at least about that, and more where the target leaves the cells' identified range or history."]
+              "of that order — less where the target stays where the cells fit best, more where it leaves their "
+              "identified range or history."]
     if res.metrics_unlimited is not None:
         L += ["", "Without the voltage limits (what the limits cost):", ""] + _metric_lines(res.metrics_unlimited, u)
     L += ["", "## Table cells", "",

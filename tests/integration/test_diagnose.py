@@ -410,3 +410,34 @@ def test_a_stage_below_the_usual_search_range_is_found_and_handed_over(tmp_path)
     assert block["structure"]["fn_min_Hz"] == lo and block["parameters"]["fn_Hz"] == pytest.approx(120.0, rel=0.03)
     last = (out / "diagnosis.md").read_text().splitlines()[-1]
     assert "--model pi+dynamics " in last and f" --model-option dynamics.fn_min_Hz={lo:g} " in last
+
+
+def test_a_selection_stopped_by_max_effects_says_what_else_passed(small_dataset):
+    """A blind test's find: a plant with five effects stopped at --max-effects 3 while a real
+    asymmetry passed every rule in the last step, 12× the noise left, and nothing said so. The
+    diagnosis now records it (``stopped_at_max_effects``, diagnosis.json) and the last line says to
+    rerun with one more; an equally good alternative of the effect named there is not such an effect,
+    and a selection that named fewer than the cap stopped for its own reasons."""
+    from dataclasses import replace as dc_replace
+
+    from hystfit.io import LoadOptions, load_captures
+    from hystfit.report.diagnose_report import diagnosis_document, next_step_line
+
+    d = diagnose(load_captures([small_dataset], LoadOptions()), PI(), Auto(), seed=0,
+                 settings=DiagnoseSettings(max_effects=1))
+    assert d.explained_by == ("delay",) and d.stopped_at_max_effects is None  # nothing else passed
+    last = d.steps[-1]
+    named = next(r for r in last if r.effect == "delay")
+    other = next(r for r in last if r.effect != "delay")
+    passing = dc_replace(other, passes={k: True for k in other.passes}, joint=None)
+    capped = dc_replace(d, steps=d.steps[:-1] + (tuple([named, passing] + [r for r in last if r not in (named, other)]),),
+                        alternatives=d.alternatives[:-1] + ((),))
+    assert capped.stopped_at_max_effects == {"max_effects": 1, "also_passing": [other.effect]}
+    line = next_step_line(capped)
+    assert (f"stopped at --max-effects 1 while {other.effect} also passed the rule in its last step: rerun with "
+            "--max-effects 2") in line
+    assert diagnosis_document(capped)["stopped_at_max_effects"]["also_passing"] == [other.effect]
+    twin = dc_replace(capped, alternatives=d.alternatives[:-1] + ((other.effect,),))
+    assert twin.stopped_at_max_effects is None  # an equally good alternative: the same part of the gap
+    more = dc_replace(capped, settings=DiagnoseSettings(max_effects=2))
+    assert more.stopped_at_max_effects is None and "--max-effects" not in next_step_line(more)
