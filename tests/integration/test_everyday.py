@@ -386,8 +386,14 @@ def test_a_rising_amplitude_sine_is_not_called_a_frequency_change(tmp_path):
     t = np.arange(0, 1.25, dt)
     crest = 90 * (t / t[-1]) * (0.5 - 0.5 * np.cos(2 * np.pi * 40 * t))
     noisy = crest + 0.05 * np.random.default_rng(0).standard_normal(t.size)
-    for name, u in (("rising.csv", crest), ("rising_noisy.csv", noisy)):
-        notes = load_capture(_write(tmp_path / name, t, u, 0.1 * u)).notes
+    # a blind test's rig-like drive: a 0.2 s ramp from 0 V to a 45 V offset, then a sine whose amplitude
+    # rises from 0 about it (counted by mean crossings, its first third read 5.6 Hz of a constant 10 Hz)
+    tr = np.arange(0, 3.0, dt)
+    offset = np.where(tr < 0.2, 45.0 * tr / 0.2, 45.0)
+    ramped = offset + 40.0 * np.clip((tr - 0.2) / 2.8, 0, 1) * np.sin(2 * np.pi * 10 * np.clip(tr - 0.2, 0, None))
+    for name, u in (("rising.csv", crest), ("rising_noisy.csv", noisy), ("ramped.csv", ramped)):
+        tt = tr if name == "ramped.csv" else t
+        notes = load_capture(_write(tmp_path / name, tt, u, 0.1 * u)).notes
         assert any(n.startswith("warning: the amplitude changes") for n in notes), name
         assert not any(n.startswith("warning: the frequency changes") for n in notes), (name, notes)
 
