@@ -402,6 +402,18 @@ class Diagnosis:
         return bool(self.explained_by or self.recommended_options)
 
     @property
+    def final_parameters(self) -> dict[str, dict]:
+        """Per named effect, its parameters in the final model — every named effect and the base
+        fitted together on the fit part, the start of the hand-over (``params.json``). A step's
+        own numbers are those of the effect added at that step; a later effect can move them (a
+        blind test's creep read 1.7 % at 0.01 s at its step, 0 % in the final model, as in truth)."""
+        st, views = self.final_state, self.figures_data.get("views")
+        if st is None or views is None:
+            return {}
+        sources = [c.source for c in self.figures_data.get("captures", ())]
+        return {link.effect.name: link.params(views, sources) for link in st.chain if link.effect.name in self.explained_by}
+
+    @property
     def stopped_at_max_effects(self) -> dict | None:
         """When the selection named ``settings.max_effects`` effects and, in its last step, another
         candidate also passed every rule without being an equally good alternative to the one named

@@ -501,19 +501,23 @@ def _table(header: Sequence[str], rows: Sequence[Sequence]) -> list[str]:
 
 
 def _params_text(r: EffectResult, unit: str) -> str:
-    p = r.params
+    return _parameters_text(r.effect, r.params, unit)
+
+
+def _parameters_text(effect: str, p: dict, unit: str) -> str:
+    """An effect's fitted parameters (``EffectFit.params``) in a few words."""
     u = _u(unit)
-    if r.effect == "dynamics":
+    if effect == "dynamics":
         return f"f_n = {p['fn_Hz']:.4g} Hz, ζ = {p['zeta']:.3g}"
-    if r.effect == "delay":
+    if effect == "delay":
         return f"T_d = {1e3 * p['delay_ms']:.4g} µs ({p['delay_samples']:.2f} samples)"
-    if r.effect == "creep":
+    if effect == "creep":
         return ", ".join(f"{100 * g:.2g} % @ {t:g} s" for t, g in zip(p["tau_s"], p["gain"]))
-    if r.effect == "asymmetry":
+    if effect == "asymmetry":
         bow = p["mid_stroke_bow_out"]
         return (f"mid-stroke {abs(bow):.3g} {u} {'above' if bow > 0 else 'below'} the straight line through the "
                 f"stroke ends, skew {p['a3_out']:+.3g} {u}")
-    if r.effect == "drift":
+    if effect == "drift":
         return f"median abs. rate {p['median_abs_rate_out_per_s']:.3g} {u}/s"
     return ""
 
@@ -621,6 +625,13 @@ def _verdict_paragraph(d: Diagnosis) -> list[str]:
                  f"{g['heldout_rmse_after_explained_out']:.4g} {u} against a noise floor of {sigma:.3g} {u} "
                  f"(a reduction of {100 * g['heldout_reduction_explained']:.0f} %: held-out RMSE before − after over "
                  "before − noise floor, as every reduction here).")
+    final = d.final_parameters
+    if final:
+        lines.append("")
+        lines.append("In that model, every named effect fitted together with the base (what params.json starts "
+                     "from; each step's numbers above are those of the effect it added, which later ones can move): "
+                     + "; ".join(f"`{e}` {_parameters_text(e, final[e], d.unit)}" for e in d.explained_by if e in final)
+                     + ".")
     lines += ["", "*What to do:*", ""] + [f"- `{e}`: {NEXT[e]}." for e in d.explained_by if e in NEXT]
     return lines
 
@@ -1081,6 +1092,7 @@ def diagnosis_document(d: Diagnosis) -> dict:
         f"heldout_rmse_with_named_effects_{u}": _num(d.heldout_rmse_named),
         "recommended_model_options": d.recommended_options,
         "stopped_at_max_effects": d.stopped_at_max_effects,
+        "final_parameters": {e: unit_keys(p, u) for e, p in d.final_parameters.items()},
         "resolution": unit_keys(d.resolution, u) if d.resolution is not None else None,
         "resolution_before_effects": _converged_document(d.resolution_before_effects, u),
         "base_resolution": d.base_resolution,

@@ -402,6 +402,9 @@ def test_a_stage_below_the_usual_search_range_is_found_and_handed_over(tmp_path)
     d = json.loads((out / "diagnosis.json").read_text())
     named = next(r for r in d["steps"][0]["effects"] if r["effect"] == "dynamics")
     assert named["params"]["fn_Hz"] == pytest.approx(120.0, rel=0.03)
+    # the final model's parameters (what params.json starts from), in the JSON and the report
+    assert d["final_parameters"]["dynamics"]["fn_Hz"] == pytest.approx(120.0, rel=0.03)
+    assert "In that model, every named effect fitted together with the base" in (out / "diagnosis.md").read_text()
     assert named["params"]["search_fn_Hz"][0] == lo
     assert named["reduction"] > 0.9
     params = json.loads((out / "params.json").read_text())
