@@ -444,3 +444,22 @@ def test_a_selection_stopped_by_max_effects_says_what_else_passed(small_dataset)
     assert twin.stopped_at_max_effects is None  # an equally good alternative: the same part of the gap
     more = dc_replace(capped, settings=DiagnoseSettings(max_effects=2))
     assert more.stopped_at_max_effects is None and "--max-effects" not in next_step_line(more)
+
+
+def test_the_verdict_of_an_effect_named_by_the_look_ahead_says_why_it_is_below_the_threshold(small_dataset):
+    """A blind test read "Verdict: `drift` … removes 27 %" beside the 30 % rule of the same report: the
+    effect was named with another by the two-effect look-ahead, and the verdict now says so."""
+    from dataclasses import replace as dc_replace
+
+    from hystfit.io import LoadOptions, load_captures
+    from hystfit.report.diagnose_report import markdown
+
+    d = diagnose(load_captures([small_dataset], LoadOptions()), PI(), Auto(), seed=0,
+                 settings=DiagnoseSettings(max_effects=1))
+    first = d.effects[0]
+    joint = {"with": "creep", "heldout_rmse_after": 0.01, "reduction": 0.6, "reduction_on_top_of_other": 0.35,
+             "threshold": 0.3}
+    paired = dc_replace(d, effects=(dc_replace(first, reduction=0.27, joint=joint),) + d.effects[1:])
+    verdict = next(line for line in markdown(paired, {}).splitlines() if line.startswith("**Verdict:"))
+    assert "removes **27 %**" in verdict and "Named together with `creep`" in verdict
+    assert "Named together" not in next(line for line in markdown(d, {}).splitlines() if line.startswith("**Verdict:"))
