@@ -463,3 +463,18 @@ def test_the_verdict_of_an_effect_named_by_the_look_ahead_says_why_it_is_below_t
     verdict = next(line for line in markdown(paired, {}).splitlines() if line.startswith("**Verdict:"))
     assert "removes **27 %**" in verdict and "Named together with `creep`" in verdict
     assert "Named together" not in next(line for line in markdown(d, {}).splitlines() if line.startswith("**Verdict:"))
+
+
+def test_the_headline_says_which_model_each_number_is_of_when_the_resolution_was_refined(tmp_path):
+    """A blind test's noise-only plant: the headline read "misses by 0.2046 µm RMS (0.01161 µm held-out)",
+    the first of the 10-operator base as given, the second of the 160 operators the resolution check
+    adopted. Each number now names its model."""
+    from hystfit.report.diagnose_report import markdown
+
+    d = diagnose(withheld_effect_captures("none", 1.0, 0), PI(), Auto(), seed=0,
+                 settings=DiagnoseSettings(max_effects=1))
+    conv = d.resolution_before_effects
+    assert conv is not None and conv["to"] > conv["from"] == 10
+    head = markdown(d, {}).splitlines()[2]
+    assert f"as given (n_operators = 10) misses the measurement by **{d.gap['rmse_out']:.4g} µm RMS**" in head
+    assert f"(n_operators = {conv['to']}, see *The model to use next*), by {d.gap['heldout_rmse_out']:.4g} µm" in head
