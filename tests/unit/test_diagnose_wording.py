@@ -112,6 +112,7 @@ def _verdict_none(best):
     from hystfit.diagnose import DiagnoseSettings
 
     return SimpleNamespace(base_model="bw", unit="um", verdict="none", settings=DiagnoseSettings(), effects=[best],
+                           resolution_before_effects=None,
                            noise={"sigma": 0.01}, where={"summary": {}},
                            gap={"rmse_out": 0.2, "heldout_rmse_out": 0.18, "heldout_excess_rmse_out": 0.18})
 
