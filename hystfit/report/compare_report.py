@@ -191,9 +191,27 @@ def search_table(res: CompareResult) -> pd.DataFrame:
 
 
 def _note(t: NeighbourTest | None) -> str:
-    """The words for a neighbour test of :func:`hystfit.compare.rank`."""
+    """The words for a neighbour test of :func:`hystfit.compare.rank`, with the condition-by-condition
+    comparison of repeated runs after it."""
     if t is None:
         return ""
+    runs, cond = _runs_note(t), _condition_note(t.by_condition)
+    if cond and not runs:  # one run per cell: no spread to speak of, the conditions only
+        return f" — against `{t.other}`{cond[1:]}"
+    return runs + cond
+
+
+def _condition_note(c: dict | None) -> str:
+    if not c:
+        return ""
+    if c["test"] == "wilcoxon":
+        verdict = "consistently below" if c["consistently_below"] else "not consistently below"
+        return (f"; by condition (each one's mean over runs) {verdict}: lower at {c['lower_at']} of "
+                f"{c['n_conditions']}, Wilcoxon signed-rank p = {c['p_value']:.2g}")
+    return f"; by condition (each one's mean over runs) lower at {c['lower_at']} of {c['n_conditions']}"
+
+
+def _runs_note(t: NeighbourTest) -> str:
     b = f"`{t.other}`"
     if t.verdict == "tied":
         return f" — tied with {b}"

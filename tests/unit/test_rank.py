@@ -90,3 +90,33 @@ def test_two_runs_compare_the_gap_with_twice_the_spread():
 def test_one_model_one_optimizer_has_nothing_to_rank():
     cells = [_cell("m1", "o1", a, f, [0.1]) for (a, f), _ in CONDS]
     assert rank(CompareResult(("m1",), ("o1",), CONDS, {}, tuple(cells), runs=1)).groups == ()
+
+
+def test_repeated_runs_are_also_compared_condition_by_condition():
+    """A blind test's find: `auto`'s search J was "within run-to-run spread" of `pso`'s (3 runs × 4
+    conditions) where `pso` was worse in every one of the 12 runs × conditions: the runs' spread
+    (from the conditions' different levels, averaged per run) hid a difference every condition showed.
+    Each neighbour pair is now also compared by condition (each one's mean over runs): the count, and
+    from 6 conditions the Wilcoxon signed-rank test; the report says both."""
+    from hystfit.report.compare_report import _note
+
+    level = {c: 1.0 + 3.0 * k for k, (c, _) in enumerate(CONDS)}  # conditions far apart: a wide spread
+    cells = []
+    for (a, f), _ in CONDS:
+        base = level[(a, f)]
+        for o, extra in (("auto", 0.0), ("pso", 0.05)):  # pso worse everywhere, by little
+            cells.append(_cell("m1", o, a, f, [0.1] * 3, js=[1.0] * 3,
+                               search=[base + extra + 0.3 * r for r in (0.0, 1.0, 2.0)]))
+    (g,) = rank(CompareResult(("m1",), ("auto", "pso"), CONDS, {}, tuple(cells), runs=3)).groups
+    t = g.rows[0].versus_next
+    assert g.rows[0].name == "auto" and t.verdict == "within_spread"
+    bc = t.by_condition
+    assert (bc["lower_at"], bc["n_conditions"], bc["test"], bc["consistently_below"]) == (6, 6, "wilcoxon", True)
+    assert bc["p_value"] < 0.05
+    words = _note(t)
+    assert "within run-to-run spread of `pso`" in words and "by condition (each one's mean over runs) consistently " \
+                                                            "below: lower at 6 of 6" in words
+    few = rank(CompareResult(("m1",), ("auto", "pso"), CONDS[:3], {}, tuple(cells[:6]), runs=3)).groups[0]
+    assert few.rows[0].versus_next.by_condition == {"lower_at": 3, "n_conditions": 3, "test": "", "p_value": None,
+                                                    "consistently_below": None}
+    assert json.loads(json.dumps(g.to_dict(), allow_nan=False))["rows"][0]["versus_next"]["by_condition"]["lower_at"] == 6
