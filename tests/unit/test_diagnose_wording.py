@@ -254,3 +254,20 @@ def test_the_cycles_split_finding_speaks_of_cycles_not_captures():
     assert "heldout_cycles" in kinds and "heldout_captures" not in kinds
     text = pointer_text(next(f for f in _trend_findings(summary) if f.kind == "heldout_cycles"), "um")
     assert "middle cycles" in text and "1.37" in text
+
+
+def test_verdict_none_on_a_gap_below_the_noise_says_it_is_small():
+    """A blind test's noise-only plant (1.13× the floor held out, an excess of half the floor) was told
+    that "the remaining gap lies in the base model's own loop shape: try a more flexible model"."""
+    from types import SimpleNamespace
+
+    from hystfit.report.diagnose_report import _verdict_paragraph
+
+    short = {"reduction_at_least_threshold": False, "beats_placebo": True, "gap_above_noise": True}
+    best = SimpleNamespace(effect="asymmetry", passes=short, reduction=0.0, improvement=0.0, placebo_improvement=0.0)
+    small = _verdict_none(best)
+    small.gap = {"rmse_out": 0.2, "heldout_rmse_out": 0.0113, "heldout_excess_rmse_out": 0.0051}
+    text = "\n".join(_verdict_paragraph(small))
+    assert "0.51 × the noise floor" in text and "close to what the noise allows" in text
+    assert "own loop shape" not in text
+    assert "own loop shape" in "\n".join(_verdict_paragraph(_verdict_none(best)))  # 18× the floor: as before
