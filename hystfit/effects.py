@@ -1025,7 +1025,8 @@ def solve_coefficients(effect: Effect, phi: np.ndarray, yhats: Sequence[np.ndarr
 
     The normal equations are assembled from Gram products: with T = T_φ[X], X = [ŷ | J], the
     block of the base step is (TJ)ᵀTJ, its right-hand side (TJ)ᵀy − (TJ)ᵀt₀, and
-    ‖y − t₀‖² = yᵀy − 2t₀ᵀy + t₀ᵀt₀ — one matrix product per capture, no copies.
+    ‖y − t₀‖² = yᵀy − 2t₀ᵀy + t₀ᵀt₀ — one matrix product per capture for an effect with regressors, one
+    per batch of captures (:func:`_batches`) for one without.
 
     Returns
     -------
