@@ -631,7 +631,9 @@ def preroll_voltage(cell: Cell, voltage: float, dt: float) -> np.ndarray:
     samples for a rate-independent model; 50 ms + 50 ms (at least 16 + 4 samples) for a
     rate-dependent one.
 
-    A base whose first sample from the virgin state is its state after a monotone ramp (PI,
+    A base that assumes a rest at its first sample (a PI with ``history="relaxed"``,
+    :attr:`~hystfit.models.base.Model.starts_at_rest`) rests at ``voltage`` throughout (4 samples):
+    that is its history. A base whose first sample from the virgin state is its state after a monotone ramp (PI,
     GPI: :attr:`~hystfit.models.base.Model.first_sample_is_a_ramp`) followed by blocks with memory
     (creep, a stage, a delay) rests at ``voltage`` from the first sample on (4 samples): the
     blocks start at rest at the base's output there, as a stage that rested at the initial
@@ -642,6 +644,8 @@ def preroll_voltage(cell: Cell, voltage: float, dt: float) -> np.ndarray:
     """
     model = cell.model
     comp = model.composition
+    if _base(model).starts_at_rest:  # a base at rest at its first sample (a relaxed PI): the history is a rest there
+        return np.full(4, float(voltage))
     if (model.rate_dependent and comp is not None and not comp[0].rate_dependent
             and comp[0].first_sample_is_a_ramp):
         return np.full(4, float(voltage))
@@ -1033,6 +1037,9 @@ class InversionResult:
     #: per cell label, the RMSE of its model on its own identification data (``params.json``'s
     #: metrics; NaN where a file lacks it): how closely the model reproduces the stage at all
     cell_fit_rmse: dict = field(default_factory=dict)
+    #: the history assumed before the target: a rest at the initial voltage (a relaxed PI base,
+    #: :attr:`~hystfit.models.base.Model.starts_at_rest`), else a monotone ramp from 0 V to it
+    at_rest: bool = False
 
     @property
     def limited(self) -> bool:
@@ -1383,7 +1390,13 @@ def invert_target(pf: ParamsFile, target: Target, *, method: str = "interpolate"
     return InversionResult(pf.path, pf.model_name, pf.unit, target, method, pv.voltage, desired.voltage, pv.predicted,
                            pv.metrics, pv.metrics_unlimited, pv.segment_metrics, desired.choices, opts.record(pf),
                            desired.v0, v0_source, pv.clip_spans, pv.slew_spans, tuple(extrap), notes,
-                           time.perf_counter() - t0, cell_fit_rmse=cell_fit_rmses(pf))
+                           time.perf_counter() - t0, cell_fit_rmse=cell_fit_rmses(pf),
+                           at_rest=any(_base(c.model).starts_at_rest for c in pf.cells))
+
+
+def _base(model):
+    """A composite model's base, or the model itself."""
+    return model.composition[0] if model.composition is not None else model
 
 
 def cell_fit_rmses(pf: ParamsFile) -> dict[str, float]:

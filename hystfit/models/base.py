@@ -176,6 +176,13 @@ class Model(ABC):
         n = int(getattr(self, opt))
         return None if n >= 200 else dataclasses.replace(self, **{opt: min(2 * n, 200)})
 
+    @property
+    def starts_at_rest(self) -> bool:
+        """Whether the model's state before a first sample u0 is a rest at u0 (every loop closed there:
+        :attr:`hystfit.models.pi.PI.history` ``"relaxed"``) rather than a history from 0 V: an inverse's
+        pre-roll then holds u0 instead of ramping to it (:func:`hystfit.invert.preroll_voltage`)."""
+        return False
+
     # ----------------------------------------------------------------- stepping (for inverses)
     def initial_state(self, theta: np.ndarray, u0: float, dt: float) -> np.ndarray:
         """Model memory (S,) before the first sample, for input ``u0`` (same reset as :meth:`simulate`)."""

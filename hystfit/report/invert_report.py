@@ -265,8 +265,9 @@ def invert_markdown(res: InversionResult, figures: Sequence[str], command: str |
     if output_file:
         L.append(f"- voltage file: `{output_file}` (`time_s, voltage_V, predicted_displacement_{u}`)")
     L += [f"- table lookup: {res.method}; initial voltage {res.initial_voltage_V:.6g} V "
-          f"({res.initial_voltage_source}; history assumed: from the models' reset state at 0 V, brought "
-          "monotonically to it)",
+          f"({res.initial_voltage_source}; history assumed: "
+          + ("at rest at it, every loop of the hysteresis closed there (the model's history `relaxed`))"
+             if res.at_rest else "from the models' reset state at 0 V, brought monotonically to it)"),
           f"- voltage limits [{res.limits['vmin_V']:.6g}, {res.limits['vmax_V']:.6g}] V "
           f"(vmin {res.limits['vmin_source']}, vmax {res.limits['vmax_source']}; default rule: "
           f"{res.limits['default_rule']}); slew-rate limit: "

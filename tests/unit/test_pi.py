@@ -119,3 +119,40 @@ def test_head_simulator_keeps_the_design_matrix_of_short_inputs_only(monkeypatch
     for n in (500, 321, 1):
         np.testing.assert_array_equal(kept(theta, n), m.simulate_one(theta, u[:n], 1e-3))
         np.testing.assert_array_equal(each(theta, n), kept(theta, n))
+
+
+def test_a_relaxed_history_starts_every_play_at_the_first_input_and_is_the_ramp_model_translated(rng):
+    """``history="relaxed"``: every play operator at u₀ before the first sample (an actuator whose loops
+    closed at u₀), the ramp model translated to u₀ — simulation, stepping, the analytic inverse and the
+    state agree with each other and with a plain-Python play started there; the option survives
+    adapt and refined; an unknown history is refused."""
+    t = np.arange(3000) / 1e4
+    u = 45.0 + np.clip(t / 0.2, 0, 1) * 30.0 * np.sin(2 * np.pi * 10 * t)
+    scale = DataScale.from_arrays([u], [u], [1e-4])
+    m = PI(n_operators=8, history="relaxed").adapt(scale)
+    assert m.history == "relaxed" and PI(history="relaxed").refined().history == "relaxed" and m.starts_at_rest
+    assert not PI().adapt(scale).starts_at_rest
+    th = np.r_[0.3 * np.exp(-m.r / 15.0), 1.5]
+    y = m.simulate_one(th, u, 1e-4)
+
+    def relaxed_play(r):
+        prev, out = u[0], np.empty(u.size)
+        for k, v in enumerate(u):
+            prev = max(v - r, min(v + r, prev))
+            out[k] = prev
+        return out
+
+    want = np.column_stack([relaxed_play(r) for r in m.r]) @ th[:-1] + th[-1]
+    np.testing.assert_allclose(y, want, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(m.initial_state(th, u[0], 1e-4), np.full(8, u[0]))
+    np.testing.assert_allclose(m.invert(th, y, 1e-4), u, rtol=0, atol=1e-9)
+    state, stepped = m.initial_state(th, u[0], 1e-4), []
+    for k in range(1, 400):
+        out, plays = m.step(th, state, u[k - 1], u[k], 1e-4)
+        state = plays[0]
+        stepped.append(out[0])
+    np.testing.assert_allclose(stepped, y[1:400], rtol=0, atol=1e-12)
+    ramp = PI(n_operators=8).adapt(scale)
+    assert abs(ramp.simulate_one(th, u, 1e-4)[0] - y[0]) > 1.0  # the two histories differ at mid-stroke
+    with pytest.raises(ConfigError, match="history must be one of ramp, relaxed"):
+        PI(history="centred")
