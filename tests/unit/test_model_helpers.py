@@ -52,7 +52,7 @@ def _names(cls):
 
 def test_shared_field_definitions():
     names = _names(PlayOperators)
-    assert _names(PI) == names
+    assert _names(PI) == names + ["history"]  # its own: the play states before the first sample
     linear = _names(LinearPartFields)
     assert _names(Lti) == linear + ["method"]
     assert _names(Hammerstein) == names + linear + ["linear_method"]
