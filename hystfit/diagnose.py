@@ -349,6 +349,10 @@ class Diagnosis:
     #: ``--model-option`` values of the named effects' blocks (``dynamics.fn_min_Hz``): a search range
     #: the diagnosis widened (:meth:`hystfit.effects.Effect.handover_options`)
     block_options: dict = field(default_factory=dict)
+    #: the ``--model-option`` values the base was given (the command line's): the hand-over and the
+    #: next-step command use them with :attr:`recommended_options` (a blind test's ``history=relaxed``
+    #: was in params.json but not in the command printed to identify the model anew)
+    given_options: dict = field(default_factory=dict)
 
     @property
     def where_figure_data(self) -> WhereFigureData:

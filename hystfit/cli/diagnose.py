@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -96,6 +96,7 @@ def diagnose(
                 d = run_diagnose(captures, m, o, seed=seed, per_condition=per_condition, effects=names,
                                  settings=settings, progress=cb, executor=cr.pool(default_jobs=1), store=cr.store,
                                  resume=resume, stats=stats, on_where=on_where if output.plots else None)
+            d = replace(d, given_options=dict(mopts))
         except BaseException:
             for f in early:
                 f.cancel()

@@ -934,11 +934,20 @@ def _short_of_the_rule(d: Diagnosis) -> str | None:
             f"{d.noise['sigma']:.3g} {u}); " + "; ".join(why))
 
 
+def _option_text(v) -> str:
+    """A ``--model-option`` value as the command line reads it (a list as JSON, e.g. [0.01,0.1])."""
+    if isinstance(v, (list, tuple)):
+        return "[" + ",".join(f"{x:g}" if isinstance(x, float) else str(x) for x in v) + "]"
+    return f"{v:g}" if isinstance(v, float) else str(v).lower() if isinstance(v, bool) else str(v)
+
+
 def next_step_line(d: Diagnosis, out_dir: Path | str | None = None) -> str:
     """The report's last line: the effects named, the held-out error of the base with all of
     them, and what to run next."""
     u = _u(d.unit)  # in words: µm (the JSON's names keep um)
-    opts = "".join(f" --model-option {k}={v}" for k, v in d.recommended_options.items())
+    # the options the base was given, then those the diagnosis adds: the model the hand-over fitted
+    opts = "".join(f" --model-option {k}={_option_text(v)}" for k, v in {**d.given_options,
+                                                                          **d.recommended_options}.items())
     # identify fits per condition by default; the hand-over is global unless the diagnosis was not
     # (a blind test's "identify it anew" built a look-up table where params.json held one set)
     scope = "" if d.mode == "per-condition" else " --global"

@@ -478,3 +478,16 @@ def test_the_headline_says_which_model_each_number_is_of_when_the_resolution_was
     head = markdown(d, {}).splitlines()[2]
     assert f"as given (n_operators = 10) misses the measurement by **{d.gap['rmse_out']:.4g} µm RMS**" in head
     assert f"(n_operators = {conv['to']}, see *The model to use next*), by {d.gap['heldout_rmse_out']:.4g} µm" in head
+
+
+def test_the_next_step_command_repeats_the_options_the_base_was_given(small_dataset, tmp_path):
+    """A blind-test follow-up: ``--model-option history=relaxed`` was in params.json but not in the
+    printed command to identify the recommended model anew, which then built another model."""
+    out = tmp_path / "dg"
+    r = CliRunner().invoke(app, ["diagnose", str(small_dataset), "--model", "pi", "--model-option", "history=relaxed",
+                                 "--out", str(out), "--max-effects", "1", "--no-plots", "--quiet"])
+    assert r.exit_code == 0, r.output
+    last = (out / "diagnosis.md").read_text().splitlines()[-1]
+    assert "--model pi+delay --model-option history=relaxed" in last, last
+    params = json.loads((out / "params.json").read_text())
+    assert params["model"]["options"]["history"] == "relaxed"
