@@ -907,6 +907,8 @@ def prepare_design(yhats: Sequence[np.ndarray], views: Sequence[CaptureView],
 #: at most this many bytes of filtered columns in one Gram product of :func:`_batch_gram` (a capture
 #: larger than that is one batch on its own, as it was before captures were batched)
 BATCH_BYTES = 32 * 2**20
+#: at most this many bytes of :meth:`_Batch.scratch` arrays kept per design (the rest are made per call)
+RETAINED_BYTES = 64 * 2**20
 
 
 @dataclass(frozen=True, eq=False)
@@ -927,18 +929,21 @@ class _Batch:
     n_rows: int
     buffers: dict = field(default_factory=dict)
 
-    def scratch(self, r: int) -> np.ndarray:
+    def scratch(self, r: int, budget: dict) -> np.ndarray:
         """An (n_rows, r + 1) array whose last column is ``y``: the operator writes its r columns,
-        and one Gram product of it holds TᵀT and Tᵀy. Made once per batch, width and thread (a
-        fresh array of this size costs its page faults at every φ) — unless it is larger than
-        :data:`BATCH_BYTES` (a batch of one long capture): that one is made anew each time, so that
-        a design holds no more than one such array at a time, as before batches."""
+        and one Gram product of it holds TᵀT and Tᵀy. Kept for the batch, width and thread (a fresh
+        array of this size costs its page faults at every φ) while the arrays its design keeps
+        (``budget["retained"]``, bytes) stay within :data:`RETAINED_BYTES`; beyond that it is made
+        anew each time, so that a design of long captures holds no more than one such array at a
+        time, as before batches (a review's find: 24 captures of 20,000 samples kept 182 MB)."""
         key = (threading.get_ident(), r)
         if key in self.buffers:
             return self.buffers[key]
         A = np.empty((self.n_rows, r + 1))
         A[:, r] = self.y
-        if self.n_rows * (r + 1) * 8 <= BATCH_BYTES:
+        size = A.nbytes
+        if budget.get("retained", 0) + size <= RETAINED_BYTES:
+            budget["retained"] = budget.get("retained", 0) + size
             self.buffers[key] = A
         return A
 
@@ -1003,7 +1008,7 @@ def _batch_gram(effect: Effect, design: _Design, batch: _Batch, phi: np.ndarray)
     W = batch.W
     Zs = [design.X[c] if W is None else design.compact[c][0] for c in batch.members]
     r = Zs[0].shape[1]
-    A = batch.scratch(r)
+    A = batch.scratch(r, design.batches)
     at = 0
     for c, Z, rows in zip(batch.members, Zs, batch.rows):
         effect.operator_rows(Z, design.views[c], phi, rows, A, at)

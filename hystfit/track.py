@@ -146,6 +146,7 @@ class _PlayStepper:
 
     def __init__(self, model: PI, theta: np.ndarray, dt: float):
         n = model.n_operators
+        self.model, self.theta, self.dt = model, theta, dt
         self.r = np.ascontiguousarray(model.r)
         self.w = np.ascontiguousarray(np.asarray(theta, float)[:n])
         self.y0 = float(theta[n])
@@ -154,7 +155,9 @@ class _PlayStepper:
         self.hi = np.empty(n)
 
     def start(self, u0: float) -> float:
-        np.maximum(u0 - self.r, np.minimum(u0 + self.r, 0.0), out=self.s)
+        # the model's own state after the first sample: a ramp from 0 V, or a rest at u0 (a relaxed
+        # history — a review's find: the stepper always ramped, 22.5 µm off a relaxed plant at 50 V)
+        self.s[:] = self.model.initial_state(self.theta, u0, self.dt)
         return float(self.s @ self.w) + self.y0
 
     def advance(self, u: float) -> float:

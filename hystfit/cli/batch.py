@@ -44,7 +44,7 @@ def _argv(job, command, path: Path) -> list[str]:
         p = flags[flag][0]
         if key in BATCH_OWNED:
             raise ConfigError(f"{path}: job {job.name!r}: {key} is the batch's own option ({BATCH_OWNED[key]}); "
-                              "remove it from the job")
+                              "remove it from the job or from [defaults]")
         if p.is_flag and not isinstance(value, bool):
             # a text on an on/off option became a second argument: an extra data file (a blind test's
             # plots = "D/a60V_f80Hz.csv" added a condition to the job's table and exited 0)
@@ -137,7 +137,9 @@ def batch(
                 opts[key] = value
         if resume and "--resume" in have:
             opts["resume"] = True
-        if (quiet or json_out) and "--quiet" in have:
+        if json_out and "--quiet" in have:
+            opts["quiet"] = True  # the batch's JSON is stdout's only document (a job's quiet = false printed its table)
+        elif quiet and "--quiet" in have:
             opts.setdefault("quiet", True)
         argv = _argv(replace(job, options=opts), command, jobs_file)
         _checked(command, argv, jobs_file, job.name)

@@ -414,3 +414,10 @@ def test_a_relaxed_history_is_identified_and_inverted_as_a_rest(tmp_path):
     v = pd.read_csv(tmp_path / "v.csv")
     err = truth.simulate_one(th, v["voltage_V"].to_numpy(), dt) - v["predicted_displacement_um"].to_numpy()
     assert np.std(err) < 0.05, np.std(err)
+    # track steps the identified plant from the same rest (a review's find: its PI stepper always ramped
+    # from 0 V, 22.5 µm off a relaxed plant at 50 V): feedforward through its own model tracks exactly
+    r = run("track", params, "--sine", "20,10,3", "--offset", "15", "-c", "ff", "--out", tmp_path / "trk",
+            "--no-plots", "--quiet")
+    assert r.exit_code == 0, r.output
+    (ff,) = json.loads((tmp_path / "trk" / "summary.json").read_text())["runs"]
+    assert ff["metrics"]["rmse_um"] < 1e-6, ff["metrics"]

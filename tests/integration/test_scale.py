@@ -387,6 +387,17 @@ out = "res/check"
     r, rows = _batch_rows(jobs)
     assert r.exit_code == 4, r.output
     assert (rows["lut"]["exit_code"], rows["typo"]["exit_code"], rows["check"]["exit_code"]) == (0, 2, 0)
+    # a job's quiet = false does not print its table into the batch's JSON (a review's find)
+    r2, _ = _batch_rows(_write(tmp_path / "loud.toml", f"""
+[[job]]
+name = "loud"
+command = "identify"
+data = "{FILES[0]}"
+out = "res/loud"
+plots = false
+quiet = false
+"""))
+    assert r2.exit_code == 0 and json.loads(r2.stdout)["jobs"][0]["status"] == "ok", r2.stdout
     # a failed job's row carries its error line (a blind test's script had only stderr to read it from)
     assert "unknown model 'nosuchmodel'" in rows["typo"]["error"] and rows["lut"]["error"] is None
     assert (tmp_path / "res" / "lut" / "params.json").exists() and (tmp_path / "res" / "check").is_dir()

@@ -274,6 +274,7 @@ def test_captures_batched_into_one_gram_product_give_the_per_capture_normal_equa
 
     if batch_bytes is not None:
         monkeypatch.setattr(eff, "BATCH_BYTES", batch_bytes)
+        monkeypatch.setattr(eff, "RETAINED_BYTES", 0)  # and no array kept: each made per call (a review's find)
     rng = np.random.default_rng(12)
     k = 6
     views, yhats, jac, cols = [], [], [], []
@@ -309,6 +310,10 @@ def test_captures_batched_into_one_gram_product_give_the_per_capture_normal_equa
             assert got[3] == pytest.approx(sse, rel=1e-9, abs=1e-9)
             again = solve_coefficients(effect, phi, design=des, bounded=False)  # the cached products and buffers
             np.testing.assert_array_equal(again[2], got[2])
+        kept = sum(a.nbytes for bt in batches for a in bt.buffers.values())
+        assert kept == des.batches.get("retained", 0)
+        if effect.name == "dynamics":  # the stage's filtered rows: kept within the budget, none without one
+            assert (kept == 0) == (batch_bytes is not None)
 
 
 def test_the_default_operator_rows_are_the_operator_at_those_rows():

@@ -120,3 +120,18 @@ def test_repeated_runs_are_also_compared_condition_by_condition():
     assert few.rows[0].versus_next.by_condition == {"lower_at": 3, "n_conditions": 3, "test": "", "p_value": None,
                                                     "consistently_below": None}
     assert json.loads(json.dumps(g.to_dict(), allow_nan=False))["rows"][0]["versus_next"]["by_condition"]["lower_at"] == 6
+
+
+def test_a_significant_wilcoxon_in_the_other_direction_is_not_consistently_below():
+    """A review's find: the two-sided test called an entry "consistently below" the next where it was
+    lower at 2 of 20 conditions only (much lower there, so its mean was lower): below only where the
+    typical (median) difference says so."""
+    from hystfit.compare import by_condition
+
+    a = np.r_[np.full(18, 1.1), 0.0, 0.0]
+    b = np.r_[np.full(18, 1.0), 3.0, 3.0] + 0.001 * np.arange(20)
+    assert a.mean() < b.mean()
+    t = neighbour_test(a, b, True, "x")
+    assert t.test == "wilcoxon" and t.p_value < 0.05 and t.verdict == "not_consistently_below" and t.lower_at == 2
+    c = by_condition(a, b)
+    assert c["p_value"] < 0.05 and c["consistently_below"] is False and c["lower_at"] == 2
