@@ -1052,9 +1052,16 @@ class InversionResult:
         model follows its inverse (≈ 0 for an exact inverse such as PI's); a measured tracking error
         is of this order, more where the target leaves the cells' identified range."""
         if choice is not None:
-            return math.sqrt(sum(c.weight * self.cell_fit_rmse.get(c.label, math.nan) ** 2 for c in choice.cells))
+            # cells whose file does not record their fit are left out, the others' weights renormalised
+            known = [(c.weight, self.cell_fit_rmse.get(c.label, math.nan)) for c in choice.cells]
+            known = [(w, e) for w, e in known if math.isfinite(e)]
+            total = sum(w for w, _ in known)
+            return math.sqrt(sum(w * e * e for w, e in known) / total) if total > 0 else math.nan
         n = self.target.n
-        return math.sqrt(sum((ch.segment.stop - ch.segment.start) / n * self.fit_rmse(ch) ** 2 for ch in self.choices))
+        parts = [((ch.segment.stop - ch.segment.start) / n, self.fit_rmse(ch)) for ch in self.choices]
+        parts = [(w, e) for w, e in parts if math.isfinite(e)]
+        total = sum(w for w, _ in parts)
+        return math.sqrt(sum(w * e * e for w, e in parts) / total) if total > 0 else math.nan
 
     def to_table(self) -> Columns:
         """``time_s, voltage_V, predicted_displacement_<unit>``: the file for the amplifier
