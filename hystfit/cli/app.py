@@ -59,6 +59,24 @@ class OneLineErrors(TyperGroup):
             sys.exit(stop_code(stop))
         sys.exit(code if isinstance(code, int) else 0)
 
+    def resolve_command(self, ctx, args):
+        name, cmd, rest = super().resolve_command(ctx, args)
+        if cmd is not None:
+            _refuse_both_halves(cmd, rest, type(ctx)(cmd, info_name=name, parent=ctx))
+        return name, cmd, rest
+
+
+def _refuse_both_halves(cmd, args: list[str], ctx) -> None:
+    """Both halves of an on/off pair on one command line (``--per-condition --global``,
+    ``--plots --no-plots``) are a usage error, not "the last one wins" (a blind test's find:
+    ``identify --per-condition --global`` fitted globally without a word)."""
+    given = set(args[: args.index("--")] if "--" in args else args)
+    for p in cmd.params:
+        on, off = [o for o in getattr(p, "opts", ()) if o in given], [o for o in getattr(p, "secondary_opts", ())
+                                                                         if o in given]
+        if on and off:
+            raise click_exceptions.UsageError(f"{on[0]} and {off[0]} contradict each other; give one of them", ctx)
+
 
 app = typer.Typer(
     name="hystfit",

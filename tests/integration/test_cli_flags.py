@@ -118,3 +118,18 @@ def test_synth_says_that_strength_scales_the_noise_too(tmp_path):
     assert "note: --strength 5 scales the sensor noise too" in r.stderr and "--noise SIGMA" in r.stderr
     r = runner.invoke(app, args + ["--noise", "0.008"])
     assert r.exit_code == 0 and "scales the sensor noise" not in r.stderr
+
+
+@pytest.mark.parametrize("pair", [("--per-condition", "--global"), ("--plots", "--no-plots"), ("--global", "--per-condition")])
+def test_both_halves_of_an_on_off_pair_are_a_usage_error(tmp_path, pair):
+    """A blind test's find: ``identify --per-condition --global`` fitted globally without a word (the last
+    one won). Both halves of a pair on one command line are one error line, exit 2, nothing written."""
+    from typer.testing import CliRunner
+
+    from hystfit.cli import app
+
+    r = CliRunner().invoke(app, ["identify", str(SAMPLE / "a20V_f10Hz.csv"), *pair, "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2
+    on, off = sorted(pair, key=lambda f: f in ("--global", "--no-plots"))  # said as the option declares them
+    assert f"{on} and {off} contradict each other; give one of them (see 'hystfit identify --help')" in r.output
+    assert not (tmp_path / "o").exists()
