@@ -65,8 +65,8 @@ class PI(Model, PlayOperators):
         decaying oscillation about it, or any history whose loops closed there; the ramp model
         translated to u₀ (play operators commute with a shift of input and state), so the inverse is
         the ramp model's with its plays at the output's first value. A capture that starts at
-        mid-stroke under the other history fits worse than the data allow (a blind test: 0.17–0.20 µm
-        against 0.03–0.04 µm with the matching state, noise 0.02 µm).
+        mid-stroke under the other history fits far worse than the data allow
+        (``python benchmarks/pi_history.py``: 0.77–2.50 µm against 0.02 µm, noise 0.02 µm).
     nonnegative : constrain the weights to one sign (the physically sensible, invertible case):
         w_j ≥ 0 when the output rises with the input, w_j ≤ 0 when it falls (an inverted sensor;
         the sign is that of the data's input–output covariance, :attr:`DataScale.sign`).
