@@ -349,8 +349,12 @@ class Dynamics(Block):
         return {"fn_min_Hz": lo} if lo < usual * (1.0 - 1e-9) else {}
 
     def absent_at(self, phi):
-        """f_n at the top of its search range (0.45 f_s or the range set): no resonance inside it."""
-        return float(phi[0]) >= self.fn_range[1] * (1.0 - 1e-6)
+        """f_n at the top of its search range (0.45 f_s or the range set), or ζ at the top of its own:
+        no resonance inside them. Both are the one direction in which a stage fades into a pure lag
+        (its low-frequency group delay 2ζ/ω_n kept while f_n → ∞ or ζ → ∞): a search bounded in ζ
+        follows it along ζ's bound to an f_n inside the range (the gradient polish does: sample_data's
+        first step, f_n 4433 Hz at ζ = 2, where a Nelder–Mead stuck in the corner at 4500 Hz)."""
+        return float(phi[0]) >= self.fn_range[1] * (1.0 - 1e-6) or float(phi[1]) >= self.zeta_max * (1.0 - 1e-6)
 
     def signature(self, yhat, view):
         d1 = np.gradient(np.asarray(yhat, dtype=np.float64), view.dt)
@@ -362,7 +366,7 @@ class Dynamics(Block):
         fmax = frequency_of_excitation(scale_of_views(views))
         out = {"fn_Hz": fn, "zeta": z,
                "group_delay_low_frequency_us": 1e6 * z / (math.pi * fn),
-               "search_fn_Hz": list(self.fn_range)}
+               "search_fn_Hz": list(self.fn_range), "search_zeta": [self.zeta_min, self.zeta_max]}
         if np.isfinite(fmax):
             r = fmax / fn
             h = 1.0 / complex(1.0 - r * r, 2.0 * z * r)

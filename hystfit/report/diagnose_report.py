@@ -690,7 +690,7 @@ def _md_intro(d: Diagnosis, figs: dict[str, str]) -> list[str]:
           "shows what that many extra parameters gain by chance; and (c) the gap is meaningfully above the noise "
           f"(√(before² − floor²) ≥ {s.min_excess_ratio:g} × floor); (d) what it adds to the held-out prediction is "
           f"itself at least {s.min_excess_ratio:g} × floor (RMS); and (e) its fit does not end on the edge of "
-          "its search range where the effect is absent (a stage at the top of its f_n range). An effect short of "
+          "its search range where the effect is absent (a stage with f_n or ζ at the top of its range). An effect short of "
           "(a) alone is named *together with* another when each, on top of the other, passes the rule (the "
           "two-effect look-ahead: their parts of the gap add in quadrature, so each alone can stay below the "
           "threshold). Among the effects that pass, the largest "

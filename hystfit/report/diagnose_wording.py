@@ -243,8 +243,12 @@ def _dynamics(ev: "Evidence", sig: str, u: str) -> list[str]:
            if "phase_lag_at_highest_excitation_deg" in p else "")
     lo, hi = (p.get("search_fn_Hz") or [None, None])[:2]
     edge = ""  # a fit that ends on its search range's edge found no interior optimum (a blind test's 4500 Hz)
+    z_lo, z_hi = (p.get("search_zeta") or [None, None])[:2]
     if hi is not None and p["fn_Hz"] >= hi * (1 - 1e-6):
         edge = f", at the top of its search range ({lo:.4g}…{hi:.4g} Hz): the data show no resonance inside it"
+    elif z_hi is not None and p["zeta"] >= z_hi * (1 - 1e-6):
+        edge = (f", ζ at the top of its search range ({z_lo:.3g}…{z_hi:.3g}): overdamped, the data show no "
+                "resonance, only a lag")
     elif lo is not None and p["fn_Hz"] <= lo * (1 + 1e-6):
         edge = f", at the bottom of its search range ({lo:.4g}…{hi:.4g} Hz)"
     return [f"{sig} (lag ∝ dŷ/dt plus gain rise ∝ d²ŷ/dt²)", *_with_frequency(ev),
@@ -358,8 +362,8 @@ def not_named_reasons(passes: dict, reduction: float, improvement: float, placeb
         out.append("what it adds to the prediction on held-out data is below a quarter of the noise floor: too small "
                    "to tell from the sensor noise, as a gap that small would be (whatever share of the gap it removes)")
     if passes.get("inside_search_range") is False:
-        out.append("its fit ends on the edge of its search range where the effect is absent (a stage: f_n at the top, "
-                   "no resonance inside the range); what it gains there is another shape's, e.g. a small lag")
+        out.append("its fit ends on the edge of its search range where the effect is absent (a stage: f_n or ζ at the top "
+                   "of its range, no resonance inside it); what it gains there is another shape's, e.g. a small lag")
     return out
 
 

@@ -104,6 +104,8 @@ def test_a_stage_at_the_top_of_its_search_range_is_never_named():
 
     stage = Dynamics(fn_min_Hz=200.0, fn_max_Hz=4500.0)
     assert stage.absent_at(np.array([4500.0, 1.0])) and not stage.absent_at(np.array([632.0, 0.17]))
+    # ζ at the top of its range is the same pure lag, reached along ζ's bound with f_n inside the range
+    assert stage.absent_at(np.array([4433.0, 2.0])) and not stage.absent_at(np.array([4433.0, 1.9]))
     ctx = SimpleNamespace(before=0.05, sigma=0.01, fit_before=0.05, summary={})
 
     def judged(fn):

@@ -223,6 +223,14 @@ def test_a_stage_fitted_on_the_edge_of_its_search_range_is_said_to_be_there():
     assert "at the bottom of its search range" in line(160.0)
     assert "search range" not in line(1336.0)
 
+    def at_zeta(z):
+        ev = SimpleNamespace(params={"fn_Hz": 4433.0, "zeta": z, "search_fn_Hz": [160.0, 4500.0],
+                                     "search_zeta": [0.02, 2.0]}, frequency_exponent=None)
+        return _dynamics(ev, "sig", "um")[-1]
+
+    assert "ζ at the top of its search range (0.02…2): overdamped" in at_zeta(2.0)
+    assert "search range" not in at_zeta(1.2)
+
 
 def test_a_candidate_without_a_placebo_is_worded_as_such_and_never_blamed_on_one():
     """A non-contender has no placebo (``beats_placebo`` None, NaN gain): its evidence says why, its
