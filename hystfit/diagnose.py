@@ -2415,7 +2415,8 @@ def resolution_check(caps, d: _Design, model: Model, optimizer: Optimizer, seed:
     if fine is None or not _excess(before, sigma) > sigma:  # as in converge_resolution
         return None
     if refit is None:
-        refit = _refit_finer(caps, d, fine, optimizer, seed, gap, sel.chosen, sigma, settings, executor)
+        refit = _refit_finer(caps, d, fine, optimizer, seed, gap, sel.chosen, sigma, settings, executor,
+                             searched_starts(sel.state))
     else:
         key = _fine_key(fine, optimizer, seed)
         if key is not None:
@@ -2439,10 +2440,22 @@ class _FinerRefit:
     fits: list
 
 
+def searched_starts(state: "_State | None") -> dict[str, np.ndarray]:
+    """Per effect of ``state``'s chain with searched parameters, its φ: where the refit of that
+    effect on a finer base starts (:func:`_refit_finer`)."""
+    if state is None:
+        return {}
+    return {link.effect.name: np.asarray(link.phi, float).copy() for link in state.chain if np.size(link.phi)}
+
+
 def _refit_finer(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int, gap: _Gap, chosen: Sequence[str],
-                 sigma: float, settings: "DiagnoseSettings", executor=None) -> _FinerRefit:
+                 sigma: float, settings: "DiagnoseSettings", executor=None, starts: dict | None = None) -> _FinerRefit:
     """The work of a :func:`resolution_check` of the base ``fine``: its fits on the fit part, then
-    the ``chosen`` effects refitted on it in order (each search grid scored over the processes)."""
+    the ``chosen`` effects refitted on it in order. An effect with searched parameters φ searches
+    around its φ on the coarser base (``starts``, :func:`searched_starts` of the selection's state:
+    the plant's stage or delay does not move with the base's resolution) — a local search and its
+    polish, which widen the range as a full search would where they end on a bound the data chose
+    (:func:`_augment`); without a start, its whole search grid, scored over the processes."""
     fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
     key = _fine_key(fine, optimizer, seed)
     # the states of the checks before (the same base, floor and first effects: the same refits) are
@@ -2459,16 +2472,21 @@ def _refit_finer(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int,
         if at not in states:
             xs, lin = _linearize(state, caps, views)
             design = prepare_design(xs, views, lin)
-            grids = _grid_scores([eff], scoring_design(design))  # split over the processes
-            states[at] = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations,
-                                  grid_scores=grids.get(eff.name))[0]
+            start = (starts or {}).get(eff.name)
+            if start is not None:
+                states[at] = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations, phi0=start)[0]
+            else:
+                grids = _grid_scores([eff], scoring_design(design))  # split over the processes
+                states[at] = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations,
+                                      grid_scores=grids.get(eff.name))[0]
         state = states[at]
     return _FinerRefit(state, _predictions(state, caps, views), fits)
 
 
-def _speculate(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, gap: _Gap, chosen, sigma: float,
-               settings: "DiagnoseSettings", executor):
-    """The :func:`_refit_finer` of the doubling after the one of ``model`` (``model`` refined twice),
+def _speculate(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, gap: _Gap, sel: "_Selection",
+               sigma: float, settings: "DiagnoseSettings", executor):
+    """The :func:`_refit_finer` of the doubling after the one of ``model`` (``model`` refined twice)
+    for the selection ``sel`` (its named effects, started from their φ in its state),
     started in a forked child while this process checks the first doubling (:func:`fork_call`), or
     None: no such resolution, one process, or base fits that would run on a pool or a cluster
     (a forked child must not share them)."""
@@ -2478,7 +2496,9 @@ def _speculate(caps, d: _Design, model: Model, optimizer: Optimizer, seed: int, 
                                                                            or len(d.group_idx) <= 1))
     if finer is None or not inline:
         return None
-    return fork_call(lambda: _refit_finer(caps, d, finer, optimizer, seed, gap, chosen, sigma, settings, executor),
+    starts = searched_starts(sel.state)
+    return fork_call(lambda: _refit_finer(caps, d, finer, optimizer, seed, gap, sel.chosen, sigma, settings, executor,
+                                          starts),
                      SELECTION_WORKERS)
 
 
@@ -2505,7 +2525,7 @@ def resolution_check_converged(caps, d: _Design, model: Model, optimizer: Optimi
     numbers as one check after the other."""
     if model.refined() is None or not _excess(_rmse(sel.preds, d.views, "test"), sigma) > sigma:
         return None  # as resolution_check would say at once: nothing to compute ahead
-    ahead = _speculate(caps, d, model, optimizer, seed, gap, sel.chosen, sigma, settings, executor)
+    ahead = _speculate(caps, d, model, optimizer, seed, gap, sel, sigma, settings, executor)
     try:
         res = resolution_check(caps, d, model, optimizer, seed, gap, sel, sigma, settings, executor)
         if res is None:
@@ -2517,7 +2537,7 @@ def resolution_check_converged(caps, d: _Design, model: Model, optimizer: Optimi
                 break  # resolution_check would say None at once: the refit ahead is not needed
             refit, ahead = (ahead.result() if ahead is not None else None), None
             if refit is not None:  # the check of the doubling after it: its refit is started now
-                ahead = _speculate(caps, d, fine, optimizer, seed, gap, sel.chosen, sigma, settings, executor)
+                ahead = _speculate(caps, d, fine, optimizer, seed, gap, sel, sigma, settings, executor)
             nxt = resolution_check(caps, d, fine, optimizer, seed, gap, replace(sel, preds=cur.preds), sigma, settings,
                                    executor, refit=refit)
             if nxt is None:
@@ -2650,7 +2670,7 @@ class _Refiner:
         self.model, self.check, self.checks = model, check, []
 
     def __call__(self, state, preds, chosen):
-        res = self.check(self.model, _Selection((), tuple(chosen), (), preds))
+        res = self.check(self.model, _Selection((), tuple(chosen), (), preds, state))
         if res is None:
             return None
         self.checks.append(res.info)

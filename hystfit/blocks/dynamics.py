@@ -217,6 +217,11 @@ def invert_second_order(y: np.ndarray, fn_Hz: float, zeta: float, dt: float) -> 
     return y + c
 
 
+#: how close to a bound of its search range a fitted f_n or ζ is "on" it (relative): a polish that
+#: follows the SSE's gradient stops within its tolerance of a bound it is pushed against (ζ
+#: 1.9998 for a bound of 2), never exactly on it as a Nelder–Mead clipped into a corner did
+EDGE_RTOL = 1e-3
+
 #: the lowest f_n a search range is widened to (:meth:`Dynamics.widened`)
 FN_FLOOR_HZ = 1.0
 
@@ -337,7 +342,7 @@ class Dynamics(Block):
         it: that bound is twice the fastest drive (:func:`fn_search_range`), a guess that a slower
         stage (a blind test's 400 Hz under a 300 Hz drive, fitted at the 600 Hz bound) proves wrong."""
         lo, hi = self.fn_range
-        if float(phi[0]) > lo * (1.0 + 1e-6) or lo <= FN_FLOOR_HZ * (1.0 + 1e-9):
+        if float(phi[0]) > lo * (1.0 + EDGE_RTOL) or lo <= FN_FLOOR_HZ * (1.0 + 1e-9):
             return None
         step = 10.0 ** math.floor(math.log10(lo / 4.0) - 2.0)  # three significant digits, rounded down
         return replace(self, fn_min_Hz=max(float(f"{math.floor(lo / 4.0 / step) * step:.3g}"), FN_FLOOR_HZ),
@@ -354,7 +359,8 @@ class Dynamics(Block):
         (its low-frequency group delay 2ζ/ω_n kept while f_n → ∞ or ζ → ∞): a search bounded in ζ
         follows it along ζ's bound to an f_n inside the range (the gradient polish does: sample_data's
         first step, f_n 4433 Hz at ζ = 2, where a Nelder–Mead stuck in the corner at 4500 Hz)."""
-        return float(phi[0]) >= self.fn_range[1] * (1.0 - 1e-6) or float(phi[1]) >= self.zeta_max * (1.0 - 1e-6)
+        return (float(phi[0]) >= self.fn_range[1] * (1.0 - EDGE_RTOL)
+                or float(phi[1]) >= self.zeta_max * (1.0 - EDGE_RTOL))
 
     def signature(self, yhat, view):
         d1 = np.gradient(np.asarray(yhat, dtype=np.float64), view.dt)

@@ -244,12 +244,14 @@ def _dynamics(ev: "Evidence", sig: str, u: str) -> list[str]:
     lo, hi = (p.get("search_fn_Hz") or [None, None])[:2]
     edge = ""  # a fit that ends on its search range's edge found no interior optimum (a blind test's 4500 Hz)
     z_lo, z_hi = (p.get("search_zeta") or [None, None])[:2]
-    if hi is not None and p["fn_Hz"] >= hi * (1 - 1e-6):
+    from ..blocks.dynamics import EDGE_RTOL
+
+    if hi is not None and p["fn_Hz"] >= hi * (1 - EDGE_RTOL):
         edge = f", at the top of its search range ({lo:.4g}…{hi:.4g} Hz): the data show no resonance inside it"
-    elif z_hi is not None and p["zeta"] >= z_hi * (1 - 1e-6):
+    elif z_hi is not None and p["zeta"] >= z_hi * (1 - EDGE_RTOL):
         edge = (f", ζ at the top of its search range ({z_lo:.3g}…{z_hi:.3g}): overdamped, the data show no "
                 "resonance, only a lag")
-    elif lo is not None and p["fn_Hz"] <= lo * (1 + 1e-6):
+    elif lo is not None and p["fn_Hz"] <= lo * (1 + EDGE_RTOL):
         edge = f", at the bottom of its search range ({lo:.4g}…{hi:.4g} Hz)"
     return [f"{sig} (lag ∝ dŷ/dt plus gain rise ∝ d²ŷ/dt²)", *_with_frequency(ev),
             f"fitted stage: f_n = {p['fn_Hz']:.4g} Hz, ζ = {p['zeta']:.3g}{lag}{edge}"]

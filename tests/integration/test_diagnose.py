@@ -312,7 +312,10 @@ def test_cli_writes_the_json_contract(small_dataset, tmp_path):
         assert e["reduction"] == pytest.approx(min(max((b - a) / (b - floor), 0.0), 1.0), abs=1e-12)
         assert b == pytest.approx(d["gap"]["heldout_rmse_um"], rel=1e-12)  # step 1 starts from the base's gap
     assert d["verdict"] in {"dynamics", "creep", "asymmetry", "drift", "delay", "none"}
-    assert d["verdict"] == "delay" and effects[0]["params"]["delay_ms"] == pytest.approx(0.3, abs=0.01)
+    # the verdict, not necessarily the first row: a stage (a lag at 782 Hz, ζ 0.76) removes about as much and
+    # loses to the delay's fewer parameters
+    named = next(e for e in effects if e["effect"] == d["verdict"])
+    assert d["verdict"] == "delay" and named["params"]["delay_ms"] == pytest.approx(0.3, abs=0.01)
     md = (out / "diagnosis.md").read_text()
     assert "Verdict: `delay`" in md and "held-out" in md
     figs = sorted(p.name for p in (out / "figures").iterdir())
@@ -456,10 +459,11 @@ def test_the_verdict_of_an_effect_named_by_the_look_ahead_says_why_it_is_below_t
 
     d = diagnose(load_captures([small_dataset], LoadOptions()), PI(), Auto(), seed=0,
                  settings=DiagnoseSettings(max_effects=1))
-    first = d.effects[0]
+    first = next(e for e in d.effects if e.effect == d.verdict)
     joint = {"with": "creep", "heldout_rmse_after": 0.01, "reduction": 0.6, "reduction_on_top_of_other": 0.35,
              "threshold": 0.3}
-    paired = dc_replace(d, effects=(dc_replace(first, reduction=0.27, joint=joint),) + d.effects[1:])
+    paired = dc_replace(d, effects=tuple(dc_replace(e, reduction=0.27, joint=joint) if e is first else e
+                                         for e in d.effects))
     verdict = next(line for line in markdown(paired, {}).splitlines() if line.startswith("**Verdict:"))
     assert "removes **27 %**" in verdict and "Named together with `creep`" in verdict
     assert "Named together" not in next(line for line in markdown(d, {}).splitlines() if line.startswith("**Verdict:"))
