@@ -142,6 +142,34 @@ COARSE_STRIDE = 4
 COARSE_MIN_ROWS = 8000
 COARSE_KEEP_SHARE = 0.05
 COARSE_KEEP_MIN = 4
+#: Such a grid with a mesh shape (:meth:`Effect.search_grid_shape`) is ranked from coarse to fine:
+#: first every COARSE_SUBGRID_STEP-th point along each axis (and the last: the range's edges), then
+#: the neighbours (±1 along each axis) of the COARSE_REFINE_TOP best of those (:func:`subgrid`,
+#: :func:`grid_neighbours`); the points never scored rank last.
+COARSE_SUBGRID_STEP = 2
+COARSE_REFINE_TOP = 3
+
+
+def subgrid(shape: tuple[int, ...], step: int = COARSE_SUBGRID_STEP) -> np.ndarray:
+    """Flat indices (C order) of the mesh of ``shape`` at every ``step``-th point along each axis
+    and at its last point."""
+    axes = [np.unique(np.r_[np.arange(0, n, step), n - 1]) for n in shape]
+    mesh = np.meshgrid(*axes, indexing="ij")
+    return np.sort(np.ravel_multi_index(tuple(m.ravel() for m in mesh), shape))
+
+
+def grid_neighbours(shape: tuple[int, ...], flat: Sequence[int]) -> np.ndarray:
+    """Flat indices (C order) of the points of the mesh of ``shape`` at most one step from one of
+    ``flat`` along every axis (the points themselves included), sorted."""
+    out = set()
+    offsets = np.stack(np.meshgrid(*[np.arange(-1, 2)] * len(shape), indexing="ij"), -1).reshape(-1, len(shape))
+    for i in flat:
+        at = np.array(np.unravel_index(int(i), shape))
+        for o in offsets:
+            p = at + o
+            if np.all(p >= 0) and np.all(p < np.asarray(shape)):
+                out.add(int(np.ravel_multi_index(tuple(p), shape)))
+    return np.array(sorted(out), dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -313,6 +341,12 @@ class Effect(ABC):
     def search_grid(self) -> np.ndarray:
         """Start candidates for φ, (G, m). The default for m = 0 is one empty candidate."""
         return np.empty((1, 0))
+
+    def search_grid_shape(self) -> tuple[int, ...] | None:
+        """The mesh :meth:`search_grid` is the C-order flattening of (one size per searched
+        parameter), or None (the default: no mesh, e.g. a grid of one parameter's knots). A mesh's
+        ranking on a subsample of rows goes from coarse to fine (:func:`subgrid`)."""
+        return None
 
     def layout(self) -> tuple[int, int]:
         """(k_s, k_l): number of shared and of per-capture linear coefficients."""
