@@ -554,13 +554,23 @@ def load_for_command(data, options, output: OutputArgs, *, recursive: bool, ahea
     """The captures of a command (``options``: :meth:`CaptureArgs.load_options`): loaded with a
     progress line when slow, the loader's notes printed. ``ahead``: what the command loads or
     starts while a forked child reads them (:func:`hystfit.io.load_captures`; the progress line's
-    thread starts after that fork, which it would otherwise prevent)."""
+    thread starts after that fork, which it would otherwise prevent).
+
+    In the console script's process (:func:`~hystfit.cli.app.process_ends_with_command`) what it
+    has imported and read by then lives until the command ends: it is frozen out of the garbage
+    collector (:func:`gc.freeze`), whose full collections would walk numba's, scipy's and the
+    captures' objects again and again (a diagnosis of sample_data ran three, 18 ms each). Never
+    in a program that calls the CLI and goes on (a test suite's ``CliRunner``)."""
+    import gc
+
     from ..io import load_captures
     from .app import process_ends_with_command
 
     captures = load_captures(data, options, recursive=recursive, ahead=ahead,
                              meanwhile=lambda: phase(output.chatty, "loading the captures"),
                              abandon_on_error=process_ends_with_command())
+    if process_ends_with_command():
+        gc.freeze()
     if not output.quiet:
         print_capture_notes(captures)
     return captures

@@ -312,13 +312,19 @@ def _serve(conn) -> None:
     (drawn when no job waits), ``("finish", n_jobs)`` draws what is left and replies with every
     job's path, in order, or the first job's error. Between messages the queue is drawn one job at
     a time, so a job sent while this process works is drawn while it works."""
-    _import_plotting(lean=True)
-    if not conn.poll():  # idle: warm up now; with jobs already waiting, their own first figures do it
-        _warm_up()
-    # what is imported lives as long as the server: out of the garbage collector's walks. A figure
-    # makes thousands of small objects, and each full collection walked matplotlib's and numpy's
-    # modules too: ≈ 20 % of drawing a diagnosis' figures (benchmarks/diagnose_phases.py --mode figures)
-    gc.freeze()
+    # what is imported lives as long as the server: no collection while matplotlib is imported (one
+    # full collection walked its objects, ≈ 70 ms beside the command's own start-up on the other
+    # core), then out of the garbage collector's walks. A figure makes thousands of small objects,
+    # and each full collection walked matplotlib's and numpy's modules too: ≈ 20 % of drawing a
+    # diagnosis' figures (benchmarks/diagnose_phases.py --mode figures)
+    gc.disable()
+    try:
+        _import_plotting(lean=True)
+        if not conn.poll():  # idle: warm up now; with jobs already waiting, their own first figures do it
+            _warm_up()
+    finally:
+        gc.freeze()
+        gc.enable()
     stream = _ServerStream()
     while True:
         if stream.waiting() and not conn.poll():
