@@ -36,6 +36,23 @@ def hold_across_forks(lock) -> None:
         _held_across_forks.append(lock)
 
 
+def _fork_frozen() -> int:
+    """``os.fork()`` with this process's objects frozen out of the garbage collector across it
+    (:func:`gc.freeze`, as Python's documentation advises for a fork without exec): they stay so in
+    the child, whose first full collection walked them all (≈ 70 ms after diagnose's imports) and
+    copied every page it wrote; this process unfreezes them right after, unless it had frozen
+    objects itself before (then they stay frozen, as it chose)."""
+    frozen = gc.get_freeze_count()
+    gc.freeze()
+    pid = -1
+    try:
+        pid = os.fork()
+    finally:
+        if pid != 0 and not frozen:
+            gc.unfreeze()
+    return pid
+
+
 def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
     """``os.fork()``, with ``handlers`` (signal → handler, as :func:`signal.signal` takes) installed
     in the child before any of :data:`HELD_SIGNALS` can be handled in it.
@@ -57,14 +74,7 @@ def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
     the parent and 0 in the child, as ``os.fork``; raises ``OSError`` as it does (the handlers and
     mask put back). Outside the main thread (where handlers cannot be set) only the block is used.
     The locks of :func:`hold_across_forks` are held across the fork and free in both processes after it.
-
-    The objects of this process are frozen out of the garbage collector across the fork
-    (:func:`gc.freeze`, as Python's documentation advises for a fork without exec) and stay so in
-    the child: its collections walk only the objects it makes itself. Without, a child's first
-    full collection walked every object of the parent (numba's, scipy's, the data's: ≈ 70 ms
-    after a diagnosis' imports) and, writing into each one's header, copied every page that holds
-    them. This process unfreezes them again right after the fork, unless it had frozen objects
-    itself before (then it keeps them frozen, as it chose).
+    The fork itself is :func:`_fork_frozen`'s.
     """
     main = threading.current_thread() is threading.main_thread()
     held = []  # first, before the signals are held: a wait for a stuck writer can be interrupted
@@ -106,19 +116,13 @@ def fork_with_handlers(handlers: Mapping[int, Handler]) -> int:
             elif handler == signal.SIG_DFL:
                 os.kill(os.getpid(), signum)
 
-    frozen = gc.get_freeze_count()
     try:
-        gc.freeze()  # the child's collections leave out every object it inherits (see the docstring)
-        pid = os.fork()
+        pid = _fork_frozen()
     except BaseException:
-        if not frozen:
-            gc.unfreeze()
         for lock in reversed(held):
             lock.release()
         put_back()
         raise
-    if pid != 0 and not frozen:
-        gc.unfreeze()
     for lock in reversed(held):  # in the child too: its copies, held by its one thread, this one
         lock.release()
     if pid == 0:

@@ -272,3 +272,38 @@ def test_forked_children_leave_when_their_parent_is_killed(how):
     else:
         os.killpg(group, signal.SIGKILL)
         pytest.fail("a forked child outlived its killed parent by 10 s")
+
+
+def test_a_forked_child_keeps_its_parents_objects_frozen_and_the_parent_does_not():
+    """fork_with_handlers freezes this process's objects across the fork: the child's collections
+    leave them out (its freeze count is theirs), this process's are back in its collections at once
+    — unless it had frozen objects itself before, which then stay frozen."""
+    import gc
+    import os
+    import signal
+
+    from hystfit._process import fork_with_handlers
+
+    def child_count() -> int:
+        r, w = os.pipe()
+        pid = fork_with_handlers({signal.SIGINT: signal.SIG_IGN})
+        if pid == 0:
+            os.write(w, str(gc.get_freeze_count()).encode())
+            os._exit(0)
+        os.close(w)
+        got = int(os.read(r, 64).decode())
+        os.close(r)
+        os.waitpid(pid, 0)
+        return got
+
+    was = gc.get_freeze_count()
+    gc.unfreeze()
+    try:
+        assert child_count() > 1000 and gc.get_freeze_count() == 0
+        gc.freeze()
+        before = gc.get_freeze_count()  # (a frozen object freed meanwhile leaves the count)
+        assert child_count() > 0.9 * before and gc.get_freeze_count() > 0.9 * before  # the parent's own stays
+    finally:
+        gc.unfreeze()
+        if was:
+            gc.freeze()
