@@ -40,15 +40,17 @@ def _fork_frozen() -> int:
     """``os.fork()`` with this process's objects frozen out of the garbage collector across it
     (:func:`gc.freeze`, as Python's documentation advises for a fork without exec): they stay so in
     the child, whose first full collection walked them all (≈ 70 ms after diagnose's imports) and
-    copied every page it wrote; this process unfreezes them right after, unless it had frozen
-    objects itself before (then they stay frozen, as it chose)."""
-    frozen = gc.get_freeze_count()
+    copied every page it wrote; this process unfreezes them right after. A process that has frozen
+    objects itself (the console script after loading, a pre-forking server) is left as it is: a
+    freeze here would keep its garbage of the moment (e.g. an earlier batch job's) for good."""
+    if gc.get_freeze_count():
+        return os.fork()
     gc.freeze()
     pid = -1
     try:
         pid = os.fork()
     finally:
-        if pid != 0 and not frozen:
+        if pid != 0:
             gc.unfreeze()
     return pid
 

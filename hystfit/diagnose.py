@@ -2074,7 +2074,7 @@ def _run_candidates(ctx: _StepContext, remaining: Sequence[Effect], step: int, c
     the same numbers on any number. First the search grids of the effects with searched parameters
     are scored (:func:`_grid_scores`, split over the processes); then, longest first, the searches
     of those effects go on from their grid scores (:meth:`hystfit.effects.Effect.fit`'s
-    ``grid_scores``: a Nelder–Mead polish, one evaluation after the other) while the other
+    ``grid_scores``: a polish, one evaluation after the other) while the other
     processes refit the effects without searched parameters. Then the placebos of the layouts of
     the candidates that contend (:func:`_contends`) are fitted; a layout no contender has gets none
     (its candidates' placebo numbers are NaN: no verdict depends on them). Each placebo is drawn
@@ -2464,7 +2464,22 @@ def searched_starts(state: "_State | None") -> dict[str, np.ndarray]:
     effect on a finer base starts (:func:`_refit_finer`)."""
     if state is None:
         return {}
-    return {link.effect.name: np.asarray(link.phi, float).copy() for link in state.chain if np.size(link.phi)}
+    return {link.effect.name: (np.asarray(link.phi, float).copy(), link.effect) for link in state.chain
+            if np.size(link.phi)}
+
+
+def _started(eff: Effect, start) -> tuple[Effect, np.ndarray | None, tuple]:
+    """The effect a finer base's refit fits, its start φ and the start's part of the refit's cache
+    key (:func:`_refit_finer`): ``start`` is (φ, the coarse link's effect) or None. Where φ lies
+    outside ``eff``'s search range the coarse link's effect (its range widened there) is refitted
+    instead, so the start is searched around, not clipped onto a bound and searched again."""
+    if start is None:
+        return eff, None, ()
+    phi, coarse = start
+    lo, hi = eff.searched_bounds()
+    if np.any(phi < lo) or np.any(phi > hi):
+        eff = coarse
+    return eff, phi, (phi.tobytes(), tuple(np.asarray(eff.searched_bounds(), float).ravel()))
 
 
 def _refit_finer(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int, gap: _Gap, chosen: Sequence[str],
@@ -2472,9 +2487,11 @@ def _refit_finer(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int,
     """The work of a :func:`resolution_check` of the base ``fine``: its fits on the fit part, then
     the ``chosen`` effects refitted on it in order. An effect with searched parameters φ searches
     around its φ on the coarser base (``starts``, :func:`searched_starts` of the selection's state:
-    the plant's stage or delay does not move with the base's resolution) — a local search and its
-    polish, which widen the range as a full search would where they end on a bound the data chose
-    (:func:`_augment`); without a start, its whole search grid, scored over the processes."""
+    the plant's stage or delay does not move with the base's resolution; :func:`_started`) — a
+    local search and its polish, which widen the range as a full search would where they end on a
+    bound the data chose (:func:`_augment`); without a start, its whole search grid, scored over
+    the processes. The refits are kept per (base, floor, effects so far, their starts): the same
+    numbers whichever check, process or child computed them first."""
     fits = _fine_base_fits(caps, d, fine, optimizer, seed, executor)
     key = _fine_key(fine, optimizer, seed)
     # the states of the checks before (the same base, floor and first effects: the same refits) are
@@ -2486,12 +2503,14 @@ def _refit_finer(caps, d: _Design, fine: Model, optimizer: Optimizer, seed: int,
         states[at] = (base.state, base.preds)
     state, base_preds = states[at]
     views = list(d.views)
+    started = ()
     for k, eff in enumerate(_configured(list(chosen), base_preds, views)):
-        at = (key, float(sigma), tuple(chosen[:k + 1]))
+        eff, start, start_key = _started(eff, (starts or {}).get(eff.name))
+        started += (start_key,)
+        at = (key, float(sigma), tuple(chosen[:k + 1]), started)
         if at not in states:
             xs, lin = _linearize(state, caps, views)
             design = prepare_design(xs, views, lin)
-            start = (starts or {}).get(eff.name)
             if start is not None:
                 states[at] = _augment(state, eff, caps, views, (xs, lin, design), settings.iterations, phi0=start)[0]
             else:

@@ -443,8 +443,10 @@ class Effect(ABC):
         Returns
         -------
         EffectFit
-            φ minimizing the fit-sample SSE (coarse grid, then Nelder–Mead in log space), with
-            the linear coefficients (and base step) solved exactly for it.
+            φ minimizing the fit-sample SSE (coarse grid, then a polish in log space: L-BFGS-B on the
+            exact gradient for an effect that filters the design's columns, :func:`_gradient_polish`;
+            Nelder–Mead, or a bounded Brent search for one linear parameter, otherwise), with the
+            linear coefficients (and base step) solved exactly for it.
         """
         lo, hi = self.searched_bounds()
         m = lo.size

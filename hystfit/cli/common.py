@@ -559,8 +559,9 @@ def load_for_command(data, options, output: OutputArgs, *, recursive: bool, ahea
     In the console script's process (:func:`~hystfit.cli.app.process_ends_with_command`) what it
     has imported and read by then lives until the command ends: it is frozen out of the garbage
     collector (:func:`gc.freeze`), whose full collections would walk numba's, scipy's and the
-    captures' objects again and again (a diagnosis of sample_data ran three, 18 ms each). Never
-    in a program that calls the CLI and goes on (a test suite's ``CliRunner``)."""
+    captures' objects again and again (a diagnosis of sample_data ran three, 18 ms each) — once per
+    process: a batch's later jobs do not freeze the earlier jobs' garbage with theirs. Never in a
+    program that calls the CLI and goes on (a test suite's ``CliRunner``)."""
     import gc
 
     from ..io import load_captures
@@ -569,7 +570,7 @@ def load_for_command(data, options, output: OutputArgs, *, recursive: bool, ahea
     captures = load_captures(data, options, recursive=recursive, ahead=ahead,
                              meanwhile=lambda: phase(output.chatty, "loading the captures"),
                              abandon_on_error=process_ends_with_command())
-    if process_ends_with_command():
+    if process_ends_with_command() and not gc.get_freeze_count():
         gc.freeze()
     if not output.quiet:
         print_capture_notes(captures)

@@ -148,7 +148,9 @@ class LSQ(Optimizer):
                 J = np.asarray(population_jacobian(th, upper=upper, lower=lower), float)
                 tr.nfev += th.size + 1
                 finite = np.isfinite(J)
-                return J if finite.all() else np.where(finite, J, 0.0)  # a fresh array either way
+                # a model linear in every parameter gives its cached basis (read-only: scipy's trf
+                # does not write to it); a non-finite entry makes a fresh array
+                return J if finite.all() else np.where(finite, J, 0.0)
 
         f0 = tr.evaluate(start[None, :])
         tr.end_iteration(f0)

@@ -276,8 +276,9 @@ def test_forked_children_leave_when_their_parent_is_killed(how):
 
 def test_a_forked_child_keeps_its_parents_objects_frozen_and_the_parent_does_not():
     """fork_with_handlers freezes this process's objects across the fork: the child's collections
-    leave them out (its freeze count is theirs), this process's are back in its collections at once
-    — unless it had frozen objects itself before, which then stay frozen."""
+    leave them out (its freeze count is theirs), this process's are back in its collections at once.
+    A process that had frozen objects itself is left as it is: what it made since (e.g. an earlier
+    batch job's garbage) is not frozen for good by a fork (a review's find: 67 MB after 8 jobs)."""
     import gc
     import os
     import signal
@@ -302,7 +303,9 @@ def test_a_forked_child_keeps_its_parents_objects_frozen_and_the_parent_does_not
         assert child_count() > 1000 and gc.get_freeze_count() == 0
         gc.freeze()
         before = gc.get_freeze_count()  # (a frozen object freed meanwhile leaves the count)
-        assert child_count() > 0.9 * before and gc.get_freeze_count() > 0.9 * before  # the parent's own stays
+        made_since = [{"i": i} for i in range(5000)]
+        assert child_count() > 0.9 * before and 0.9 * before < gc.get_freeze_count() <= before
+        assert made_since
     finally:
         gc.unfreeze()
         if was:
