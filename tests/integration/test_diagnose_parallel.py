@@ -94,3 +94,29 @@ def test_placebos_are_fitted_for_the_contenders_only_and_change_no_verdict(monke
                                                     .placebo_improvement)]
     assert cold and all(e["placebo_improvement_um"] is None and e["placebo_reduction"] is None for e in cold)
     assert all("no placebo fitted" in e["evidence"] for e in cold)
+
+
+def test_a_resolution_refit_is_kept_per_start(monkeypatch):
+    """A resolution check's refits are cached per base, floor, effects *and their starts* (the φ of
+    each on the coarser base): a refit of the same effects from another start is computed, not the
+    cached one returned. Keyed without the starts, a check on one process reused a refit started
+    from the 10-operator base's φ where two processes recomputed it from the 20-operator base's
+    (a review's find: numbers 1e-8 apart between one process and two)."""
+    caps = withheld_effect_captures("delay", 1.0, 3, amplitudes_V=(30.0, 60.0), frequencies_Hz=(10.0, 80.0),
+                                    steps_s=0)
+    monkeypatch.setattr(diagnose_module, "SELECTION_WORKERS", 1)
+    real = diagnose_module._refit_finer
+    calls = []
+    monkeypatch.setattr(diagnose_module, "_refit_finer", lambda *a, **k: calls.append((a, k)) or real(*a, **k))
+    diagnose(caps, PI(), Auto(), seed=3, settings=DiagnoseSettings(max_effects=1))
+    started = [(a, k) for a, k in calls if len(a) > 10 and a[10]]
+    assert started, "no resolution refit with a start: the case no longer tests this"
+    a, k = started[0]
+    augments = []
+    real_augment = diagnose_module._augment
+    monkeypatch.setattr(diagnose_module, "_augment", lambda *x, **y: augments.append(1) or real_augment(*x, **y))
+    real(*a, **k)  # the same start: the cached refit
+    assert not augments
+    name, (phi, effect) = next(iter(a[10].items()))
+    real(*a[:10], {name: (phi * 1.01, effect)}, **k)
+    assert augments  # another start: refitted
