@@ -2459,9 +2459,10 @@ class _FinerRefit:
     fits: list
 
 
-def searched_starts(state: "_State | None") -> dict[str, np.ndarray]:
-    """Per effect of ``state``'s chain with searched parameters, its φ: where the refit of that
-    effect on a finer base starts (:func:`_refit_finer`)."""
+def searched_starts(state: "_State | None") -> dict[str, tuple[np.ndarray, Effect]]:
+    """Per effect of ``state``'s chain with searched parameters, its φ and the effect as fitted (its
+    range, widened or not): where the refit of that effect on a finer base starts
+    (:func:`_refit_finer`, :func:`_started`)."""
     if state is None:
         return {}
     return {link.effect.name: (np.asarray(link.phi, float).copy(), link.effect) for link in state.chain

@@ -470,9 +470,10 @@ class Effect(ABC):
         if m == 0:
             best = np.empty(0)
         else:
+            gradient = filters_columns(self, scoring)  # polished on the SSE's gradient
             if not (local_search and phi0 is not None):
                 cands = self.search_grid()
-            elif filters_columns(self, scoring):  # its gradient polish goes on from φ0 itself
+            elif gradient:  # the polish goes on from φ0 itself
                 cands = np.empty((0, m))
             else:
                 cands = _local_grid(phi0, lo, hi)
@@ -482,7 +483,7 @@ class Effect(ABC):
                 cands = np.vstack([cands, np.clip(np.asarray(phi0, float), lo, hi)[None, :]])
             scores = np.array([score(c) for c in cands])
             best = cands[int(np.argmin(scores))]
-            if filters_columns(self, scoring):
+            if gradient:
                 best = _gradient_polish(self, scoring, seen, best, lo, hi, self._log_scaled())
             else:
                 best = _polish(score, best, lo, hi, self._log_scaled())
