@@ -1,15 +1,13 @@
 """The stage's search in a diagnosis: how many scores it takes and where it ends, against the
-Nelder–Mead polish and the full grid ranking it replaced.
+Nelder–Mead polish it replaced.
 
 The diagnosis of DATA (default sample_data) with ``--model pi``, in this process, on one process
 (``SELECTION_WORKERS = 1``: every score counted here), once warm-up first, then each variant:
 
-- ``this tree``: the grid ranked from coarse to fine on a subsample of rows, the polish by L-BFGS-B
-  on the SSE's exact gradient (``effects._gradient_polish``);
+- ``this tree``: the polish by L-BFGS-B on the SSE's exact gradient (``effects._gradient_polish``);
 - ``Nelder–Mead polish``: the same, with the polish a Nelder–Mead of at most 40 scores from the same
   start (``effects._polish``, as before; the second iteration of a refit still starts from φ₀
-  without a local grid);
-- ``full grid ranking``: every point of the 16 × 8 grid ranked (``search_grid_shape`` None).
+  without a local grid).
 
 Per variant: the stage's scores by kind (grid points ranked on the subsample of rows, grid points
 scored on every row, polish scores — a gradient evaluation counts as one score), the CPU seconds
@@ -33,7 +31,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from hystfit import diagnose as D  # noqa: E402
 from hystfit import effects as E  # noqa: E402
-from hystfit.blocks.dynamics import Dynamics  # noqa: E402
 from hystfit.factory import make_model, make_optimizer  # noqa: E402
 from hystfit.io import LoadOptions, load_captures  # noqa: E402
 from hystfit.registry import optimizers  # noqa: E402
@@ -108,15 +105,13 @@ class _Counting:
         self._patch(E, "_score_and_gradient", score_and_gradient)
         self._patch(E, "_gradient_polish", polishing(nelder_mead if variant == "nm" else real_grad))
         self._patch(E.Effect, "fit", fit)
-        if variant == "grid":
-            self._patch(Dynamics, "search_grid_shape", lambda self: None)
 
     def remove(self) -> None:
         for owner, name, value in reversed(self.patches):
             setattr(owner, name, value)
 
 
-VARIANTS = (("this tree", "tree"), ("Nelder–Mead polish", "nm"), ("full grid ranking", "grid"))
+VARIANTS = (("this tree", "tree"), ("Nelder–Mead polish", "nm"))
 
 
 def _run(caps, variant: str) -> dict:

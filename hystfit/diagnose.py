@@ -42,9 +42,8 @@ from .cells import cell_key
 from .conditions import (amplitude_changes, condition_label, detect_condition, group_by_condition, is_step_and_hold,
                          white_noise_sigma)
 from .effects import (EFFECTS, CaptureView, Effect, EffectFit, Inserted, Linearization, Placebo, _unit_phasors,
-                      make_effect, COARSE_KEEP_MIN, COARSE_KEEP_SHARE, COARSE_REFINE_TOP, coarse_design, grid_neighbours,
-                      prepare_design, ranked_on_rows, scoring_design, signature_share, solve_coefficients, subgrid,
-                      surrogate_spectrum)
+                      make_effect, COARSE_KEEP_MIN, COARSE_KEEP_SHARE, coarse_design, prepare_design, ranked_on_rows,
+                      scoring_design, signature_share, solve_coefficients, surrogate_spectrum)
 from .errors import ConfigError, InputError, NoResultError
 from .factory import make_model
 from .identify import adapted_model, condition_groups, fit_captures, identify, prepare_shared
@@ -2009,10 +2008,7 @@ def _grid_scores(effects: Sequence[Effect], scoring, exact_later: bool = False) 
     :data:`SELECTION_WORKERS` processes (the same numbers on any number), the largest grids first.
 
     A stage's grid on many fit samples (:func:`~hystfit.effects.ranked_on_rows`) is ranked on a
-    subsample of rows first (:func:`~hystfit.effects.coarse_design`), from coarse to fine when it
-    is a mesh (every other point along each axis, then the neighbours of the best few of those:
-    :data:`~hystfit.effects.COARSE_SUBGRID_STEP`, :data:`~hystfit.effects.COARSE_REFINE_TOP`;
-    about half the grid's scores); only its best points
+    subsample of rows first (:func:`~hystfit.effects.coarse_design`); only its best points
     (:data:`~hystfit.effects.COARSE_KEEP_SHARE`, at least :data:`~hystfit.effects.COARSE_KEEP_MIN`)
     are scored on every row, the others are NaN (not scored): the search starts from the best
     of the scored ones, which is the best of the whole grid unless the subsample ranked it out.
@@ -2033,28 +2029,13 @@ def _grid_scores(effects: Sequence[Effect], scoring, exact_later: bool = False) 
                        len(chunks), SELECTION_WORKERS)
         return {name: np.concatenate([r for (e, _), r in zip(chunks, out) if e.name == name]) for name in points}
 
-    design_of = lambda e: coarse_design(scoring) if e.name in coarse else scoring  # noqa: E731
-    _load_kernels(searched, design_of)
-    shapes = {e.name: e.search_grid_shape() for e in searched if e.name in coarse}
-    shapes = {name: s for name, s in shapes.items() if s is not None and int(np.prod(s)) == len(grids[name])}
-    firsts = {name: subgrid(s) for name, s in shapes.items()}
-    first = scored({name: g[firsts[name]] if name in firsts else g for name, g in grids.items()}, design_of)
-    if firsts:  # coarse to fine: the neighbours of the best points of the subgrid
-        for name, idx in firsts.items():
-            full = np.full(len(grids[name]), np.nan)
-            full[idx] = first[name]
-            first[name] = full
-        near = {name: grid_neighbours(shapes[name], idx[np.argsort(first[name][idx], kind="stable")[:COARSE_REFINE_TOP]])
-                for name, idx in firsts.items()}
-        near = {name: np.setdiff1d(n, firsts[name]) for name, n in near.items()}
-        more = scored({name: grids[name][n] for name, n in near.items() if n.size}, design_of)
-        for name, got in more.items():
-            first[name][near[name]] = got
+    _load_kernels(searched, lambda e: coarse_design(scoring) if e.name in coarse else scoring)
+    first = scored(grids, lambda e: coarse_design(scoring) if e.name in coarse else scoring)
     if not coarse:
         return first
     best = {}
     for name in coarse:
-        ranking = np.argsort(first[name], kind="stable")  # the points not scored (NaN) last
+        ranking = np.argsort(first[name], kind="stable")
         k = max(COARSE_KEEP_MIN, int(math.ceil(COARSE_KEEP_SHARE * ranking.size)))
         best[name] = np.sort(ranking[:k])
     if exact_later:

@@ -321,9 +321,6 @@ class Dynamics(Block):
         lo, hi = self.fn_range
         return np.array([lo, self.zeta_min]), np.array([hi, self.zeta_max])
 
-    def search_grid_shape(self):
-        return (self.n_fn, self.n_zeta)
-
     def search_grid(self):
         fn = np.geomspace(*self.fn_range, self.n_fn)
         z = np.geomspace(self.zeta_min, self.zeta_max, self.n_zeta)

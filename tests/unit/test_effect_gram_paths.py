@@ -180,55 +180,6 @@ def test_a_stage_grid_ranked_on_a_subsample_of_rows_scores_its_best_points_exact
     assert b.evaluations < a.evaluations
 
 
-def test_subgrid_and_neighbours_of_a_mesh():
-    from hystfit.effects import grid_neighbours, subgrid
-
-    shape = (16, 8)
-    sub = subgrid(shape)
-    rows, cols = np.unravel_index(sub, shape)
-    assert set(rows) == {0, 2, 4, 6, 8, 10, 12, 14, 15} and set(cols) == {0, 2, 4, 6, 7}  # the edges kept
-    assert sub.size == 9 * 5 and np.all(np.diff(sub) > 0)
-    assert grid_neighbours(shape, [0]).tolist() == [0, 1, 8, 9]  # a corner
-    inner = grid_neighbours(shape, [np.ravel_multi_index((5, 3), shape)])
-    assert inner.size == 9 and set(np.unravel_index(inner, shape)[0]) == {4, 5, 6}
-    assert grid_neighbours(shape, [0, 0]).tolist() == [0, 1, 8, 9]  # no duplicates
-
-
-def test_a_stage_mesh_is_ranked_from_coarse_to_fine_and_finds_the_grids_best(monkeypatch):
-    """The stage's 16 × 8 mesh ranked on a subsample of rows: every other point along each axis (and
-    the edges), then the neighbours of the best three — about half the grid — with the scores the
-    coarse design gives those points; the best of them is the best of the whole grid."""
-    import hystfit.effects as eff
-    from hystfit.blocks.dynamics import Dynamics
-    from hystfit.diagnose import _grid_scores
-    from hystfit.effects import coarse_design, scoring_design
-
-    rng = np.random.default_rng(3)
-    views, yhats, lin = _problem(rng, lengths=(3000, 3300, 2900, 2000), k=6)
-    scoring = scoring_design(prepare_design(yhats, views, lin))
-    dyn = Dynamics().configure(views, yhats)
-    monkeypatch.setattr(eff, "COARSE_MIN_ROWS", 100)
-    monkeypatch.setattr("hystfit.diagnose.SELECTION_WORKERS", 1)  # every score counted in this process
-    grid = np.asarray(dyn.search_grid(), float)
-    coarse = coarse_design(scoring)
-    every = np.array([dyn.score(p, coarse) for p in grid])
-    seen = []
-    real = dyn.score
-
-    def counted(self, phi, design):
-        if design is coarse:
-            seen.append(np.asarray(phi, float).copy())
-        return real(phi, design)
-
-    monkeypatch.setattr(Dynamics, "score", counted)
-    ranked = _grid_scores([dyn], scoring, exact_later=True)["dynamics"]
-    scored = {p.tobytes() for p in seen}
-    assert 45 <= len(scored) <= 45 + 3 * 8 and len(scored) < 0.6 * grid.shape[0]
-    best_scored = min(scored, key=lambda b: every[np.flatnonzero((grid == np.frombuffer(b)).all(1))[0]])
-    assert np.frombuffer(best_scored).tolist() == grid[np.argmin(every)].tolist()
-    assert np.argmin(every) in ranked.best
-
-
 def test_designs_of_one_column_layout_share_their_solve_indices():
     """The index sets of the normal equations depend on the column layout only: a fit's true re-solves
     (a new design per step length) reuse those of the first design of that layout, the same solve."""
